@@ -1,0 +1,3 @@
+from rgse_daemon.cli import main
+
+raise SystemExit(main())

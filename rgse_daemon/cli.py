@@ -1,0 +1,110 @@
+"""The ``rgse`` command (contracts §1): parses arguments, then hands over to one module per sub-command.
+
+Each sub-command lives in ``rgse_daemon/commands/<name>.py`` and exposes ``run(args) -> int``. Errors that
+come from outside input (config, data files, KRL syntax) end in a one-line message and exit status 2;
+``--debug`` shows the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from rgse_daemon import __version__
+from rgse_daemon.errors import ConfigError, DataError, KrlSyntaxError, RgseError
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+EXIT_BAD_INPUT = 2
+EXIT_REFUSED = 3
+
+
+def _add_json(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="rgse", description="Robotic GSE in-line mass determination on a KUKA KR C4, automated."
+    )
+    parser.add_argument("--version", action="version", version=f"rgse {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
+    parser.add_argument("-v", "--verbose", action="store_true", help="info logs on stderr")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("demo", help="calibration campaign + in-line measurement on the built-in simulator")
+    _add_json(p)
+    p.add_argument("--report", type=Path, metavar="DIR", help="also write the HTML report into DIR")
+    p.add_argument("--mqtt", metavar="URL", help="also publish on this broker, e.g. mqtt://127.0.0.1:1883")
+
+    p = sub.add_parser("sim", help="run the simulated KR C4 as a server until SIGINT/SIGTERM")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=7000)
+    p.add_argument("--share", type=Path, metavar="DIR", help="the controller's 'roboter' share directory")
+    p.add_argument("--scenario", type=Path, metavar="FILE", help="scenario TOML (physics, errors, faults)")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="X", help="simulated s per wall s")
+
+    p = sub.add_parser("daemon", help="run the service (systemd entry point)")
+    p.add_argument("--config", type=Path, required=True, metavar="FILE")
+
+    p = sub.add_parser("calibrate", help="fit a calibration from Table-1 style points or a campaign")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--points", type=Path, metavar="CSV")
+    src.add_argument("--campaign", type=Path, metavar="DIR")
+    p.add_argument("--out", type=Path, required=True, metavar="CAL.json")
+    p.add_argument("--method", default="paper", metavar="paper|auto|NAME")
+    _add_json(p)
+
+    p = sub.add_parser("mass", help="offline in-line mass from a measurement directory")
+    p.add_argument("--traces", type=Path, required=True, metavar="DIR")
+    p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
+    p.add_argument("--fixture-mass", type=float, metavar="KG")
+    _add_json(p)
+
+    p = sub.add_parser("study", help="the pre-processing parameter study (paper Table A2), ranked")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--campaign", type=Path, metavar="DIR")
+    src.add_argument("--points", type=Path, metavar="CSV")
+    _add_json(p)
+
+    p = sub.add_parser("krl", help="KRL programs: static check, rendering")
+    krl_sub = p.add_subparsers(dest="krl_command", required=True, metavar="ACTION")
+    c = krl_sub.add_parser("check", help="the interlock's static check (exit 3 if refused)")
+    c.add_argument("file", type=Path, metavar="FILE.src")
+    c.add_argument("--config", type=Path, metavar="FILE")
+    r = krl_sub.add_parser("render", help="render every template in krl/ with the configured defaults")
+    r.add_argument("--out", type=Path, required=True, metavar="DIR")
+    r.add_argument("--config", type=Path, metavar="FILE")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.debug else logging.INFO if args.verbose else logging.WARNING,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    module = importlib.import_module(f"rgse_daemon.commands.{args.command}")
+    try:
+        return int(module.run(args))
+    except (ConfigError, DataError, KrlSyntaxError) as exc:
+        if args.debug:
+            raise
+        print(f"rgse {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except RgseError as exc:
+        if args.debug:
+            raise
+        print(f"rgse {args.command}: failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,131 @@
+"""The daemon's configuration: a TOML file validated by pydantic models.
+
+Unknown keys are an error, every bound is checked here, before any network I/O. Environment variables
+``RGSE_<SECTION>__<KEY>`` override the file (e.g. ``RGSE_CONTROLLER__HOST=10.0.0.5``), as systemd units
+and CI like to do.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated, Any
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+
+from rgse_daemon.errors import ConfigError
+
+#: ISO 10218-1 reduced speed that the controller itself enforces in T1 (kuka-facts §2).
+T1_CONTROLLER_LIMIT_MM_S = 250.0
+
+Seconds = Annotated[float, Field(gt=0.0, le=3600.0)]
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class Protocol(StrEnum):
+    AUTO = "auto"  # probe @PROXY_TYPE and use C3 Bridge features when present
+    C3BRIDGE = "c3bridge"
+    KVP = "kvp"
+
+
+class RobotConfig(_Section):
+    name: str = Field("KR500R2830", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")
+    """Robot identity: copied into results, names the MQTT topics, binds calibrations to this robot."""
+
+
+class ControllerConfig(_Section):
+    host: str = Field("127.0.0.1", min_length=1)
+    port: int = Field(7000, ge=1, le=65535)
+    protocol: Protocol = Protocol.AUTO
+    connect_timeout_s: Seconds = 3.0
+    request_timeout_s: Seconds = 2.0
+    pool_size: int = Field(4, ge=1, le=10)  # KVP serves at most 10 clients
+    keepalive_s: float = Field(10.0, gt=0.0, lt=30.0)  # KVP drops clients idle for ~30 s
+    reconnect_min_s: Seconds = 0.2
+    reconnect_max_s: Seconds = 10.0
+    share_dir: Path | None = None
+    """The controller's ``roboter`` share mounted locally: the file path used with plain KUKAVARPROXY."""
+
+    @model_validator(mode="after")
+    def _backoff_ordered(self) -> ControllerConfig:
+        if self.reconnect_min_s > self.reconnect_max_s:
+            raise ValueError("reconnect_min_s must not exceed reconnect_max_s")
+        return self
+
+
+class PathsConfig(_Section):
+    data_dir: Path = Path("./data")
+    """Run archive, raw trace files and the SQLite store live below this directory."""
+
+
+class LimitsConfig(_Section):
+    t1_speed_mm_s: float = Field(200.0, gt=0.0, le=T1_CONTROLLER_LIMIT_MM_S)
+    """Worst-case Cartesian speed of any point of the kinematic chain (paper §2.2: 200 mm/s)."""
+    a1_range_deg: float = Field(45.0, gt=0.0, le=185.0)
+    """Software envelope around A1 (paper §2.2: ±45°)."""
+    max_payload_kg: float = Field(611.0, gt=0.0, le=611.0)
+    max_a5_torque_nm: float = Field(3330.0, gt=0.0, le=3330.0)
+    brake_release_max_deg: float = Field(45.0, gt=0.0, le=90.0)
+
+
+class Config(BaseSettings):
+    """The whole configuration file."""
+
+    model_config = SettingsConfigDict(
+        extra="forbid", frozen=True, env_prefix="RGSE_", env_nested_delimiter="__"
+    )
+
+    robot: RobotConfig = RobotConfig()
+    controller: ControllerConfig = ControllerConfig()
+    paths: PathsConfig = PathsConfig()
+    limits: LimitsConfig = LimitsConfig()
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        # Environment overrides the file's values (passed as init kwargs); no dotenv or secret dirs.
+        return (env_settings, init_settings)
+
+
+def _format_validation_error(source: str, exc: ValidationError) -> str:
+    problems = []
+    for err in exc.errors():
+        where = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+        problems.append(f"{where}: {msg}")
+    return f"{source}: " + "; ".join(problems)
+
+
+def config_from_mapping(data: dict[str, Any], source: str = "<config>") -> Config:
+    """Validate an already parsed mapping; raises :class:`ConfigError` naming every bad field."""
+    try:
+        return Config(**data)
+    except ValidationError as exc:
+        raise ConfigError(_format_validation_error(source, exc)) from exc
+
+
+def load_config(path: Path | str | None) -> Config:
+    """Read and validate a TOML config file; ``None`` gives the defaults (plus environment overrides)."""
+    if path is None:
+        return config_from_mapping({}, "<defaults>")
+    p = Path(path)
+    try:
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read config file: {exc.strerror}") from exc
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from exc
+    return config_from_mapping(data, str(p))

@@ -1,0 +1,37 @@
+"""Shared test fixtures: paths to the shared docs/paper, and a guard that fails tests leaking asyncio tasks."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+
+import pytest
+
+pytest_plugins = ["pytester"]
+
+REPO = Path(__file__).resolve().parent.parent
+SHARED = REPO.parent / "shared"
+PAPER = SHARED / "paper"
+
+
+@pytest.fixture
+def paper_dir() -> Path:
+    if not PAPER.is_dir():
+        pytest.fail(f"the seed paper's tables are expected at {PAPER} (shared/ beside the checkout)")
+    return PAPER
+
+
+@pytest.fixture(autouse=True)
+async def _fail_on_leaked_tasks():
+    """A test (with its fixtures) must not leave tasks running on the loop: they would outlive their owner."""
+    before = asyncio.all_tasks()
+    yield
+    for _ in range(3):  # let cancelled tasks and done-callbacks settle
+        await asyncio.sleep(0)
+    current = asyncio.current_task()
+    leaked = [t for t in asyncio.all_tasks() - before if t is not current and not t.done()]
+    if leaked:
+        for t in leaked:
+            t.cancel()
+        await asyncio.gather(*leaked, return_exceptions=True)
+        pytest.fail(f"test leaked {len(leaked)} asyncio task(s): {[t.get_name() for t in leaked]}")
