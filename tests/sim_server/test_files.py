@@ -1,0 +1,248 @@
+"""The share directory of the simulated KR C4: name mapping, escape refusal, buffers of #29/#30, #20–#28."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from simulators.krc4.files import (
+    ATTR_ARCHIVE,
+    ATTR_DIRECTORY,
+    ATTR_READONLY,
+    CODE_ARGUMENT,
+    CODE_LONG_ANSWER,
+    ITEM_DIR,
+    ITEM_MODULE,
+    MAX_CHUNK_BYTES,
+    FileOpError,
+    FileSession,
+    ShareFiles,
+    filetime,
+)
+
+
+@pytest.fixture
+def share(tmp_path: Path) -> ShareFiles:
+    (tmp_path / "R1" / "PROGRAM").mkdir(parents=True)
+    (tmp_path / "TRACE").mkdir()
+    return ShareFiles(tmp_path)
+
+
+@pytest.mark.parametrize(
+    ("name", "rel"),
+    [
+        ("KRC:\\R1\\PROGRAM\\TEST.SRC", "R1/PROGRAM/TEST.SRC"),
+        ("krc:/r1/program/test.src", "R1/PROGRAM/test.src"),
+        ("/R1/TEST.SRC", "R1/PROGRAM/TEST.SRC"),
+        ("/R1/PROGRAM/TEST.SRC", "R1/PROGRAM/TEST.SRC"),
+        ("/R1/PROGRAM", "R1/PROGRAM"),
+        ("C:\\KRC\\ROBOTER\\TRACE\\t1.dat", "TRACE/t1.dat"),
+        ("c:/krc/roboter/trace/t1.dat", "TRACE/t1.dat"),
+        ("/TRACE/t1.dat", "TRACE/t1.dat"),
+    ],
+)
+def test_names_map_below_the_share(share: ShareFiles, name: str, rel: str) -> None:
+    assert share.resolve(name) == share.root / rel
+
+
+def test_existing_entries_match_case_insensitively(share: ShareFiles) -> None:
+    (share.root / "R1" / "PROGRAM" / "Mass.src").write_text("DEF Mass()\nEND\n")
+    assert share.resolve("KRC:\\R1\\PROGRAM\\MASS.SRC").name == "Mass.src"
+    assert share.full_name("/r1/mass.SRC") == "KRC:\\R1\\PROGRAM\\Mass.src"
+
+
+def test_full_name_and_krc_name_follow_the_spec_example(share: ShareFiles) -> None:
+    assert share.full_name("/R1/TEST.SRC") == "KRC:\\R1\\PROGRAM\\TEST.SRC"
+    assert share.krc_name("KRC:\\R1\\PROGRAM\\TEST.SRC") == "/R1/TEST.SRC"
+    assert share.full_name("/TRACE/a.dat") == "C:\\KRC\\ROBOTER\\TRACE\\a.dat"
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "KRC:\\R1\\..\\..\\etc\\passwd",
+        "/R1/../../x",
+        "C:\\KRC\\ROBOTER\\..\\x",
+        "C:\\Windows\\system.ini",
+        "D:\\x",
+        "\\\\server\\share\\x",
+        "//server/x",
+        "relative\\x",
+        "KRC:\\R1\\C:x",
+        "",
+        "KRC:\\a\x00b",
+    ],
+)
+def test_names_leaving_the_share_are_refused_with_code_3(share: ShareFiles, name: str) -> None:
+    with pytest.raises(FileOpError) as err:
+        share.resolve(name)
+    assert err.value.code == CODE_ARGUMENT
+
+
+def test_a_symlink_out_of_the_share_is_refused(share: ShareFiles, tmp_path_factory: pytest.TempPathFactory) -> None:
+    outside = tmp_path_factory.mktemp("outside")
+    (outside / "secret").write_text("x")
+    (share.root / "TRACE" / "link").symlink_to(outside)
+    with pytest.raises(FileOpError) as err:
+        share.resolve("/TRACE/link/secret")
+    assert err.value.code == CODE_ARGUMENT
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.sampled_from(["..", ".", "R1", "x", "TRACE", "PROGRAM", "a.src"]), max_size=8),
+    st.sampled_from(["KRC:\\", "/", "C:\\KRC\\ROBOTER\\", "KRC:/"]),
+    st.sampled_from(["\\", "/"]),
+)
+def test_no_name_ever_resolves_outside_the_share(tmp_path_factory, parts, prefix, sep) -> None:
+    root = tmp_path_factory.mktemp("share")
+    share = ShareFiles(root)
+    try:
+        path = share.resolve(prefix + sep.join(parts))
+    except FileOpError as exc:
+        assert exc.code == CODE_ARGUMENT
+        assert ".." in parts or "." in parts
+        return
+    real = path.resolve()
+    assert real == share.root or share.root in real.parents
+
+
+def test_write_buffer_round_trip_of_300_kb_in_chunks(share: ShareFiles) -> None:
+    content = os.urandom(300_000)
+    session = FileSession(share)
+    assert session.write_size() == 0
+    assert session.write_begin(len(content)) == len(content)
+    chunk = 65_525
+    for off in range(0, len(content), chunk):
+        assert session.write_data(off, content[off : off + chunk]) == len(content[off : off + chunk])
+    assert session.write_size() == len(content)
+    session.write_end("KRC:\\R1\\PROGRAM\\BIG.DAT")
+    assert (share.root / "R1" / "PROGRAM" / "BIG.DAT").read_bytes() == content
+    assert session.write_size() == 0  # freed after a successful End
+    assert not [p for p in (share.root / "R1" / "PROGRAM").iterdir() if p.name.endswith(".part")]
+
+    reader = FileSession(share)
+    assert reader.read_begin("/R1/BIG.DAT") == len(content)
+    got = bytearray()
+    while chunk_bytes := reader.read_data(len(got), 0xFFFFFFFF):
+        assert len(chunk_bytes) <= MAX_CHUNK_BYTES
+        got += chunk_bytes
+    assert bytes(got) == content
+    reader.read_end()
+    assert reader.read_size() == 0
+
+
+def test_write_data_is_clipped_at_the_buffer_end(share: ShareFiles) -> None:
+    session = FileSession(share)
+    session.write_begin(10)
+    assert session.write_data(8, b"abcd") == 2
+    assert session.write_data(10, b"x") == 0
+    assert session.write_data(0, b"") == 0
+    session.write_end("/TRACE/clip.bin")
+    assert (share.root / "TRACE" / "clip.bin").read_bytes() == b"\0" * 8 + b"ab"
+
+
+def test_write_without_begin_and_oversized_begin_fail_typed(share: ShareFiles) -> None:
+    session = FileSession(share, max_buffer_bytes=100)
+    with pytest.raises(FileOpError):
+        session.write_data(0, b"x")
+    with pytest.raises(FileOpError) as err:
+        session.write_begin(101)
+    assert err.value.code == 4
+    with pytest.raises(FileOpError):
+        session.write_end("/TRACE/x")
+
+
+def test_failed_end_keeps_the_buffer_and_the_old_file(share: ShareFiles) -> None:
+    target = share.root / "TRACE" / "ro.txt"
+    target.write_text("original")
+    target.chmod(0o444)
+    session = FileSession(share)
+    session.write_begin(3)
+    session.write_data(0, b"new")
+    with pytest.raises(FileOpError):
+        session.write_end("/TRACE/ro.txt")
+    assert session.write_size() == 3
+    assert target.read_text() == "original"
+
+
+def test_properties_report_filetime_and_attributes(share: ShareFiles) -> None:
+    path = share.root / "R1" / "PROGRAM" / "A.SRC"
+    path.write_text("DEF A()\nEND\n")
+    os.utime(path, ns=(1_700_000_000_000_000_000, 1_700_000_000_000_000_000))
+    props = share.properties("/R1/A.SRC")
+    assert props.size_bytes == path.stat().st_size
+    assert props.item_type & ITEM_MODULE
+    assert props.attributes == ATTR_ARCHIVE
+    assert props.modified_ft == 1_700_000_000_000_000_000 // 100 + 116_444_736_000_000_000
+    assert share.properties("KRC:\\R1\\PROGRAM").attributes == ATTR_DIRECTORY
+    share.set_attribute("/R1/A.SRC", ATTR_READONLY, ATTR_READONLY)
+    assert share.properties("/R1/A.SRC").attributes & ATTR_READONLY
+    with pytest.raises(FileOpError) as err:
+        share.properties("/R1/NOPE.SRC")
+    assert err.value.code == CODE_ARGUMENT
+
+
+def test_filetime_epoch() -> None:
+    assert filetime(0) == 116_444_736_000_000_000
+
+
+def test_name_list_masks_types_and_recursion(share: ShareFiles) -> None:
+    prog = share.root / "R1" / "PROGRAM"
+    for n in ("A.SRC", "A.DAT", "notes.txt"):
+        (prog / n).write_text("x")
+    (prog / "SUB").mkdir()
+    (prog / "SUB" / "B.SRC").write_text("x")
+    items, infos = share.name_list("KRC:\\R1\\PROGRAM")
+    assert items == [
+        "KRC:\\R1\\PROGRAM\\A.DAT",
+        "KRC:\\R1\\PROGRAM\\A.SRC",
+        "KRC:\\R1\\PROGRAM\\notes.txt",
+        "KRC:\\R1\\PROGRAM\\SUB\\",
+    ]
+    assert len(infos) == 4 and infos[0].split(";")[1] == "1"
+    items, _ = share.name_list("KRC:\\R1\\PROGRAM\\*.src")
+    assert items == ["KRC:\\R1\\PROGRAM\\A.SRC"]
+    items, _ = share.name_list("KRC:\\R1\\PROGRAM", item_type=ITEM_DIR)
+    assert items == ["KRC:\\R1\\PROGRAM\\SUB\\"]
+    items, _ = share.name_list("KRC:\\R1\\PROGRAM\\*.SRC", list_flags=1)
+    assert items == ["KRC:\\R1\\PROGRAM\\A.SRC", "KRC:\\R1\\PROGRAM\\SUB\\B.SRC"]
+    with pytest.raises(FileOpError):
+        share.name_list("KRC:\\R1\\NOPE")
+
+
+def test_name_list_too_long_for_one_reply_is_code_10(share: ShareFiles) -> None:
+    for i in range(700):
+        (share.root / "TRACE" / f"trace_{i:04d}_NextGenDrive#3.r64").write_bytes(b"")
+    with pytest.raises(FileOpError) as err:
+        share.name_list("/TRACE")
+    assert err.value.code == CODE_LONG_ANSWER
+
+
+def test_create_delete_copy_move(share: ShareFiles) -> None:
+    share.create("KRC:\\R1\\PROGRAM\\NEW.SRC", 32, always=False)
+    assert (share.root / "R1" / "PROGRAM" / "NEW.SRC").read_bytes() == b""
+    with pytest.raises(FileOpError):
+        share.create("KRC:\\R1\\PROGRAM\\NEW.SRC", 32, always=False)
+    share.create("KRC:\\R1\\PROGRAM\\DIR", ITEM_DIR, always=False)
+    assert (share.root / "R1" / "PROGRAM" / "DIR").is_dir()
+    share.copy("/R1/NEW.SRC", "/R1/COPY.SRC", 0)
+    with pytest.raises(FileOpError):
+        share.copy("/R1/NEW.SRC", "/R1/COPY.SRC", 0)
+    share.copy("/R1/NEW.SRC", "/R1/COPY.SRC", 64)
+    share.copy("/R1/COPY.SRC", "/TRACE/MOVED.SRC", 0, move=True)
+    assert not share.exists("/R1/COPY.SRC") and share.exists("/TRACE/MOVED.SRC")
+    share.set_attribute("/TRACE/MOVED.SRC", ATTR_READONLY, ATTR_READONLY)
+    with pytest.raises(FileOpError):
+        share.delete("/TRACE/MOVED.SRC", always=False)
+    share.delete("/TRACE/MOVED.SRC", always=True)
+    share.delete("KRC:\\R1\\PROGRAM\\DIR", always=False)
+    assert not share.exists("/TRACE/MOVED.SRC") and not share.exists("KRC:\\R1\\PROGRAM\\DIR")
+    with pytest.raises(FileOpError):
+        share.delete("KRC:\\", always=True)
+    with pytest.raises(FileOpError):
+        share.delete("/R1/NOPE.SRC", always=True)
