@@ -1,0 +1,480 @@
+"""Reader of KUKA Trace output: DIAdem ``.dat`` headers with their ``.r64`` data files (kuka-facts.md §5).
+
+A KR C4 trace named ``N`` leaves one file pair per module, ``N_<module>.dat`` (text header) and
+``N_<module>.r64`` (little-endian float64 values), e.g. ``N_NextGenDrive#3.dat``. The header is a global block
+and one block per channel of ``code,value`` lines; the codes this reader interprets:
+
+====  ==========================================================================================
+200   channel name                      210  IMPLIZIT/EXPLIZIT (or IMPLICIT/EXPLICIT)
+201   comment                           211  data file name (resolved beside the ``.dat``)
+202   unit                              213  storage: BLOCK (rows = samples) or CHANNEL (one after another)
+214   data type (only REAL64)           220  number of values
+221   pointer: 1-based column (BLOCK) or 1-based first value index (CHANNEL)
+240   offset (implicit: start value)    241  factor (implicit: step, i.e. the sample period in s)
+====  ==========================================================================================
+
+Every other code is kept, as text, in ``Channel.header`` / ``TraceFile.global_header``. Physical values are
+``raw * factor + offset``. Channels are found by module and name, never by position.
+
+Public API::
+
+    tf = read_trace_file(Path("run1_NextGenDrive#3.dat"))      # -> TraceFile
+    torque_nm = tf.channel("Istmoment").values                  # float64, read-only, physical units
+    t_s = tf.time_s(); tf.period_s; tf.sha256["run1_NextGenDrive#3.r64"]
+    ts = read_trace_set(directory, "run1", modules=["NextGenDrive#3", "NextGenDrive#5"])   # -> TraceSet
+    ts.channel("NextGenDrive#5", "Istmoment")
+
+Every problem with the input raises :class:`~rgse_daemon.errors.DataError` naming the file and the problem.
+The raw files are only read. ``Channel.values`` may be a read-only strided view into the file's data block
+(no copy when factor is 1 and offset 0); call ``np.array(values)`` for a private, writable copy.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import re
+from collections.abc import Iterable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path, PureWindowsPath
+
+import numpy as np
+
+from rgse_daemon.errors import DataError
+from rgse_daemon.trace.channels import ZEIT
+
+__all__ = ["Channel", "TraceFile", "TraceSet", "parse_header", "read_trace_file", "read_trace_set"]
+
+#: DIAdem data types this reader understands, with their numpy dtype. KUKA writes only REAL64.
+_DTYPES: dict[str, np.dtype] = {"REAL64": np.dtype("<f8")}
+_IMPLICIT = {"IMPLIZIT", "IMPLICIT"}
+_EXPLICIT = {"EXPLIZIT", "EXPLICIT"}
+_STORAGES = {"BLOCK", "CHANNEL"}
+#: A header is a few kB; anything much larger is not a DIAdem header.
+_MAX_HEADER_BYTES = 16 * 1024 * 1024
+#: Relative tolerance on the step of an explicit time channel.
+_TIME_STEP_RTOL = 1e-6
+_INT_RE = re.compile(r"[+-]?[0-9]+")
+_CODE_RE = re.compile(r"[0-9]{1,6}")
+
+
+@dataclass(frozen=True)
+class Channel:
+    """One channel of a trace file: values in physical units (``raw * factor + offset``), float64, read-only."""
+
+    name: str
+    unit: str
+    values: np.ndarray
+    comment: str = ""
+    module: str = ""
+    header: Mapping[int, str] = field(default_factory=dict)
+    """Every ``code -> value`` line of this channel's header block, as text (unknown codes included)."""
+
+
+@dataclass(frozen=True)
+class TraceFile:
+    """One module's ``.dat``/``.r64`` pair. ``period_s`` comes from the header (implicit time step)."""
+
+    module: str
+    period_s: float
+    n_samples: int
+    channels: dict[str, Channel]
+    dat_path: Path
+    data_path: Path
+    sha256: dict[str, str]
+    """Hex SHA-256 of each raw file read (the ``.dat`` and its data file), by file name."""
+    global_header: dict[int, str]
+    time_channel: str = ZEIT
+
+    def channel(self, name: str) -> Channel:
+        """The channel called ``name`` (code 200); DataError naming the file if it has none."""
+        try:
+            return self.channels[name]
+        except KeyError:
+            raise DataError(
+                f"{self.dat_path}: no channel {name!r} (channels: {', '.join(self.channels)})"
+            ) from None
+
+    def time_s(self) -> np.ndarray:
+        """Sample times in s: the implicit ``Zeit`` channel (offset + i * period_s)."""
+        return self.channels[self.time_channel].values
+
+
+@dataclass(frozen=True)
+class TraceSet:
+    """All module files of one trace name, by module (e.g. ``"NextGenDrive#3"``)."""
+
+    name: str
+    directory: Path
+    files: dict[str, TraceFile]
+
+    def channel(self, module: str, name: str) -> Channel:
+        """Channel ``name`` of ``module``; DataError if the module or the channel is absent."""
+        try:
+            tf = self.files[module]
+        except KeyError:
+            raise DataError(
+                f"{self.directory / f'{self.name}_{module}.dat'}: trace {self.name!r} has no module {module!r} "
+                f"(modules read: {', '.join(self.files) or 'none'})"
+            ) from None
+        return tf.channel(name)
+
+    @property
+    def sha256(self) -> dict[str, str]:
+        """SHA-256 of every raw file of the set, by file name."""
+        out: dict[str, str] = {}
+        for tf in self.files.values():
+            out.update(tf.sha256)
+        return out
+
+
+# --- header ------------------------------------------------------------------------------------------------------
+def parse_header(text: str, source: str = "<string>") -> tuple[dict[int, str], list[dict[int, str]]]:
+    """Split a DIAdem header into the global block and the channel blocks (``code -> value`` text).
+
+    Accepts CRLF or LF line ends and the optional ``DIAEXTENDED`` first line. ``source`` names the file in errors.
+    """
+    global_header: dict[int, str] = {}
+    channels: list[dict[int, str]] = []
+    state = "start"
+    current: dict[int, str] = global_header
+    for lineno, raw_line in enumerate(text.splitlines(), start=1):
+        line = raw_line.strip()
+        if not line:
+            continue
+        where = f"{source}:{lineno}"
+        if state == "start":
+            if line.startswith("DIAEXTENDED") and not global_header:
+                continue
+            if line != "#BEGINGLOBALHEADER":
+                raise DataError(f"{where}: expected #BEGINGLOBALHEADER, found {line[:40]!r}")
+            state = "global"
+        elif state == "between":
+            if line != "#BEGINCHANNELHEADER":
+                raise DataError(f"{where}: expected #BEGINCHANNELHEADER, found {line[:40]!r}")
+            current = {}
+            state = "channel"
+        elif (state, line) in (("global", "#ENDGLOBALHEADER"), ("channel", "#ENDCHANNELHEADER")):
+            if state == "channel":
+                channels.append(current)
+            state = "between"
+        else:
+            code_text, sep, value = line.partition(",")
+            code_text = code_text.strip()
+            if not sep or not _CODE_RE.fullmatch(code_text):
+                raise DataError(f"{where}: expected a 'code,value' line, found {line[:40]!r}")
+            code = int(code_text)
+            if code in current:
+                raise DataError(f"{where}: code {code} given twice in one header block")
+            current[code] = value.strip()
+    if state != "between":
+        raise DataError(f"{source}: truncated header (ends inside or before the {state} block)")
+    if not channels:
+        raise DataError(f"{source}: header has no channel blocks")
+    return global_header, channels
+
+
+@dataclass(frozen=True)
+class _Spec:
+    """One channel block, interpreted."""
+
+    index: int
+    name: str
+    implicit: bool
+    count: int
+    offset: float
+    factor: float
+    data_file: str = ""
+    storage: str = ""
+    pointer: int = 0
+    header: Mapping[int, str] = field(default_factory=dict)
+
+
+def _get(block: Mapping[int, str], code: int, source: str, what: str) -> str:
+    try:
+        return block[code]
+    except KeyError:
+        raise DataError(f"{source}: {what} has no code {code}") from None
+
+
+def _int(block: Mapping[int, str], code: int, source: str, what: str, minimum: int) -> int:
+    text = _get(block, code, source, what)
+    if not _INT_RE.fullmatch(text):
+        raise DataError(f"{source}: {what}: code {code} is not an integer: {text[:40]!r}")
+    value = int(text)
+    if value < minimum:
+        raise DataError(f"{source}: {what}: code {code} = {value} is below {minimum}")
+    return value
+
+
+def _float(block: Mapping[int, str], code: int, source: str, what: str, default: float | None = None) -> float:
+    if default is not None and code not in block:
+        return default
+    text = _get(block, code, source, what)
+    try:
+        value = float(text)
+    except ValueError:
+        raise DataError(f"{source}: {what}: code {code} is not a number: {text[:40]!r}") from None
+    if not math.isfinite(value):
+        raise DataError(f"{source}: {what}: code {code} is not finite: {text[:40]!r}")
+    return value
+
+
+def _spec(index: int, block: dict[int, str], source: str) -> _Spec:
+    what = f"channel block {index + 1}"
+    name = _get(block, 200, source, what)
+    if not name:
+        raise DataError(f"{source}: {what} has an empty name (code 200)")
+    what = f"channel {name!r}"
+    kind = _get(block, 210, source, what).upper()
+    count = _int(block, 220, source, what, minimum=0)
+    if kind in _IMPLICIT:
+        offset = _float(block, 240, source, what)
+        factor = _float(block, 241, source, what)
+        return _Spec(index, name, True, count, offset, factor, header=block)
+    if kind not in _EXPLICIT:
+        raise DataError(f"{source}: {what}: code 210 must be IMPLIZIT or EXPLIZIT, found {kind[:40]!r}")
+    dtype = _get(block, 214, source, what).upper()
+    if dtype not in _DTYPES:
+        raise DataError(f"{source}: {what}: unsupported data type (code 214) {dtype[:40]!r}; expected REAL64")
+    storage = _get(block, 213, source, what).upper()
+    if storage not in _STORAGES:
+        raise DataError(f"{source}: {what}: storage (code 213) must be BLOCK or CHANNEL, found {storage[:40]!r}")
+    # Only the base name: the header was written on the controller (Windows paths) and must not point elsewhere.
+    data_file = PureWindowsPath(_get(block, 211, source, what)).name
+    if not data_file or data_file in (".", ".."):
+        raise DataError(f"{source}: {what}: empty data file name (code 211)")
+    return _Spec(
+        index,
+        name,
+        False,
+        count,
+        offset=_float(block, 240, source, what, default=0.0),
+        factor=_float(block, 241, source, what, default=1.0),
+        data_file=data_file,
+        storage=storage,
+        pointer=_int(block, 221, source, what, minimum=1),
+        header=block,
+    )
+
+
+# --- data --------------------------------------------------------------------------------------------------------
+def _read_raw(path: Path, source: str) -> tuple[np.ndarray, str]:
+    """All float64 values of a data file and the SHA-256 of its bytes (hashing the buffer already read)."""
+    dtype = _DTYPES["REAL64"]
+    try:
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size % dtype.itemsize:
+                raise DataError(f"{path}: data size {size} bytes is not a multiple of {dtype.itemsize} (REAL64)")
+            raw = np.fromfile(f, dtype=dtype, count=size // dtype.itemsize)
+    except FileNotFoundError:
+        raise DataError(f"{source}: data file {path.name!r} (code 211) not found beside the header") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read data file: {exc}") from exc
+    if raw.size * dtype.itemsize != size:
+        raise DataError(f"{path}: data file changed while reading ({raw.size * dtype.itemsize} of {size} bytes)")
+    digest = hashlib.sha256(raw.view(np.uint8)).hexdigest()
+    raw.flags.writeable = False
+    return raw, digest
+
+
+def _columns(raw: np.ndarray, specs: list[_Spec], path: Path) -> dict[str, np.ndarray]:
+    """Raw values of each channel of one data file, sliced by pointer (221) and count (220)."""
+    storage = specs[0].storage
+    if any(s.storage != storage for s in specs):
+        raise DataError(f"{path}: channels mix BLOCK and CHANNEL storage in one data file")
+    if storage == "BLOCK":
+        width = len(specs)
+        pointers = sorted(s.pointer for s in specs)
+        if pointers != list(range(1, width + 1)):
+            raise DataError(f"{path}: BLOCK column pointers (code 221) {pointers} are not 1..{width}")
+        counts = {s.count for s in specs}
+        if len(counts) != 1:
+            raise DataError(f"{path}: channels of one BLOCK file have different counts (code 220): {sorted(counts)}")
+        if raw.size % width:
+            raise DataError(f"{path}: {raw.size} values are not a multiple of the row width ({width} channels)")
+        rows = raw.size // width
+        if rows != specs[0].count:
+            raise DataError(f"{path}: header count (code 220) {specs[0].count} disagrees with the data ({rows} rows)")
+        table = raw.reshape(rows, width)
+        return {s.name: table[:, s.pointer - 1] for s in specs}
+    expected = 1
+    for s in sorted(specs, key=lambda s: s.pointer):
+        if s.pointer != expected:
+            raise DataError(
+                f"{path}: CHANNEL storage: channel {s.name!r} starts at value {s.pointer}, expected {expected} "
+                "(channels must follow one another)"
+            )
+        expected += s.count
+    if expected - 1 != raw.size:
+        raise DataError(f"{path}: header counts (code 220) add up to {expected - 1} values, data has {raw.size}")
+    return {s.name: raw[s.pointer - 1 : s.pointer - 1 + s.count] for s in specs}
+
+
+def _physical(raw: np.ndarray, spec: _Spec, path: Path) -> np.ndarray:
+    """``raw * factor + offset``, read-only, checked finite (no copy for the identity calibration)."""
+    if spec.factor == 1.0 and spec.offset == 0.0:
+        values = raw
+    else:
+        values = raw * spec.factor
+        if spec.offset != 0.0:
+            values += spec.offset
+        values.flags.writeable = False
+    # A sum is finite only if every term is (NaN and inf propagate); check element-wise only on suspicion.
+    if not np.isfinite(values.sum()) and not np.isfinite(values).all():
+        bad = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise DataError(f"{path}: channel {spec.name!r} has a non-finite value (NaN or inf) at sample {bad}")
+    return values
+
+
+def _implicit_values(spec: _Spec) -> np.ndarray:
+    """``offset + i * factor`` for i in 0..count-1, read-only."""
+    values = spec.offset + np.arange(spec.count, dtype=np.float64) * spec.factor
+    values.flags.writeable = False
+    return values
+
+
+def _time_period_s(spec: _Spec, values: np.ndarray, source: str) -> float:
+    """The sample period in s of the time channel; DataError unless it increases strictly and uniformly."""
+    if spec.implicit:
+        if spec.factor <= 0.0:
+            raise DataError(f"{source}: time channel {spec.name!r} has a non-positive step (code 241) {spec.factor}")
+        return spec.factor
+    raw = values
+    steps = np.diff(raw)
+    if raw.size < 2 or not (steps > 0.0).all():
+        raise DataError(f"{source}: explicit time channel {spec.name!r} is not strictly increasing")
+    period_s = float((raw[-1] - raw[0]) / (raw.size - 1))
+    if not np.allclose(steps, period_s, rtol=_TIME_STEP_RTOL, atol=0.0):
+        raise DataError(f"{source}: explicit time channel {spec.name!r} has a non-uniform step")
+    return period_s
+
+
+def read_trace_file(dat_path: Path | str, module: str | None = None) -> TraceFile:
+    """Read one ``.dat`` header and its data file(s).
+
+    ``module`` defaults to the part of the file stem after its last ``_`` (``run1_NextGenDrive#3`` ->
+    ``NextGenDrive#3``): KUKA module names contain no underscore, trace names may.
+    """
+    dat_path = Path(dat_path)
+    source = str(dat_path)
+    try:
+        with open(dat_path, "rb") as f:
+            header_bytes = f.read(_MAX_HEADER_BYTES + 1)
+    except FileNotFoundError:
+        raise DataError(f"{dat_path}: trace header not found") from None
+    except OSError as exc:
+        raise DataError(f"{dat_path}: cannot read trace header: {exc}") from exc
+    if len(header_bytes) > _MAX_HEADER_BYTES:
+        raise DataError(f"{dat_path}: larger than {_MAX_HEADER_BYTES} bytes, not a DIAdem header")
+    if b"\x00" in header_bytes:
+        raise DataError(f"{dat_path}: contains NUL bytes, not a text DIAdem header")
+    if module is None:
+        module = dat_path.stem.rpartition("_")[2]
+    global_header, blocks = parse_header(header_bytes.decode("iso-8859-1"), source)
+    specs = [_spec(i, block, source) for i, block in enumerate(blocks)]
+
+    names = [s.name for s in specs]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise DataError(f"{source}: channel name(s) given twice: {', '.join(duplicates)}")
+    explicit = [s for s in specs if not s.implicit]
+    if not explicit:
+        raise DataError(f"{source}: no explicit channel, the header describes no data")
+    time_spec = next((s for s in specs if s.name == ZEIT), None) or next((s for s in specs if s.implicit), None)
+    if time_spec is None:
+        raise DataError(f"{source}: no time channel ({ZEIT!r} or any implicit channel)")
+
+    by_file: dict[str, list[_Spec]] = {}
+    for s in explicit:
+        by_file.setdefault(s.data_file, []).append(s)
+    sha256 = {dat_path.name: hashlib.sha256(header_bytes).hexdigest()}
+    raw_by_name: dict[str, np.ndarray] = {}
+    data_paths: list[Path] = []
+    for file_name, group in by_file.items():
+        data_path = dat_path.with_name(file_name)
+        raw, sha256[file_name] = _read_raw(data_path, source)
+        raw_by_name.update(_columns(raw, group, data_path))
+        data_paths.append(data_path)
+
+    n_samples = time_spec.count
+    for s in specs:
+        if s.count != n_samples:
+            raise DataError(
+                f"{source}: channel {s.name!r} has {s.count} values (code 220), time channel "
+                f"{time_spec.name!r} has {n_samples}"
+            )
+    channels: dict[str, Channel] = {}
+    period_s = 0.0
+    for s in specs:
+        if s.implicit:
+            values = _implicit_values(s)
+        else:
+            values = _physical(raw_by_name[s.name], s, dat_path.with_name(s.data_file))
+        if s is time_spec:
+            period_s = _time_period_s(s, values, source)
+        channels[s.name] = Channel(
+            name=s.name,
+            unit=s.header.get(202, ""),
+            values=values,
+            comment=s.header.get(201, ""),
+            module=module,
+            header=dict(s.header),
+        )
+    return TraceFile(
+        module=module,
+        period_s=period_s,
+        n_samples=n_samples,
+        channels=channels,
+        dat_path=dat_path,
+        data_path=data_paths[0],
+        sha256=sha256,
+        global_header=global_header,
+        time_channel=time_spec.name,
+    )
+
+
+def _modules_present(directory: Path, name: str) -> list[str]:
+    prefix = f"{name}_"
+    found = []
+    for path in directory.glob(f"{glob_escape(prefix)}*.dat"):
+        module = path.stem[len(prefix) :]
+        if module and "_" not in module:
+            found.append(module)
+    return sorted(found)
+
+
+def glob_escape(text: str) -> str:
+    """``text`` with glob metacharacters escaped, for Path.glob (trace names are plain, but be exact)."""
+    return re.sub(r"([*?\[])", r"[\1]", text)
+
+
+def read_trace_set(
+    directory: Path | str, name: str, modules: Iterable[str] | None = None, *, max_workers: int = 2
+) -> TraceSet:
+    """Read the files ``<name>_<module>.dat`` of one trace.
+
+    ``modules=None`` reads every module present (file stems ``<name>_<module>`` whose module part has no
+    underscore, so trace ``run`` does not swallow trace ``run_2``); a requested module that is absent is a
+    DataError, as is a trace with no files at all. Files are read on up to ``max_workers`` threads: reading and
+    hashing release the GIL, so the two cores overlap.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise DataError(f"{directory}: trace directory not found")
+    wanted = _modules_present(directory, name) if modules is None else list(modules)
+    if not wanted:
+        raise DataError(f"{directory / (name + '_*.dat')}: no trace files for trace {name!r}")
+    paths = [directory / f"{name}_{m}.dat" for m in wanted]
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise DataError(f"{', '.join(missing)}: trace file(s) of requested module(s) not found")
+    if max_workers <= 1 or len(paths) == 1:
+        read = [read_trace_file(p, m) for p, m in zip(paths, wanted, strict=True)]
+    else:
+        with ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="trace-read") as pool:
+            read = list(pool.map(read_trace_file, paths, wanted))
+    return TraceSet(name=name, directory=directory, files=dict(zip(wanted, read, strict=True)))
