@@ -93,9 +93,7 @@ class TraceFile:
         try:
             return self.channels[name]
         except KeyError:
-            raise DataError(
-                f"{self.dat_path}: no channel {name!r} (channels: {', '.join(self.channels)})"
-            ) from None
+            raise DataError(f"{self.dat_path}: no channel {name!r} (channels: {', '.join(self.channels)})") from None
 
     def time_s(self) -> np.ndarray:
         """Sample times in s: the implicit ``Zeit`` channel (offset + i * period_s)."""
@@ -316,23 +314,28 @@ def _columns(raw: np.ndarray, specs: list[_Spec], path: Path) -> dict[str, np.nd
 
 def _physical(raw: np.ndarray, spec: _Spec, path: Path) -> np.ndarray:
     """``raw * factor + offset``, read-only, checked finite (no copy for the identity calibration)."""
-    if spec.factor == 1.0 and spec.offset == 0.0:
-        values = raw
-    else:
-        values = raw * spec.factor
-        if spec.offset != 0.0:
-            values += spec.offset
-        values.flags.writeable = False
-    # A sum is finite only if every term is (NaN and inf propagate); check element-wise only on suspicion.
-    if not np.isfinite(values.sum()) and not np.isfinite(values).all():
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow shows up as inf and is refused below
+        if spec.factor == 1.0 and spec.offset == 0.0:
+            values = raw
+        else:
+            values = raw * spec.factor
+            if spec.offset != 0.0:
+                values += spec.offset
+            values.flags.writeable = False
+        # A sum is finite only if every term is (NaN and inf propagate); check element-wise only on suspicion.
+        total = values.sum()
+    if not np.isfinite(total) and not np.isfinite(values).all():
         bad = int(np.flatnonzero(~np.isfinite(values))[0])
         raise DataError(f"{path}: channel {spec.name!r} has a non-finite value (NaN or inf) at sample {bad}")
     return values
 
 
-def _implicit_values(spec: _Spec) -> np.ndarray:
-    """``offset + i * factor`` for i in 0..count-1, read-only."""
-    values = spec.offset + np.arange(spec.count, dtype=np.float64) * spec.factor
+def _implicit_values(spec: _Spec, source: str) -> np.ndarray:
+    """``offset + i * factor`` for i in 0..count-1, read-only; DataError if that leaves the float range."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        values = spec.offset + np.arange(spec.count, dtype=np.float64) * spec.factor
+    if values.size and not (np.isfinite(values[0]) and np.isfinite(values[-1])):
+        raise DataError(f"{source}: implicit channel {spec.name!r}: offset/step (240/241) overflow the float range")
     values.flags.writeable = False
     return values
 
@@ -343,13 +346,13 @@ def _time_period_s(spec: _Spec, values: np.ndarray, source: str) -> float:
         if spec.factor <= 0.0:
             raise DataError(f"{source}: time channel {spec.name!r} has a non-positive step (code 241) {spec.factor}")
         return spec.factor
-    raw = values
-    steps = np.diff(raw)
-    if raw.size < 2 or not (steps > 0.0).all():
-        raise DataError(f"{source}: explicit time channel {spec.name!r} is not strictly increasing")
-    period_s = float((raw[-1] - raw[0]) / (raw.size - 1))
-    if not np.allclose(steps, period_s, rtol=_TIME_STEP_RTOL, atol=0.0):
-        raise DataError(f"{source}: explicit time channel {spec.name!r} has a non-uniform step")
+    with np.errstate(over="ignore", invalid="ignore"):
+        steps = np.diff(values)
+        if values.size < 2 or not (steps > 0.0).all():
+            raise DataError(f"{source}: explicit time channel {spec.name!r} is not strictly increasing")
+        period_s = float((values[-1] - values[0]) / (values.size - 1))
+        if not math.isfinite(period_s) or not np.allclose(steps, period_s, rtol=_TIME_STEP_RTOL, atol=0.0):
+            raise DataError(f"{source}: explicit time channel {spec.name!r} has a non-uniform step")
     return period_s
 
 
@@ -411,7 +414,7 @@ def read_trace_file(dat_path: Path | str, module: str | None = None) -> TraceFil
     period_s = 0.0
     for s in specs:
         if s.implicit:
-            values = _implicit_values(s)
+            values = _implicit_values(s, source)
         else:
             values = _physical(raw_by_name[s.name], s, dat_path.with_name(s.data_file))
         if s is time_spec:
