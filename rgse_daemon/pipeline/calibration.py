@@ -1,0 +1,520 @@
+"""Calibration function K per axis (paper §2.4.6, eq. 19/20), fitting, leave-one-out and model selection.
+
+Pure numpy/scipy. A calibration maps the bias-normalised measured torque of A3 and A5 to a corrected torque
+``K(M)·M``; the mass follows from eq. 21 (see :mod:`rgse_daemon.pipeline.mass`).
+
+Two families of models are offered:
+
+* ``paper`` / ``ratio-*``: as in the paper, K of each axis is fitted on its own to the calibration factor
+  samples ``K_i = M_expected / M_measured`` (eq. 19: 2nd-order polynomial for A3, eq. 20: double exponential
+  for A5).
+* ``gain-*``: one monotone drive gain curve ``G(M) = K(M)·M`` per axis, linear in its parameters, both axes
+  fitted *jointly* so that the mass of eq. 21 matches the calibration masses (relative errors, the paper's
+  error measure). These models need no per-axis expected torque and therefore no lever offsets.
+
+Every torque function is odd in the torque (``K`` is evaluated at ``|M|``): the sign of ``Istmoment`` depends
+on pose and axis direction and nothing here assumes positive torques.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline import mass as mass_eq
+
+#: Scale of the gain basis functions, Nm: keeps the coefficients of order one.
+GAIN_SCALE_NM = 1000.0
+
+
+class CalibrationError(DataError):
+    """The calibration points do not allow the requested fit (too few points, degenerate data)."""
+
+
+# ------------------------------------------------------------------------------------------------------------
+# calibration points
+# ------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CalibrationPoints:
+    """The pre-averaged, bias-normalised torques of a calibration campaign (paper Table 1).
+
+    Attributes
+    ----------
+    kind : array of str
+        ``"zero"``, ``"mass"`` or ``"torque"`` per point.
+    mass_kg : ndarray
+        Calibration load mass (CBs and TA), kg; 0 for the zero point.
+    torque_a3_nm, torque_a5_nm : ndarray
+        Measured, bias-normalised torque (eq. 16 double average minus M_0), Nm.
+    expected_a3_nm, expected_a5_nm : ndarray
+        Expected torque ``g·m·lever`` (eq. 17/18), Nm; used by the per-axis ``paper``/``ratio-*`` models only.
+    """
+
+    kind: np.ndarray
+    mass_kg: np.ndarray
+    torque_a3_nm: np.ndarray
+    torque_a5_nm: np.ndarray
+    expected_a3_nm: np.ndarray
+    expected_a5_nm: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.mass_kg)
+        for name in ("kind", "torque_a3_nm", "torque_a5_nm", "expected_a3_nm", "expected_a5_nm"):
+            if len(getattr(self, name)) != n:
+                raise CalibrationError(f"calibration points: column {name} has {len(getattr(self, name))} "
+                                       f"values, expected {n}")
+        for name in ("mass_kg", "torque_a3_nm", "torque_a5_nm", "expected_a3_nm", "expected_a5_nm"):
+            if not np.all(np.isfinite(getattr(self, name))):
+                raise CalibrationError(f"calibration points: column {name} holds NaN or infinite values")
+        if np.any(self.mass_kg < 0):
+            raise CalibrationError("calibration points: negative mass_kg")
+
+    def __len__(self) -> int:
+        return len(self.mass_kg)
+
+    def subset(self, index: np.ndarray) -> CalibrationPoints:
+        return CalibrationPoints(*(np.asarray(getattr(self, f))[index] for f in
+                                   ("kind", "mass_kg", "torque_a3_nm", "torque_a5_nm", "expected_a3_nm",
+                                    "expected_a5_nm")))
+
+
+def mean_abs_pct(mass_true_kg: np.ndarray, mass_calc_kg: np.ndarray) -> float:
+    """Mean absolute mass error in % as the paper counts it: over all points, the zero-mass point as 0 %."""
+    true = np.asarray(mass_true_kg, float)
+    safe = np.where(true > 0, true, 1.0)
+    pct = np.where(true > 0, np.abs(np.asarray(mass_calc_kg) - true) / safe * 100.0, 0.0)
+    return float(pct.mean())
+
+
+def r_squared(y: np.ndarray, y_fit: np.ndarray) -> float:
+    """Coefficient of determination of a fit."""
+    ss_res = float(np.sum((y - y_fit) ** 2))
+    ss_tot = float(np.sum((y - np.mean(y)) ** 2))
+    return 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan")
+
+
+# ------------------------------------------------------------------------------------------------------------
+# K functions of one axis
+# ------------------------------------------------------------------------------------------------------------
+class AxisK(ABC):
+    """A calibration function of one axis: ``K(M)`` and the corrected torque ``K(M)·M``."""
+
+    kind: ClassVar[str]
+
+    @abstractmethod
+    def k(self, torque_nm: np.ndarray) -> np.ndarray:
+        """The calibration factor K at the (bias-normalised) measured torque."""
+
+    def corrected_torque_nm(self, torque_nm: np.ndarray) -> np.ndarray:
+        """K(M)·M, the torque the drive really carries (numerator terms of eq. 21)."""
+        m = np.asarray(torque_nm, float)
+        return self.k(m) * m
+
+    @property
+    @abstractmethod
+    def params(self) -> np.ndarray:
+        """The parameter vector (the order of the covariance rows)."""
+
+    @abstractmethod
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready description (CAL.json ``models``)."""
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> AxisK:
+        try:
+            kind = d["kind"]
+            if kind == PolyK.kind:
+                return PolyK(np.asarray(d["coef"], float))
+            if kind == DoubleExpK.kind:
+                return DoubleExpK(np.asarray(d["b"], float))
+            if kind == GainK.kind:
+                return GainK(tuple(d["terms"]), np.asarray(d["coef"], float), float(d["scale_nm"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"calibration model: malformed axis model {d!r}: {exc}") from exc
+        raise DataError(f"calibration model: unknown axis model kind {kind!r}")
+
+
+@dataclass(frozen=True)
+class PolyK(AxisK):
+    """Eq. 19: ``K(M) = a1·M² + a2·M + a3`` (``coef = [a1, a2, a3]``, highest power first), M taken as |M|."""
+
+    coef: np.ndarray
+    kind: ClassVar[str] = "poly"
+
+    def k(self, torque_nm: np.ndarray) -> np.ndarray:
+        return np.polyval(self.coef, np.abs(np.asarray(torque_nm, float)))
+
+    @property
+    def params(self) -> np.ndarray:
+        return np.asarray(self.coef, float)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "coef": [float(c) for c in self.coef]}
+
+
+@dataclass(frozen=True)
+class DoubleExpK(AxisK):
+    """Eq. 20: ``K(M) = b1·exp(b2·M) + b3·exp(b4·M)`` (``b = [b1, b2, b3, b4]``), M taken as |M|."""
+
+    b: np.ndarray
+    kind: ClassVar[str] = "double_exp"
+
+    def k(self, torque_nm: np.ndarray) -> np.ndarray:
+        x = np.abs(np.asarray(torque_nm, float))
+        b1, b2, b3, b4 = self.b
+        return b1 * np.exp(b2 * x) + b3 * np.exp(b4 * x)
+
+    @property
+    def params(self) -> np.ndarray:
+        return np.asarray(self.b, float)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "b": [float(v) for v in self.b]}
+
+
+def _basis(term: str, torque_nm: np.ndarray, scale_nm: float) -> np.ndarray:
+    """Odd basis functions of a drive gain curve G(M), each monotone increasing in M."""
+    m = np.asarray(torque_nm, float)
+    s = scale_nm
+    if term == "lin":
+        return m
+    if term == "quad":
+        return m * np.abs(m) / s
+    if term == "sqrt":
+        return np.sign(m) * np.sqrt(np.abs(m) * s)
+    if term == "log":
+        return np.sign(m) * s * np.log1p(np.abs(m) / s)
+    raise DataError(f"calibration model: unknown gain term {term!r}")
+
+
+@dataclass(frozen=True)
+class GainK(AxisK):
+    """A drive gain curve ``G(M) = Σ c_k·φ_k(M)`` linear in its parameters; ``K(M) = G(M)/M``."""
+
+    terms: tuple[str, ...]
+    coef: np.ndarray
+    scale_nm: float = GAIN_SCALE_NM
+    kind: ClassVar[str] = "gain"
+
+    def design(self, torque_nm: np.ndarray) -> np.ndarray:
+        """Columns φ_k(M): the Jacobian of G(M) with respect to the coefficients."""
+        return np.stack([_basis(t, torque_nm, self.scale_nm) for t in self.terms], axis=-1)
+
+    def corrected_torque_nm(self, torque_nm: np.ndarray) -> np.ndarray:
+        return self.design(torque_nm) @ np.asarray(self.coef, float)
+
+    def k(self, torque_nm: np.ndarray) -> np.ndarray:
+        m = np.asarray(torque_nm, float)
+        g = self.corrected_torque_nm(m)
+        slope0 = float(np.asarray(self.coef)[list(self.terms).index("lin")]) if "lin" in self.terms else np.nan
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(m != 0, g / np.where(m != 0, m, 1.0), slope0)
+
+    @property
+    def params(self) -> np.ndarray:
+        return np.asarray(self.coef, float)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": self.kind, "terms": list(self.terms), "coef": [float(c) for c in self.coef],
+                "scale_nm": self.scale_nm}
+
+
+# ------------------------------------------------------------------------------------------------------------
+# a fitted calibration
+# ------------------------------------------------------------------------------------------------------------
+@dataclass
+class Calibration:
+    """A fitted calibration: K of A3 and A5, their parameter covariance and the torque range they cover.
+
+    ``covariance`` is over ``concat(k_a3.params, k_a5.params)``.
+    """
+
+    method: str
+    k_a3: AxisK
+    k_a5: AxisK
+    covariance: np.ndarray
+    torque_range_a3_nm: tuple[float, float]
+    torque_range_a5_nm: tuple[float, float]
+    g_m_s2: float
+    lever_difference_m: float
+    r2: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def params(self) -> np.ndarray:
+        return np.concatenate([self.k_a3.params, self.k_a5.params])
+
+    def with_params(self, params: np.ndarray) -> Calibration:
+        """The same model with other parameter values (for Monte Carlo propagation)."""
+        n3 = len(self.k_a3.params)
+        return Calibration(self.method, _replace_params(self.k_a3, params[:n3]),
+                           _replace_params(self.k_a5, params[n3:]), self.covariance, self.torque_range_a3_nm,
+                           self.torque_range_a5_nm, self.g_m_s2, self.lever_difference_m, self.r2)
+
+    def mass_kg(self, torque_a3_nm: np.ndarray, torque_a5_nm: np.ndarray, fixture_mass_kg: float = 0.0) -> np.ndarray:
+        """Eq. 21 with this calibration's K functions."""
+        return mass_eq.dut_mass_kg(self.k_a3.corrected_torque_nm(torque_a3_nm),
+                                   self.k_a5.corrected_torque_nm(torque_a5_nm),
+                                   self.g_m_s2, self.lever_difference_m, fixture_mass_kg)
+
+    def out_of_range(self, torque_a3_nm: float, torque_a5_nm: float, margin: float = 0.05) -> list[str]:
+        """Warnings for torques outside the fitted range (beyond ``margin`` of its span)."""
+        out = []
+        for axis, m, (lo, hi) in (("A3", torque_a3_nm, self.torque_range_a3_nm),
+                                  ("A5", torque_a5_nm, self.torque_range_a5_nm)):
+            span = hi - lo
+            if abs(m) < lo - margin * span or abs(m) > hi + margin * span:
+                out.append(f"torque {axis} |{m:.1f}| Nm is outside the calibrated range {lo:.1f}..{hi:.1f} Nm")
+        return out
+
+    def models_dict(self) -> dict[str, Any]:
+        return {"A3": self.k_a3.to_dict(), "A5": self.k_a5.to_dict()}
+
+
+def _replace_params(k: AxisK, p: np.ndarray) -> AxisK:
+    if isinstance(k, PolyK):
+        return PolyK(np.asarray(p, float))
+    if isinstance(k, DoubleExpK):
+        return DoubleExpK(np.asarray(p, float))
+    if isinstance(k, GainK):
+        return GainK(k.terms, np.asarray(p, float), k.scale_nm)
+    raise TypeError(type(k))
+
+
+def _torque_range(torque_nm: np.ndarray) -> tuple[float, float]:
+    a = np.abs(torque_nm)
+    return (float(a.min()), float(a.max())) if a.size else (0.0, 0.0)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# per-axis ratio fits (the paper's way)
+# ------------------------------------------------------------------------------------------------------------
+def _ratio_samples(points: CalibrationPoints, axis: str) -> tuple[np.ndarray, np.ndarray]:
+    """Calibration factor samples K_i = M_expected / M_measured of the loaded points (paper Table 1)."""
+    measured = points.torque_a3_nm if axis == "A3" else points.torque_a5_nm
+    expected = points.expected_a3_nm if axis == "A3" else points.expected_a5_nm
+    use = (points.mass_kg > 0) & (measured != 0)
+    return np.abs(measured[use]), expected[use] / measured[use]
+
+
+def fit_poly_k(x: np.ndarray, y: np.ndarray, degree: int) -> tuple[PolyK, np.ndarray, float]:
+    """Least-squares polynomial K (eq. 19 for degree 2); returns K, parameter covariance and R²."""
+    if len(x) < degree + 2:
+        raise CalibrationError(f"polynomial K of degree {degree} needs at least {degree + 2} loaded points, "
+                               f"got {len(x)}")
+    a = np.vander(x, degree + 1)
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    resid = y - a @ coef
+    s2 = float(resid @ resid) / (len(x) - degree - 1)
+    cov = s2 * np.linalg.pinv(a.T @ a)
+    return PolyK(coef), cov, r_squared(y, a @ coef)
+
+
+def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: int = 6
+                     ) -> tuple[DoubleExpK, np.ndarray, float]:
+    """Eq. 20 fitted robustly: variable projection on a grid of rates, then bounded least squares from the best starts.
+
+    For fixed rates (b2, b4) the amplitudes (b1, b3) are linear; a vectorised grid over the rates gives
+    the best ``n_starts`` distinct starting points, each polished by ``scipy.optimize.least_squares`` with bounds.
+    """
+    if len(x) < 6:
+        raise CalibrationError(f"double-exponential K needs at least 6 loaded points, got {len(x)}")
+    x_max = float(np.max(x))
+    rate_lo, rate_hi = -30.0 / x_max, 3.0 / x_max
+    amp_bound = 10.0
+    rates = np.linspace(rate_lo, rate_hi, n_grid)
+    e = np.exp(np.outer(rates, x))  # (n_grid, n)
+    s11 = np.einsum("in,in->i", e, e)[:, None]
+    s22 = s11.T
+    s12 = e @ e.T
+    r1 = (e @ y)[:, None]
+    r2 = r1.T
+    det = s11 * s22 - s12**2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        b1 = (s22 * r1 - s12 * r2) / det
+        b3 = (s11 * r2 - s12 * r1) / det
+    cost = float(y @ y) - (b1 * r1 + b3 * r2)  # residual sum of squares at the projected optimum
+    valid = (np.triu(np.ones_like(det, bool), 1) & np.isfinite(cost) & (np.abs(det) > 1e-12 * s11 * s22)
+             & (np.abs(b1) <= amp_bound) & (np.abs(b3) <= amp_bound))
+    cost = np.where(valid, cost, np.inf)
+    order = np.argsort(cost, axis=None)[:n_starts]
+
+    def resid(p: np.ndarray) -> np.ndarray:
+        return p[0] * np.exp(p[1] * x) + p[2] * np.exp(p[3] * x) - y
+
+    lower = [-amp_bound, rate_lo * 2, -amp_bound, rate_lo * 2]
+    upper = [amp_bound, rate_hi * 2, amp_bound, rate_hi * 2]
+    best = None
+    for flat in order:
+        i, j = np.unravel_index(flat, cost.shape)
+        if not np.isfinite(cost[i, j]):
+            continue
+        p0 = np.array([b1[i, j], rates[i], b3[i, j], rates[j]])
+        r = least_squares(resid, np.clip(p0, lower, upper), bounds=(lower, upper), x_scale="jac")
+        if best is None or r.cost < best.cost:
+            best = r
+    if best is None:
+        raise CalibrationError("double-exponential K: no admissible start (degenerate calibration factors)")
+    j = best.jac
+    dof = max(len(x) - 4, 1)
+    cov = (2 * best.cost / dof) * np.linalg.pinv(j.T @ j)
+    k = DoubleExpK(best.x)
+    return k, cov, r_squared(y, k.k(x))
+
+
+def _fit_ratio(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
+               a3: Callable, a5: Callable) -> Calibration:
+    x3, y3 = _ratio_samples(points, "A3")
+    x5, y5 = _ratio_samples(points, "A5")
+    k3, c3, r3 = a3(x3, y3)
+    k5, c5, r5 = a5(x5, y5)
+    cov = np.zeros((len(k3.params) + len(k5.params),) * 2)
+    cov[: len(k3.params), : len(k3.params)] = c3
+    cov[len(k3.params):, len(k3.params):] = c5
+    return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[points.mass_kg > 0]),
+                       _torque_range(points.torque_a5_nm[points.mass_kg > 0]), g_m_s2, lever_difference_m,
+                       {"A3": r3, "A5": r5})
+
+
+# ------------------------------------------------------------------------------------------------------------
+# joint drive-gain fits (mass error minimised directly)
+# ------------------------------------------------------------------------------------------------------------
+def _fit_gain(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
+              terms_a3: tuple[str, ...], terms_a5: tuple[str, ...], loss: str = "linear") -> Calibration:
+    """Fit G_A3 and G_A5 jointly so that eq. 21 reproduces the calibration masses (relative residuals)."""
+    n_par = len(terms_a3) + len(terms_a5)
+    loaded = points.mass_kg > 0
+    if int(loaded.sum()) < n_par + 1:
+        raise CalibrationError(f"model {method} has {n_par} parameters and needs at least {n_par + 1} loaded "
+                               f"points, got {int(loaded.sum())}")
+    g3 = GainK(terms_a3, np.zeros(len(terms_a3)))
+    g5 = GainK(terms_a5, np.zeros(len(terms_a5)))
+    denom = g_m_s2 * lever_difference_m
+    # eq. 21 is linear in the gain coefficients: m = (Φ3·c3 − Φ5·c5) / (g·Δr)
+    a = np.hstack([g3.design(points.torque_a3_nm), -g5.design(points.torque_a5_nm)]) / denom
+    y = points.mass_kg
+    m_floor = float(points.mass_kg[loaded].min())
+    w = 1.0 / np.maximum(y, m_floor)  # relative residuals: the paper's error measure
+    aw, yw = a * w[:, None], y * w
+    coef, *_ = np.linalg.lstsq(aw, yw, rcond=None)
+    if loss != "linear":
+        r = least_squares(lambda c: aw @ c - yw, coef, loss=loss, f_scale=0.005)
+        coef = r.x
+    resid = aw @ coef - yw
+    dof = max(len(y) - n_par, 1)
+    cov = float(resid @ resid) / dof * np.linalg.pinv(aw.T @ aw)
+    k3 = GainK(terms_a3, coef[: len(terms_a3)])
+    k5 = GainK(terms_a5, coef[len(terms_a3):])
+    return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[loaded]),
+                       _torque_range(points.torque_a5_nm[loaded]), g_m_s2, lever_difference_m, {})
+
+
+# ------------------------------------------------------------------------------------------------------------
+# the catalogue of models
+# ------------------------------------------------------------------------------------------------------------
+FitFn = Callable[[CalibrationPoints, float, float], Calibration]
+
+
+def _ratio_model(name: str, a3: Callable, a5: Callable) -> FitFn:
+    return lambda p, g, dr: _fit_ratio(p, name, g, dr, a3, a5)
+
+
+def _gain_model(name: str, t3: tuple[str, ...], t5: tuple[str, ...], loss: str = "linear") -> FitFn:
+    return lambda p, g, dr: _fit_gain(p, name, g, dr, t3, t5, loss)
+
+
+MODELS: dict[str, tuple[FitFn, str]] = {
+    "paper": (_ratio_model("paper", lambda x, y: fit_poly_k(x, y, 2), fit_double_exp_k),
+              "K_A3 2nd-order polynomial (eq. 19), K_A5 double exponential (eq. 20), per-axis ratio fits"),
+    "ratio-linear": (_ratio_model("ratio-linear", lambda x, y: fit_poly_k(x, y, 1), lambda x, y: fit_poly_k(x, y, 1)),
+                     "K linear in torque per axis, per-axis ratio fits"),
+    "gain-linear": (_gain_model("gain-linear", ("lin",), ("lin",)),
+                    "constant drive gain per axis, fitted jointly to the masses"),
+    "gain-sqrt": (_gain_model("gain-sqrt", ("lin", "sqrt"), ("lin",)),
+                  "A3 gain with a square-root (friction-like) term, A5 constant, fitted to the masses"),
+    "gain-log": (_gain_model("gain-log", ("lin", "log"), ("lin",)),
+                 "A3 gain with a saturating log term (friction-like), A5 constant, fitted to the masses"),
+    "gain-quad": (_gain_model("gain-quad", ("lin", "quad"), ("lin", "quad")),
+                  "quadratic drive gain per axis (odd in torque), fitted to the masses"),
+    "gain-sqrt-huber": (_gain_model("gain-sqrt-huber", ("lin", "sqrt"), ("lin", "sqrt"), "huber"),
+                        "square-root gain terms on both axes, Huber-robust fit to the masses"),
+}
+
+
+def fit(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Calibration:
+    """Fit calibration ``method`` (a key of :data:`MODELS`) to the calibration points."""
+    if method not in MODELS:
+        raise CalibrationError(f"unknown calibration method {method!r}; choose auto or one of {', '.join(MODELS)}")
+    return MODELS[method][0](points, g_m_s2, lever_difference_m)
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """In-sample and leave-one-out mass errors of one method on one set of calibration points."""
+
+    method: str
+    in_sample_mass_kg: np.ndarray
+    loo_mass_kg: np.ndarray
+    in_sample_mean_abs_err_pct: float
+    loo_mean_abs_err_pct: float
+    loo_max_abs_err_kg: float
+    n_params: int
+
+
+def leave_one_out_mass_kg(points: CalibrationPoints, method: str, g_m_s2: float,
+                          lever_difference_m: float) -> np.ndarray:
+    """Mass of each point predicted by the method fitted on all other points."""
+    n = len(points)
+    out = np.empty(n)
+    for i in range(n):
+        keep = np.arange(n) != i
+        cal = fit(points.subset(keep), method, g_m_s2, lever_difference_m)
+        out[i] = float(cal.mass_kg(points.torque_a3_nm[i], points.torque_a5_nm[i]))
+    return out
+
+
+def evaluate(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Evaluation:
+    cal = fit(points, method, g_m_s2, lever_difference_m)
+    ins = cal.mass_kg(points.torque_a3_nm, points.torque_a5_nm)
+    loo = leave_one_out_mass_kg(points, method, g_m_s2, lever_difference_m)
+    return Evaluation(method, ins, loo, mean_abs_pct(points.mass_kg, ins), mean_abs_pct(points.mass_kg, loo),
+                      float(np.max(np.abs(loo - points.mass_kg))), len(cal.params))
+
+
+def evaluate_all(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float) -> list[Evaluation]:
+    """Every model of the catalogue that can be fitted to these points, in catalogue order."""
+    out = []
+    for name in MODELS:
+        try:
+            out.append(evaluate(points, name, g_m_s2, lever_difference_m))
+        except CalibrationError:
+            continue
+    if not out:
+        raise CalibrationError("no calibration model can be fitted to these points (too few loaded points)")
+    return out
+
+
+def nested_loo_auto_mass_kg(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float) -> np.ndarray:
+    """Honest out-of-sample figure of ``--method auto``: in each fold the model is *selected* by LOO on the
+    remaining points only, then fitted there and used to predict the left-out point."""
+    n = len(points)
+    out = np.empty(n)
+    for i in range(n):
+        keep = np.arange(n) != i
+        sub = points.subset(keep)
+        chosen = select_auto(evaluate_all(sub, g_m_s2, lever_difference_m))
+        cal = fit(sub, chosen.method, g_m_s2, lever_difference_m)
+        out[i] = float(cal.mass_kg(points.torque_a3_nm[i], points.torque_a5_nm[i]))
+    return out
+
+
+def select_auto(evaluations: list[Evaluation]) -> Evaluation:
+    """The model with the lowest leave-one-out mean error; near-ties (< 0.01 %) go to fewer parameters."""
+    best = min(e.loo_mean_abs_err_pct for e in evaluations)
+    close = [e for e in evaluations if e.loo_mean_abs_err_pct <= best + 0.01]
+    return min(close, key=lambda e: (e.n_params, e.loo_mean_abs_err_pct))
