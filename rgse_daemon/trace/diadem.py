@@ -397,6 +397,9 @@ def read_trace_file(dat_path: Path | str, module: str | None = None) -> TraceFil
     sha256 = {dat_path.name: hashlib.sha256(header_bytes).hexdigest()}
     raw_by_name: dict[str, np.ndarray] = {}
     data_paths: list[Path] = []
+    for file_name in by_file:
+        if not dat_path.with_name(file_name).is_file():
+            raise DataError(f"{source}: data file {file_name!r} (code 211) not found beside the header")
     for file_name, group in by_file.items():
         data_path = dat_path.with_name(file_name)
         raw, sha256[file_name] = _read_raw(data_path, source)

@@ -1,0 +1,164 @@
+"""Every kind of bad trace input gives a DataError that names the file and the problem; nothing is modified."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from tracehelpers import edit_channel, write_small_set
+
+from rgse_daemon.errors import DataError
+from rgse_daemon.trace import read_trace_file, read_trace_set
+
+DAT = "run1_NextGenDrive#3.dat"
+R64 = "run1_NextGenDrive#3.r64"
+N = 40  # samples written by write_small_set
+WIDTH = 7  # drive channels per row
+
+
+def _append_values(path: Path, values: list[float]) -> None:
+    with open(path, "ab") as f:
+        np.asarray(values, dtype="<f8").tofile(f)
+
+
+def _append_bytes(path: Path, data: bytes) -> None:
+    with open(path, "ab") as f:
+        f.write(data)
+
+
+def _drop_zeit_block(directory: Path) -> None:
+    path = directory / DAT
+    text = path.read_bytes().decode("iso-8859-1")
+    start = text.index("#BEGINCHANNELHEADER\r\n200,Zeit")
+    end = text.index("#ENDCHANNELHEADER", start) + len("#ENDCHANNELHEADER")
+    path.write_bytes((text[:start] + text[end:]).encode("iso-8859-1"))
+
+
+def _poke(path: Path, index: int, value: float) -> None:
+    raw = np.fromfile(path, dtype="<f8")
+    raw[index] = value
+    raw.tofile(path)
+
+
+def _replace_header_text(path: Path, old: str, new: str, count: int = 1) -> None:
+    text = path.read_bytes().decode("iso-8859-1")
+    assert old in text
+    path.write_bytes(text.replace(old, new, count).encode("iso-8859-1"))
+
+
+CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
+    # name: (damage, file the message must name, problem in the message)
+    "missing r64": (lambda d: (d / R64).unlink(), DAT, "not found"),
+    "211 names a missing file": (lambda d: edit_channel(d / DAT, "Istmoment", 211, "other.r64"), DAT, "'other.r64'"),
+    "211 missing": (lambda d: edit_channel(d / DAT, "Istmoment", 211, None), DAT, "no code 211"),
+    "size not multiple of 8": (lambda d: _append_bytes(d / R64, b"abc"), R64, "not a multiple of 8"),
+    "size not multiple of row": (lambda d: _append_values(d / R64, [1.0, 2.0]), R64, "multiple of the row width"),
+    "extra whole row": (lambda d: _append_values(d / R64, [1.0] * WIDTH), R64, "disagrees with the data"),
+    "count too small everywhere": (
+        lambda d: _replace_header_text(d / DAT, f"220,{N}", f"220,{N - 1}", count=-1),
+        R64,
+        "disagrees with the data",
+    ),
+    "counts differ in block": (lambda d: edit_channel(d / DAT, "Iststrom", 220, "39"), R64, "different counts"),
+    "time count differs": (lambda d: edit_channel(d / DAT, "Zeit", 220, "41"), DAT, "time channel 'Zeit' has 41"),
+    "nan": (lambda d: _poke(d / R64, 17, float("nan")), R64, "non-finite value"),
+    "inf": (lambda d: _poke(d / R64, 3 * WIDTH + 5, float("-inf")), R64, r"'Istmoment' has a non-finite value .* 3"),
+    "overflow by factor": (
+        lambda d: (_poke(d / R64, 0, 1e308), edit_channel(d / DAT, "Sollposition", 241, "10.0")),
+        R64,
+        "non-finite",
+    ),
+    "REAL32": (lambda d: edit_channel(d / DAT, "Istmoment", 214, "REAL32"), DAT, "unsupported data type"),
+    "INT16": (lambda d: edit_channel(d / DAT, "Istmoment", 214, "INT16"), DAT, "unsupported data type"),
+    "zero time step": (lambda d: edit_channel(d / DAT, "Zeit", 241, "0"), DAT, "non-positive step"),
+    "negative time step": (lambda d: edit_channel(d / DAT, "Zeit", 241, "-0.012"), DAT, "non-positive step"),
+    "time step not a number": (lambda d: edit_channel(d / DAT, "Zeit", 241, "0,012"), DAT, "not a number"),
+    "time step nan": (lambda d: edit_channel(d / DAT, "Zeit", 241, "nan"), DAT, "not finite"),
+    "time overflows": (lambda d: edit_channel(d / DAT, "Zeit", 241, "1e307"), DAT, "overflow"),
+    "time channel explicit without data file": (
+        lambda d: edit_channel(d / DAT, "Zeit", 210, "EXPLIZIT"),
+        DAT,
+        "'Zeit' has no code 211",
+    ),
+    "no time channel": (_drop_zeit_block, DAT, "no time channel"),
+    "bad 210": (lambda d: edit_channel(d / DAT, "Istmoment", 210, "MAYBE"), DAT, "IMPLIZIT or EXPLIZIT"),
+    "bad storage": (lambda d: edit_channel(d / DAT, "Istmoment", 213, "ROWS"), DAT, "BLOCK or CHANNEL"),
+    "mixed storage": (lambda d: edit_channel(d / DAT, "Istmoment", 213, "CHANNEL"), R64, "mix BLOCK and CHANNEL"),
+    "pointer out of range": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "9"), R64, "not 1..7"),
+    "pointer twice": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "1"), R64, "not 1..7"),
+    "pointer zero": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "0"), DAT, "below 1"),
+    "count not integer": (lambda d: edit_channel(d / DAT, "Istmoment", 220, "40.0"), DAT, "not an integer"),
+    "no name": (lambda d: edit_channel(d / DAT, "Istmoment", 200, None), DAT, "no code 200"),
+    "duplicate name": (lambda d: edit_channel(d / DAT, "Iststrom", 200, "Istmoment"), DAT, "given twice"),
+    "duplicate code": (
+        lambda d: _replace_header_text(d / DAT, "202,Nm\r\n", "202,Nm\r\n202,Nm\r\n"),
+        DAT,
+        "code 202 given twice",
+    ),
+    "truncated header": (
+        lambda d: (d / DAT).write_bytes((d / DAT).read_bytes()[: len((d / DAT).read_bytes()) // 2]),
+        DAT,
+        "truncated header",
+    ),
+    "garbled line": (lambda d: _replace_header_text(d / DAT, "202,Nm", "202 Nm"), DAT, "'code,value'"),
+    "garbled block marker": (
+        lambda d: _replace_header_text(d / DAT, "#ENDCHANNELHEADER\r\n\r\n#BEGIN", "#ENDCHANNELHEADER\r\n\r\nBEGIN"),
+        DAT,
+        "expected #BEGINCHANNELHEADER",
+    ),
+    "no global header": (
+        lambda d: _replace_header_text(d / DAT, "#BEGINGLOBALHEADER", "#GLOBALHEADER"),
+        DAT,
+        "expected #BEGINGLOBALHEADER",
+    ),
+    "binary garbage": (lambda d: (d / DAT).write_bytes(b"\x00\x01\x02" * 100), DAT, "NUL bytes"),
+    "empty header": (lambda d: (d / DAT).write_bytes(b""), DAT, "truncated header"),
+    "header without channels": (
+        lambda d: (d / DAT).write_bytes(b"#BEGINGLOBALHEADER\r\n1,x\r\n#ENDGLOBALHEADER\r\n"),
+        DAT,
+        "no channel blocks",
+    ),
+    "missing dat": (lambda d: (d / DAT).unlink(), DAT, "not found"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bad_input_gives_data_error_naming_file(tmp_path: Path, case: str) -> None:
+    damage, file_name, problem = CASES[case]
+    write_small_set(tmp_path)
+    damage(tmp_path)
+    before = {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in tmp_path.iterdir()}
+    with pytest.raises(DataError) as info:
+        read_trace_file(tmp_path / DAT)
+    message = str(info.value)
+    assert str(tmp_path / file_name) in message or (file_name == R64 and f"{tmp_path / DAT}" in message), message
+    assert re.search(problem, message), message
+    with pytest.raises(DataError):
+        read_trace_set(tmp_path, "run1", modules=["NextGenDrive#3"])
+    assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in tmp_path.iterdir()} == before
+
+
+def test_channel_storage_counts_must_tile_the_file(tmp_path: Path) -> None:
+    write_small_set(tmp_path, storage="CHANNEL")
+    dat = tmp_path / DAT
+    edit_channel(dat, "Istmoment", 221, str(5 * N + 2))
+    with pytest.raises(DataError, match=r"NextGenDrive#3\.r64.*'Istmoment' starts at value 202, expected 201"):
+        read_trace_file(dat)
+    edit_channel(dat, "Istmoment", 221, str(5 * N + 1))
+    read_trace_file(dat)
+    _append_values(tmp_path / R64, [0.0] * 3)
+    with pytest.raises(DataError, match=r"NextGenDrive#3\.r64.*add up to 280 values, data has 283"):
+        read_trace_file(dat)
+
+
+def test_block_with_pointer_permutation_is_fine(tmp_path: Path) -> None:
+    """Swapping two pointers swaps the channels' data; a valid permutation is read, not refused."""
+    modules = write_small_set(tmp_path)
+    edit_channel(tmp_path / DAT, "Istmoment", 221, "7")
+    edit_channel(tmp_path / DAT, "Iststrom", 221, "6")
+    tf = read_trace_file(tmp_path / DAT)
+    np.testing.assert_allclose(tf.channel("Istmoment").values, modules["NextGenDrive#3"]["Iststrom"][0], rtol=1e-12)
