@@ -1,0 +1,528 @@
+"""The Modbus TCP safety I/O module: three fail-safe inputs in, a stack light and a "running" lamp out.
+
+Why it exists: the paper's cell allows automatic operation only with a cleared, cordoned hazard area and the
+key switch turned to permit AUT. The daemon polls those contacts (plus the E-stop chain) and drives a stack
+light. It never *relies* on them for personal safety (the KR C4 safety controller does that); it refuses to
+start or continue a plan when they are not all good.
+
+Public API
+----------
+``ModbusConfig``            host, port, unit id, register map, poll period, timeouts, backoff (pydantic).
+``SafetyIo(cfg)``           ``async start()`` / ``async stop()`` or ``async with SafetyIo(cfg) as io``.
+``io.inputs``               ``SafetyInputs`` (frozen): the latest reading, or an all-unsafe one on link loss or
+                            when the latest good reading is older than ``stale_after_polls`` poll periods.
+``io.changes()``            async iterator of ``SafetyInputs`` whenever a safety-relevant field changes (the
+                            current state first); ends when the I/O stops.
+``await io.set_light(c)``   ``LightColor.GREEN`` idle, ``YELLOW`` measuring, ``RED`` alarm, ``OFF``.
+``await io.set_running(b)`` the "measurement running" output.
+``io.counters``             reads, read errors, writes, write errors, connects, reconnects.
+``io.state``                ``ConnectionState``.
+
+Register map (defaults; zero-based Modbus addresses, one bit each)
+------------------------------------------------------------------
+==========================  ==========================  =====================================
+signal                      table (function codes)      default address
+==========================  ==========================  =====================================
+hazard area cleared         discrete inputs (FC 2)      0
+key switch AUT permitted    discrete inputs (FC 2)      1
+E-stop OK                   discrete inputs (FC 2)      2
+stack light green           coils (FC 1 / 5 / 15)       0
+stack light yellow          coils                       1
+stack light red             coils                       2
+measurement running         coils                       3
+==========================  ==========================  =====================================
+
+``input_table = "coils"`` reads the inputs from coils instead (then input and output addresses must differ).
+Inputs are fail-safe wired: 1 means "safe" (cleared / permitted / E-stop chain closed), so a broken wire
+reads as unsafe. The inputs are read in one request spanning their addresses.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import enum
+import logging
+import random
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Literal, Self
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.pdu import ModbusPDU
+
+from rgse_daemon.io import IoDeviceError, IoDeviceRefused, IoLinkError, IoTimeout
+
+log = logging.getLogger(__name__)
+
+Address = int  # zero-based Modbus address of one bit
+MAX_BITS_PER_READ = 2000  # Modbus application protocol limit for FC 1 / FC 2
+
+
+# --- configuration -------------------------------------------------------------------------------------------
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class InputMap(_Strict):
+    """Addresses of the three safety inputs (one bit each, 1 = safe)."""
+
+    area_cleared: Address = Field(0, ge=0, le=65535)
+    aut_permitted: Address = Field(1, ge=0, le=65535)
+    estop_ok: Address = Field(2, ge=0, le=65535)
+
+
+class OutputMap(_Strict):
+    """Coil addresses of the stack light and the "measurement running" output."""
+
+    light_green: Address = Field(0, ge=0, le=65535)
+    light_yellow: Address = Field(1, ge=0, le=65535)
+    light_red: Address = Field(2, ge=0, le=65535)
+    running: Address = Field(3, ge=0, le=65535)
+
+
+class ModbusConfig(_Strict):
+    """Where the safety I/O module is, its register map, and how hard to try."""
+
+    host: str = Field("127.0.0.1", min_length=1)
+    port: int = Field(502, ge=1, le=65535)
+    unit_id: int = Field(1, ge=0, le=247)
+    input_table: Literal["discrete_inputs", "coils"] = "discrete_inputs"
+    inputs: InputMap = InputMap()
+    outputs: OutputMap = OutputMap()
+    poll_period_s: float = Field(0.1, gt=0.0, le=10.0)
+    stale_after_polls: int = Field(3, ge=2, le=100)
+    """A reading older than this many poll periods counts as unsafe."""
+    request_timeout_s: float = Field(0.5, gt=0.0, le=30.0)
+    connect_timeout_s: float = Field(2.0, gt=0.0, le=60.0)
+    reconnect_min_s: float = Field(0.2, gt=0.0, le=60.0)
+    reconnect_max_s: float = Field(5.0, gt=0.0, le=600.0)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ModbusConfig:
+        if self.reconnect_min_s > self.reconnect_max_s:
+            raise ValueError("reconnect_min_s must not exceed reconnect_max_s")
+        ins = list(self.inputs.model_dump().values())
+        outs = list(self.outputs.model_dump().values())
+        if len(set(ins)) != len(ins):
+            raise ValueError(f"input addresses must be distinct, got {self.inputs.model_dump()}")
+        if len(set(outs)) != len(outs):
+            raise ValueError(f"output addresses must be distinct, got {self.outputs.model_dump()}")
+        if self.input_table == "coils" and set(ins) & set(outs):
+            raise ValueError("with input_table='coils' input and output addresses must not overlap")
+        if max(ins) - min(ins) + 1 > MAX_BITS_PER_READ:
+            raise ValueError(f"input addresses must lie within {MAX_BITS_PER_READ} bits of each other")
+        return self
+
+    @property
+    def stale_after_s(self) -> float:
+        return self.stale_after_polls * self.poll_period_s
+
+
+# --- values --------------------------------------------------------------------------------------------------
+class LightColor(enum.StrEnum):
+    OFF = "off"
+    GREEN = "green"  # idle
+    YELLOW = "yellow"  # measuring
+    RED = "red"  # alarm
+
+
+class ConnectionState(enum.StrEnum):
+    DISCONNECTED = "disconnected"
+    CONNECTING = "connecting"
+    CONNECTED = "connected"
+    STOPPED = "stopped"
+
+
+@dataclass(frozen=True)
+class SafetyInputs:
+    """One view of the safety inputs. ``valid`` is False on link loss, a refused or stale read: then all three
+    inputs read False (not cleared, not permitted, E-stop not OK) and ``reason`` says why."""
+
+    area_cleared: bool
+    aut_permitted: bool
+    estop_ok: bool
+    valid: bool
+    time_utc: datetime
+    """When the values were read (for an invalid view: when the doubt arose)."""
+    reason: str = ""
+
+    @property
+    def safe(self) -> bool:
+        """All three inputs good, from a fresh reading."""
+        return self.valid and self.area_cleared and self.aut_permitted and self.estop_ok
+
+    def key(self) -> tuple[bool, bool, bool, bool]:
+        """The safety-relevant part: a change in it is reported by ``SafetyIo.changes()``."""
+        return (self.area_cleared, self.aut_permitted, self.estop_ok, self.valid)
+
+    @classmethod
+    def unsafe(cls, reason: str, time_utc: datetime | None = None) -> SafetyInputs:
+        return cls(False, False, False, False, time_utc or datetime.now(UTC), reason)
+
+
+@dataclass
+class SafetyIoCounters:
+    reads: int = 0
+    read_errors: int = 0
+    writes: int = 0
+    write_errors: int = 0
+    connects: int = 0
+    reconnects: int = 0
+
+
+class InputChanges:
+    """Async iterator of ``SafetyInputs``: the state at subscription, then every safety-relevant change.
+
+    It ends (``StopAsyncIteration``) when the I/O stops. The queue is bounded and never blocks the poller: on
+    overflow the oldest entry is dropped, since the newest state is what the interlock needs. Use as
+    ``async with io.changes() as changes: async for s in changes: ...`` or call ``close()``.
+    """
+
+    def __init__(self, owner: SafetyIo, maxsize: int = 32) -> None:
+        self._owner = owner
+        self._queue: asyncio.Queue[SafetyInputs | None] = asyncio.Queue(maxsize=maxsize)
+
+    def put_latest(self, item: SafetyInputs | None) -> None:
+        if self._queue.full():
+            self._queue.get_nowait()
+        self._queue.put_nowait(item)
+
+    def __aiter__(self) -> InputChanges:
+        return self
+
+    async def __anext__(self) -> SafetyInputs:
+        item = await self._queue.get()
+        if item is None:
+            self._queue.put_nowait(None)  # stay ended
+            raise StopAsyncIteration
+        return item
+
+    def close(self) -> None:
+        self._owner._unsubscribe(self)
+        self.put_latest(None)
+
+    async def __aenter__(self) -> InputChanges:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()
+
+
+def backoff_s(attempt: int, min_s: float, max_s: float, rng: random.Random) -> float:
+    """Exponential backoff with "equal jitter": half fixed, half random, so that many clients do not
+    reconnect in lockstep after the module reboots."""
+    base = min(max_s, min_s * 2.0**attempt)
+    return base / 2.0 + rng.uniform(0.0, base / 2.0)
+
+
+# --- the device ----------------------------------------------------------------------------------------------
+class SafetyIo:
+    """The safety I/O module as the daemon sees it: a polled, self-reconnecting view of three inputs plus two
+    outputs. One lock serialises every request on the bus; device-side errors become exceptions in
+    ``_request`` only."""
+
+    def __init__(self, cfg: ModbusConfig, *, rng: random.Random | None = None) -> None:
+        self.cfg = cfg
+        self.name = f"modbus {cfg.host}:{cfg.port} unit {cfg.unit_id}"
+        self.counters = SafetyIoCounters()
+        self.state = ConnectionState.STOPPED
+        self._rng = rng or random.Random()
+        self._lock = asyncio.Lock()
+        self._client: AsyncModbusTcpClient | None = None
+        self._latest = SafetyInputs.unsafe("not started")
+        self._latest_mono = -float("inf")
+        self._published: tuple[bool, bool, bool, bool] | None = None
+        self._subscribers: list[InputChanges] = []
+        self._tasks: list[asyncio.Task[None]] = []
+        self._light = LightColor.OFF
+        self._running = False
+        self._outputs_dirty = False  # desired outputs not yet confirmed written on this connection
+        self._last_logged_error = ""
+        span = list(cfg.inputs.model_dump().values())
+        self._in_first = min(span)
+        self._in_count = max(span) - self._in_first + 1
+
+    # lifecycle ---------------------------------------------------------------------------------------------
+    async def start(self) -> None:
+        """Start polling. Does not wait for the first reading: until it arrives, ``inputs`` reads unsafe."""
+        if self._tasks:
+            return
+        self.state = ConnectionState.DISCONNECTED
+        self._latest = SafetyInputs.unsafe("no reading yet")
+        self._tasks = [
+            asyncio.create_task(self._poll_loop(), name=f"{self.name} poll"),
+            asyncio.create_task(self._watchdog(), name=f"{self.name} watchdog"),
+        ]
+
+    async def stop(self) -> None:
+        """Stop polling, close the connection and end every ``changes()`` iterator. Outputs are left as they
+        are: what the light shows after a stop is the caller's decision (set it before stopping)."""
+        tasks, self._tasks = self._tasks, []
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        self._close_client()
+        self.state = ConnectionState.STOPPED
+        self._latest = SafetyInputs.unsafe("stopped")
+        for sub in self._subscribers:
+            sub.put_latest(None)
+        self._subscribers.clear()
+
+    async def __aenter__(self) -> Self:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    # inputs ------------------------------------------------------------------------------------------------
+    @property
+    def inputs(self) -> SafetyInputs:
+        """The latest reading, unless the link is down or the reading is stale: then all-unsafe."""
+        latest = self._latest
+        if latest.valid:
+            age_s = time.monotonic() - self._latest_mono
+            if age_s > self.cfg.stale_after_s:
+                return SafetyInputs.unsafe(f"stale: last good reading {age_s:.3f} s ago")
+        return latest
+
+    def changes(self) -> InputChanges:
+        """Subscribe to the current inputs and every change of a safety-relevant field, until ``stop()``."""
+        sub = InputChanges(self)
+        sub.put_latest(self.inputs)
+        if self._tasks:
+            self._subscribers.append(sub)
+        else:
+            sub.put_latest(None)
+        return sub
+
+    def _unsubscribe(self, sub: InputChanges) -> None:
+        with contextlib.suppress(ValueError):
+            self._subscribers.remove(sub)
+
+    def _publish(self) -> None:
+        now = self.inputs
+        if now.key() != self._published:
+            self._published = now.key()
+            for sub in self._subscribers:
+                sub.put_latest(now)
+
+    # outputs -----------------------------------------------------------------------------------------------
+    async def set_light(self, color: LightColor) -> None:
+        """Show one colour (or none). The wish is remembered and re-applied after a reconnect; raises
+        ``IoDeviceError`` when it could not be written now."""
+        self._light = LightColor(color)
+        self._outputs_dirty = True
+        await self._reapply_outputs()
+
+    async def set_running(self, running: bool) -> None:
+        """Set the "measurement running" output; remembered and re-applied after a reconnect like the light."""
+        self._running = bool(running)
+        self._outputs_dirty = True
+        await self._reapply_outputs()
+
+    async def _write_light(self) -> None:
+        out = self.cfg.outputs
+        await self._write_coils(
+            {
+                out.light_green: self._light is LightColor.GREEN,
+                out.light_yellow: self._light is LightColor.YELLOW,
+                out.light_red: self._light is LightColor.RED,
+            }
+        )
+
+    async def _write_coils(self, bits: dict[Address, bool]) -> None:
+        """Write in one request when the addresses are contiguous, else one by one turning bits off first
+        (so that two light colours are never on together)."""
+        client = self._connected_client()
+        first = min(bits)
+        try:
+            if sorted(bits) == list(range(first, first + len(bits))):
+                values = [bits[a] for a in range(first, first + len(bits))]
+                await self._request(
+                    f"write coils {first}..{first + len(bits) - 1}",
+                    lambda: client.write_coils(first, values, device_id=self.cfg.unit_id),
+                )
+            else:
+                for addr, value in sorted(bits.items(), key=lambda kv: kv[1]):
+                    await self._request(
+                        f"write coil {addr}",
+                        lambda a=addr, v=value: client.write_coil(a, v, device_id=self.cfg.unit_id),
+                    )
+        except IoDeviceError:
+            self.counters.write_errors += 1
+            raise
+        self.counters.writes += 1
+
+    @property
+    def outputs(self) -> tuple[LightColor, bool]:
+        """The wanted outputs (light colour, running); ``outputs_confirmed`` says whether they are written."""
+        return self._light, self._running
+
+    @property
+    def outputs_confirmed(self) -> bool:
+        return not self._outputs_dirty
+
+    async def _reapply_outputs(self) -> None:
+        """Write the wanted light and running outputs; only a complete success marks them confirmed."""
+        await self._write_light()
+        await self._write_coils({self.cfg.outputs.running: self._running})
+        self._outputs_dirty = False
+
+    # the one place where the bus is touched -------------------------------------------------------------------
+    def _connected_client(self) -> AsyncModbusTcpClient:
+        client = self._client
+        if client is None or self.state is not ConnectionState.CONNECTED:
+            raise IoLinkError(self.name, f"not connected ({self.state})")
+        if not client.connected:
+            raise IoLinkError(self.name, "connection closed by the peer")
+        return client
+
+    async def _request(self, what: str, call: Callable[[], Awaitable[ModbusPDU]]) -> ModbusPDU:
+        """Run one request under the bus lock with a deadline; map every failure to a typed error."""
+        async with self._lock:
+            try:
+                async with asyncio.timeout(self.cfg.request_timeout_s):
+                    response = await call()
+            except TimeoutError as exc:
+                raise IoTimeout(self.name, f"{what}: no answer within {self.cfg.request_timeout_s} s") from exc
+            except ModbusIOException as exc:
+                raise IoTimeout(self.name, f"{what}: {exc}") from exc
+            except ConnectionException as exc:
+                raise IoLinkError(self.name, f"{what}: {exc}") from exc
+            except ModbusException as exc:
+                raise IoLinkError(self.name, f"{what}: {exc}") from exc
+            except OSError as exc:
+                raise IoLinkError(self.name, f"{what}: {exc}") from exc
+        if response.isError():
+            code = getattr(response, "exception_code", None)
+            raise IoDeviceRefused(self.name, f"{what}: exception response, code {code}", code)
+        return response
+
+    async def _read_inputs(self) -> SafetyInputs:
+        client = self._connected_client()
+        first, count, unit = self._in_first, self._in_count, self.cfg.unit_id
+        if self.cfg.input_table == "coils":
+            response = await self._request(
+                f"read coils {first}+{count}", lambda: client.read_coils(first, count=count, device_id=unit)
+            )
+        else:
+            response = await self._request(
+                f"read discrete inputs {first}+{count}",
+                lambda: client.read_discrete_inputs(first, count=count, device_id=unit),
+            )
+        bits = list(response.bits)
+        if len(bits) < count:
+            raise IoDeviceRefused(self.name, f"read inputs: asked for {count} bits, got {len(bits)}")
+        ins = self.cfg.inputs
+        return SafetyInputs(
+            area_cleared=bool(bits[ins.area_cleared - first]),
+            aut_permitted=bool(bits[ins.aut_permitted - first]),
+            estop_ok=bool(bits[ins.estop_ok - first]),
+            valid=True,
+            time_utc=datetime.now(UTC),
+        )
+
+    # background tasks ----------------------------------------------------------------------------------------
+    async def _connect(self) -> None:
+        self._close_client()
+        self.state = ConnectionState.CONNECTING
+        client = AsyncModbusTcpClient(
+            self.cfg.host,
+            port=self.cfg.port,
+            timeout=self.cfg.connect_timeout_s,
+            retries=0,
+            reconnect_delay=0,  # we reconnect ourselves, with jitter
+            name=self.name,
+        )
+        self._client = client
+        try:
+            async with asyncio.timeout(self.cfg.connect_timeout_s):
+                ok = await client.connect()
+        except TimeoutError as exc:
+            raise IoTimeout(self.name, f"connect: no answer within {self.cfg.connect_timeout_s} s") from exc
+        if not ok:
+            raise IoLinkError(self.name, "connect: refused or unreachable")
+        # the per-request wait inside pymodbus; our own deadline in _request is the one that counts
+        client.ctx.comm_params.timeout_connect = self.cfg.request_timeout_s
+        self.state = ConnectionState.CONNECTED
+        self.counters.connects += 1
+        self._outputs_dirty = True  # the module may have rebooted and reset its outputs
+
+    def _close_client(self) -> None:
+        client, self._client = self._client, None
+        if client is not None:
+            client.close()
+
+    def _doubt(self, reason: str) -> None:
+        """Something went wrong: from now until a good reading, every input reads unsafe."""
+        self._latest = SafetyInputs.unsafe(reason)
+        self._publish()
+        if reason != self._last_logged_error:  # log each distinct error once
+            log.warning("%s", reason)
+            self._last_logged_error = reason
+
+    async def _poll_loop(self) -> None:
+        attempt = 0
+        first_connect = True
+        while True:
+            try:
+                await self._connect()
+                if not first_connect:
+                    self.counters.reconnects += 1
+                first_connect = False
+                await self._reapply_outputs_quietly()
+                next_tick = time.monotonic()
+                while True:
+                    await self._poll_once()
+                    attempt = 0
+                    next_tick += self.cfg.poll_period_s
+                    await asyncio.sleep(max(0.0, next_tick - time.monotonic()))
+                    next_tick = max(next_tick, time.monotonic() - self.cfg.poll_period_s)
+            except (IoTimeout, IoLinkError) as exc:
+                self._doubt(f"link lost: {exc}")
+            self._close_client()
+            self.state = ConnectionState.DISCONNECTED
+            await asyncio.sleep(backoff_s(attempt, self.cfg.reconnect_min_s, self.cfg.reconnect_max_s, self._rng))
+            attempt += 1
+
+    async def _reapply_outputs_quietly(self) -> None:
+        """Re-assert the wanted outputs after (re)connecting; a refusal here is logged, not fatal to polling."""
+        if not self._outputs_dirty:
+            return
+        try:
+            await self._reapply_outputs()
+        except IoDeviceRefused as exc:
+            self._doubt(f"outputs refused: {exc}")
+
+    async def _poll_once(self) -> None:
+        try:
+            reading = await self._read_inputs()
+        except IoDeviceRefused as exc:  # the module is there but refused: keep the link, doubt the inputs
+            self.counters.read_errors += 1
+            self._doubt(f"read refused: {exc}")
+            return
+        except IoDeviceError:
+            self.counters.read_errors += 1
+            raise
+        self.counters.reads += 1
+        self._latest = reading
+        self._latest_mono = time.monotonic()
+        if self._last_logged_error:
+            log.info("%s: inputs readable again", self.name)
+            self._last_logged_error = ""
+        self._publish()
+        await self._reapply_outputs_quietly()
+
+    async def _watchdog(self) -> None:
+        """Publish staleness even while the poller is stuck in a slow request."""
+        while True:
+            await asyncio.sleep(self.cfg.poll_period_s)
+            self._publish()

@@ -1,0 +1,213 @@
+"""The real SafetyIo client against the real pymodbus simulator over TCP on 127.0.0.1."""
+
+from __future__ import annotations
+
+import itertools
+import random
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from iodev_helpers import fast_cfg, wait_until
+from pydantic import ValidationError
+
+from rgse_daemon.io import IoDeviceRefused, IoLinkError
+from rgse_daemon.io.modbus import (
+    ConnectionState,
+    LightColor,
+    ModbusConfig,
+    SafetyInputs,
+    SafetyIo,
+    backoff_s,
+)
+from simulators.modbus_io import ModbusIoSim
+
+
+async def test_inputs_seen_by_client(modbus_sim: ModbusIoSim) -> None:
+    async with SafetyIo(fast_cfg(modbus_sim.port)) as io:
+        await wait_until(lambda: io.inputs.valid, what="first reading")
+        assert not io.inputs.safe  # the simulator starts with every input off
+        modbus_sim.set_input("area_cleared", True)
+        await wait_until(lambda: io.inputs.area_cleared, what="area cleared")
+        assert not io.inputs.aut_permitted and not io.inputs.estop_ok and not io.inputs.safe
+        modbus_sim.set_input("aut_permitted", True)
+        modbus_sim.set_input("estop_ok", True)
+        await wait_until(lambda: io.inputs.safe, what="all safe")
+        assert io.inputs.reason == ""
+        modbus_sim.set_input("estop_ok", False)
+        await wait_until(lambda: not io.inputs.estop_ok, what="E-stop pressed")
+        assert io.inputs.valid and not io.inputs.safe
+        assert io.counters.reads > 0 and io.counters.read_errors == 0 and io.counters.connects == 1
+
+
+async def test_inputs_on_coils_with_custom_addresses() -> None:
+    cfg = fast_cfg(
+        502,  # the register map is what matters here; the port is set once the simulator is bound
+        input_table="coils",
+        inputs={"area_cleared": 40, "aut_permitted": 17, "estop_ok": 33},
+        outputs={"light_green": 8, "light_yellow": 2, "light_red": 5, "running": 0},
+    )
+    async with ModbusIoSim(cfg) as sim:
+        sim.set_input("aut_permitted", True)
+        sim.set_input("estop_ok", True)
+        async with SafetyIo(cfg.model_copy(update={"port": sim.port})) as io:
+            await wait_until(lambda: io.inputs.valid, what="first reading")
+            assert (io.inputs.area_cleared, io.inputs.aut_permitted, io.inputs.estop_ok) == (False, True, True)
+            await io.set_light(LightColor.RED)  # non-contiguous light coils: written one by one
+            assert sim.light == "red"
+            assert sim.coils[8] is False and sim.coils[2] is False and sim.coils[5] is True
+            # writing outputs did not disturb the inputs living in the same table
+            await wait_until(lambda: io.counters.reads >= 3, what="more readings")
+            assert (io.inputs.area_cleared, io.inputs.aut_permitted, io.inputs.estop_ok) == (False, True, True)
+
+
+async def test_outputs_seen_by_simulator(modbus_sim: ModbusIoSim) -> None:
+    async with SafetyIo(fast_cfg(modbus_sim.port)) as io:
+        await wait_until(lambda: io.state is ConnectionState.CONNECTED, what="connected")
+        for color in (LightColor.GREEN, LightColor.YELLOW, LightColor.RED, LightColor.OFF):
+            await io.set_light(color)
+            assert modbus_sim.light == color.value
+        assert not modbus_sim.running
+        await io.set_running(True)
+        assert modbus_sim.running and modbus_sim.light == "off"
+        await io.set_running(False)
+        assert not modbus_sim.running
+        assert io.outputs == (LightColor.OFF, False) and io.outputs_confirmed
+        assert io.counters.write_errors == 0 and io.counters.writes >= 12
+
+
+async def test_changes_iterator_reports_each_change(modbus_sim: ModbusIoSim) -> None:
+    async with SafetyIo(fast_cfg(modbus_sim.port)) as io, io.changes() as changes:
+        first = await anext(changes)
+        assert not first.safe  # before the first reading: "no reading yet"
+        seen: list[SafetyInputs] = []
+        modbus_sim.set_all_inputs(True)
+        async for item in changes:
+            seen.append(item)
+            if item.safe:
+                break
+        modbus_sim.set_input("area_cleared", False)
+        item = await anext(changes)
+        assert item.valid and not item.area_cleared and item.aut_permitted and item.estop_ok
+        assert all(a.key() != b.key() for a, b in itertools.pairwise(seen))
+
+
+async def test_changes_iterator_ends_on_stop(modbus_sim: ModbusIoSim) -> None:
+    io = SafetyIo(fast_cfg(modbus_sim.port))
+    await io.start()
+    changes = io.changes()
+    await anext(changes)
+    await io.stop()
+    with pytest.raises(StopAsyncIteration):
+        while True:
+            await anext(changes)
+    assert io.state is ConnectionState.STOPPED and not io.inputs.safe
+
+
+async def test_link_loss_is_unsafe_within_a_bounded_number_of_polls(modbus_sim: ModbusIoSim) -> None:
+    async with SafetyIo(fast_cfg(modbus_sim.port)) as io:
+        modbus_sim.set_all_inputs(True)
+        await wait_until(lambda: io.inputs.safe, what="all safe")
+        polls_before = io.counters.reads + io.counters.read_errors
+        await modbus_sim.stop()
+        await wait_until(lambda: not io.inputs.safe, what="unsafe after link loss")
+        # unsafe no later than the first poll that could not reach the module, long before staleness
+        assert io.counters.reads + io.counters.read_errors - polls_before <= 2
+        assert io.inputs.reason.startswith("link lost")
+        assert (io.inputs.area_cleared, io.inputs.aut_permitted, io.inputs.estop_ok) == (False, False, False)
+        with pytest.raises(IoLinkError) as err:
+            await io.set_light(LightColor.RED)
+        assert err.value.device == io.name
+
+
+async def test_reconnect_after_simulator_restart_reapplies_outputs(modbus_sim: ModbusIoSim) -> None:
+    async with SafetyIo(fast_cfg(modbus_sim.port)) as io:
+        modbus_sim.set_all_inputs(True)
+        await wait_until(lambda: io.inputs.safe, what="all safe")
+        await io.set_light(LightColor.YELLOW)
+        await io.set_running(True)
+        await modbus_sim.stop()
+        await wait_until(lambda: io.state is ConnectionState.DISCONNECTED, what="disconnected")
+        await wait_until(lambda: io.counters.connects == 1 and io.inputs.reason != "", what="doubt")
+        await modbus_sim.start()  # a rebooted module: same port, outputs off
+        assert modbus_sim.light == "off"
+        await wait_until(lambda: io.inputs.safe, what="safe again after the restart")
+        assert io.counters.reconnects >= 1 and io.counters.connects >= 2
+        await wait_until(lambda: modbus_sim.light == "yellow" and modbus_sim.running, what="outputs re-applied")
+
+
+async def test_dropped_connection_reconnects(modbus_sim: ModbusIoSim) -> None:
+    async with SafetyIo(fast_cfg(modbus_sim.port)) as io:
+        modbus_sim.set_all_inputs(True)
+        await wait_until(lambda: io.inputs.safe, what="all safe")
+        modbus_sim.drop_connections()
+        await wait_until(lambda: io.counters.reconnects >= 1 and io.inputs.safe, what="reconnected and safe")
+
+
+async def test_mute_module_reads_stale_before_the_request_times_out(modbus_sim: ModbusIoSim) -> None:
+    # a long request deadline: the poller hangs in its read, so only the staleness check can flag the doubt
+    cfg = fast_cfg(modbus_sim.port, request_timeout_s=20.0, stale_after_polls=3)
+    async with SafetyIo(cfg) as io, io.changes() as changes:
+        modbus_sim.set_all_inputs(True)
+        async for item in changes:
+            if item.safe:
+                break
+        modbus_sim.mute = True
+        async for item in changes:
+            if not item.safe:
+                break
+        assert item.reason.startswith("stale") and not item.valid
+        assert io.inputs.reason.startswith("stale")
+        assert io.counters.read_errors == 0  # no read failed yet: it was the age of the reading
+        modbus_sim.mute = False
+
+
+async def test_device_exception_response_becomes_typed_error_and_unsafe(modbus_sim: ModbusIoSim) -> None:
+    async with SafetyIo(fast_cfg(modbus_sim.port)) as io:
+        modbus_sim.set_all_inputs(True)
+        await wait_until(lambda: io.inputs.safe, what="all safe")
+        modbus_sim.refuse = True
+        with pytest.raises(IoDeviceRefused) as err:
+            await io.set_light(LightColor.GREEN)
+        assert err.value.code == 4 and "exception response" in str(err.value) and io.name in str(err.value)
+        await wait_until(lambda: io.inputs.reason.startswith("read refused"), what="refused read")
+        assert not io.inputs.safe and io.counters.read_errors >= 1 and io.counters.write_errors >= 1
+        assert io.counters.connects == 1  # the link itself is fine: no reconnect for a refusal
+        modbus_sim.refuse = False
+        await wait_until(lambda: io.inputs.safe, what="safe again")
+        await wait_until(lambda: modbus_sim.light == "green", what="wanted light re-applied")
+
+
+async def test_not_started_reads_unsafe() -> None:
+    io = SafetyIo(ModbusConfig())
+    assert not io.inputs.safe and not io.inputs.valid
+    with pytest.raises(IoLinkError):
+        await io.set_running(True)
+    changes = io.changes()
+    assert not (await anext(changes)).safe
+    with pytest.raises(StopAsyncIteration):
+        await anext(changes)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"outputs": {"light_green": 1, "light_yellow": 1, "light_red": 2, "running": 3}},
+        {"inputs": {"area_cleared": 0, "aut_permitted": 0, "estop_ok": 2}},
+        {"input_table": "coils"},  # default inputs 0..2 collide with the default light coils
+        {"inputs": {"area_cleared": 0, "aut_permitted": 1, "estop_ok": 5000}},
+        {"reconnect_min_s": 3.0, "reconnect_max_s": 1.0},
+        {"stale_after_polls": 1},
+        {"unknown_key": 1},
+    ],
+)
+def test_bad_config_is_refused(bad: dict[str, object]) -> None:
+    with pytest.raises(ValidationError):
+        ModbusConfig.model_validate(bad)
+
+
+@given(attempt=st.integers(0, 60), seed=st.integers(0, 2**32 - 1))
+def test_backoff_is_bounded_and_jittered(attempt: int, seed: int) -> None:
+    delay = backoff_s(attempt, 0.2, 5.0, random.Random(seed))
+    base = min(5.0, 0.2 * 2.0**attempt)
+    assert base / 2 <= delay <= base <= 5.0
