@@ -79,7 +79,8 @@ async def test_proxy_info_and_features(client: RawClient) -> None:
     assert isinstance(info, fr.ProxyInfoReply) and info.ok
     assert (info.major, info.minor, info.build_type, info.computer_name) == (1, 5, 0, "KRC4-SIM")
     year, month, weekday, day, hour, minute, second, ms = info.utc
-    assert year >= 2024 and 1 <= month <= 12 and 0 <= weekday <= 6 and 1 <= day <= 31 and ms < 1000
+    assert year >= 2024 and 1 <= month <= 12 and 0 <= weekday <= 6 and 1 <= day <= 31
+    assert hour < 24 and minute < 60 and second < 61 and ms < 1000
     features = await client.call(fr.ProxyFeatures())
     assert isinstance(features, fr.ProxyFeaturesReply)
     assert features.types == HANDLED_TYPES
