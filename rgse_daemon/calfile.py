@@ -1,0 +1,128 @@
+"""The calibration file ``CAL.json`` (contracts §3): write, read back into a :class:`Calibration`, robot check."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline.calibration import AxisK, Calibration
+from rgse_daemon.pipeline.preprocess import Preprocessing
+
+SCHEMA = 1
+
+
+def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, bias_a3_nm: float,
+          bias_a5_nm: float, in_sample_pct: float, loo_pct: float, loo_max_kg: float,
+          source_sha256: dict[str, str], extra_fit: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The CAL.json document of a fitted calibration; ``calibration_id`` is a hash of its content."""
+    doc: dict[str, Any] = {
+        "schema": SCHEMA,
+        "calibration_id": "",
+        "created_utc": datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "robot": robot,
+        "method": cal.method,
+        "preprocessing": preprocessing.to_dict() if preprocessing else None,
+        "bias_nm": {"A3": float(bias_a3_nm), "A5": float(bias_a5_nm)},
+        "models": cal.models_dict(),
+        "lever_difference_m": cal.lever_difference_m,
+        "g": cal.g_m_s2,
+        "torque_range_nm": {"A3": list(cal.torque_range_a3_nm), "A5": list(cal.torque_range_a5_nm)},
+        "fit": {
+            "in_sample_mean_abs_err_pct": in_sample_pct,
+            "loo_mean_abs_err_pct": loo_pct,
+            "loo_max_abs_err_kg": loo_max_kg,
+            "r2": cal.r2,
+            "covariance": np.asarray(cal.covariance, float).tolist(),
+            **(extra_fit or {}),
+        },
+        "source_sha256": source_sha256,
+    }
+    body = json.dumps({k: v for k, v in doc.items() if k not in ("calibration_id", "created_utc")}, sort_keys=True)
+    doc["calibration_id"] = hashlib.sha256(body.encode()).hexdigest()[:16]
+    return doc
+
+
+def write(path: Path | str, doc: dict[str, Any]) -> None:
+    path = Path(path)
+    try:
+        path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    except OSError as exc:
+        raise DataError(f"{path}: cannot write calibration: {exc}") from exc
+
+
+def _need(doc: dict[str, Any], key: str, path: Path) -> Any:
+    if key not in doc:
+        raise DataError(f"{path}: calibration file lacks {key!r}")
+    return doc[key]
+
+
+def _finite(v: Any, what: str, path: Path) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise DataError(f"{path}: {what} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing | None]:
+    """Read and validate CAL.json; returns the document, the calibration and its pre-processing."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataError(f"{path}: calibration file not found") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(f"{path}: not a readable JSON calibration file: {exc}") from exc
+    if not isinstance(doc, dict):
+        raise DataError(f"{path}: calibration file must hold a JSON object")
+    if doc.get("schema") != SCHEMA:
+        raise DataError(f"{path}: unsupported calibration schema {doc.get('schema')!r} (expected {SCHEMA})")
+    models = _need(doc, "models", path)
+    fit = _need(doc, "fit", path)
+    bias = _need(doc, "bias_nm", path)
+    ranges = _need(doc, "torque_range_nm", path)
+    if not all(isinstance(x, dict) and "A3" in x and "A5" in x for x in (models, bias, ranges)):
+        raise DataError(f"{path}: models, bias_nm and torque_range_nm need entries A3 and A5")
+    try:
+        k3 = AxisK.from_dict(models["A3"])
+        k5 = AxisK.from_dict(models["A5"])
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from exc
+    n = len(k3.params) + len(k5.params)
+    cov = np.asarray(fit.get("covariance", []), float) if isinstance(fit, dict) else np.empty(0)
+    if cov.shape != (n, n) or not np.all(np.isfinite(cov)):
+        raise DataError(f"{path}: fit.covariance must be a finite {n}x{n} matrix")
+    for name, p in (("A3", k3.params), ("A5", k5.params)):
+        if not np.all(np.isfinite(p)):
+            raise DataError(f"{path}: model {name} has non-finite parameters")
+    rng = []
+    for axis in ("A3", "A5"):
+        r = ranges[axis]
+        if not (isinstance(r, list) and len(r) == 2):
+            raise DataError(f"{path}: torque_range_nm.{axis} must be [min, max]")
+        rng.append((_finite(r[0], f"torque_range_nm.{axis}", path), _finite(r[1], f"torque_range_nm.{axis}", path)))
+        _finite(bias[axis], f"bias_nm.{axis}", path)
+    cal = Calibration(str(_need(doc, "method", path)), k3, k5, cov, rng[0], rng[1],
+                      _finite(_need(doc, "g", path), "g", path),
+                      _finite(_need(doc, "lever_difference_m", path), "lever_difference_m", path),
+                      dict(fit.get("r2") or {}))
+    pre = None
+    if doc.get("preprocessing") is not None:
+        try:
+            pre = Preprocessing.from_dict(doc["preprocessing"])
+        except (DataError, TypeError) as exc:
+            raise DataError(f"{path}: {exc}") from exc
+    if not isinstance(doc.get("robot"), str):
+        raise DataError(f"{path}: calibration file lacks the robot it belongs to")
+    return doc, cal, pre
+
+
+def check_robot(path: Path | str, doc: dict[str, Any], robot: str) -> None:
+    """A calibration is only ever used for the robot it names (contracts §3)."""
+    if doc.get("robot") != robot:
+        raise DataError(f"{path}: calibration belongs to robot {doc.get('robot')!r}, the measurement to {robot!r}")

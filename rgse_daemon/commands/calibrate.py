@@ -1,0 +1,132 @@
+"""``rgse calibrate``: fit a calibration from Table-1 style points or from a campaign directory, write CAL.json."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from rgse_daemon import calfile
+from rgse_daemon.errors import DataError
+from rgse_daemon.manifest import Manifest, load_manifest, load_points_csv, read_loops, source_sha256
+from rgse_daemon.pipeline import calibration as cal_mod
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline.calibration import CalibrationPoints
+
+#: Robot named in a calibration fitted from a bare points CSV (the paper's robot type; the CSV names none).
+POINTS_ROBOT = "KR500R2830"
+
+
+@dataclass(frozen=True)
+class CampaignData:
+    """A campaign's loops, read once: per point a list of (A3 loop, A5 loop, period) triples."""
+
+    manifest: Manifest
+    loops: list[list[tuple[np.ndarray, np.ndarray, float]]]
+    files: list[Path]
+
+
+def load_campaign(directory: Path) -> CampaignData:
+    man = load_manifest(directory)
+    if not man.points:
+        raise DataError(f"{man.path}: a calibration campaign needs [[point]] entries")
+    if not any(p.kind == "zero" for p in man.points):
+        raise DataError(f"{man.path}: a calibration campaign needs a 'zero' point (the M_0 bias)")
+    loops = []
+    for spec in man.points:
+        loops.append([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in read_loops(directory, spec.traces)])
+    files = [man.path, *sorted(p for p in Path(directory).iterdir() if p.suffix in (".dat", ".r64"))]
+    return CampaignData(man, loops, files)
+
+
+def campaign_points(data: CampaignData, cfg: pp.Preprocessing) -> tuple[CalibrationPoints, float, float]:
+    """Pre-process every loop, average (eq. 16), remove the zero-load bias M_0; returns points and biases."""
+    raw3, raw5 = [], []
+    for point_loops in data.loops:
+        raw3.append(pp.double_average_nm([pp.process_loop(a3, dt, cfg).torque_nm for a3, _, dt in point_loops]))
+        raw5.append(pp.double_average_nm([pp.process_loop(a5, dt, cfg).torque_nm for _, a5, dt in point_loops]))
+    return points_from_raw(data.manifest, np.array(raw3), np.array(raw5))
+
+
+def points_from_raw(man: Manifest, raw3: np.ndarray, raw5: np.ndarray) -> tuple[CalibrationPoints, float, float]:
+    kinds = np.array([p.kind for p in man.points])
+    zero = kinds == "zero"
+    bias3, bias5 = float(raw3[zero].mean()), float(raw5[zero].mean())
+    g = man.setup.g_m_s2
+    mass = np.array([p.mass_kg for p in man.points])
+    e3 = g * mass * np.array([p.lever_a3_m for p in man.points])  # expected normalised torque g·m·lever
+    e5 = g * mass * np.array([p.lever_a5_m for p in man.points])
+    n3, n5 = pp.normalise(raw3, bias3), pp.normalise(raw5, bias5)
+    # the measured torque carries the sign of the axis direction; the expected one takes the same sign
+    e3 = e3 * np.where(n3 < 0, -1.0, 1.0)
+    e5 = e5 * np.where(n5 < 0, -1.0, 1.0)
+    return CalibrationPoints(kinds, mass, n3, n5, e3, e5), bias3, bias5
+
+
+def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float):
+    """Evaluate every model (in-sample and LOO), pick ``method`` (or the auto choice) and fit it on all points."""
+    evaluations = cal_mod.evaluate_all(points, g, dr)
+    if method == "auto":
+        chosen = cal_mod.select_auto(evaluations)
+    else:
+        if method not in cal_mod.MODELS:
+            raise DataError(f"unknown calibration method {method!r}; use auto or one of {', '.join(cal_mod.MODELS)}")
+        found = [e for e in evaluations if e.method == method]
+        chosen = found[0] if found else cal_mod.evaluate(points, method, g, dr)
+    return cal_mod.fit(points, chosen.method, g, dr), chosen, evaluations
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.points is not None:
+        points = load_points_csv(args.points)
+        g, dr, robot, pre, bias3, bias5 = 9.81, 1.025, POINTS_ROBOT, None, 0.0, 0.0
+        sources = source_sha256([args.points])
+    else:
+        data = load_campaign(args.campaign)
+        pre = pp.PAPER
+        points, bias3, bias5 = campaign_points(data, pre)
+        g, dr, robot = data.manifest.setup.g_m_s2, data.manifest.setup.lever_difference_m, data.manifest.setup.robot
+        sources = source_sha256(data.files)
+    try:
+        cal, chosen, evaluations = fit_and_describe(points, args.method, g, dr)
+    except DataError as exc:
+        raise DataError(f"{args.points or args.campaign}: {exc}") from exc
+    doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
+                        in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
+                        loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
+                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": _rel_rms(points, chosen)})
+    calfile.write(args.out, doc)
+    summary = {
+        "calibration_id": doc["calibration_id"],
+        "method": cal.method,
+        "in_sample_mean_abs_err_pct": chosen.in_sample_mean_abs_err_pct,
+        "loo_mean_abs_err_pct": chosen.loo_mean_abs_err_pct,
+        "loo_max_abs_err_kg": chosen.loo_max_abs_err_kg,
+        "points": len(points),
+        "r2": cal.r2,
+        "models": [{"method": e.method, "in_sample_mean_abs_err_pct": e.in_sample_mean_abs_err_pct,
+                    "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg,
+                    "n_params": e.n_params} for e in evaluations],
+    }
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"calibration {doc['calibration_id']} ({cal.method}) written to {args.out}")
+        print(f"{'method':18s} {'params':>6s} {'in-sample %':>12s} {'LOO %':>8s} {'LOO max kg':>11s}")
+        for e in evaluations:
+            mark = " *" if e.method == cal.method else ""
+            print(f"{e.method:18s} {e.n_params:6d} {e.in_sample_mean_abs_err_pct:12.4f} "
+                  f"{e.loo_mean_abs_err_pct:8.4f} {e.loo_max_abs_err_kg:11.3f}{mark}")
+        sys.stdout.flush()
+    return 0
+
+
+def _rel_rms(points: CalibrationPoints, ev: cal_mod.Evaluation) -> float:
+    """RMS of the relative LOO mass errors over the loaded points (the model term of the uncertainty)."""
+    loaded = points.mass_kg > 0
+    rel = (ev.loo_mass_kg[loaded] - points.mass_kg[loaded]) / points.mass_kg[loaded]
+    return float(np.sqrt(np.mean(rel**2))) if rel.size else 0.0

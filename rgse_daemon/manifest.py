@@ -1,0 +1,197 @@
+"""Campaign and measurement directories (contracts §2): ``manifest.toml`` plus KUKA trace file sets → arrays.
+
+This is the I/O side of the pipeline: it reads and validates, the numbers are computed in
+:mod:`rgse_daemon.pipeline`. Every problem is a :class:`~rgse_daemon.errors.DataError` naming the file.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline.calibration import CalibrationPoints
+from rgse_daemon.trace.diadem import read_trace_set
+
+MODULE_A3 = "NextGenDrive#3"
+MODULE_A5 = "NextGenDrive#5"
+TORQUE_CHANNEL = "Istmoment"
+KINDS = ("zero", "mass", "torque")
+
+
+@dataclass(frozen=True)
+class Setup:
+    robot: str
+    g_m_s2: float
+    lever_difference_m: float
+
+
+@dataclass(frozen=True)
+class PointSpec:
+    kind: str
+    mass_kg: float
+    lever_a3_m: float
+    lever_a5_m: float
+    traces: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Loop:
+    """The A3 and A5 torque of one measurement loop (one trace), Nm, and its sample period."""
+
+    trace: str
+    torque_a3_nm: np.ndarray
+    torque_a5_nm: np.ndarray
+    period_s: float
+
+
+@dataclass
+class Manifest:
+    path: Path
+    setup: Setup
+    points: list[PointSpec] = field(default_factory=list)
+    measurement_traces: tuple[str, ...] = ()
+    fixture_mass_kg: float | None = None
+
+
+def _num(d: dict[str, Any], key: str, where: str, *, minimum: float | None = None, positive: bool = False) -> float:
+    if key not in d:
+        raise DataError(f"{where}: missing {key!r}")
+    v = d[key]
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+        raise DataError(f"{where}: {key!r} must be a finite number, got {v!r}")
+    if positive and v <= 0:
+        raise DataError(f"{where}: {key!r} must be > 0, got {v}")
+    if minimum is not None and v < minimum:
+        raise DataError(f"{where}: {key!r} must be >= {minimum}, got {v}")
+    return float(v)
+
+
+def _traces(d: dict[str, Any], where: str) -> tuple[str, ...]:
+    t = d.get("traces")
+    if not isinstance(t, list) or not t or not all(isinstance(x, str) and x for x in t):
+        raise DataError(f"{where}: 'traces' must be a non-empty list of trace names")
+    return tuple(t)
+
+
+def load_manifest(directory: Path | str) -> Manifest:
+    """Read and validate ``DIR/manifest.toml``."""
+    directory = Path(directory)
+    path = directory / "manifest.toml"
+    if not directory.is_dir():
+        raise DataError(f"{directory}: directory not found")
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataError(f"{path}: manifest not found") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: not valid TOML: {exc}") from exc
+    setup = doc.get("setup")
+    if not isinstance(setup, dict):
+        raise DataError(f"{path}: missing [setup] table")
+    robot = setup.get("robot")
+    if not isinstance(robot, str) or not robot:
+        raise DataError(f"{path}: [setup] robot must be a non-empty string")
+    man = Manifest(path, Setup(robot, _num(setup, "g", f"{path} [setup]", positive=True),
+                               _num(setup, "lever_difference_m", f"{path} [setup]", positive=True)))
+    for i, p in enumerate(doc.get("point", [])):
+        where = f"{path} [[point]] #{i + 1}"
+        if not isinstance(p, dict):
+            raise DataError(f"{where}: must be a table")
+        kind = p.get("kind")
+        if kind not in KINDS:
+            raise DataError(f"{where}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
+        spec = PointSpec(kind, _num(p, "mass_kg", where, minimum=0.0), _num(p, "lever_a3_m", where),
+                         _num(p, "lever_a5_m", where), _traces(p, where))
+        if (kind == "zero") != (spec.mass_kg == 0.0):
+            raise DataError(f"{where}: a 'zero' point has mass_kg = 0 and only a 'zero' point has")
+        man.points.append(spec)
+    meas = doc.get("measurement")
+    if meas is not None:
+        if not isinstance(meas, dict):
+            raise DataError(f"{path}: [measurement] must be a table")
+        man.measurement_traces = _traces(meas, f"{path} [measurement]")
+        if "fixture_mass_kg" in meas:
+            man.fixture_mass_kg = _num(meas, "fixture_mass_kg", f"{path} [measurement]", minimum=0.0)
+    return man
+
+
+def read_loop(directory: Path | str, trace: str) -> Loop:
+    """The A3 and A5 ``Istmoment`` of one trace; DataError (naming the file) if absent, truncated or not finite."""
+    ts = read_trace_set(directory, trace, (MODULE_A3, MODULE_A5))
+    a3 = np.asarray(ts.channel(MODULE_A3, TORQUE_CHANNEL).values, float)
+    a5 = np.asarray(ts.channel(MODULE_A5, TORQUE_CHANNEL).values, float)
+    f3, f5 = ts.files[MODULE_A3], ts.files[MODULE_A5]
+    for values, tf in ((a3, f3), (a5, f5)):
+        if values.size < 3:
+            raise DataError(f"{tf.dat_path}: only {values.size} torque samples")
+        if not np.all(np.isfinite(values)):
+            raise DataError(f"{tf.dat_path}: torque channel {TORQUE_CHANNEL!r} holds NaN or infinite values")
+    if f3.period_s != f5.period_s or a3.size != a5.size:
+        raise DataError(f"{f5.dat_path}: sample period or length differs from {f3.dat_path.name}")
+    return Loop(trace, a3, a5, float(f3.period_s))
+
+
+def read_loops(directory: Path | str, traces: tuple[str, ...]) -> list[Loop]:
+    return [read_loop(directory, t) for t in traces]
+
+
+def source_sha256(paths: list[Path]) -> dict[str, str]:
+    """SHA-256 of input files by name (recorded in CAL.json, so a calibration names exactly what it came from)."""
+    out = {}
+    for p in paths:
+        out[p.name] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+# ------------------------------------------------------------------------------------------------------------
+# Table-1 style CSV of pre-averaged points
+# ------------------------------------------------------------------------------------------------------------
+POINTS_COLUMNS = ("calibration_type", "mass_kg", "m_a3_expected_nm", "m_a5_expected_nm", "m_a3_measured_nm",
+                  "m_a5_measured_nm")
+
+
+def load_points_csv(path: Path | str) -> CalibrationPoints:
+    """Read calibration points in the format of ``paper/table1_calibration.csv`` (``#`` lines are comments)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise DataError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: cannot read: {exc}") from exc
+    lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    rows = list(csv.DictReader(lines))
+    if not rows:
+        raise DataError(f"{path}: no data rows")
+    missing = [c for c in POINTS_COLUMNS if c not in (rows[0].keys())]
+    if missing:
+        raise DataError(f"{path}: missing column(s) {', '.join(missing)}")
+    cols: dict[str, list] = {c: [] for c in POINTS_COLUMNS}
+    for lineno, row in enumerate(rows, start=2):
+        kind = (row["calibration_type"] or "").strip()
+        if kind not in KINDS:
+            raise DataError(f"{path}: data row {lineno - 1}: calibration_type must be one of {', '.join(KINDS)}, "
+                            f"got {kind!r}")
+        cols["calibration_type"].append(kind)
+        for c in POINTS_COLUMNS[1:]:
+            try:
+                v = float(row[c])
+            except (TypeError, ValueError):
+                raise DataError(f"{path}: data row {lineno - 1}: column {c} is not a number: {row[c]!r}") from None
+            if not math.isfinite(v):
+                raise DataError(f"{path}: data row {lineno - 1}: column {c} is {v}")
+            cols[c].append(v)
+    try:
+        return CalibrationPoints(np.array(cols["calibration_type"]), np.array(cols["mass_kg"]),
+                                 np.array(cols["m_a3_measured_nm"]), np.array(cols["m_a5_measured_nm"]),
+                                 np.array(cols["m_a3_expected_nm"]), np.array(cols["m_a5_expected_nm"]))
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from exc
