@@ -1,0 +1,174 @@
+"""Numbered schema migrations, applied in order when a store is opened.
+
+Each migration runs in its own transaction together with the row that records it in ``schema_version``, so a
+migration is either fully applied and recorded or not at all; re-opening applies only what is missing. A database
+written by a newer daemon (a version this code does not know) is refused rather than guessed at.
+
+``{id_pk}`` in a statement is replaced by the dialect's auto-increment primary key; all else is portable SQL.
+Migrations are append-only: never edit a released one, add the next number.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from rgse_daemon.store.backend import Backend
+from rgse_daemon.store.errors import StoreError
+
+
+@dataclass(frozen=True)
+class Migration:
+    version: int
+    name: str
+    statements: tuple[str, ...]
+
+
+_V1 = (
+    """CREATE TABLE robots (
+        name TEXT PRIMARY KEY,
+        created_utc TEXT NOT NULL
+    )""",
+    """CREATE TABLE runs (
+        id TEXT PRIMARY KEY,
+        kind TEXT NOT NULL CHECK (kind IN ('measurement', 'calibration')),
+        robot TEXT NOT NULL REFERENCES robots(name),
+        state TEXT NOT NULL
+            CHECK (state IN ('queued', 'running', 'completed', 'failed', 'interrupted', 'aborted')),
+        created_utc TEXT NOT NULL,
+        started_utc TEXT,
+        ended_utc TEXT,
+        config TEXT NOT NULL,
+        directory TEXT NOT NULL UNIQUE,
+        detail TEXT
+    )""",
+    "CREATE INDEX runs_robot_state ON runs(robot, state)",
+    """CREATE TABLE campaign_points (
+        run_id TEXT NOT NULL REFERENCES runs(id),
+        idx INTEGER NOT NULL CHECK (idx >= 0),
+        spec TEXT NOT NULL,
+        state TEXT NOT NULL CHECK (state IN ('pending', 'measuring', 'done', 'failed')),
+        updated_utc TEXT NOT NULL,
+        PRIMARY KEY (run_id, idx)
+    )""",
+    """CREATE TABLE loops (
+        run_id TEXT NOT NULL REFERENCES runs(id),
+        idx INTEGER NOT NULL CHECK (idx >= 0),
+        point_idx INTEGER,
+        trace_name TEXT NOT NULL,
+        state TEXT NOT NULL
+            CHECK (state IN ('pending', 'recording', 'recorded', 'archived', 'failed', 'interrupted')),
+        robot_start_utc TEXT,
+        robot_end_utc TEXT,
+        record_start_utc TEXT,
+        record_end_utc TEXT,
+        updated_utc TEXT NOT NULL,
+        PRIMARY KEY (run_id, idx),
+        UNIQUE (run_id, trace_name),
+        FOREIGN KEY (run_id, point_idx) REFERENCES campaign_points(run_id, idx)
+    )""",
+    """CREATE TABLE trace_files (
+        id {id_pk},
+        run_id TEXT NOT NULL REFERENCES runs(id),
+        loop_idx INTEGER,
+        path TEXT NOT NULL UNIQUE,
+        sha256 TEXT NOT NULL CHECK (length(sha256) = 64),
+        size_bytes BIGINT NOT NULL CHECK (size_bytes >= 0),
+        archived_utc TEXT NOT NULL,
+        FOREIGN KEY (run_id, loop_idx) REFERENCES loops(run_id, idx)
+    )""",
+    "CREATE INDEX trace_files_run ON trace_files(run_id)",
+    """CREATE TABLE calibrations (
+        id TEXT PRIMARY KEY,
+        robot TEXT NOT NULL REFERENCES robots(name),
+        created_utc TEXT NOT NULL,
+        method TEXT NOT NULL,
+        document TEXT NOT NULL,
+        active INTEGER NOT NULL DEFAULT 0 CHECK (active IN (0, 1)),
+        added_utc TEXT NOT NULL,
+        activated_utc TEXT,
+        run_id TEXT REFERENCES runs(id)
+    )""",
+    # The database itself guarantees "at most one active calibration per robot".
+    "CREATE UNIQUE INDEX calibrations_one_active ON calibrations(robot) WHERE active = 1",
+    """CREATE TABLE results (
+        id TEXT PRIMARY KEY,
+        run_id TEXT NOT NULL REFERENCES runs(id),
+        calibration_id TEXT,
+        result TEXT NOT NULL,
+        created_utc TEXT NOT NULL
+    )""",
+    "CREATE INDEX results_run ON results(run_id)",
+    """CREATE TABLE result_inputs (
+        result_id TEXT NOT NULL REFERENCES results(id),
+        trace_file_id BIGINT NOT NULL REFERENCES trace_files(id),
+        PRIMARY KEY (result_id, trace_file_id)
+    )""",
+    """CREATE TABLE events (
+        id {id_pk},
+        time_utc TEXT NOT NULL,
+        level TEXT NOT NULL CHECK (level IN ('debug', 'info', 'warning', 'error', 'critical')),
+        kind TEXT NOT NULL,
+        message TEXT NOT NULL,
+        run_id TEXT REFERENCES runs(id),
+        data TEXT
+    )""",
+    "CREATE INDEX events_run ON events(run_id)",
+    """CREATE TABLE outbox (
+        id {id_pk},
+        topic TEXT NOT NULL,
+        payload TEXT NOT NULL,
+        retained INTEGER NOT NULL CHECK (retained IN (0, 1)),
+        qos INTEGER NOT NULL CHECK (qos IN (0, 1, 2)),
+        created_utc TEXT NOT NULL,
+        published_utc TEXT,
+        attempts INTEGER NOT NULL DEFAULT 0,
+        last_error TEXT
+    )""",
+    "CREATE INDEX outbox_pending ON outbox(published_utc, id)",
+)
+
+MIGRATIONS: tuple[Migration, ...] = (Migration(1, "initial schema", _V1),)
+
+_VERSION_TABLE = """CREATE TABLE IF NOT EXISTS schema_version (
+    version INTEGER PRIMARY KEY,
+    name TEXT NOT NULL,
+    applied_utc TEXT NOT NULL
+)"""
+
+
+def current_version(backend: Backend) -> int:
+    """The highest applied migration (0 for an empty database)."""
+    backend.execute(_VERSION_TABLE)
+    row = backend.execute("SELECT MAX(version) AS v FROM schema_version")[0]
+    return int(row["v"] or 0)
+
+
+def migrate(backend: Backend, now_utc: Callable[[], str], migrations: Sequence[Migration] = MIGRATIONS) -> list[int]:
+    """Apply every migration newer than the database, in order; returns the versions applied (often none)."""
+    versions = [m.version for m in migrations]
+    if not versions or versions != list(range(1, len(versions) + 1)):
+        raise StoreError(f"migrations must be numbered 1..n without gaps, got {versions}")
+    latest = len(migrations)
+    applied: list[int] = []
+    for migration in migrations:
+        with backend.transaction():
+            if backend.dialect.migration_lock:
+                backend.execute(backend.dialect.migration_lock)
+            # Read under the lock: another process may have migrated while we waited.
+            have = current_version(backend)
+            if have > latest:
+                raise StoreError(
+                    f"{backend.description}: schema version {have} is newer than this program knows ({latest}); "
+                    "upgrade the daemon"
+                )
+            if have >= migration.version:
+                continue
+            for statement in migration.statements:
+                backend.execute(statement.replace("{id_pk}", backend.dialect.id_pk))
+            backend.execute(
+                "INSERT INTO schema_version (version, name, applied_utc) VALUES (?, ?, ?)",
+                (migration.version, migration.name, now_utc()),
+            )
+            applied.append(migration.version)
+    return applied
