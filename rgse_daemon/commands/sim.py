@@ -1,0 +1,130 @@
+"""``rgse sim``: run the simulated KR C4 as a C3 Bridge / KUKAVARPROXY server until SIGINT or SIGTERM (exit 0).
+
+The simulator is assembled in :func:`build_server` from :class:`SimOptions`: the variable store, the share
+directory, the program host and then whatever models consume the scenario and the time scale (physics, KRL
+interpreter, KUKA Trace). Those models plug into the store's getters/setters and replace the program host
+(see ``simulators/krc4/variables.py``); :func:`attach_models` is the one place to add them.
+
+When the server listens, one line goes to stdout: ``rgse sim: listening on HOST:PORT (share DIR)`` (useful with
+``--port 0``); logs go to stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import math
+import signal
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rgse_daemon.errors import ConfigError, LinkError
+from simulators.krc4.server import KrcServer, ServerConfig
+
+log = logging.getLogger(__name__)
+
+#: Largest accepted ``--time-scale`` (simulated s per wall s); beyond it the 2 ms service time means nothing.
+MAX_TIME_SCALE = 1000.0
+
+
+@dataclass(frozen=True)
+class SimOptions:
+    """Everything ``rgse sim`` was asked for, validated.
+
+    ``scenario`` is the parsed TOML table (empty without ``--scenario``); ``time_scale`` is simulated seconds per
+    wall-clock second.
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 7000
+    share_dir: Path | None = None
+    scenario_path: Path | None = None
+    scenario: dict[str, Any] = field(default_factory=dict)
+    time_scale: float = 1.0
+
+
+def load_scenario(path: Path) -> dict[str, Any]:
+    """Read a scenario TOML file; ``ConfigError`` naming the file if it is missing, unreadable or not TOML."""
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read scenario: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{path}: scenario is not UTF-8 text") from exc
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{path}: scenario is not valid TOML: {exc}") from exc
+
+
+def options_from_args(args: argparse.Namespace) -> SimOptions:
+    """Validate the command line before any I/O on the network."""
+    if not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port {args.port} is not 0..65535")
+    if not (math.isfinite(args.time_scale) and 0 < args.time_scale <= MAX_TIME_SCALE):
+        raise ConfigError(f"--time-scale {args.time_scale} must be > 0 and <= {MAX_TIME_SCALE:g}")
+    share = args.share
+    if share is not None and share.exists() and not share.is_dir():
+        raise ConfigError(f"--share {share}: not a directory")
+    scenario = load_scenario(args.scenario) if args.scenario is not None else {}
+    return SimOptions(args.host, args.port, share, args.scenario, scenario, args.time_scale)
+
+
+def attach_models(options: SimOptions, server: KrcServer) -> list[str]:
+    """Attach the models that consume the scenario and the time scale; returns their names.
+
+    The physics, KRL interpreter and trace engine are not part of this build yet: the controller then holds
+    its seeded state (robot at rest, programs only change ``$PRO_STATE1``), and this is logged.
+    """
+    attached: list[str] = []
+    if not attached and (options.scenario or options.time_scale != 1.0):
+        log.warning(
+            "physics/KRL models are not attached yet: scenario %s and time scale %g are validated but unused",
+            options.scenario_path,
+            options.time_scale,
+        )
+    return attached
+
+
+def build_server(options: SimOptions) -> KrcServer:
+    """The simulated controller as ``rgse sim`` runs it (not yet listening)."""
+    server = KrcServer(ServerConfig(host=options.host, port=options.port), options.share_dir)
+    attach_models(options, server)
+    return server
+
+
+async def serve(options: SimOptions, stop: asyncio.Event) -> None:
+    """Listen until ``stop`` is set, then close every connection."""
+    server = build_server(options)
+    try:
+        await server.start()
+    except OSError as exc:
+        await server.close()
+        raise LinkError(f"cannot listen on {options.host}:{options.port}: {exc.strerror or exc}") from exc
+    try:
+        print(f"rgse sim: listening on {options.host}:{server.port} (share {server.files.root})", flush=True)
+        await stop.wait()
+    finally:
+        await server.close()
+    log.info("simulated KR C4 stopped after %d requests", server.counters.requests)
+
+
+async def _main(options: SimOptions) -> int:
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    signals = (signal.SIGINT, signal.SIGTERM)
+    for sig in signals:
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        await serve(options, stop)
+    finally:
+        for sig in signals:
+            loop.remove_signal_handler(sig)
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    return asyncio.run(_main(options_from_args(args)))

@@ -1,0 +1,87 @@
+"""``rgse sim`` as a real process: listens, serves, stops cleanly on SIGTERM/SIGINT; bad input exits 2."""
+
+from __future__ import annotations
+
+import asyncio
+import re
+import signal
+import sys
+from pathlib import Path
+
+import pytest
+
+from rgse_daemon.link import frames as fr
+
+from .conftest import RawClient
+
+DEADLINE_S = 30.0
+
+
+async def _start(*args: str) -> asyncio.subprocess.Process:
+    return await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "rgse_daemon", "sim", *args,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+async def test_sim_serves_until_signalled_and_exits_0(tmp_path: Path, sig: signal.Signals) -> None:
+    scenario = tmp_path / "scenario.toml"
+    scenario.write_text('[payload]\nmass_kg = 107.65\n')
+    share = tmp_path / "share"
+    proc = await _start("--host", "127.0.0.1", "--port", "0", "--share", str(share), "--scenario", str(scenario),
+                        "--time-scale", "10")  # fmt: skip
+    try:
+        async with asyncio.timeout(DEADLINE_S):
+            line = (await proc.stdout.readline()).decode()
+        m = re.match(r"rgse sim: listening on 127\.0\.0\.1:(\d+) \(share (.+)\)$", line.strip())
+        assert m, line
+        assert Path(m.group(2)) == share.resolve() and share.is_dir()
+        client = await RawClient.open(int(m.group(1)))
+        assert await client.call(fr.ReadVarAscii("PING")) == fr.ReadVarAsciiReply("PONG")
+        assert await client.call(fr.ReadVarAscii("$MODE_OP")) == fr.ReadVarAsciiReply("#T1")
+        proc.send_signal(sig)
+        assert await client.at_eof()
+        await client.close()
+        async with asyncio.timeout(DEADLINE_S):
+            _, err = await proc.communicate()
+        assert proc.returncode == 0, err.decode()
+        assert b"not attached" in err  # scenario and time scale are validated; nothing consumes them yet
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            await proc.wait()
+
+
+@pytest.mark.parametrize(
+    ("make_args", "message"),
+    [
+        (lambda d: ["--scenario", str(d / "missing.toml")], "missing.toml: cannot read scenario"),
+        (lambda d: ["--scenario", str(d / "bad.toml")], "bad.toml: scenario is not valid TOML"),
+        (lambda d: ["--time-scale", "0"], "--time-scale 0"),
+        (lambda d: ["--time-scale", "nan"], "--time-scale nan"),
+        (lambda d: ["--port", "70000"], "--port 70000"),
+        (lambda d: ["--share", str(d / "bad.toml")], "not a directory"),
+    ],
+)
+async def test_bad_input_exits_2_naming_the_problem(tmp_path: Path, make_args, message: str) -> None:
+    (tmp_path / "bad.toml").write_text("this is = = not toml\n")
+    proc = await _start("--port", "0", *make_args(tmp_path))
+    async with asyncio.timeout(DEADLINE_S):
+        out, err = await proc.communicate()
+    assert proc.returncode == 2
+    assert message in err.decode() and b"Traceback" not in err and out == b""
+
+
+async def test_port_in_use_fails_with_exit_1(tmp_path: Path) -> None:
+    blocker = await asyncio.start_server(lambda r, w: None, "127.0.0.1", 0)
+    port = blocker.sockets[0].getsockname()[1]
+    try:
+        proc = await _start("--port", str(port), "--share", str(tmp_path))
+        async with asyncio.timeout(DEADLINE_S):
+            _, err = await proc.communicate()
+    finally:
+        blocker.close()
+        await blocker.wait_closed()
+    assert proc.returncode == 1
+    assert f"cannot listen on 127.0.0.1:{port}" in err.decode()
