@@ -31,6 +31,7 @@ The raw files are only read. ``Channel.values`` may be a read-only strided view 
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import math
 import os
@@ -259,8 +260,9 @@ def _spec(index: int, block: dict[int, str], source: str) -> _Spec:
 
 
 # --- data --------------------------------------------------------------------------------------------------------
-def _read_raw(path: Path, source: str) -> tuple[np.ndarray, str]:
-    """All float64 values of a data file and the SHA-256 of its bytes (hashing the buffer already read)."""
+def _read_raw(path: Path, source: str, with_sha256: bool) -> tuple[np.ndarray, str | None]:
+    """All float64 values of a data file, the SHA-256 of its bytes (hashing the buffer already read) if asked,
+    and whether they are all finite (one contiguous sum: NaN and inf propagate)."""
     dtype = _DTYPES["REAL64"]
     try:
         with open(path, "rb") as f:
@@ -274,7 +276,7 @@ def _read_raw(path: Path, source: str) -> tuple[np.ndarray, str]:
         raise DataError(f"{path}: cannot read data file: {exc}") from exc
     if raw.size * dtype.itemsize != size:
         raise DataError(f"{path}: data file changed while reading ({raw.size * dtype.itemsize} of {size} bytes)")
-    digest = hashlib.sha256(raw.view(np.uint8)).hexdigest()
+    digest = hashlib.sha256(raw.view(np.uint8)).hexdigest() if with_sha256 else None
     raw.flags.writeable = False
     return raw, digest
 
@@ -312,31 +314,52 @@ def _columns(raw: np.ndarray, specs: list[_Spec], path: Path) -> dict[str, np.nd
     return {s.name: raw[s.pointer - 1 : s.pointer - 1 + s.count] for s in specs}
 
 
-def _physical(raw: np.ndarray, spec: _Spec, path: Path) -> np.ndarray:
-    """``raw * factor + offset``, read-only, checked finite (no copy for the identity calibration)."""
-    with np.errstate(over="ignore", invalid="ignore"):  # overflow shows up as inf and is refused below
-        if spec.factor == 1.0 and spec.offset == 0.0:
-            values = raw
-        else:
+def _all_finite(values: np.ndarray) -> bool:
+    """True if no value is NaN or inf. A sum is finite only if every term is (NaN and inf propagate), and a
+    contiguous sum runs at memory speed; the element-wise test runs only when the sum overflowed or is NaN."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = values.sum()
+    return bool(np.isfinite(total)) or bool(np.isfinite(values).all())
+
+
+def _physical(raw: np.ndarray, spec: _Spec, path: Path, raw_finite: bool) -> np.ndarray:
+    """``raw * factor + offset``, read-only, checked finite (no copy for the identity calibration).
+
+    ``raw_finite``: the whole data block is known finite, so an identity-scaled channel needs no check.
+    """
+    if spec.factor == 1.0 and spec.offset == 0.0:
+        values = raw
+        if raw_finite:
+            return values
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):  # overflow shows up as inf and is refused below
             values = raw * spec.factor
             if spec.offset != 0.0:
                 values += spec.offset
-            values.flags.writeable = False
-        # A sum is finite only if every term is (NaN and inf propagate); check element-wise only on suspicion.
-        total = values.sum()
-    if not np.isfinite(total) and not np.isfinite(values).all():
+        values.flags.writeable = False
+    if not _all_finite(values):
         bad = int(np.flatnonzero(~np.isfinite(values))[0])
         raise DataError(f"{path}: channel {spec.name!r} has a non-finite value (NaN or inf) at sample {bad}")
     return values
 
 
-def _implicit_values(spec: _Spec, source: str) -> np.ndarray:
-    """``offset + i * factor`` for i in 0..count-1, read-only; DataError if that leaves the float range."""
+@functools.lru_cache(maxsize=8)
+def _ramp(count: int, offset: float, step: float) -> np.ndarray:
+    """``offset + i * step`` for i in 0..count-1, read-only. Cached: every module of a trace shares one time axis
+    (the controller's buffer keeps it at <= 50 000 samples, 400 kB)."""
+    values = np.arange(count, dtype=np.float64)
     with np.errstate(over="ignore", invalid="ignore"):
-        values = spec.offset + np.arange(spec.count, dtype=np.float64) * spec.factor
+        values *= step
+        values += offset
+    values.flags.writeable = False
+    return values
+
+
+def _implicit_values(spec: _Spec, source: str) -> np.ndarray:
+    """The values of an implicit channel; DataError if they leave the float range."""
+    values = _ramp(spec.count, spec.offset, spec.factor)
     if values.size and not (np.isfinite(values[0]) and np.isfinite(values[-1])):
         raise DataError(f"{source}: implicit channel {spec.name!r}: offset/step (240/241) overflow the float range")
-    values.flags.writeable = False
     return values
 
 
@@ -356,8 +379,11 @@ def _time_period_s(spec: _Spec, values: np.ndarray, source: str) -> float:
     return period_s
 
 
-def read_trace_file(dat_path: Path | str, module: str | None = None) -> TraceFile:
+def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha256: bool = True) -> TraceFile:
     """Read one ``.dat`` header and its data file(s).
+
+    ``with_sha256=False`` skips hashing (``TraceFile.sha256`` is then empty): SHA-256 runs at ~2 GB/s, several
+    times slower than the rest of the reader, and only the archive and the results need it.
 
     ``module`` defaults to the part of the file stem after its last ``_`` (``run1_NextGenDrive#3`` ->
     ``NextGenDrive#3``): KUKA module names contain no underscore, trace names may.
@@ -394,16 +420,19 @@ def read_trace_file(dat_path: Path | str, module: str | None = None) -> TraceFil
     by_file: dict[str, list[_Spec]] = {}
     for s in explicit:
         by_file.setdefault(s.data_file, []).append(s)
-    sha256 = {dat_path.name: hashlib.sha256(header_bytes).hexdigest()}
-    raw_by_name: dict[str, np.ndarray] = {}
+    sha256 = {dat_path.name: hashlib.sha256(header_bytes).hexdigest()} if with_sha256 else {}
+    raw_by_name: dict[str, tuple[np.ndarray, bool]] = {}
     data_paths: list[Path] = []
     for file_name in by_file:
         if not dat_path.with_name(file_name).is_file():
             raise DataError(f"{source}: data file {file_name!r} (code 211) not found beside the header")
     for file_name, group in by_file.items():
         data_path = dat_path.with_name(file_name)
-        raw, sha256[file_name] = _read_raw(data_path, source)
-        raw_by_name.update(_columns(raw, group, data_path))
+        raw, digest = _read_raw(data_path, source, with_sha256)
+        if digest is not None:
+            sha256[file_name] = digest
+        finite = _all_finite(raw)
+        raw_by_name.update({name: (column, finite) for name, column in _columns(raw, group, data_path).items()})
         data_paths.append(data_path)
 
     n_samples = time_spec.count
@@ -419,7 +448,8 @@ def read_trace_file(dat_path: Path | str, module: str | None = None) -> TraceFil
         if s.implicit:
             values = _implicit_values(s, source)
         else:
-            values = _physical(raw_by_name[s.name], s, dat_path.with_name(s.data_file))
+            column, block_finite = raw_by_name[s.name]
+            values = _physical(column, s, dat_path.with_name(s.data_file), block_finite)
         if s is time_spec:
             period_s = _time_period_s(s, values, source)
         channels[s.name] = Channel(
@@ -459,14 +489,19 @@ def glob_escape(text: str) -> str:
 
 
 def read_trace_set(
-    directory: Path | str, name: str, modules: Iterable[str] | None = None, *, max_workers: int = 2
+    directory: Path | str,
+    name: str,
+    modules: Iterable[str] | None = None,
+    *,
+    max_workers: int = 2,
+    with_sha256: bool = True,
 ) -> TraceSet:
     """Read the files ``<name>_<module>.dat`` of one trace.
 
     ``modules=None`` reads every module present (file stems ``<name>_<module>`` whose module part has no
     underscore, so trace ``run`` does not swallow trace ``run_2``); a requested module that is absent is a
     DataError, as is a trace with no files at all. Files are read on up to ``max_workers`` threads: reading and
-    hashing release the GIL, so the two cores overlap.
+    hashing release the GIL, so the two cores overlap. ``with_sha256`` as for :func:`read_trace_file`.
     """
     directory = Path(directory)
     if not directory.is_dir():
@@ -478,9 +513,13 @@ def read_trace_set(
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         raise DataError(f"{', '.join(missing)}: trace file(s) of requested module(s) not found")
+
+    def read_one(path: Path, module: str) -> TraceFile:
+        return read_trace_file(path, module, with_sha256=with_sha256)
+
     if max_workers <= 1 or len(paths) == 1:
-        read = [read_trace_file(p, m) for p, m in zip(paths, wanted, strict=True)]
+        read = [read_one(p, m) for p, m in zip(paths, wanted, strict=True)]
     else:
         with ThreadPoolExecutor(max_workers=max_workers, thread_name_prefix="trace-read") as pool:
-            read = list(pool.map(read_trace_file, paths, wanted))
+            read = list(pool.map(read_one, paths, wanted))
     return TraceSet(name=name, directory=directory, files=dict(zip(wanted, read, strict=True)))

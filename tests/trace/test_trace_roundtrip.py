@@ -240,3 +240,14 @@ def test_writer_refuses_bad_arguments(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="implicit time channel"):
         write_trace_set(tmp_path, "t", 0.004, {"M": {"Zeit": (np.zeros(3), "s")}})
     assert list(tmp_path.iterdir()) == []
+
+
+def test_without_sha256_reads_the_same_values(tmp_path: Path) -> None:
+    write_small_set(tmp_path)
+    hashed = read_trace_set(tmp_path, "run1")
+    plain = read_trace_set(tmp_path, "run1", with_sha256=False)
+    assert plain.sha256 == {}
+    assert len(hashed.sha256) == 6
+    for module, tf in hashed.files.items():
+        for name, channel in tf.channels.items():
+            np.testing.assert_array_equal(plain.channel(module, name).values, channel.values)
