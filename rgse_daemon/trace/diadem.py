@@ -261,8 +261,8 @@ def _spec(index: int, block: dict[int, str], source: str) -> _Spec:
 
 # --- data --------------------------------------------------------------------------------------------------------
 def _read_raw(path: Path, source: str, with_sha256: bool) -> tuple[np.ndarray, str | None]:
-    """All float64 values of a data file, the SHA-256 of its bytes (hashing the buffer already read) if asked,
-    and whether they are all finite (one contiguous sum: NaN and inf propagate)."""
+    """All float64 values of a data file (read-only) and, if asked, the SHA-256 of its bytes, hashing the buffer
+    already read rather than reading the file twice."""
     dtype = _DTYPES["REAL64"]
     try:
         with open(path, "rb") as f:
@@ -424,6 +424,8 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
     raw_by_name: dict[str, tuple[np.ndarray, bool]] = {}
     data_paths: list[Path] = []
     for file_name in by_file:
+        if file_name == dat_path.name:
+            raise DataError(f"{source}: data file (code 211) names the header itself")
         if not dat_path.with_name(file_name).is_file():
             raise DataError(f"{source}: data file {file_name!r} (code 211) not found beside the header")
     for file_name, group in by_file.items():
