@@ -1,0 +1,241 @@
+"""The real CraneScale client against the simulated Kern scale, on a pty and over socket://."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+from pydantic import ValidationError
+
+from rgse_daemon.io import IoFrameError, IoLinkError, IoTimeout
+from rgse_daemon.io.scale import UNIT_TO_KG, CraneScale, ScaleConfig, parse_line, xor8
+from simulators.scale import ScaleSim, ScaleSimConfig, display_step
+
+D_KG = 0.1  # Kern HFB 300K100
+TRANSPORTS = ["pty", "tcp"]
+
+
+def client_cfg(sim: ScaleSim, **overrides: object) -> ScaleConfig:
+    values: dict[str, object] = {"port": sim.url, "request_interval_s": 0.05, "resolution_kg": D_KG}
+    values.update(overrides)
+    return ScaleConfig.model_validate(values)
+
+
+# --- parsing -------------------------------------------------------------------------------------------------
+CFG = ScaleConfig()
+
+
+@pytest.mark.parametrize(
+    ("line", "stable", "mass_kg"),
+    [
+        ("ST,GS,+     117.6 kg", True, 117.6),
+        ("US,GS,+     119.3 kg", False, 119.3),
+        ("ST,NT,-       2.5 kg", True, -2.5),
+        ("ST,GS,+1.000KG", True, 1.0),
+        ("ST,GS,+    117600  g", True, 117.6),
+        ("ST,GS,+    0.1176  t", True, 117.6),
+        ("ST,GS,+     259.2 lb", True, 259.2 * 0.45359237),
+    ],
+)
+def test_parse_good_lines(line: str, stable: bool, mass_kg: float) -> None:
+    frame = parse_line(line, CFG, "scale X")
+    assert frame.stable is stable
+    assert frame.mass_kg == pytest.approx(mass_kg, abs=1e-9)
+    assert frame.raw_line == line
+
+
+@pytest.mark.parametrize(
+    ("line", "problem"),
+    [
+        ("ST,GS,+  \x00117.6 kg", "non-printable"),
+        ("ST,GS,+  117.6 k\xe9", "non-printable"),
+        ("ST,GS,+     117.6", "does not match"),
+        ("ST,GS,+     11", "does not match"),
+        ("ST,GS,+     117.", "does not match"),
+        ("ST,GS,+     117.6 pcs", "unknown unit"),
+        ("ST,GS,+     117.6 k", "unknown unit"),
+        ("XX,GS,+     117.6 kg", "does not match"),
+        ("OL,GS,+            ", "overload"),
+        ("", "does not match"),
+    ],
+)
+def test_parse_bad_lines_name_device_and_line(line: str, problem: str) -> None:
+    with pytest.raises(IoFrameError) as err:
+        parse_line(line, CFG, "scale /dev/ttyS9")
+    assert problem in str(err.value)
+    assert err.value.device == "scale /dev/ttyS9" and err.value.raw == line
+    assert str(err.value).startswith("scale /dev/ttyS9: ") and repr(line) in str(err.value)
+
+
+def test_parse_checksum() -> None:
+    cfg = ScaleConfig(checksum="xor8")
+    body = "ST,GS,+     117.6 kg"
+    good = f"{body}*{xor8(body.encode()):02X}"
+    assert parse_line(good, cfg, "s").mass_kg == pytest.approx(117.6)
+    for bad, problem in [
+        (body, "missing"),
+        (f"{body}*ZZ", "not hexadecimal"),
+        (f"{body.replace('6', '8')}*{xor8(body.encode()):02X}", "checksum mismatch"),
+    ]:
+        with pytest.raises(IoFrameError, match=problem):
+            parse_line(bad, cfg, "s")
+
+
+@given(
+    mass_kg=st.floats(-50.0, 600.0, allow_nan=False),
+    unit=st.sampled_from(sorted(UNIT_TO_KG)),
+    seed=st.integers(0, 1000),
+)
+def test_simulated_stable_frames_parse_within_d(mass_kg: float, unit: str, seed: int) -> None:
+    sim = ScaleSim(ScaleSimConfig(true_mass_kg=mass_kg, unit=unit, settle_s=0.0, seed=seed))  # type: ignore[arg-type]
+    line = sim.frame_line()
+    assert line.endswith(b"\r\n")
+    frame = parse_line(line[:-2].decode(), CFG, "sim")
+    assert frame.stable and frame.unit == unit
+    assert abs(frame.mass_kg - mass_kg) <= D_KG + 1e-9
+
+
+def test_display_steps() -> None:
+    assert display_step(0.1, "kg") == pytest.approx(0.1)
+    assert display_step(0.1, "g") == pytest.approx(100.0)
+    assert display_step(0.1, "t") == pytest.approx(1e-4)
+    assert display_step(0.1, "lb") == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"line_regex": r"^(?P<value>\d+)$"},  # no unit group
+        {"line_regex": r"^(?P<value>[$"},
+        {"resolution_kg": 0.0},
+        {"mode": "poll"},
+        {"baud": 9600},
+    ],
+)
+def test_bad_scale_config_is_refused(bad: dict[str, object]) -> None:
+    with pytest.raises(ValidationError):
+        ScaleConfig.model_validate(bad)
+
+
+def test_uncertainty_from_resolution() -> None:
+    assert ScaleConfig(resolution_kg=0.1).u_kg == pytest.approx(0.1 / math.sqrt(3))
+
+
+# --- end to end ----------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("transport", TRANSPORTS)
+@pytest.mark.parametrize(("mode", "cmd"), [("request", "S"), ("request", "W"), ("stream", "S")])
+async def test_stable_reading_within_d_of_truth(transport: str, mode: str, cmd: str) -> None:
+    sim_cfg = ScaleSimConfig(true_mass_kg=117.63, settle_s=0.1, stream_period_s=0.01 if mode == "stream" else None)
+    async with ScaleSim(sim_cfg, transport) as sim:  # type: ignore[arg-type]
+        async with CraneScale(client_cfg(sim, mode=mode, request_cmd=cmd)) as scale:
+            for _ in range(3):
+                weighing = await scale.read_stable(timeout_s=10.0)
+                assert weighing.stable
+                assert abs(weighing.mass_kg - 117.63) <= D_KG
+                assert weighing.u_kg == pytest.approx(D_KG / math.sqrt(3))
+                assert weighing.raw_line.startswith("ST,GS,+") and weighing.time_utc.tzinfo is not None
+            assert scale.counters.bad_frames == 0 and scale.counters.opens == 1
+        if mode == "request":
+            assert sim.requests >= 3
+        else:
+            assert sim.requests == 0  # continuous output: the client never writes
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+async def test_unstable_then_stable_after_a_new_load(transport: str) -> None:
+    sim_cfg = ScaleSimConfig(true_mass_kg=10.0, settle_s=0.3, stream_period_s=0.01)
+    async with ScaleSim(sim_cfg, transport) as sim:  # type: ignore[arg-type]
+        async with CraneScale(client_cfg(sim, mode="stream", stable_frames_required=3)) as scale:
+            first = await scale.read_stable(timeout_s=10.0)
+            assert abs(first.mass_kg - 10.0) <= D_KG
+            sim.set_mass(107.3)
+            unstable_before = scale.counters.unstable_frames
+            frame = await scale.read_frame(timeout_s=10.0)
+            assert not frame.stable  # right after hanging the load it swings
+            second = await scale.read_stable(timeout_s=10.0)
+            assert abs(second.mass_kg - 107.3) <= D_KG
+            assert scale.counters.unstable_frames > unstable_before
+            assert scale.counters.stable_frames >= 6
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+async def test_garbled_frames_are_counted_and_skipped(transport: str) -> None:
+    sim_cfg = ScaleSimConfig(true_mass_kg=117.6, settle_s=0.05, stream_period_s=0.005, garble_rate=0.4, seed=7)
+    async with ScaleSim(sim_cfg, transport) as sim:  # type: ignore[arg-type]
+        async with CraneScale(client_cfg(sim, mode="stream", stable_frames_required=5)) as scale:
+            for _ in range(3):
+                weighing = await scale.read_stable(timeout_s=10.0)
+                assert abs(weighing.mass_kg - 117.6) <= D_KG
+            assert sim.garbled_sent > 0
+            assert scale.counters.bad_frames > 0
+            err = scale.last_error
+            assert isinstance(err, IoFrameError) and err.device == f"scale {sim.url}" and err.raw
+
+
+async def test_garbled_frames_caught_by_checksum() -> None:
+    sim_cfg = ScaleSimConfig(settle_s=0.0, stream_period_s=0.005, garble_rate=0.5, checksum=True, seed=3)
+    async with ScaleSim(sim_cfg, "tcp") as sim:
+        async with CraneScale(client_cfg(sim, mode="stream", checksum="xor8", stable_frames_required=5)) as scale:
+            weighing = await scale.read_stable(timeout_s=10.0)
+            assert abs(weighing.mass_kg - 117.6) <= D_KG and "*" in weighing.raw_line
+            assert scale.counters.bad_frames > 0
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+async def test_only_garbage_raises_frame_error_naming_port_and_line(transport: str) -> None:
+    sim_cfg = ScaleSimConfig(settle_s=0.0, stream_period_s=0.005, garble_rate=1.0)
+    async with ScaleSim(sim_cfg, transport) as sim:  # type: ignore[arg-type]
+        async with CraneScale(client_cfg(sim, mode="stream", max_consecutive_bad_frames=5)) as scale:
+            with pytest.raises(IoFrameError) as err:
+                await scale.read_stable(timeout_s=10.0)
+            assert "5 bad frames in a row" in str(err.value)
+            assert err.value.device == f"scale {sim.url}" and err.value.raw in str(err.value)
+
+
+@pytest.mark.parametrize("transport", TRANSPORTS)
+@pytest.mark.parametrize("mode", ["request", "stream"])
+async def test_timeout_when_never_stable(transport: str, mode: str) -> None:
+    sim_cfg = ScaleSimConfig(never_stable=True, stream_period_s=0.01 if mode == "stream" else None)
+    async with ScaleSim(sim_cfg, transport) as sim:  # type: ignore[arg-type]
+        async with CraneScale(client_cfg(sim, mode=mode, request_cmd="S")) as scale:
+            with pytest.raises(IoTimeout) as err:
+                await scale.read_stable(timeout_s=0.4)
+            assert "no stable weighing within 0.4 s" in str(err.value) and str(err.value).startswith("scale ")
+            assert scale.counters.timeouts == 1 and scale.counters.stable_frames == 0
+            if mode == "stream":
+                assert scale.counters.unstable_frames > 0  # frames came, none of them stable
+                frame = await scale.read_frame(timeout_s=5.0)  # the port survives a timeout
+                assert not frame.stable
+            else:
+                assert sim.requests >= 2  # the S request was repeated; a real scale stays silent while unstable
+
+
+@pytest.mark.parametrize("unit", ["g", "t", "lb"])
+async def test_unit_conversion_end_to_end(unit: str) -> None:
+    sim_cfg = ScaleSimConfig(true_mass_kg=117.6, unit=unit, settle_s=0.0)  # type: ignore[arg-type]
+    async with ScaleSim(sim_cfg, "pty") as sim, CraneScale(client_cfg(sim)) as scale:
+        weighing = await scale.read_stable(timeout_s=10.0)
+        assert weighing.raw_line.rstrip().endswith(unit)
+        assert abs(weighing.mass_kg - 117.6) <= D_KG
+
+
+async def test_peer_hang_up_is_a_link_error_and_the_port_reopens() -> None:
+    sim_cfg = ScaleSimConfig(never_stable=True, stream_period_s=0.01)
+    async with ScaleSim(sim_cfg, "tcp") as sim, CraneScale(client_cfg(sim, mode="stream")) as scale:
+        await scale.read_frame(timeout_s=5.0)
+        await sim.stop()
+        with pytest.raises(IoLinkError, match="closed"):
+            await scale.read_stable(timeout_s=5.0)
+        with pytest.raises(IoLinkError, match="open"):  # reopening a closed server fails, as it should
+            await scale.read_stable(timeout_s=5.0)
+        assert scale.counters.opens == 1
+
+
+async def test_missing_device_is_a_link_error() -> None:
+    scale = CraneScale(ScaleConfig(port="/dev/does-not-exist-rgse"))
+    with pytest.raises(IoLinkError) as err:
+        await scale.read_stable(timeout_s=1.0)
+    assert err.value.device == "scale /dev/does-not-exist-rgse"
+    await scale.close()
