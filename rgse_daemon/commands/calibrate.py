@@ -60,10 +60,8 @@ def points_from_raw(man: Manifest, raw3: np.ndarray, raw5: np.ndarray) -> tuple[
     mass = np.array([p.mass_kg for p in man.points])
     e3 = g * mass * np.array([p.lever_a3_m for p in man.points])  # expected normalised torque g·m·lever
     e5 = g * mass * np.array([p.lever_a5_m for p in man.points])
+    # the measured torque carries the sign of the axis direction; K (negative then) absorbs it
     n3, n5 = pp.normalise(raw3, bias3), pp.normalise(raw5, bias5)
-    # the measured torque carries the sign of the axis direction; the expected one takes the same sign
-    e3 = e3 * np.where(n3 < 0, -1.0, 1.0)
-    e5 = e5 * np.where(n5 < 0, -1.0, 1.0)
     return CalibrationPoints(kinds, mass, n3, n5, e3, e5), bias3, bias5
 
 

@@ -1,0 +1,147 @@
+"""``rgse calibrate`` / ``rgse mass`` / ``rgse study`` end to end, in-process, on generated directories."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rgse_daemon.cli import main
+from tests.offline.campaign import Drive, write_campaign, write_measurement
+
+
+def run_json(capsys, argv: list[str]) -> dict:
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1  # exactly one JSON object
+    return json.loads(out)
+
+
+def test_calibrate_points_paper_and_auto(tmp_path, capsys, paper_dir):
+    csv = str(paper_dir / "table1_calibration.csv")
+    paper = run_json(capsys, ["calibrate", "--points", csv, "--out", str(tmp_path / "p.json"), "--json"])
+    assert paper["method"] == "paper"
+    assert paper["in_sample_mean_abs_err_pct"] == pytest.approx(0.6986, abs=0.05)
+    assert paper["points"] == 14
+    auto = run_json(capsys, ["calibrate", "--points", csv, "--out", str(tmp_path / "a.json"), "--method", "auto",
+                             "--json"])
+    assert auto["loo_mean_abs_err_pct"] < paper["loo_mean_abs_err_pct"]
+    assert {m["method"] for m in auto["models"]} >= {"paper", "gain-linear"}
+    doc = json.loads((tmp_path / "a.json").read_text())
+    assert doc["schema"] == 1 and doc["method"] == auto["method"] and doc["calibration_id"] == auto["calibration_id"]
+    assert set(doc["source_sha256"]) == {"table1_calibration.csv"}
+
+
+@pytest.mark.parametrize(("seed", "sign", "period_s", "factor", "storage"), [
+    (0, 1.0, 0.004, 1.0, "BLOCK"),
+    (1, -1.0, 0.012, 0.5, "CHANNEL"),
+    (2, 1.0, 0.001, 2.0, "BLOCK"),
+])
+def test_campaign_then_mass_recovers_truth(tmp_path, capsys, seed, sign, period_s, factor, storage):
+    drive = Drive(sign_a3=sign, sign_a5=sign, gain_a3=1.09 + 0.01 * seed, gain_a5=0.86 + 0.01 * seed)
+    kw = {"drive": drive, "period_s": period_s, "factor": factor, "storage": storage}
+    write_campaign(tmp_path / "cal", seed=seed, **kw)
+    true_dut = 60.0 + 40.0 * seed
+    write_measurement(tmp_path / "dut", true_dut, seed=seed + 100, **kw)
+    cal = run_json(capsys, ["calibrate", "--campaign", str(tmp_path / "cal"), "--out", str(tmp_path / "CAL.json"),
+                            "--method", "auto", "--json"])
+    assert cal["loo_mean_abs_err_pct"] < 0.3
+    res = run_json(capsys, ["mass", "--traces", str(tmp_path / "dut"), "--calibration", str(tmp_path / "CAL.json"),
+                            "--json"])
+    assert abs(res["mass_kg"] - true_dut) < 0.5
+    assert res["k"] == 2 and res["U_kg"] == pytest.approx(2 * res["u_kg"])
+    assert abs(res["mass_kg"] - true_dut) <= res["U_kg"] + 0.2
+    assert res["loops"] == 5 and res["fixture_mass_kg"] == pytest.approx(10.288)
+    assert 0 < res["samples_used"] <= res["samples_total"] == 5 * 1500
+    assert res["calibration_id"] == cal["calibration_id"]
+    fixed = run_json(capsys, ["mass", "--traces", str(tmp_path / "dut"), "--calibration",
+                              str(tmp_path / "CAL.json"), "--fixture-mass", "0", "--json"])
+    assert fixed["mass_kg"] == pytest.approx(res["gross_mass_kg"])
+
+
+@pytest.fixture(scope="module")
+def dirs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("offline")
+    write_campaign(root / "cal", seed=5, n_samples=600)
+    write_measurement(root / "dut", 100.0, seed=6, n_samples=600, n_loops=3)
+    assert main(["calibrate", "--campaign", str(root / "cal"), "--out", str(root / "CAL.json"),
+                 "--method", "gain-linear"]) == 0
+    return root
+
+
+def expect_error(capsys, argv: list[str], needle: str) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "error:" in err and needle in err, err
+    assert "Traceback" not in err
+    return err
+
+
+def test_out_of_range_warning(tmp_path, capsys, dirs):
+    write_measurement(tmp_path / "big", 600.0, seed=7, n_samples=600, n_loops=2)
+    res = run_json(capsys, ["mass", "--traces", str(tmp_path / "big"), "--calibration", str(dirs / "CAL.json"),
+                            "--json"])
+    assert any("outside the calibrated range" in w for w in res["warnings"])
+
+
+def test_missing_trace(tmp_path, capsys, dirs):
+    d = tmp_path / "dut"
+    shutil.copytree(dirs / "dut", d)
+    (d / "dut_l02_NextGenDrive#5.dat").unlink()
+    expect_error(capsys, ["mass", "--traces", str(d), "--calibration", str(dirs / "CAL.json")], "dut_l02")
+
+
+def test_truncated_r64(tmp_path, capsys, dirs):
+    d = tmp_path / "dut"
+    shutil.copytree(dirs / "dut", d)
+    f = d / "dut_l01_NextGenDrive#3.r64"
+    f.write_bytes(f.read_bytes()[:-12])
+    expect_error(capsys, ["mass", "--traces", str(d), "--calibration", str(dirs / "CAL.json")], "dut_l01")
+
+
+def test_nan_in_trace(tmp_path, capsys, dirs):
+    d = tmp_path / "dut"
+    shutil.copytree(dirs / "dut", d)
+    f = d / "dut_l03_NextGenDrive#3.r64"
+    raw = np.fromfile(f, "<f8")
+    raw[raw.size // 2] = np.nan
+    raw.tofile(f)
+    expect_error(capsys, ["mass", "--traces", str(d), "--calibration", str(dirs / "CAL.json")], "dut_l03")
+
+
+def test_manifest_names_absent_trace(tmp_path, capsys, dirs):
+    d = tmp_path / "dut"
+    shutil.copytree(dirs / "dut", d)
+    m = d / "manifest.toml"
+    m.write_text(m.read_text().replace('"dut_l03"', '"dut_l09"'))
+    expect_error(capsys, ["mass", "--traces", str(d), "--calibration", str(dirs / "CAL.json")], "dut_l09")
+
+
+def test_calibration_of_another_robot(tmp_path, capsys, dirs):
+    write_measurement(tmp_path / "other", 50.0, seed=8, n_samples=300, n_loops=2, robot="KR500R2830-OTHER")
+    expect_error(capsys, ["mass", "--traces", str(tmp_path / "other"), "--calibration", str(dirs / "CAL.json")],
+                 "KR500R2830-OTHER")
+
+
+def test_bad_calibration_and_manifest(tmp_path, capsys, dirs):
+    bad = tmp_path / "CAL.json"
+    doc = json.loads((dirs / "CAL.json").read_text())
+    doc["schema"] = 7
+    bad.write_text(json.dumps(doc))
+    expect_error(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(bad)], str(bad))
+    d = tmp_path / "cal"
+    shutil.copytree(dirs / "cal", d)
+    (d / "manifest.toml").write_text('[setup]\nrobot = "x"\ng = "fast"\nlever_difference_m = 1.0\n')
+    expect_error(capsys, ["calibrate", "--campaign", str(d), "--out", str(tmp_path / "o.json")], "manifest.toml")
+    expect_error(capsys, ["calibrate", "--points", str(tmp_path / "none.csv"), "--out", str(tmp_path / "o.json")],
+                 "none.csv")
+
+
+def test_points_csv_with_nan(tmp_path, capsys, paper_dir):
+    text = (paper_dir / "table1_calibration.csv").read_text().replace("495.68", "nan")
+    p = Path(tmp_path / "t.csv")
+    p.write_text(text)
+    expect_error(capsys, ["calibrate", "--points", str(p), "--out", str(tmp_path / "o.json")], "t.csv")
