@@ -251,3 +251,39 @@ def test_without_sha256_reads_the_same_values(tmp_path: Path) -> None:
     for module, tf in hashed.files.items():
         for name, channel in tf.channels.items():
             np.testing.assert_array_equal(plain.channel(module, name).values, channel.values)
+
+
+def test_files_appear_by_rename_data_before_header(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each file is renamed into place from a temporary name in the same directory; .r64 before .dat."""
+    import simulators.krc4.tracefiles as tracefiles
+
+    renames: list[tuple[Path, Path]] = []
+    real_replace = tracefiles.os.replace
+
+    def recording_replace(src: str, dst: Path) -> None:
+        renames.append((Path(src), Path(dst)))
+        real_replace(src, dst)
+
+    monkeypatch.setattr(tracefiles.os, "replace", recording_replace)
+    write_small_set(tmp_path, prog_text="DEF a()")
+    paths = sorted(tmp_path.iterdir())
+    assert len(paths) == 10
+    assert {dst for _src, dst in renames} == set(paths)
+    for src, dst in renames:
+        assert src.parent == dst.parent == tmp_path
+        assert src.name.startswith(f".{dst.name}.")
+    order = [dst.name for _src, dst in renames]
+    for module in ("KRCIpo", "NextGenDrive#3", "NextGenDrive#5"):
+        assert order.index(f"run1_{module}.r64") < order.index(f"run1_{module}.dat")
+
+
+def test_failed_write_leaves_no_temporary_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import simulators.krc4.tracefiles as tracefiles
+
+    def failing_fsync(fd: int) -> None:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(tracefiles.os, "fsync", failing_fsync)
+    with pytest.raises(OSError, match="disk full"):
+        write_small_set(tmp_path)
+    assert list(tmp_path.iterdir()) == []
