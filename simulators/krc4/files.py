@@ -58,7 +58,7 @@ EDIT_FULL = 0
 #: [src] file-read chunks and name lists are capped at this many bytes.
 MAX_CHUNK_BYTES = 64512
 #: Largest file a #29 Begin may allocate in this simulator (answers code 4 above it, as a failed allocation).
-MAX_BUFFER_BYTES = 256 * 1024 * 1024
+MAX_BUFFER_BYTES = 64 * 1024 * 1024
 
 _MODULE_SUFFIXES = {".SRC", ".DAT", ".SUB"}
 _TEXT_SUFFIXES = {".TXT", ".XML", ".INI", ".CONFIG", ".LOG", ".CSV"}
