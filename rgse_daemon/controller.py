@@ -1,0 +1,495 @@
+"""The KR C4 as the rest of the daemon sees it: a state snapshot, guarded writes, files and program control.
+
+It sits on :class:`~rgse_daemon.link.pool.LinkPool` and hides which server runs on the controller:
+
+* **C3 Bridge**: a snapshot is one multi-read (#6); files go through #21/#26/#27/#29/#30 (KUKA's own file
+  interface); programs are selected/started/stopped with #10.
+* **plain KUKAVARPROXY**: a snapshot is concurrent single reads (#0) over the pool; files go through the
+  controller's ``roboter`` share mounted locally (``ControllerConfig.share_dir``); program control is not
+  available (:class:`~rgse_daemon.link.errors.NotSupportedError`).
+
+Writes are limited to :data:`WRITABLE_VARIABLES` and user globals starting with :data:`WRITABLE_PREFIX`;
+anything else raises :class:`~rgse_daemon.errors.NotAllowedError` before a byte is sent.
+
+Usage::
+
+    async with Controller.connect(cfg.controller) as krc:
+        snap = await krc.snapshot()             # Snapshot: mode_op "T1", axes_deg, torques_nm, ...
+        await krc.write("$OV_PRO", 30)          # Python values are formatted as KRL (str → "quoted")
+        await krc.put_file("KRC:\\R1\\PROGRAM\\RGSE_MEAS.SRC", data)
+        await krc.select_program("KRC:\\R1\\PROGRAM\\RGSE_MEAS.SRC")
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import re
+import time
+from collections.abc import AsyncIterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rgse_daemon.config import ControllerConfig, Protocol
+from rgse_daemon.errors import ConfigError, LinkError, NotAllowedError, ProtocolError, VariableError
+from rgse_daemon.link import frames as fr
+from rgse_daemon.link.connection import ConnectionState
+from rgse_daemon.link.errors import CommandError, NotSupportedError
+from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, format_value, parse_value
+from rgse_daemon.link.pool import LinkPool
+
+#: Variables the daemon may write (trace control and program override); anything else is refused locally.
+WRITABLE_VARIABLES: frozenset[str] = frozenset({"$OV_PRO", "$TRACE.CONFIG[]", "$TRACE.NAME[]", "$TRACE.MODE"})
+#: User globals of the daemon's own KRL programs (declared in its $CONFIG.DAT part) are writable too.
+WRITABLE_PREFIX = "RGSE_"
+_USER_GLOBAL = re.compile(r"RGSE_[A-Z0-9_]+(\[[0-9]*(,[0-9]+)*\])?(\.[A-Z0-9_]+)*")
+
+AXES = range(1, 7)
+#: What one snapshot reads, in this order (26 variables: one #6 with C3 Bridge).
+SNAPSHOT_VARIABLES: tuple[str, ...] = (
+    "$MODE_OP",
+    "$PRO_STATE1",
+    "$PRO_NAME1[]",
+    "$AXIS_ACT",
+    "$POS_ACT",
+    *(f"$TORQUE_AXIS_ACT[{i}]" for i in AXES),
+    *(f"$MOT_TEMP[{i}]" for i in AXES),
+    "$TRACE.STATE",
+    "$PERI_RDY",
+    "$USER_SAF",
+    "$STOPMESS",
+    "$OV_PRO",
+    "$LOAD",
+    "$BRAKE_SIG",
+    "$VEL_ACT",
+    "$ROB_STOPPED",
+)
+
+#: #29 End copy flag: overwrite an existing file (c3bridge-protocol §3.9, copy flags).
+COPY_OVERWRITE_EXISTS = 64
+
+
+def writable(name: str) -> bool:
+    """Whether the allow-list lets the daemon write ``name`` (case-insensitive, as KRL names are)."""
+    n = name.strip().upper()
+    return n in WRITABLE_VARIABLES or _USER_GLOBAL.fullmatch(n) is not None
+
+
+@dataclass(frozen=True)
+class Pose:
+    """``$POS_ACT``: TCP position in mm and orientation in degrees (KUKA A/B/C = Z/Y/X Euler angles)."""
+
+    x_mm: float
+    y_mm: float
+    z_mm: float
+    a_deg: float
+    b_deg: float
+    c_deg: float
+    status: int | None = None
+    turn: int | None = None
+
+
+@dataclass(frozen=True)
+class LoadData:
+    """``$LOAD``: payload mass in kg (−1 = "unknown payload" mode), centre of mass in mm, inertia in kg·m²."""
+
+    mass_kg: float
+    cog_mm: tuple[float, float, float]
+    inertia_kgm2: tuple[float, float, float]
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """One reading of the controller's state. A field is ``None`` when its variable could not be read or parsed;
+    ``errors`` then says why (by variable name). ``raw`` keeps every value text as read.
+
+    Enumerations are given without ``#`` (``mode_op == "T1"``, ``pro_state1 == "P_ACTIVE"``).
+    """
+
+    taken_at_s: float  # wall clock (time.time()) when the read finished
+    read_duration_s: float
+    mode_op: str | None
+    pro_state1: str | None
+    pro_name1: str | None
+    axes_deg: tuple[float, ...] | None  # A1..A6 of $AXIS_ACT
+    pos_act: Pose | None
+    torques_nm: tuple[float | None, ...]  # $TORQUE_AXIS_ACT[1..6]
+    motor_temps_k: tuple[float | None, ...]  # $MOT_TEMP[1..6], Kelvin
+    trace_state: str | None
+    peri_rdy: bool | None
+    user_saf: bool | None
+    stopmess: bool | None
+    ov_pro_pct: int | None
+    load: LoadData | None
+    brake_sig: str | None  # one character per axis, "1" = brake released
+    vel_act_m_s: float | None
+    rob_stopped: bool | None
+    raw: Mapping[str, str] = field(default_factory=dict)
+    errors: Mapping[str, str] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        return not self.errors
+
+
+@dataclass(frozen=True)
+class DirEntry:
+    """One entry of :meth:`Controller.list_dir`: the controller's full name and the server's info text."""
+
+    name: str
+    info: str = ""
+
+    @property
+    def is_dir(self) -> bool:
+        return self.name.endswith(("\\", "/"))
+
+
+class _Decoder:
+    """Turns raw value texts into typed snapshot fields, collecting problems instead of raising."""
+
+    def __init__(self, raw: Mapping[str, str | VariableError]) -> None:
+        self.raw = raw
+        self.errors: dict[str, str] = {}
+
+    def _get(self, name: str, kind: type | tuple[type, ...]) -> KrlValue | None:
+        got = self.raw.get(name)
+        if got is None:
+            self.errors[name] = "not read"
+            return None
+        if isinstance(got, VariableError):
+            self.errors[name] = str(got)
+            return None
+        try:
+            value = parse_value(got)
+        except ProtocolError as exc:
+            self.errors[name] = str(exc)
+            return None
+        if (isinstance(value, bool) and kind is not bool) or not isinstance(value, kind):
+            self.errors[name] = f"expected {getattr(kind, '__name__', kind)}, got {got[:60]!r}"
+            return None
+        return value
+
+    def enum(self, name: str) -> str | None:
+        v = self._get(name, KrlEnum)
+        return v.name if isinstance(v, KrlEnum) else None
+
+    def boolean(self, name: str) -> bool | None:
+        v = self._get(name, bool)
+        return v if isinstance(v, bool) else None
+
+    def real(self, name: str) -> float | None:
+        v = self._get(name, (int, float))
+        return float(v) if isinstance(v, int | float) and not isinstance(v, bool) else None
+
+    def integer(self, name: str) -> int | None:
+        v = self._get(name, int)
+        return v if isinstance(v, int) and not isinstance(v, bool) else None
+
+    def text(self, name: str) -> str | None:
+        v = self._get(name, str)
+        return v.rstrip() if isinstance(v, str) else None
+
+    def bits(self, name: str) -> str | None:
+        v = self._get(name, KrlBits)
+        return v.bits if isinstance(v, KrlBits) else None
+
+    def struct(self, name: str, *keys: str) -> KrlStruct | None:
+        v = self._get(name, KrlStruct)
+        if not isinstance(v, KrlStruct):
+            return None
+        for path in keys:
+            node: object = v
+            for part in path.split("."):
+                node = node.get(part) if isinstance(node, KrlStruct) else None
+            if not isinstance(node, int | float) or isinstance(node, bool):
+                self.errors[name] = f"field {path} missing or not a number"
+                return None
+        return v
+
+
+def _num(s: KrlStruct, path: str) -> float:
+    node: object = s
+    for part in path.split("."):
+        assert isinstance(node, KrlStruct)
+        node = node[part]
+    assert isinstance(node, int | float)
+    return float(node)
+
+
+class Controller:
+    """The robot controller; construct with :meth:`connect`. See the module docstring."""
+
+    def __init__(self, cfg: ControllerConfig, pool: LinkPool) -> None:
+        self.cfg = cfg
+        self.pool = pool
+
+    @classmethod
+    @contextlib.asynccontextmanager
+    async def connect(cls, cfg: ControllerConfig, *, seed: int | None = None) -> AsyncIterator[Controller]:
+        """Open the link (pool + protocol detection), yield the controller, close the link on exit."""
+        pool = LinkPool(cfg, seed=seed)
+        await pool.start()
+        try:
+            yield cls(cfg, pool)
+        finally:
+            await pool.close()
+
+    @property
+    def protocol(self) -> Protocol:
+        return self.pool.protocol
+
+    def health(self) -> dict[str, object]:
+        """Link health for the ``state`` topic: protocol, connection states, counters, latency histogram."""
+        return self.pool.health()
+
+    # --- variables ------------------------------------------------------------------------------------------------
+    async def snapshot(self) -> Snapshot:
+        """Read :data:`SNAPSHOT_VARIABLES` at once (one #6 with C3 Bridge) and decode them.
+
+        Link failures raise (``LinkTimeout``, ``LinkClosed``, ``ProtocolError``); a single unreadable variable
+        only leaves its field ``None`` and is named in ``Snapshot.errors``.
+        """
+        t0 = time.monotonic()
+        raw = await self.pool.read_many(SNAPSHOT_VARIABLES)
+        duration_s = time.monotonic() - t0
+        d = _Decoder(raw)
+        axes = d.struct("$AXIS_ACT", *(f"A{i}" for i in AXES))
+        pos = d.struct("$POS_ACT", "X", "Y", "Z", "A", "B", "C")
+        load = d.struct("$LOAD", "M", "CM.X", "CM.Y", "CM.Z", "J.X", "J.Y", "J.Z")
+        pose = None
+        if pos is not None:
+            s, t = pos.get("S"), pos.get("T")
+            pose = Pose(
+                *(_num(pos, k) for k in ("X", "Y", "Z", "A", "B", "C")),
+                status=s if isinstance(s, int) and not isinstance(s, bool) else None,
+                turn=t if isinstance(t, int) and not isinstance(t, bool) else None,
+            )
+        return Snapshot(
+            taken_at_s=time.time(),
+            read_duration_s=duration_s,
+            mode_op=d.enum("$MODE_OP"),
+            pro_state1=d.enum("$PRO_STATE1"),
+            pro_name1=d.text("$PRO_NAME1[]"),
+            axes_deg=None if axes is None else tuple(_num(axes, f"A{i}") for i in AXES),
+            pos_act=pose,
+            torques_nm=tuple(d.real(f"$TORQUE_AXIS_ACT[{i}]") for i in AXES),
+            motor_temps_k=tuple(d.real(f"$MOT_TEMP[{i}]") for i in AXES),
+            trace_state=d.enum("$TRACE.STATE"),
+            peri_rdy=d.boolean("$PERI_RDY"),
+            user_saf=d.boolean("$USER_SAF"),
+            stopmess=d.boolean("$STOPMESS"),
+            ov_pro_pct=d.integer("$OV_PRO"),
+            load=None
+            if load is None
+            else LoadData(
+                _num(load, "M"),
+                (_num(load, "CM.X"), _num(load, "CM.Y"), _num(load, "CM.Z")),
+                (_num(load, "J.X"), _num(load, "J.Y"), _num(load, "J.Z")),
+            ),
+            brake_sig=d.bits("$BRAKE_SIG"),
+            vel_act_m_s=d.real("$VEL_ACT"),
+            rob_stopped=d.boolean("$ROB_STOPPED"),
+            raw={k: v for k, v in raw.items() if isinstance(v, str)},
+            errors=d.errors,
+        )
+
+    async def read_raw(self, name: str) -> str:
+        """The value text of one variable (``VariableError`` if refused or empty)."""
+        return await self.pool.read(name)
+
+    async def read(self, name: str) -> KrlValue:
+        """One variable, parsed (``ProtocolError`` if the text is not a KRL value)."""
+        return parse_value(await self.pool.read(name))
+
+    async def write(self, name: str, value: KrlValue) -> KrlValue:
+        """Write a Python value as KRL (``str`` becomes a quoted CHAR[] string); returns the echoed value.
+
+        Raises ``NotAllowedError`` for a name outside the allow-list, before anything is sent.
+        """
+        self._check_writable(name)
+        return parse_value(await self.pool.write(name, format_value(value)))
+
+    async def write_raw(self, name: str, text: str) -> str:
+        """Write KRL value text as is (e.g. ``#T_START``); same allow-list as :meth:`write`."""
+        self._check_writable(name)
+        return await self.pool.write(name, text)
+
+    @staticmethod
+    def _check_writable(name: str) -> None:
+        if not writable(name):
+            raise NotAllowedError(
+                f"{name}: not on the write allow-list ({', '.join(sorted(WRITABLE_VARIABLES))}, {WRITABLE_PREFIX}*)"
+            )
+
+    # --- program control (#10) ------------------------------------------------------------------------------------
+    async def _program(self, req: fr.ProgramControl, what: str) -> None:
+        if not self.pool.supports(fr.MsgType.PROGRAM_CONTROL):
+            raise NotSupportedError(f"{what}: program control needs C3 Bridge (server is {self.protocol.value})")
+        rsp = await self.pool.request(req)
+        if not rsp.success:
+            raise CommandError(what, "refused by the controller", rsp.code)
+        if not isinstance(rsp, fr.ProgramControlReply) or rsp.cmd != req.cmd:
+            raise ProtocolError(f"{what}: reply does not echo command {req.cmd}")
+
+    async def select_program(self, name: str, params: str = "", *, force: bool = False) -> None:
+        """Select ``name`` (e.g. ``KRC:\\R1\\PROGRAM\\RGSE_MEAS.SRC``) in the robot interpreter."""
+        await self._program(fr.ProgramControl(fr.ProgCmd.SELECT, 0, name, params, force), f"select {name}")
+
+    async def run_program(self, name: str, params: str = "", *, force: bool = False) -> None:
+        """Select and start ``name``; in T1 the controller still needs the enabling switch and start key."""
+        await self._program(fr.ProgramControl(fr.ProgCmd.RUN, 0, name, params, force), f"run {name}")
+
+    async def start_program(self, interpreter: int = fr.Interpreter.ROBOT) -> None:
+        await self._program(fr.ProgramControl(fr.ProgCmd.START, interpreter), f"start interpreter {interpreter}")
+
+    async def stop_program(self, interpreter: int = fr.Interpreter.ROBOT) -> None:
+        await self._program(fr.ProgramControl(fr.ProgCmd.STOP, interpreter), f"stop interpreter {interpreter}")
+
+    async def reset_program(self, interpreter: int = fr.Interpreter.ROBOT) -> None:
+        await self._program(fr.ProgramControl(fr.ProgCmd.RESET, interpreter), f"reset interpreter {interpreter}")
+
+    async def cancel_program(self, interpreter: int = fr.Interpreter.ROBOT) -> None:
+        await self._program(fr.ProgramControl(fr.ProgCmd.CANCEL, interpreter), f"cancel interpreter {interpreter}")
+
+    async def confirm_all(self) -> None:
+        """Acknowledge all acknowledgeable controller messages (#63)."""
+        if not self.pool.supports(fr.MsgType.CONFIRM_ALL):
+            raise NotSupportedError(f"confirm all needs C3 Bridge (server is {self.protocol.value})")
+        rsp = await self.pool.request(fr.ConfirmAll())
+        if not rsp.success:
+            raise CommandError("confirm all", "refused by the controller", rsp.code)
+
+    # --- files ----------------------------------------------------------------------------------------------------
+    def _use_share(self) -> bool:
+        return not self.pool.supports(fr.MsgType.WRITE_CONTENT)
+
+    async def put_file(self, name: str, data: bytes) -> None:
+        """Write ``data`` to the controller file ``name`` (overwriting): #29 in chunks ≤ 65525 bytes, or the share."""
+        if self._use_share():
+            await asyncio.to_thread(_share_write, self._share_path(name), data)
+            return
+        what = f"put {name}"
+        async with self.pool.connection() as conn:  # the write buffer belongs to one connection
+            rsp = await conn.request(fr.WriteContentBegin(len(data)))
+            _expect(rsp, fr.WriteContentBeginReply, what)
+            offset = 0
+            while offset < len(data):
+                chunk = data[offset : offset + fr.MAX_WRITE_CHUNK]
+                rsp = await conn.request(fr.WriteContentData(offset, chunk))
+                _expect(rsp, fr.WriteContentDataReply, what)
+                assert isinstance(rsp, fr.WriteContentDataReply)
+                if rsp.written != len(chunk) or rsp.offset != offset:
+                    raise ProtocolError(f"{what}: wrote {rsp.written} of {len(chunk)} bytes at offset {offset}")
+                offset += len(chunk)
+            rsp = await conn.request(fr.WriteContentEnd(COPY_OVERWRITE_EXISTS, name))
+            _expect(rsp, fr.WriteContentEndReply, what)
+
+    async def get_file(self, name: str) -> bytes:
+        """The content of controller file ``name``: #30 in chunks ≤ 64512 bytes, or the share."""
+        if self._use_share():
+            return await asyncio.to_thread(_share_read, self._share_path(name))
+        what = f"get {name}"
+        async with self.pool.connection() as conn:
+            rsp = await conn.request(fr.ReadContentBegin(0, name))
+            _expect(rsp, fr.ReadContentBeginReply, what)
+            assert isinstance(rsp, fr.ReadContentBeginReply)
+            size = rsp.file_size
+            out = bytearray()
+            try:
+                while len(out) < size:
+                    rsp = await conn.request(fr.ReadContentData(len(out), fr.MAX_READ_CHUNK))
+                    _expect(rsp, fr.ReadContentDataReply, what)
+                    assert isinstance(rsp, fr.ReadContentDataReply)
+                    if rsp.offset != len(out) or not rsp.data:
+                        raise ProtocolError(f"{what}: got {len(rsp.data)} bytes at {rsp.offset}, expected {len(out)}")
+                    out += rsp.data
+            finally:
+                if conn.state is ConnectionState.CONNECTED:
+                    with contextlib.suppress(LinkError):
+                        await conn.request(fr.ReadContentEnd())  # free the server's buffer
+            if len(out) != size:
+                raise ProtocolError(f"{what}: {len(out)} bytes received, file has {size}")
+            return bytes(out)
+
+    async def list_dir(self, path: str) -> list[DirEntry]:
+        """Entries of a controller directory or mask (#21), e.g. ``C:\\KRC\\ROBOTER\\TRACE\\``."""
+        if self._use_share():
+            return await asyncio.to_thread(_share_list, self._share_path(path), path)
+        rsp = await self.pool.request(fr.NameList(0, 0, path))
+        _expect(rsp, fr.NameListReply, f"list {path}")
+        assert isinstance(rsp, fr.NameListReply)
+        infos = list(rsp.infos) + [""] * max(0, len(rsp.items) - len(rsp.infos))
+        return [DirEntry(n, i) for n, i in zip(rsp.items, infos, strict=False)]
+
+    def _share_path(self, name: str) -> Path:
+        if self.cfg.share_dir is None:
+            raise ConfigError(
+                "controller.share_dir: file operations over plain KUKAVARPROXY need the controller's "
+                "'roboter' share mounted locally"
+            )
+        return share_path(self.cfg.share_dir, name)
+
+
+def _expect(rsp: fr.Reply, kind: type[fr.Reply], what: str) -> None:
+    if not rsp.success:
+        raise CommandError(what, "refused by the controller", rsp.code)
+    if not isinstance(rsp, kind):
+        raise ProtocolError(f"{what}: expected {kind.__name__}, got {type(rsp).__name__}")
+
+
+_SHARE_PREFIXES = (re.compile(r"^KRC:[\\/]", re.I), re.compile(r"^C:[\\/]KRC[\\/]ROBOTER([\\/]|$)", re.I))
+
+
+def share_path(root: Path, name: str) -> Path:
+    """Map a controller name onto the locally mounted ``roboter`` share (same mapping as C3 Bridge names).
+
+    ``KRC:\\R1\\PROGRAM\\X.SRC`` and ``/R1/X.SRC`` → ``root/R1/PROGRAM/X.SRC``; ``C:\\KRC\\ROBOTER\\TRACE\\x`` →
+    ``root/TRACE/x``. ``..``, drives and UNC paths are refused (``NotAllowedError``): nothing leaves the share.
+    """
+    rest = None
+    for p in _SHARE_PREFIXES:
+        m = p.match(name)
+        if m:
+            rest = name[m.end() :]
+            break
+    if rest is None:
+        if name.startswith("/") and not name.startswith("//"):
+            rest = name[1:]
+        else:
+            raise NotAllowedError(f"{name}: not a name on the controller's share")
+    parts = [p for p in re.split(r"[\\/]+", rest) if p]
+    if any(p in (".", "..") or ":" in p or "\x00" in p for p in parts):
+        raise NotAllowedError(f"{name}: path leaves the controller's share")
+    if (
+        name.startswith("/")
+        and len(parts) == 2
+        and parts[0].upper() == "R1"
+        and not (root / parts[0] / parts[1]).is_dir()
+    ):
+        parts = ["R1", "PROGRAM", parts[1]]
+    return root.joinpath(*parts)
+
+
+def _share_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.rgse-tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def _share_read(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise CommandError(f"get {path}", exc.strerror or "cannot read") from exc
+
+
+def _share_list(path: Path, shown: str) -> list[DirEntry]:
+    try:
+        entries = sorted(path.iterdir())
+    except OSError as exc:
+        raise CommandError(f"list {shown}", exc.strerror or "cannot list") from exc
+    base = shown if shown.endswith(("\\", "/")) else shown + ("/" if "/" in shown else "\\")
+    sep = "/" if "/" in shown and "\\" not in shown else "\\"
+    return [DirEntry(base + e.name + (sep if e.is_dir() else "")) for e in entries if not e.name.endswith(".rgse-tmp")]
