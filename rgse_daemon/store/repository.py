@@ -222,7 +222,9 @@ class Repository:
             where += " AND robot = ?"
             params.append(check_robot(robot))
         with self._db.transaction():
-            rows = self._db.execute(f"SELECT id FROM runs WHERE {where}{self._db.dialect.lock_rows}", params)
+            rows = self._db.execute(
+                f"SELECT id FROM runs WHERE {where} ORDER BY created_utc, id{self._db.dialect.lock_rows}", params
+            )
             now = self._now()
             for row in rows:
                 run_id = row["id"]
