@@ -31,9 +31,10 @@ import logging
 import tempfile
 import time
 from collections import Counter
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Coroutine, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from rgse_daemon.errors import ConfigError, ProtocolError, VariableError
 from rgse_daemon.link import frames as fr
@@ -50,8 +51,10 @@ log = logging.getLogger(__name__)
 
 PROXY_TYPE = "C3 BRIDGE INTERFACE"
 _BUILD_NAMES = {0: "OPEN SOURCE", 1: "PROPRIETARY", 2: "FREEWARE", 3: "INTERNAL BUILD"}
-#: Message types this server answers; every other type closes the connection (as the real server does).
-HANDLED_TYPES: frozenset[int] = frozenset(int(t) for t in fr.MsgType)
+#: Message types this server answers; every other type closes the connection (as the real server does for types
+#: it has no handler for). Not yet here: #11/#12 (motion, KCP keys: need the physics) and #20, #22–#25, #28 (file
+#: attributes, create, delete, copy, move, KRC name: ``ShareFiles`` has them, the frame codec does not yet).
+HANDLED_TYPES: frozenset[int] = frozenset({0, 1, 4, 5, 6, 7, 10, 13, 14, 17, 21, 26, 27, 29, 30, 63})
 #: [src] a response payload is at most 65531 bytes; longer multi-variable replies get code 10.
 MAX_REPLY_PAYLOAD = 65531
 #: A deterministic reply that is no frame at all (type 0xFF, length 0), sent by the ``garbage_next`` fault.
@@ -78,8 +81,15 @@ class ServerConfig:
         When false, such requests are queued and answered in order instead.
     version:
         (major, minor, build type) as reported by #13 and ``@PROXY_VERSION``; build type 0 = open source.
+    hostname:
+        Computer name reported by #13 and ``@PROXY_HOSTNAME``.
+    benchmark_max_count, benchmark_max_iterations:
+        #17 caps: the real server lowers the name count to 10; the iteration cap keeps a simulated benchmark
+        (which blocks every client, as on the real server) from running for hours.
     udp_port:
         Answer ``WHEREAREYOU?`` and ``@PROXY_*`` datagrams on this UDP port (0 = any free port; ``None`` = off).
+    max_file_buffer_bytes:
+        Largest #29 buffer; a bigger Begin fails with code 4 (out of memory).
     """
 
     host: str = "127.0.0.1"
@@ -402,8 +412,8 @@ class KrcServer:
     def _forget(self, conn: _Connection) -> None:
         self._connections.discard(conn)
 
-    def _spawn(self, coro: object, name: str) -> None:
-        task = asyncio.get_running_loop().create_task(coro, name=name)  # type: ignore[arg-type]
+    def _spawn(self, coro: Coroutine[Any, Any, None], name: str) -> None:
+        task = asyncio.get_running_loop().create_task(coro, name=name)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
 
