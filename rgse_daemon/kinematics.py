@@ -64,8 +64,9 @@ AXIS_SIGN = np.array([-1.0, 1.0, 1.0, -1.0, 1.0, -1.0])
 THETA_OFFSET_RAD = np.array([0.0, 0.0, np.pi / 2, 0.0, 0.0, 0.0])
 
 #: Software axis ranges (deg), kuka-facts §1 (approximate, secondary source).
-JOINT_LIMITS_DEG = np.array([[-185.0, 185.0], [-130.0, 20.0], [-100.0, 144.0], [-350.0, 350.0],
-                             [-120.0, 120.0], [-350.0, 350.0]])
+JOINT_LIMITS_DEG = np.array(
+    [[-185.0, 185.0], [-130.0, 20.0], [-100.0, 144.0], [-350.0, 350.0], [-120.0, 120.0], [-350.0, 350.0]]
+)
 
 #: The paper's g (eq. 4, 14, 17, 18); local g in Bremen is 9.8134 m/s² (kuka-facts §7).
 G_PAPER_M_S2 = 9.81
@@ -125,8 +126,9 @@ def axis_lines(q_deg: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndar
     return frames[:, :3, 3].copy(), frames[:, :3, 2] * AXIS_SIGN[:, None]
 
 
-def flange_point_m(q_deg: Sequence[float] | np.ndarray,
-                   point_flange_m: Sequence[float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+def flange_point_m(
+    q_deg: Sequence[float] | np.ndarray, point_flange_m: Sequence[float] = (0.0, 0.0, 0.0)
+) -> np.ndarray:
     """Base-frame position (m) of a point given in the flange frame (m)."""
     f = flange_frame(q_deg)
     return f[:3, :3] @ np.asarray(point_flange_m, dtype=float) + f[:3, 3]
@@ -171,8 +173,9 @@ def measurement_pose(a2_deg: float = -90.0, a1_deg: float = 0.0) -> np.ndarray:
 
 
 # --- speeds ----------------------------------------------------------------------------------------------------------
-def point_jacobian(q_deg: Sequence[float] | np.ndarray,
-                   point_flange_m: Sequence[float] = (0.0, 0.0, 0.0)) -> np.ndarray:
+def point_jacobian(
+    q_deg: Sequence[float] | np.ndarray, point_flange_m: Sequence[float] = (0.0, 0.0, 0.0)
+) -> np.ndarray:
     """Linear velocity Jacobian (3×6) of a point rigidly attached to the flange: v [m/s] = J · q̇ [rad/s].
 
     Column i is u_i × (p − o_i) with u_i the KUKA-positive axis direction and o_i a point on axis Ai.

@@ -1,0 +1,440 @@
+"""Physics of the simulated KR 500 R2830: the payload chain, static gravity torques, and the controller's torque
+estimate (``Istmoment``) with the error sources the paper reports.
+
+API (small on purpose; the KUKA Trace engine and the KRL interpreter use only this)::
+
+    model = RobotModel(scenario=None, seed=0)          # None: scenarios/default.toml
+    payload = mass_calibration_payload(n_cb=3)          # MPA + 3 calibration bodies; or dut_payload(...), ...
+    model.true_torques_nm(q_deg, payload)               # (6,) gravity holding torques, Nm, A1..A6
+    model.move(q_from_deg, q_to_deg, duration_s)        # a motion: heats the motors, sets the approach directions,
+                                                        # restarts the settling/release clock at its end
+    model.brake_release_move(q_deg)                     # the paper's ±35° A3/A5 brake-release move (§2.4.4)
+    model.hold(duration_s); model.apply_brakes(duration_s)   # standing with brakes open / closed (cooling)
+    trace = model.sample_trace(q_deg, payload, n_samples=1000, period_s=0.012)
+    trace[3]["Istmoment"]                               # ndarray, Nm; axes 1..6, channels in CHANNELS
+    model.last_truth                                    # TraceTruth: true mass/CoG/torques and every error term
+
+``sample_trace`` uses and advances the model's state (motor temperatures, time since the last motion, approach
+directions); the keyword overrides ``t_since_release_s``, ``motor_temp_k`` and ``last_approach_sign`` replace the
+state for that trace only (the state still advances by the trace's duration). Deterministic for a given seed and
+call sequence (one ``np.random.Generator``).
+
+Torque estimate of axis i at sample k (all Nm, holding-torque sign of ``rgse_daemon.kinematics``)::
+
+    static    = τ_arm(q) + M0_i + G_i(|τ_pay|) · τ_pay           # M0: residual (eq. 17–18), G: Table 1 gain
+    Istmoment = static · (1 + β_i (T_k − T_amb))                  # slow drift with motor temperature
+              + ε_i · static · exp(−t_k/τ_rel)                    # transient after each brake release
+              − sign(last approach) · h_i                         # friction hysteresis
+              + A_i exp(−t_k/τ_s) cos(2π f t_k)                   # settling after the brake-release move
+              + N(0, σ_i) + sparse spikes
+
+``Iststrom`` = Istmoment / (k_t · gear ratio) (A; the controller derives the torque from the current with its
+nominal constants), ``Motortemperatur`` = winding temperature T_k (K, first order: heats towards
+T_amb + rise while the brakes are open, cools towards T_amb while they are applied; ≈2 K per 12 s trace from cold).
+Position channels: ``Sollposition`` / ``Istposition`` (deg, axis side), ``Positionsschleppfehler`` (deg),
+``Geschwindigkeitsdifferenz`` (deg/s).
+
+Payload chain geometry, derived from Table 1 (see ``paper_levers_m``): the printed levers grow 7.5 mm per body and
+the expected torques equal g·m·(printed lever − 0.020 m). So the *effective* lever of n bodies to A5 is
+0.275 + 0.0075·n m (to A3: + d4 = 1.025 m), the MPA's CoG sits at 0.265 m: a 20 mm MPA whose front face is at
+0.275 m from the A5 axis, carrying 15 mm plates (440 × 440 mm, 20.93 kg: steel with the Ø120 mm cut-out) stacked
+horizontally, each adding half its thickness to the stack's CoG lever. With d6 = 290 mm the MPA's back face would be
+at 0.290 m, not 0.255 m: the paper's levers are 35 mm shorter than the data-sheet flange distance implies. We keep
+the paper's levers (they define Table 1's expected torques and the campaign manifests): the simulated chain starts at
+flange z = ``CHAIN_ORIGIN_Z_M`` = −0.035 m. A modelling choice, not a physical claim.
+
+Test adapter (torque-based calibration, Fig. 18): 19.20 kg (Table 1: 228.51 kg − 10 × 20.93 kg) with its CoG
+placed so that its A5 torque in the measurement pose is Table A1's 217.95 Nm (lever 1.157 m). Its A3 torque is then
+217.95 + g·19.20·d4 = 411.0 Nm, not Table A1's 646.79 Nm: that value would need a 42.65 kg adapter and contradicts
+Table 1's total mass under eq. 3, so we follow Table 1. With the bodies at A5 levers 0.761 / 1.011 / 1.261 m the
+three torque rows reproduce Table 1's expected A5 torques exactly and A3 within 0.25 %.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rgse_daemon import kinematics as kin
+from simulators.krc4.scenario import AXIS_KEYS, Scenario, default_scenario
+
+CHANNELS = (
+    "Sollposition",
+    "Istposition",
+    "Positionsschleppfehler",
+    "Geschwindigkeitsdifferenz",
+    "Motortemperatur",
+    "Istmoment",
+    "Iststrom",
+)
+CHANNEL_UNITS = {
+    "Sollposition": "deg",
+    "Istposition": "deg",
+    "Positionsschleppfehler": "deg",
+    "Geschwindigkeitsdifferenz": "deg/s",
+    "Motortemperatur": "K",
+    "Istmoment": "Nm",
+    "Iststrom": "A",
+}
+
+# --- payload chain (paper §2.2, §2.4.2–2.4.3, Table 1, Table A1) ------------------------------------------------------
+CHAIN_ORIGIN_Z_M = -0.035
+"""Flange-frame z of the MPA's back face, chosen so that the chain reproduces the paper's effective levers."""
+MPA_THICKNESS_M = 0.020
+MPA_SIDE_M = 0.440
+MPA_CUTOUT_DIAMETER_M = 0.120
+STAINLESS_DENSITY_KG_M3 = 7900.0
+MPA_MASS_KG = (MPA_SIDE_M**2 - np.pi * (MPA_CUTOUT_DIAMETER_M / 2) ** 2) * MPA_THICKNESS_M * STAINLESS_DENSITY_KG_M3
+CB_MASS_KG = 20.93
+CB_THICKNESS_M = 0.015
+N_CB_MAX = 10
+TA_MASS_KG = 19.20
+TA_TORQUE_A5_NM = 217.95  # Table A1, at g = 9.81
+FIXTURE_MASS_KG = 10.288  # paper §2.4.7, the ReFEx fixture
+FIXTURE_THICKNESS_M = 0.040
+
+
+@dataclass(frozen=True)
+class RigidBody:
+    """A rigid body fixed to the flange: mass (kg), CoG in the flange frame (m), principal inertia (kg·m², a
+    placeholder: static torques do not depend on it)."""
+
+    name: str
+    mass_kg: float
+    cog_flange_m: tuple[float, float, float]
+    inertia_kgm2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.mass_kg) and self.mass_kg >= 0.0):
+            raise ValueError(f"{self.name}: mass must be finite and ≥ 0, got {self.mass_kg}")
+        if len(self.cog_flange_m) != 3 or not np.all(np.isfinite(self.cog_flange_m)):
+            raise ValueError(f"{self.name}: CoG must be three finite coordinates (m)")
+
+
+@dataclass(frozen=True)
+class Payload:
+    """Everything on the flange, as a list of rigid bodies."""
+
+    bodies: tuple[RigidBody, ...] = ()
+
+    @property
+    def mass_kg(self) -> float:
+        return float(sum(b.mass_kg for b in self.bodies))
+
+    @property
+    def theta(self) -> np.ndarray:
+        """Gravity parameters [m, m·cx, m·cy, m·cz] (kg, kg·m) for ``kinematics.gravity_regressor``."""
+        t = np.zeros(4)
+        for b in self.bodies:
+            t += b.mass_kg * np.array([1.0, *b.cog_flange_m])
+        return t
+
+    @property
+    def cog_flange_m(self) -> np.ndarray:
+        t = self.theta
+        return t[1:] / t[0] if t[0] > 0 else np.zeros(3)
+
+    def __add__(self, other: Payload) -> Payload:
+        return Payload(self.bodies + other.bodies)
+
+
+def mpa() -> RigidBody:
+    """The multi-payload adapter: 440 × 440 × 20 mm stainless plate with a Ø120 mm cut-out (§2.2)."""
+    return RigidBody("MPA", MPA_MASS_KG, (0.0, 0.0, CHAIN_ORIGIN_Z_M + MPA_THICKNESS_M / 2), (3.0, 3.0, 5.9))
+
+
+def mpa_front_z_m() -> float:
+    return CHAIN_ORIGIN_Z_M + MPA_THICKNESS_M
+
+
+def calibration_stack(n_cb: int, base_z_m: float | None = None) -> tuple[RigidBody, ...]:
+    """``n_cb`` calibration bodies (20.93 kg, 15 mm) stacked outward from ``base_z_m`` (default: the MPA's face)."""
+    if not 0 <= n_cb <= N_CB_MAX:
+        raise ValueError(f"n_cb must be 0..{N_CB_MAX}, got {n_cb}")
+    z0 = mpa_front_z_m() if base_z_m is None else base_z_m
+    return tuple(
+        RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z0 + CB_THICKNESS_M * (k - 0.5)), (0.34, 0.34, 0.68))
+        for k in range(1, n_cb + 1)
+    )
+
+
+def mass_calibration_payload(n_cb: int) -> Payload:
+    """Mass-based calibration (Fig. 17): MPA plus ``n_cb`` stacked bodies."""
+    return Payload((mpa(), *calibration_stack(n_cb)))
+
+
+def paper_levers_m(n_cb: int) -> tuple[float, float]:
+    """Effective levers (m) of the calibration load to A3 and A5 in the measurement pose, as Table 1's expected
+    torques use them: printed lever − 0.020 m. n = 0 is the MPA alone (Table 1's "0 (MPA)" row)."""
+    lever_a5 = 0.265 if n_cb == 0 else 0.275 + 0.0075 * n_cb
+    return lever_a5 + kin.D4_M, lever_a5
+
+
+def test_adapter(g_m_s2: float = kin.G_PAPER_M_S2) -> RigidBody:
+    """The guide-rail test adapter (Fig. 18) on the MPA; its A5 torque in the measurement pose is Table A1's."""
+    lever_a5 = TA_TORQUE_A5_NM / (kin.G_PAPER_M_S2 * TA_MASS_KG)
+    return RigidBody("TA", TA_MASS_KG, (0.0, 0.0, lever_a5 - kin.D6_M), (0.1, 2.5, 2.5))
+
+
+def torque_calibration_payload(n_cb: int, cb_lever_a5_m: float) -> Payload:
+    """Torque-based calibration (§2.4.3): MPA, test adapter, ``n_cb`` bodies whose common CoG is ``cb_lever_a5_m``
+    from the A5 axis in the measurement pose (Table A1: 0.673..1.475 m)."""
+    if not 0.60 <= cb_lever_a5_m <= 1.50:
+        raise ValueError(f"cb_lever_a5_m {cb_lever_a5_m} m is outside the guide rail (0.60..1.50 m)")
+    z = cb_lever_a5_m - kin.D6_M
+    bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z), (0.34, 0.34, 0.68)) for k in range(1, n_cb + 1))
+    return Payload((mpa(), test_adapter(), *bodies))
+
+
+def dut_payload(
+    dut_mass_kg: float,
+    dut_cog_m: Sequence[float],
+    dut_inertia_kgm2: Sequence[float] = (0.0, 0.0, 0.0),
+    fixture_mass_kg: float = FIXTURE_MASS_KG,
+    with_mpa: bool = True,
+) -> Payload:
+    """A device under test on its fixture on the MPA (Fig. 14, 29).
+
+    ``dut_cog_m`` is the DuT's CoG in the flange frame (m). The fixture is a 40 mm block centred on the MPA's face.
+    """
+    bodies: list[RigidBody] = [mpa()] if with_mpa else []
+    if fixture_mass_kg > 0:
+        base = mpa_front_z_m() if with_mpa else 0.0
+        bodies.append(RigidBody("fixture", fixture_mass_kg, (0.0, 0.0, base + FIXTURE_THICKNESS_M / 2)))
+    bodies.append(
+        RigidBody("DuT", dut_mass_kg, tuple(float(c) for c in dut_cog_m), tuple(float(i) for i in dut_inertia_kgm2))
+    )
+    return Payload(tuple(bodies))
+
+
+# --- the robot ---------------------------------------------------------------------------------------------------------
+@dataclass
+class RobotState:
+    """What the torque estimate remembers: motor temperatures (K), time since the last motion ended (s), the sign of
+    each axis' last approach, and whether the brakes are open."""
+
+    motor_temp_k: np.ndarray
+    t_since_release_s: float = 1e6
+    last_approach_sign: np.ndarray = field(default_factory=lambda: np.ones(6))
+    brakes_released: bool = False
+
+
+@dataclass(frozen=True)
+class TraceTruth:
+    """Ground truth of one simulated trace, for tests: nothing here is visible to the daemon.
+
+    ``terms`` holds every additive error term per axis and sample (Nm, shape (6, n)): ``static`` (true torque
+    through the gain, plus residual), ``thermal``, ``release``, ``hysteresis``, ``settle``, ``noise``, ``spikes``;
+    their sum is Istmoment.
+    """
+
+    q_deg: np.ndarray
+    payload_mass_kg: float
+    payload_cog_flange_m: np.ndarray
+    true_torque_nm: np.ndarray
+    payload_torque_nm: np.ndarray
+    arm_torque_nm: np.ndarray
+    residual_nm: np.ndarray
+    gain: np.ndarray
+    t_since_release_s: float
+    motor_temp_k: np.ndarray
+    last_approach_sign: np.ndarray
+    period_s: float
+    terms: dict[str, np.ndarray]
+
+
+def gain_curve(
+    gain0: float, gain_sat: float, tau_sat_nm: float, slope_per_knm: float, quad_per_knm2: float, x_nm: np.ndarray
+) -> np.ndarray:
+    """Table 1 gain of the torque estimate for payload torque x = |τ| (Nm):
+    G(x) = gain0 + gain_sat·(1 − exp(−x/tau_sat)) + slope·x/1000 + quad·(x/1000)²."""
+    x = np.abs(np.asarray(x_nm, dtype=float))
+    xk = x / 1000.0
+    return gain0 + gain_sat * (1.0 - np.exp(-x / tau_sat_nm)) + slope_per_knm * xk + quad_per_knm2 * xk**2
+
+
+class RobotModel:
+    """The simulated KR 500 R2830's statics and torque estimate; see the module docstring."""
+
+    def __init__(self, scenario: Scenario | None = None, seed: int | None = 0) -> None:
+        self.scenario = scenario if scenario is not None else default_scenario()
+        self.rng = np.random.default_rng(seed)
+        self.g_m_s2 = self.scenario.g_m_s2
+        self._axes = [self.scenario.axis(i) for i in range(1, 7)]
+        self._links = [(link, mass, cog) for link, mass, cog in self.scenario.arm.links]
+        self.residual_nm = np.zeros(6)
+        pinned = self.scenario.arm.bias_measurement_pose_nm
+        if pinned:
+            arm = self.arm_torques_nm(kin.measurement_pose())
+            for i, key in enumerate(AXIS_KEYS):
+                if key in pinned:
+                    self.residual_nm[i] = pinned[key] - arm[i]
+        self.ambient_k = self.scenario.thermal.ambient_k
+        self.state = RobotState(motor_temp_k=np.full(6, self.ambient_k))
+        self.last_truth: TraceTruth | None = None
+
+    # --- statics -------------------------------------------------------------------------------------------------------
+    def arm_torques_nm(self, q_deg: Sequence[float]) -> np.ndarray:
+        """Gravity holding torques of the robot's own links (Nm)."""
+        return kin.link_gravity_torques_nm(q_deg, self._links, self.g_m_s2)
+
+    def payload_torques_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
+        """Gravity holding torques of the payload (Nm)."""
+        return kin.gravity_regressor(q_deg, self.g_m_s2) @ payload.theta
+
+    def true_torques_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
+        """Static gravity holding torques of arm plus payload at every axis (Nm, A1..A6)."""
+        return self.arm_torques_nm(q_deg) + self.payload_torques_nm(q_deg, payload)
+
+    def gains(self, payload_torque_nm: np.ndarray) -> np.ndarray:
+        """Per-axis gain G_i(|τ_payload,i|) of the torque estimate (Table 1 measured/expected)."""
+        return np.array(
+            [
+                gain_curve(
+                    a.gain0, a.gain_sat, a.tau_sat_nm, a.gain_slope_per_knm, a.gain_quad_per_knm2, payload_torque_nm[i]
+                )
+                for i, a in enumerate(self._axes)
+            ]
+        )
+
+    def static_reading_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
+        """Noise-free, cold, settled reading (Nm): τ_arm + M0 + G(|τ_pay|)·τ_pay."""
+        tau_p = self.payload_torques_nm(q_deg, payload)
+        return self.arm_torques_nm(q_deg) + self.residual_nm + self.gains(tau_p) * tau_p
+
+    # --- state ---------------------------------------------------------------------------------------------------------
+    def _temps_after(self, t0_k: np.ndarray, dt_s: np.ndarray | float, released: bool) -> np.ndarray:
+        th = self.scenario.thermal
+        dt = np.asarray(dt_s, dtype=float)
+        if released:
+            eq = self.ambient_k + np.array([a.hold_temperature_rise_k for a in self._axes])
+            tau = th.heat_time_constant_s
+        else:
+            eq = np.full(6, self.ambient_k)
+            tau = th.cool_time_constant_s
+        decay = np.exp(-dt / tau)
+        return eq[..., None] + (t0_k[..., None] - eq[..., None]) * decay if dt.ndim else eq + (t0_k - eq) * decay
+
+    def move(self, q_from_deg: Sequence[float], q_to_deg: Sequence[float], duration_s: float) -> None:
+        """A motion with brakes released: motors heat for ``duration_s``, every moved axis remembers the direction
+        it arrived from, and the settling/release clock restarts at the end."""
+        if duration_s < 0:
+            raise ValueError("duration_s must be ≥ 0")
+        dq = np.asarray(q_to_deg, dtype=float) - np.asarray(q_from_deg, dtype=float)
+        moved = np.abs(dq) > 1e-9
+        self.state.last_approach_sign = np.where(moved, np.sign(dq), self.state.last_approach_sign)
+        self.state.motor_temp_k = self._temps_after(self.state.motor_temp_k, duration_s, True)
+        self.state.brakes_released = True
+        self.state.t_since_release_s = 0.0
+
+    def brake_release_move(
+        self, q_deg: Sequence[float], swing_deg: float = 35.0, speed_deg_s: float = 5.0, axes: Iterable[int] = (3, 5)
+    ) -> None:
+        """The paper's brake-release move (§2.4.4): A3 and A5 turn by the same angle (35°) away and back."""
+        q = np.asarray(q_deg, dtype=float)
+        away = q.copy()
+        for ax in axes:
+            away[ax - 1] += swing_deg
+        leg_s = abs(swing_deg) / speed_deg_s
+        self.move(q, away, leg_s)
+        self.move(away, q, leg_s)
+
+    def hold(self, duration_s: float) -> None:
+        """Stand still with brakes released (drives holding the load)."""
+        self.state.motor_temp_k = self._temps_after(self.state.motor_temp_k, duration_s, True)
+        self.state.brakes_released = True
+        self.state.t_since_release_s += duration_s
+
+    def apply_brakes(self, duration_s: float = 0.0) -> None:
+        """Apply the brakes and stand for ``duration_s``: no current, the motors cool."""
+        self.state.brakes_released = False
+        self.state.motor_temp_k = self._temps_after(self.state.motor_temp_k, duration_s, False)
+        self.state.t_since_release_s += duration_s
+
+    # --- the trace -----------------------------------------------------------------------------------------------------
+    def sample_trace(
+        self,
+        q_deg: Sequence[float],
+        payload: Payload,
+        n_samples: int,
+        period_s: float,
+        *,
+        t_since_release_s: float | None = None,
+        motor_temp_k: Sequence[float] | None = None,
+        last_approach_sign: Sequence[float] | None = None,
+    ) -> dict[int, dict[str, np.ndarray]]:
+        """Record ``n_samples`` samples every ``period_s`` s of all drive channels while holding still at ``q_deg``.
+
+        Returns ``{axis 1..6: {channel: ndarray}}`` (units in ``CHANNEL_UNITS``); the truth is in ``last_truth``.
+        """
+        if n_samples < 1 or not (period_s > 0):
+            raise ValueError("n_samples must be ≥ 1 and period_s > 0")
+        q = np.asarray(q_deg, dtype=float)
+        st = self.state
+        t0 = st.t_since_release_s if t_since_release_s is None else float(t_since_release_s)
+        temp0 = st.motor_temp_k.copy() if motor_temp_k is None else np.asarray(motor_temp_k, dtype=float)
+        approach = st.last_approach_sign.copy() if last_approach_sign is None else np.sign(last_approach_sign)
+        t = t0 + np.arange(n_samples) * period_s  # time since the end of the last motion
+        temps = self._temps_after(temp0, np.arange(n_samples) * period_s, True)  # (6, n)
+
+        tau_arm = self.arm_torques_nm(q)
+        tau_pay = self.payload_torques_nm(q, payload)
+        gain = self.gains(tau_pay)
+        static = tau_arm + self.residual_nm + gain * tau_pay
+        ax = self._axes
+        beta = np.array([a.thermal_coeff_per_k for a in ax])
+        eps = np.array([a.release_transient_frac for a in ax])
+        hyst = np.array([a.hysteresis_nm for a in ax])
+        settle_a = np.array([a.settle_amplitude_nm for a in ax])
+        sigma = np.array([a.noise_nm for a in ax])
+        sc = self.scenario
+        terms = {
+            "static": np.repeat(static[:, None], n_samples, axis=1),
+            "thermal": static[:, None] * beta[:, None] * (temps - self.ambient_k),
+            "release": static[:, None] * eps[:, None] * np.exp(-t / sc.release.time_constant_s)[None, :],
+            "hysteresis": np.repeat((-approach * hyst)[:, None], n_samples, axis=1),
+            "settle": (approach * settle_a)[:, None]
+            * (np.exp(-t / sc.settle.time_constant_s) * np.cos(2 * np.pi * sc.settle.frequency_hz * t))[None, :],
+            "noise": self.rng.normal(0.0, 1.0, (6, n_samples)) * sigma[:, None],
+        }
+        hits = self.rng.random((6, n_samples)) < sc.spikes.rate_per_sample
+        terms["spikes"] = np.where(hits, self.rng.normal(0.0, sc.spikes.amplitude_nm, (6, n_samples)), 0.0)
+        torque = sum(terms.values())
+
+        kt_ratio = np.array([a.torque_constant_nm_a * a.gear_ratio for a in ax])
+        pos_jitter = self.rng.normal(0.0, 5e-4, (6, n_samples))
+        out: dict[int, dict[str, np.ndarray]] = {}
+        for i in range(6):
+            out[i + 1] = {
+                "Sollposition": np.full(n_samples, q[i]),
+                "Istposition": q[i] + pos_jitter[i],
+                "Positionsschleppfehler": -pos_jitter[i],
+                "Geschwindigkeitsdifferenz": self.rng.normal(0.0, 0.02, n_samples),
+                "Motortemperatur": np.round(temps[i], 1),
+                "Istmoment": torque[i],
+                "Iststrom": torque[i] / kt_ratio[i],
+            }
+        self.last_truth = TraceTruth(
+            q_deg=q.copy(),
+            payload_mass_kg=payload.mass_kg,
+            payload_cog_flange_m=payload.cog_flange_m,
+            true_torque_nm=tau_arm + tau_pay,
+            payload_torque_nm=tau_pay,
+            arm_torque_nm=tau_arm,
+            residual_nm=self.residual_nm.copy(),
+            gain=gain,
+            t_since_release_s=t0,
+            motor_temp_k=temps,
+            last_approach_sign=approach,
+            period_s=period_s,
+            terms=terms,
+        )
+        # advance the state by the trace's duration (holding, brakes released)
+        duration = n_samples * period_s
+        st.motor_temp_k = self._temps_after(temp0, duration, True)
+        st.t_since_release_s = t0 + duration
+        st.brakes_released = True
+        st.last_approach_sign = approach
+        return out
