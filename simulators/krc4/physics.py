@@ -79,7 +79,7 @@ CHANNEL_UNITS = {
     "Iststrom": "A",
 }
 
-# --- payload chain (paper §2.2, §2.4.2–2.4.3, Table 1, Table A1) ------------------------------------------------------
+# --- payload chain (paper §2.2, §2.4.2–2.4.3, Table 1, Table A1) -------------------------------------------------
 CHAIN_ORIGIN_Z_M = -0.035
 """Flange-frame z of the MPA's back face, chosen so that the chain reproduces the paper's effective levers."""
 MPA_THICKNESS_M = 0.020
@@ -209,7 +209,7 @@ def dut_payload(
     return Payload(tuple(bodies))
 
 
-# --- the robot ---------------------------------------------------------------------------------------------------------
+# --- the robot --------------------------------------------------------------------------------------------------
 @dataclass
 class RobotState:
     """What the torque estimate remembers: motor temperatures (K), time since the last motion ended (s), the sign of
@@ -275,7 +275,7 @@ class RobotModel:
         self.state = RobotState(motor_temp_k=np.full(6, self.ambient_k))
         self.last_truth: TraceTruth | None = None
 
-    # --- statics -------------------------------------------------------------------------------------------------------
+    # --- statics -------------------------------------------------------------------------------------------------
     def arm_torques_nm(self, q_deg: Sequence[float]) -> np.ndarray:
         """Gravity holding torques of the robot's own links (Nm)."""
         return kin.link_gravity_torques_nm(q_deg, self._links, self.g_m_s2)
@@ -304,7 +304,7 @@ class RobotModel:
         tau_p = self.payload_torques_nm(q_deg, payload)
         return self.arm_torques_nm(q_deg) + self.residual_nm + self.gains(tau_p) * tau_p
 
-    # --- state ---------------------------------------------------------------------------------------------------------
+    # --- state ---------------------------------------------------------------------------------------------------
     def _temps_after(self, t0_k: np.ndarray, dt_s: np.ndarray | float, released: bool) -> np.ndarray:
         th = self.scenario.thermal
         dt = np.asarray(dt_s, dtype=float)
@@ -353,7 +353,7 @@ class RobotModel:
         self.state.motor_temp_k = self._temps_after(self.state.motor_temp_k, duration_s, False)
         self.state.t_since_release_s += duration_s
 
-    # --- the trace -----------------------------------------------------------------------------------------------------
+    # --- the trace -----------------------------------------------------------------------------------------------
     def sample_trace(
         self,
         q_deg: Sequence[float],

@@ -29,7 +29,8 @@ class AxisErrors(_Model):
     """How the controller's torque estimate (``Istmoment``) of one axis deviates from the true torque."""
 
     # Non-linear gain on the payload torque x = |τ_payload| (Nm), Table 1 measured/expected:
-    #   G(x) = gain0 + gain_sat · (1 − exp(−x / tau_sat_nm)) + gain_slope_per_knm · x/1000 + gain_quad_per_knm2 · (x/1000)²
+    #   G(x) = gain0 + gain_sat · (1 − exp(−x / tau_sat_nm))
+    #          + gain_slope_per_knm · x/1000 + gain_quad_per_knm2 · (x/1000)²
     # (the paper fits K_A3 with a polynomial, eq. 19, and K_A5 with exponentials, eq. 20)
     gain0: float = Field(1.0, ge=0.5, le=1.5)
     gain_sat: float = Field(0.0, ge=-0.5, le=0.5)
