@@ -127,7 +127,8 @@ def run(seed: int) -> dict:
 def print_table(result: dict) -> None:
     head = (
         f"{'type':6} {'n':>2} {'m kg':>7} | {'A3 exp':>8} {'sim':>8} {'paper':>8} {'r sim':>6} {'r pap':>6}"
-        f" {'σ sim':>6} {'σ pap':>6} | {'A5 exp':>8} {'sim':>8} {'paper':>8} {'r sim':>6} {'r pap':>6} {'σ sim':>6} {'σ pap':>6}"
+        f" {'σ sim':>6} {'σ pap':>6} | {'A5 exp':>8} {'sim':>8} {'paper':>8} {'r sim':>6} {'r pap':>6}"
+        f" {'σ sim':>6} {'σ pap':>6}"
     )
     print(head, file=sys.stderr)
     print("-" * len(head), file=sys.stderr)
