@@ -61,7 +61,7 @@ class LinkPool:
         self._idle: asyncio.Queue[Connection] = asyncio.Queue()
         for c in self._conns:
             self._idle.put_nowait(c)
-        self.protocol: Protocol = cfg.protocol
+        self.protocol: Protocol = Protocol(cfg.protocol)
         self.features: frozenset[int] = frozenset()
         self.proxy_type: str | None = None
         self._started = False
@@ -98,7 +98,7 @@ class LinkPool:
         await self.close()
 
     async def _detect(self, conn: Connection) -> None:
-        if self.cfg.protocol is Protocol.KVP:
+        if Protocol(self.cfg.protocol) is Protocol.KVP:
             self.protocol = Protocol.KVP
             return
         try:
@@ -106,7 +106,7 @@ class LinkPool:
         except VariableError:
             self.proxy_type = None
         is_c3 = self.proxy_type is not None and self.proxy_type.strip().strip('"') == C3_PROXY_TYPE
-        if self.cfg.protocol is Protocol.C3BRIDGE and not is_c3:
+        if Protocol(self.cfg.protocol) is Protocol.C3BRIDGE and not is_c3:
             raise ProtocolError(f"configured for C3 Bridge, but @PROXY_TYPE reads {self.proxy_type!r}")
         if not is_c3:
             self.protocol = Protocol.KVP
