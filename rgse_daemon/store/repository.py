@@ -68,7 +68,8 @@ class Repository:
     def open(
         cls, url: str | None, data_dir: Path, *, timeout_s: float = 10.0, clock: Clock = utc_now
     ) -> Repository:
-        """Connect and bring the schema up to date. ``url`` as in :func:`~rgse_daemon.store.backend.open_backend`."""
+        """Connect and bring the schema up to date. ``url`` as in :func:`~rgse_daemon.store.backend.open_backend`;
+        ``timeout_s`` bounds every lock wait and statement in the database (and the connect)."""
         backend = open_backend(url, data_dir, timeout_s)
         repo = cls(backend, clock)
         try:

@@ -2,10 +2,11 @@
 
 All operations run, one at a time, on the store's own worker thread (one connection, one thread — what sqlite3
 requires and what keeps transactions from interleaving). The event loop never blocks on the database. Each call
-waits at most ``timeout_s``; the database-side timeouts are set to the same value, so the database normally gives
-up first with a clean :class:`StoreError`. If the deadline still passes, :class:`StoreTimeout` says the outcome is
-unknown — every write is keyed or content-derived, so retrying is safe. Cancellation propagates to the caller
-unchanged; an operation already running on the thread finishes (or rolls back) there.
+waits at most ``timeout_s``; the database-side timeouts (lock wait, statement, connect) are set to
+:data:`DB_TIMEOUT_FRACTION` of it, so the database normally gives up first with a clean :class:`StoreError`.
+If the deadline still passes, :class:`StoreTimeout` says the outcome is unknown — every write is keyed or
+content-derived, so retrying is safe. Cancellation propagates to the caller unchanged; an operation already
+running on the thread finishes (or rolls back) there.
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ from typing import Concatenate, ParamSpec, Self, TypeVar
 
 from rgse_daemon.store.errors import StoreError, StoreTimeout
 from rgse_daemon.store.repository import Clock, Repository, utc_now
+
+#: Database-side timeouts as a fraction of the per-call deadline: the database should give up first.
+DB_TIMEOUT_FRACTION = 0.8
 
 P = ParamSpec("P")
 R = TypeVar("R")
@@ -63,7 +67,9 @@ class Store:
         if not timeout_s > 0:
             raise StoreError(f"store timeout_s {timeout_s!r}: must be > 0")
         executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="rgse-store")
-        opening = executor.submit(Repository.open, url, data_dir, timeout_s=timeout_s, clock=clock)
+        opening = executor.submit(
+            Repository.open, url, data_dir, timeout_s=DB_TIMEOUT_FRACTION * timeout_s, clock=clock
+        )
         try:
             # Opening may migrate a large database: allow a few operation deadlines.
             repo = await asyncio.wait_for(asyncio.wrap_future(opening), 3 * timeout_s)
