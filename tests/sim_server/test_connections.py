@@ -45,7 +45,7 @@ async def test_eleventh_client_is_closed_at_once(share: Path) -> None:
 
 
 async def test_idle_client_is_dropped(share: Path) -> None:
-    async with KrcServer(ServerConfig(latency_s=0.0, idle_timeout_s=0.2), share) as srv:
+    async with KrcServer(ServerConfig(latency_s=0.0, idle_timeout_s=0.5), share) as srv:
         c = await RawClient.open(srv.port)
         assert await c.call(fr.ReadVarAscii("PING")) == fr.ReadVarAsciiReply("PONG")
         assert await c.at_eof()
