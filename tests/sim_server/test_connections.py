@@ -193,3 +193,20 @@ async def test_udp_discovery(share: Path) -> None:
 def test_bad_server_config_is_a_config_error(kwargs) -> None:
     with pytest.raises(ConfigError):
         ServerConfig(**kwargs)
+
+
+async def test_serve_forever_until_cancelled_then_closed(share: Path) -> None:
+    srv = KrcServer(ServerConfig(latency_s=0.0), share)
+    task = asyncio.create_task(srv.serve_forever())
+    try:
+        await _until(lambda: srv.port != 0, "the server listens")
+        c = await RawClient.open(srv.port)
+        assert await c.call(fr.ReadVarAscii("PING")) == fr.ReadVarAsciiReply("PONG")
+    finally:
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+    assert await c.at_eof()  # the server dropped its clients on the way out
+    await c.close()
+    with pytest.raises(OSError):
+        await RawClient.open(srv.port)
