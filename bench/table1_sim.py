@@ -25,7 +25,7 @@ import numpy as np
 from rgse_daemon import kinematics as kin
 from simulators.krc4 import physics as ph
 
-PAPER_CSV = Path(__file__).resolve().parents[1] / "paper" / "table1_calibration.csv"
+PAPER_CSV = Path(__file__).resolve().parents[2] / "shared" / "paper" / "table1_calibration.csv"
 SHARED_CSV = Path("/work/shared/paper/table1_calibration.csv")
 LOOPS = 10
 N_SAMPLES = 1000
