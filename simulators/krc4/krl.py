@@ -91,9 +91,12 @@ _log = logging.getLogger(__name__)
 class KrlRuntimeError(RgseError):
     """A program failed while running (unknown variable, division by zero, refused motion ...): it stops."""
 
-    def __init__(self, message: str, pos: k.Pos | None = None, file: str = "<program>") -> None:
-        where = f"{file}:{pos.line}:{pos.column}: " if pos is not None and pos.line else ""
+    def __init__(self, message: str, pos: k.Pos | None = None, file: str | None = None) -> None:
+        where = f"{file or '<program>'}:{pos.line}:{pos.column}: " if pos is not None and pos.line else ""
         super().__init__(where + message)
+        self.message = message
+        self.pos = pos
+        self.file = file
 
 
 @dataclass(frozen=True)
@@ -563,7 +566,9 @@ class KrlInterpreter:
         file = self._program.file if self._program else "<program>"
         try:
             await self._exec_inner(stmt, frame)
-        except KrlRuntimeError:
+        except KrlRuntimeError as exc:
+            if exc.file is None:  # raised deep inside an expression: name the file and the statement
+                raise KrlRuntimeError(exc.message, exc.pos or stmt.pos, file) from None
             raise
         except (VariableError, ProtocolError, MotionError, ZeroDivisionError, ValueError, OverflowError) as exc:
             raise KrlRuntimeError(str(exc) or type(exc).__name__, stmt.pos, file) from exc

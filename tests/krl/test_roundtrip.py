@@ -163,7 +163,7 @@ def test_expressions_round_trip(expr: Expr) -> None:
     assert parse_expression(text) == expr, text
 
 
-@SETTINGS
+@settings(max_examples=50, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(modules)
 def test_modules_round_trip(module: Module) -> None:
     text = format_module(module)
