@@ -342,3 +342,21 @@ async def test_runtime_error_stops_the_program(interp: KrlInterpreter, store, pr
         interp.select("SYNTAX", "", False)
     with pytest.raises(ProgramControlError, match="not found"):
         interp.select("MISSING", "", False)
+
+
+async def test_programs_load_from_the_share(tmp_path, store) -> None:
+    from simulators.krc4.files import ShareFiles
+    from simulators.krc4.krl import share_loader
+
+    folder = tmp_path / "R1" / "PROGRAM"
+    folder.mkdir(parents=True)
+    (folder / "SHARED.SRC").write_bytes(b"DEF shared()\n  flag = TRUE ; \xe4 latin-1 comment\nEND\n")
+    (folder / "SHARED.DAT").write_bytes(b"DEFDAT shared\n  DECL GLOBAL BOOL flag = FALSE\nENDDAT\n")
+    interp = KrlInterpreter(store, share_loader(ShareFiles(tmp_path)), time_scale=TIME_SCALE)
+    try:
+        await run_to_end(interp, "KRC:\\R1\\PROGRAM\\SHARED.SRC")
+        assert store.read("FLAG") == "TRUE"
+        with pytest.raises(ProgramControlError, match="not found"):
+            interp.select("/R1/NOPE", "", False)
+    finally:
+        await interp.aclose()
