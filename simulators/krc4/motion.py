@@ -102,9 +102,7 @@ class Profile:
         if v_max * t_ramp >= 1.0:  # triangle: never reaches v_max
             t_ramp = math.sqrt(1.0 / a_max)
             v_peak = a_max * t_ramp
-            return Profile(
-                (Segment(0.0, t_ramp, 0.0, 0.0, a_max), Segment(t_ramp, t_ramp, 0.5, v_peak, -a_max)), a_max
-            )
+            return Profile((Segment(0.0, t_ramp, 0.0, 0.0, a_max), Segment(t_ramp, t_ramp, 0.5, v_peak, -a_max)), a_max)
         s_ramp = 0.5 * v_max * t_ramp
         t_const = (1.0 - 2.0 * s_ramp) / v_max
         return Profile(
