@@ -15,6 +15,9 @@ Public API
                             current state first); ends when the I/O stops.
 ``await io.set_light(c)``   ``LightColor.GREEN`` idle, ``YELLOW`` measuring, ``RED`` alarm, ``OFF``.
 ``await io.set_running(b)`` the "measurement running" output.
+``io.outputs``              the wanted (light, running); ``io.outputs_confirmed``: written since last change or
+                            reconnect (the wish is re-applied after every reconnect: a rebooted module
+                            starts with its outputs off).
 ``io.counters``             reads, read errors, writes, write errors, connects, reconnects.
 ``io.state``                ``ConnectionState``.
 
@@ -234,6 +237,7 @@ class SafetyIo:
         self._rng = rng or random.Random()
         self._lock = asyncio.Lock()
         self._client: AsyncModbusTcpClient | None = None
+        self._link_lost: asyncio.Future[None] | None = None  # resolved when the peer closes the connection
         self._latest = SafetyInputs.unsafe("not started")
         self._latest_mono = -float("inf")
         self._published: tuple[bool, bool, bool, bool] | None = None
@@ -386,11 +390,26 @@ class SafetyIo:
         return client
 
     async def _request(self, what: str, call: Callable[[], Awaitable[ModbusPDU]]) -> ModbusPDU:
-        """Run one request under the bus lock with a deadline; map every failure to a typed error."""
+        """Run one request under the bus lock with a deadline; map every failure to a typed error.
+
+        The request also ends early when the peer closes the connection (pymodbus would otherwise wait for
+        its own timeout): a module that reboots reads unsafe at once, not after a deadline."""
         async with self._lock:
+            link_lost = self._link_lost
+            if link_lost is None or link_lost.done():
+                raise IoLinkError(self.name, f"{what}: connection closed by the peer")
             try:
                 async with asyncio.timeout(self.cfg.request_timeout_s):
-                    response = await call()
+                    request = asyncio.ensure_future(call())
+                    try:
+                        await asyncio.wait({request, link_lost}, return_when=asyncio.FIRST_COMPLETED)
+                    finally:
+                        if not request.done():
+                            request.cancel()
+                            await asyncio.wait({request})
+                    if request.cancelled():
+                        raise IoLinkError(self.name, f"{what}: connection closed by the peer")
+                    response = request.result()
             except TimeoutError as exc:
                 raise IoTimeout(self.name, f"{what}: no answer within {self.cfg.request_timeout_s} s") from exc
             except ModbusIOException as exc:
@@ -434,13 +453,16 @@ class SafetyIo:
     async def _connect(self) -> None:
         self._close_client()
         self.state = ConnectionState.CONNECTING
+        self._link_lost = asyncio.get_running_loop().create_future()
         client = AsyncModbusTcpClient(
             self.cfg.host,
             port=self.cfg.port,
-            timeout=self.cfg.connect_timeout_s,
+            # pymodbus uses one timeout for connect and for each answer; our own deadlines are the ones that count
+            timeout=max(self.cfg.connect_timeout_s, self.cfg.request_timeout_s),
             retries=0,
             reconnect_delay=0,  # we reconnect ourselves, with jitter
             name=self.name,
+            trace_connect=self._on_connection_change,
         )
         self._client = client
         try:
@@ -450,11 +472,14 @@ class SafetyIo:
             raise IoTimeout(self.name, f"connect: no answer within {self.cfg.connect_timeout_s} s") from exc
         if not ok:
             raise IoLinkError(self.name, "connect: refused or unreachable")
-        # the per-request wait inside pymodbus; our own deadline in _request is the one that counts
-        client.ctx.comm_params.timeout_connect = self.cfg.request_timeout_s
         self.state = ConnectionState.CONNECTED
         self.counters.connects += 1
         self._outputs_dirty = True  # the module may have rebooted and reset its outputs
+
+    def _on_connection_change(self, connected: bool) -> None:
+        """pymodbus calls this when the TCP connection comes up or goes down."""
+        if not connected and self._link_lost is not None and not self._link_lost.done():
+            self._link_lost.set_result(None)
 
     def _close_client(self) -> None:
         client, self._client = self._client, None
@@ -488,6 +513,9 @@ class SafetyIo:
                     next_tick = max(next_tick, time.monotonic() - self.cfg.poll_period_s)
             except (IoTimeout, IoLinkError) as exc:
                 self._doubt(f"link lost: {exc}")
+            except Exception as exc:  # a bug or a library surprise must not end polling silently
+                log.exception("%s: unexpected error in the poll loop", self.name)
+                self._doubt(f"poll loop error: {exc!r}")
             self._close_client()
             self.state = ConnectionState.DISCONNECTED
             await asyncio.sleep(backoff_s(attempt, self.cfg.reconnect_min_s, self.cfg.reconnect_max_s, self._rng))

@@ -27,7 +27,7 @@ def fast_cfg(port: int, **overrides: object) -> ModbusConfig:
     values: dict[str, object] = {
         "port": port,
         "poll_period_s": 0.02,
-        "stale_after_polls": 25,
+        "stale_after_polls": 50,
         "request_timeout_s": 0.5,
         "connect_timeout_s": 1.0,
         "reconnect_min_s": 0.02,

@@ -113,7 +113,7 @@ async def test_link_loss_is_unsafe_within_a_bounded_number_of_polls(modbus_sim: 
         await wait_until(lambda: not io.inputs.safe, what="unsafe after link loss")
         # unsafe no later than the first poll that could not reach the module, long before staleness
         assert io.counters.reads + io.counters.read_errors - polls_before <= 2
-        assert io.inputs.reason.startswith("link lost")
+        assert io.inputs.reason.startswith("link lost"), io.inputs.reason
         assert (io.inputs.area_cleared, io.inputs.aut_permitted, io.inputs.estop_ok) == (False, False, False)
         with pytest.raises(IoLinkError) as err:
             await io.set_light(LightColor.RED)
