@@ -72,7 +72,11 @@ class Backend(ABC):
             self._rollback_quietly()
             raise
         self._in_transaction = False
-        self._execute("COMMIT", ())
+        try:
+            self._execute("COMMIT", ())
+        except BaseException:
+            self._rollback_quietly()  # never leave a half-open transaction behind a failed COMMIT
+            raise
 
     def _rollback_quietly(self) -> None:
         try:
@@ -172,6 +176,10 @@ class PostgresBackend(Backend):
             raise StoreError(f"{self.description}: {exc}") from exc
         except psycopg.Error as exc:
             raise StoreError(f"{self.description}: {exc}") from exc
+
+    def _rollback_quietly(self) -> None:
+        if self._conn is not None:  # a lost connection took its transaction with it; do not reconnect to roll back
+            super()._rollback_quietly()
 
     def close(self) -> None:
         if self._conn is not None:

@@ -6,6 +6,7 @@ import hashlib
 import json
 import math
 import sqlite3
+import threading
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -27,7 +28,7 @@ from rgse_daemon.store import (
     relative_path,
 )
 
-from .conftest import ROBOT
+from .conftest import ROBOT, calibration_doc
 
 RESULT = {
     "mass_kg": 107.65, "u_kg": 0.35, "U_kg": 0.70, "k": 2, "gross_mass_kg": 117.94, "fixture_mass_kg": 10.288,
@@ -274,3 +275,53 @@ def test_archive_and_store_together(repo: Repository, tmp_path: Path, data_dir: 
     rec = repo.add_trace_file(run.id, relative_path(archived.path, root), archived.sha256, archived.size)
     assert rec.path == f"runs/{run.id}/dut_l01_NextGenDrive#5.r64"
     assert (root / rec.path).read_bytes() == src.read_bytes()
+
+
+def test_calibration_activation_from_two_connections_at_once(store_url: str | None, data_dir: Path) -> None:
+    # Two daemons (or a daemon and an operator's CLI) switching the active calibration of one robot concurrently.
+    with Repository.open(store_url, data_dir) as repo:
+        repo.add_calibration(calibration_doc("cal-a"))
+        repo.add_calibration(calibration_doc("cal-b"))
+    errors: list[BaseException] = []
+    barrier = threading.Barrier(2)
+
+    def flip(order: tuple[str, str]) -> None:
+        try:
+            with Repository.open(store_url, data_dir) as repo:
+                barrier.wait(timeout=10)
+                for i in range(15):
+                    repo.activate_calibration(order[i % 2])
+        except BaseException as exc:  # collected and asserted below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=flip, args=(o,)) for o in (("cal-a", "cal-b"), ("cal-b", "cal-a"))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert errors == []
+    with Repository.open(store_url, data_dir) as repo:
+        assert sum(c.active for c in repo.calibrations(ROBOT)) == 1
+
+
+def test_calibration_documents_are_checked_and_never_replaced(repo: Repository) -> None:
+    first = repo.add_calibration(calibration_doc("cal-1"))
+    assert first.active and first.method == "paper" and first.document == calibration_doc("cal-1")
+    second = repo.add_calibration(calibration_doc("cal-2"))
+    assert not second.active  # the robot already has an active calibration
+    assert repo.add_calibration(calibration_doc("cal-2")) == second  # idempotent
+    assert repo.activate_calibration("cal-2").active
+    assert not repo.get_calibration("cal-1").active
+    assert repo.add_calibration(calibration_doc("cal-3"), activate=True).active
+    assert repo.active_calibration(ROBOT).id == "cal-3"  # type: ignore[union-attr]
+    assert repo.active_calibration("NEW-ROBOT") is None
+    with pytest.raises(StoreConflict, match="cal-1: already stored with a different document"):
+        repo.add_calibration({**calibration_doc("cal-1"), "g": 9.80665})
+    with pytest.raises(NotFound, match="'cal-x': no such calibration"):
+        repo.activate_calibration("cal-x")
+    with pytest.raises(StoreError, match="robot name None"):
+        repo.add_calibration({k: v for k, v in calibration_doc("cal-4").items() if k != "robot"})
+    with pytest.raises(StoreError, match=r"created_utc.*has no time zone"):
+        repo.add_calibration({**calibration_doc("cal-5"), "created_utc": "2024-05-01T12:00:00"})
+    with pytest.raises(StoreError, match="cal-6: not storable as JSON"):
+        repo.add_calibration({**calibration_doc("cal-6"), "bias_nm": {"A3": math.inf}})
