@@ -10,12 +10,14 @@ from __future__ import annotations
 import tomllib
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from rgse_daemon.errors import ConfigError
+from rgse_daemon.io.modbus import ModbusConfig
+from rgse_daemon.io.scale import ScaleConfig
 
 #: ISO 10218-1 reduced speed that the controller itself enforces in T1 (kuka-facts §2).
 T1_CONTROLLER_LIMIT_MM_S = 250.0
@@ -73,6 +75,60 @@ class LimitsConfig(_Section):
     brake_release_max_deg: float = Field(45.0, gt=0.0, le=90.0)
 
 
+class StoreConfig(_Section):
+    url: str | None = None
+    """``None``: SQLite file ``<data_dir>/rgse.sqlite3``; ``postgresql://user@host:5432/db`` for a shared store."""
+
+    @model_validator(mode="after")
+    def _known_scheme(self) -> StoreConfig:
+        if self.url is not None and not self.url.startswith(("postgresql://", "postgres://", "sqlite:///")):
+            raise ValueError("url must start with postgresql://, postgres:// or sqlite:///")
+        return self
+
+
+class MeasurementConfig(_Section):
+    """The in-line measurement run (paper Fig. 24) and its trace recording."""
+
+    loops: int = Field(10, ge=1, le=100)
+    """Measurement loops, each: brake-release move → settle → trace (paper: 10)."""
+    settle_s: float = Field(4.0, ge=0.0, le=120.0)
+    """Waiting time after the brake-release move before recording (paper: 2 × 2 s)."""
+    trace_period_s: Literal[0.001, 0.004, 0.012] = 0.012
+    """KUKA Trace sample period; the controller offers 1, 4 and 12 ms."""
+    trace_samples: int = Field(1000, ge=10, le=50_000)
+    """Samples per loop and trace (paper: 1 kS per loop); bounded by the controller's trace buffer."""
+    brake_release_deg: float = Field(35.0, gt=0.0, le=90.0)
+    """φ': the equal angle A3 and A5 rotate by in the brake-release move (paper §2.4.4)."""
+    warmup_cycles: int = Field(3, ge=0, le=100)
+    warmup_amplitude_deg: float = Field(20.0, gt=0.0, le=90.0)
+    fixture_mass_kg: float = Field(0.0, ge=0.0, le=611.0)
+    """m_f: mass of the DuT fixture, subtracted from the gross mass (eq. 21)."""
+    payload_lever_max_m: float = Field(1.5, gt=0.0, le=3.0)
+    """Farthest point of fixture + DuT from the flange: sets the worst-case Cartesian speed."""
+    program_timeout_s: Seconds = 600.0
+    trace_timeout_s: Seconds = 120.0
+
+
+class MqttConfig(_Section):
+    enabled: bool = False
+    host: str = Field("127.0.0.1", min_length=1)
+    port: int = Field(1883, ge=1, le=65535)
+    prefix: str | None = Field(None, pattern=r"^[^#+]+$")
+    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (contracts §4)."""
+    username: str | None = None
+    password: str | None = None
+    tls: bool = False
+    tls_ca_file: Path | None = None
+    client_id: str | None = None
+    keepalive_s: int = Field(30, ge=5, le=3600)
+    reconnect_min_s: Seconds = 0.5
+    reconnect_max_s: Seconds = 30.0
+    state_rate_hz: float = Field(2.0, gt=0.0, le=50.0)
+    """Maximum rate of the retained ``state`` topic; high-rate state beyond the queue is dropped and counted."""
+    command_tokens: tuple[str, ...] = ()
+    """If not empty, a command must carry one of these in its ``token`` field (authorisation)."""
+
+
 class Config(BaseSettings):
     """The whole configuration file."""
 
@@ -84,6 +140,13 @@ class Config(BaseSettings):
     controller: ControllerConfig = ControllerConfig()
     paths: PathsConfig = PathsConfig()
     limits: LimitsConfig = LimitsConfig()
+    store: StoreConfig = StoreConfig()
+    measurement: MeasurementConfig = MeasurementConfig()
+    mqtt: MqttConfig = MqttConfig()
+    modbus: ModbusConfig | None = None
+    """The Modbus TCP safety I/O module; absent: no area-cleared input, so AUT is never allowed."""
+    scale: ScaleConfig | None = None
+    """The reference crane scale on a serial line; absent: `rgse reference` is unavailable."""
 
     @classmethod
     def settings_customise_sources(
