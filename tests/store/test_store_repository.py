@@ -289,8 +289,10 @@ def test_calibration_activation_from_two_connections_at_once(store_url: str | No
         try:
             with Repository.open(store_url, data_dir) as repo:
                 barrier.wait(timeout=10)
-                for i in range(15):
-                    repo.activate_calibration(order[i % 2])
+                for i in range(40):
+                    rec = repo.activate_calibration(order[i % 2])
+                    if not rec.active:  # it must be active when the call returns, whatever the other one did
+                        errors.append(AssertionError(f"{rec.id} not active after activate_calibration"))
         except BaseException as exc:  # collected and asserted below
             errors.append(exc)
 
