@@ -47,4 +47,5 @@ class IoFrameError(IoDeviceError):
 
     def __init__(self, device: str, message: str, raw: str) -> None:
         super().__init__(device, f"{message} in {raw!r}")
+        self.problem = message
         self.raw = raw

@@ -335,7 +335,7 @@ class CraneScale:
                 seen.bad += 1
                 self.counters.bad_frames += 1
                 self.last_error = exc
-                self._log_once(str(exc))
+                self._log_once(exc)
                 bad_in_a_row += 1
                 if bad_in_a_row >= cfg.max_consecutive_bad_frames:
                     raise IoFrameError(
@@ -398,12 +398,11 @@ class CraneScale:
             time_utc=datetime.now(UTC),
         )
 
-    def _log_once(self, message: str) -> None:
-        """Log each distinct bad-frame problem once per read streak, not every line."""
-        problem = message.split(" in ", 1)[0]
-        if problem != self._last_logged:
-            log.warning("%s", message)
-            self._last_logged = problem
+    def _log_once(self, exc: IoFrameError) -> None:
+        """Log each distinct bad-frame problem once per streak, not every line."""
+        if exc.problem != self._last_logged:
+            log.warning("%s", exc)
+            self._last_logged = exc.problem
 
 
 @dataclass
