@@ -4,11 +4,11 @@ SQLite under the data directory by default, PostgreSQL by URL for a shared (flee
 way. The daemon uses :class:`Store` (async, every call with a deadline); scripts and tests may use
 :class:`Repository` (the same operations, blocking). Raw trace files are copied by :mod:`.archive`.
 
-    store = await Store.open(cfg.store_url, cfg.paths.data_dir)
+    store = await Store.open(url, data_dir)       # url None: <data_dir>/rgse.sqlite3; or "postgresql://..."
     await store.recover_interrupted(robot)        # at start: runs a dead daemon left 'running'
     run = await store.create_run("measurement", robot, {...})
     await store.set_run_state(run.id, "running")
-    f = archive_file(src, archive_root(data_dir) / run.directory, expected_size=n)
+    f = await archive_file_async(src, archive_root(data_dir) / run.directory, expected_size=n)
     await store.add_trace_file(run.id, relative_path(f.path, archive_root(data_dir)), f.sha256, f.size)
     await store.record_result(run.id, result, [f.sha256], publish=OutboxMessage(f"rgse/{robot}/run/{run.id}/result"))
 """
@@ -16,6 +16,7 @@ way. The daemon uses :class:`Store` (async, every call with a deadline); scripts
 from rgse_daemon.store.archive import (
     ArchivedFile,
     archive_file,
+    archive_file_async,
     archive_root,
     discard_partial_copies,
     file_digest,
@@ -74,6 +75,7 @@ __all__ = [
     "StoreTimeout",
     "TraceFileRecord",
     "archive_file",
+    "archive_file_async",
     "archive_root",
     "discard_partial_copies",
     "file_digest",

@@ -12,6 +12,7 @@ Paths recorded in the store are relative to the archive root, ``<data_dir>/archi
 
 from __future__ import annotations
 
+import asyncio
 import errno
 import hashlib
 import os
@@ -123,6 +124,27 @@ def archive_file(
         return ArchivedFile(dest, sha, size)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+async def archive_file_async(
+    src: Path | str,
+    run_dir: Path | str,
+    expected_size: int | None = None,
+    expected_sha256: str | None = None,
+    *,
+    timeout_s: float = 120.0,
+) -> ArchivedFile:
+    """:func:`archive_file` off the event loop (it copies and fsyncs), with a deadline.
+
+    On timeout the copy may still finish in its thread; the source must be kept, and a retry is safe (the
+    identical file already archived is success).
+    """
+    try:
+        return await asyncio.wait_for(
+            asyncio.to_thread(archive_file, src, run_dir, expected_size, expected_sha256), timeout_s
+        )
+    except TimeoutError as exc:
+        raise ArchiveError(f"{src}: archiving did not finish within {timeout_s:g} s; keep the source, retry") from exc
 
 
 def discard_partial_copies(run_dir: Path) -> list[Path]:

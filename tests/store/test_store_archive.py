@@ -14,6 +14,7 @@ from rgse_daemon.store import (
     ArchiveConflict,
     ArchiveError,
     archive_file,
+    archive_file_async,
     archive_root,
     discard_partial_copies,
     file_digest,
@@ -151,3 +152,11 @@ def test_archive_round_trip_property(tmp_path: Path, data: bytes, name: str) -> 
     assert path.read_bytes() == data
     assert file_digest(path) == (sha, size) == (hashlib.sha256(data).hexdigest(), len(data))
     assert archive_file(src, run_dir) == (path, sha, size)
+
+
+async def test_async_archive_runs_off_the_loop_with_the_same_checks(tmp_path: Path) -> None:
+    src = _write(tmp_path / "share" / "t.r64", b"abc" * 1000)
+    path, sha, size = await archive_file_async(src, tmp_path / "run", expected_size=3000, timeout_s=30)
+    assert path.read_bytes() == src.read_bytes() and size == 3000 and sha == hashlib.sha256(b"abc" * 1000).hexdigest()
+    with pytest.raises(ArchiveError, match="short or truncated"):
+        await archive_file_async(src, tmp_path / "run2", expected_size=3001, timeout_s=30)
