@@ -1,0 +1,371 @@
+"""The assembled simulated KR C4: variables, KRL interpreter, physics, KUKA Trace and the C3 Bridge server as one.
+
+::
+
+    async with SimulatedKrc4(share_dir, scenario=None, seed=0, time_scale=100.0, host="127.0.0.1", port=0) as sim:
+        sim.port                          # connect rgse_daemon.controller.Controller here
+        sim.mount(dut_payload(100.0, (0.0, 0.0, 0.3)))   # what the operator bolts onto the flange
+        sim.set_enabling_switch(False)    # T1 operator: release = STOP 2
+        sim.truth                         # physics.TraceTruth of the last trace (sim.truths[name] per trace)
+
+``rgse sim`` runs ``await sim.serve_forever()`` (until cancelled or :meth:`SimulatedKrc4.close`).
+
+How the parts meet:
+
+* **Programs** (C3 Bridge #10) go to :class:`~simulators.krc4.krl.KrlInterpreter`, loading ``.src``/``.dat`` from the
+  share. Starting a program fires the trace trigger ``KRCIpo`` 2, every motion start ``KRCIpo`` 3.
+* **Motions heat the motors and restart the settling clock**: at the end of every motion (including one cut short
+  by a stop) the physics gets ``RobotModel.move(from, to, duration)``. The paper's brake-release move (A3 and A5 the
+  same angle away and back) is thus two such moves: no special recognition is needed, its effect on the estimate
+  (approach direction, release transient and settling restarting at the last move's end, heating) follows from
+  the moves themselves. Between motions the physics holds (drives on, ``$PERI_RDY``) or cools (drives off).
+* **Live variables** are computed on read: ``$TORQUE_AXIS_ACT[i]`` is the physics' noise-free, cold, settled
+  estimate at the current pose with the mounted payload while the drives are on, 0 while they are off (brakes
+  hold the load); ``$CURR_ACT[i]`` is that torque through k_t · gear ratio (A); ``$MOT_TEMP[i]`` the winding
+  temperature (K); ``$BRAKE_SIG`` all ones while the drives are on. ``$AXIS_ACT``/``$AXIS_ACT_MEAS``/``$POS_ACT``
+  (forward kinematics) are kept by the interpreter. Noise, drift and transients show only in traces.
+* **Traces** (:mod:`simulators.krc4.trace`) sample the physics for the pose and payload at the trigger, with the
+  physics state (temperatures, time since the last motion, approach directions) of that moment. Approximation:
+  if the robot moves during a trace, the position channels follow the motion (sampled every IPO cycle) but the
+  torque channels stay those of the trigger pose; the measurement procedure holds still while recording.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import copy
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon.errors import ConfigError
+from rgse_daemon.kinematics import flange_pose_xyzabc
+from simulators.krc4.krl import KrlInterpreter, MotionEvent, ProgramLoader, share_loader
+from simulators.krc4.physics import CHANNEL_UNITS, CHANNELS, Payload, RobotModel, RobotState, TraceTruth
+from simulators.krc4.scenario import Scenario, load_scenario, scenario_from_mapping
+from simulators.krc4.server import KrcServer, ServerConfig
+from simulators.krc4.trace import (
+    DRIVE_MODULES,
+    IPO_MODULE,
+    TRIGGER_MOTION_START,
+    TRIGGER_PROGRAM_START,
+    Modules,
+    SimClock,
+    TraceEngine,
+)
+from simulators.krc4.variables import INTERPRETER_ROBOT, ProState, VariableStore, module_name
+
+_log = logging.getLogger(__name__)
+
+MODES = ("T1", "T2", "AUT", "EX")
+#: Largest time scale accepted (simulated s per wall s), as ``rgse sim --time-scale``.
+MAX_TIME_SCALE = 1000.0
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    """The robot at a trace's trigger: what its samples are computed from."""
+
+    name: str
+    q_deg: np.ndarray
+    payload: Payload
+    state: RobotState
+    moves_before: int
+
+
+class _ProgramControl:
+    """The ProgramHost the server drives: the interpreter, plus the trace trigger 'robot program started'."""
+
+    def __init__(self, sim: SimulatedKrc4) -> None:
+        self._sim = sim
+        self._interp = sim.interpreter
+
+    def select(self, name: str, params: str, force: bool) -> None:
+        self._interp.select(name, params, force)
+
+    def run(self, name: str, params: str, force: bool) -> None:
+        self._interp.run(name, params, force)
+        self._sim.trace.fire(TRIGGER_PROGRAM_START)
+
+    def reset(self, interpreter: int) -> None:
+        self._interp.reset(interpreter)
+
+    def start(self, interpreter: int) -> None:
+        self._interp.start(interpreter)
+        if interpreter == INTERPRETER_ROBOT:
+            self._sim.trace.fire(TRIGGER_PROGRAM_START)
+
+    def stop(self, interpreter: int) -> None:
+        self._interp.stop(interpreter)
+
+    def cancel(self, interpreter: int) -> None:
+        self._interp.cancel(interpreter)
+
+
+def _scenario(scenario: Scenario | Path | str | Mapping[str, Any] | None) -> Scenario | None:
+    if scenario is None or isinstance(scenario, Scenario):
+        return scenario
+    if isinstance(scenario, Mapping):
+        return scenario_from_mapping(dict(scenario))
+    return load_scenario(scenario)
+
+
+class SimulatedKrc4:
+    """One simulated KR C4 with a KR 500 R2830 on a TCP port; see the module docstring.
+
+    Parameters
+    ----------
+    share_dir:
+        The controller's ``roboter`` share (programs in ``R1/PROGRAM``, traces in ``TRACE``); a temporary
+        directory if ``None``.
+    scenario:
+        The physics' error sources: a :class:`Scenario`, a TOML path, a parsed TOML table, or ``None`` for
+        ``scenarios/default.toml``. Invalid → :class:`ConfigError`.
+    seed:
+        Seed of the physics' random numbers (noise, spikes): same seed and same calls, same traces.
+    time_scale:
+        Simulated seconds per wall second (0 < x ≤ 1000).
+    host, port:
+        Where the C3 Bridge server listens (port 0: any free port, see :attr:`port`).
+    latency_s:
+        Service time of every request (a real KR C4: ≈ 2 ms); tests use 0.
+    """
+
+    def __init__(
+        self,
+        share_dir: Path | str | None = None,
+        scenario: Scenario | Path | str | Mapping[str, Any] | None = None,
+        seed: int | None = 0,
+        time_scale: float = 100.0,
+        host: str = "127.0.0.1",
+        port: int = 0,
+        *,
+        latency_s: float = 0.002,
+    ) -> None:
+        if not 0.0 < time_scale <= MAX_TIME_SCALE:
+            raise ConfigError(f"time_scale {time_scale} must be > 0 and <= {MAX_TIME_SCALE:g}")
+        self.model = RobotModel(_scenario(scenario), seed=seed)
+        self.clock = SimClock(time_scale)
+        self.store = VariableStore()
+        self.server = KrcServer(
+            ServerConfig(host=host, port=port, latency_s=latency_s),
+            Path(share_dir) if share_dir is not None else None,
+            store=self.store,
+        )
+        self.files = self.server.files
+        self._selected: tuple[str, str] | None = None  # (module, .src text) of the last loaded program
+        self.interpreter = KrlInterpreter(self.store, self._loader(share_loader(self.files)), time_scale=time_scale)
+        self.server.program_host = _ProgramControl(self)
+        self.interpreter.add_motion_listener(self._on_motion)
+        self.trace = TraceEngine(self.store, self.files, self, self.clock)
+        self.payload = Payload()
+        self.truths: dict[str, TraceTruth] = {}
+        self.moves = 0
+        self._motion_start: MotionEvent | None = None
+        self._physics_s = self.clock.now_s()
+        self._register_getters()
+
+    # --- lifecycle ----------------------------------------------------------------------------------------------
+    @property
+    def port(self) -> int:
+        """The TCP port the server listens on (after :meth:`start`)."""
+        return self.server.port
+
+    @property
+    def share_dir(self) -> Path:
+        return self.files.root
+
+    async def start(self) -> None:
+        """Listen on the configured host and port."""
+        await self.server.start()
+
+    async def close(self) -> None:
+        """Stop the program and trace tasks, then the server (each bounded)."""
+        try:
+            await self.trace.aclose()
+            await self.interpreter.aclose()
+        finally:
+            await self.server.close()
+
+    async def serve_forever(self) -> None:
+        """Serve until cancelled or :meth:`close` is called; closes everything on the way out."""
+        try:
+            await self.server.serve_forever()
+        finally:
+            await asyncio.shield(self.close())
+
+    async def __aenter__(self) -> SimulatedKrc4:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    # --- the lab and the operator -------------------------------------------------------------------------------
+    def mount(self, payload: Payload) -> None:
+        """What is bolted onto the flange from now on (builders in ``simulators.krc4.physics``)."""
+        self.payload = payload
+
+    @property
+    def truth(self) -> TraceTruth | None:
+        """Ground truth of the last trace: true mass, CoG, torques and every error term."""
+        return self.model.last_truth
+
+    def set_enabling_switch(self, held: bool) -> None:
+        """Hold or release the smartPAD enabling switch (T1/T2: release = STOP 2, ``$STOPMESS`` TRUE)."""
+        self._sync_physics()
+        self.interpreter.set_enabling_switch(held)
+
+    def set_start_key(self, pressed: bool) -> None:
+        """Press or release the start key (T1/T2: release stops the program)."""
+        self.interpreter.set_start_key(pressed)
+
+    def acknowledge(self) -> None:
+        """Acknowledge the stop message on the smartPAD (``$STOPMESS`` FALSE)."""
+        self.interpreter.acknowledge()
+
+    def set_mode(self, mode: str) -> None:
+        """Turn the mode selector to ``T1``/``T2``/``AUT``/``EX`` (``$MODE_OP``); a running program stops."""
+        m = mode.strip().upper().lstrip("#")
+        if m not in MODES:
+            raise ValueError(f"mode {mode!r} is not one of {', '.join(MODES)}")
+        if self.interpreter.state is ProState.ACTIVE:
+            self.interpreter.stop(INTERPRETER_ROBOT)
+        self.store.update("$MODE_OP", f"#{m}")
+
+    # --- physics bookkeeping ------------------------------------------------------------------------------------
+    def _drives_on(self) -> bool:
+        return self.store.read("$PERI_RDY").strip().upper() == "TRUE"
+
+    def _sync_physics(self) -> None:
+        """Let the physics stand (holding or braked) up to now; motions account for their own time."""
+        now = self.clock.now_s()
+        dt = now - self._physics_s
+        self._physics_s = now
+        if dt <= 0.0 or self._motion_start is not None:
+            return
+        if self._drives_on():
+            self.model.hold(dt)
+        else:
+            self.model.apply_brakes(dt)
+
+    def _on_motion(self, event: MotionEvent) -> None:
+        if event.kind == "start":
+            self._sync_physics()
+            self._motion_start = event
+            self.trace.fire(TRIGGER_MOTION_START)
+            return
+        start, self._motion_start = self._motion_start, None
+        if start is None:
+            return
+        self.model.move(start.q_deg, event.q_deg, max(0.0, event.t_s - start.t_s))
+        self.moves += 1
+        self._physics_s = self.clock.now_s()
+
+    def _loader(self, load: ProgramLoader) -> ProgramLoader:
+        """Remember the text of the program the interpreter loads (for the trace's ``N_PROG.TXT``)."""
+
+        def remembering(name: str) -> tuple[str, str, str | None]:
+            mod, src, dat = load(name)
+            self._selected = (mod, src)
+            return mod, src, dat
+
+        return remembering
+
+    # --- live variables -----------------------------------------------------------------------------------------
+    def _q(self) -> np.ndarray:
+        return np.asarray(self.interpreter.axes_deg, dtype=float)
+
+    def _torques_nm(self) -> np.ndarray:
+        if not self._drives_on():
+            return np.zeros(6)
+        return self.model.static_reading_nm(self._q(), self.payload)
+
+    def _register_getters(self) -> None:
+        axes = [self.model.scenario.axis(i) for i in range(1, 7)]
+        kt_ratio = [a.torque_constant_nm_a * a.gear_ratio for a in axes]
+
+        def torque(i: int) -> str:
+            return repr(round(float(self._torques_nm()[i]), 3))
+
+        def current(i: int) -> str:
+            return repr(round(float(self._torques_nm()[i]) / kt_ratio[i], 4))
+
+        def temperature(i: int) -> str:
+            self._sync_physics()
+            return str(round(float(self.model.state.motor_temp_k[i])))
+
+        for i in range(6):
+            self.store.register_getter(f"$TORQUE_AXIS_ACT[{i + 1}]", lambda i=i: torque(i))
+            self.store.register_getter(f"$CURR_ACT[{i + 1}]", lambda i=i: current(i))
+            self.store.register_getter(f"$MOT_TEMP[{i + 1}]", lambda i=i: temperature(i))
+        self.store.register_getter("$BRAKE_SIG", lambda: "B111111" if self._drives_on() else "B000000")
+
+    # --- TraceSource --------------------------------------------------------------------------------------------
+    def begin(self, name: str) -> object:
+        self._sync_physics()
+        return _Snapshot(name, self._q().copy(), self.payload, copy.deepcopy(self.model.state), self.moves)
+
+    def axes_deg(self) -> tuple[float, ...]:
+        return tuple(float(v) for v in self._q())
+
+    def record(
+        self,
+        token: object,
+        modules: tuple[str, ...],
+        n_samples: int,
+        period_s: float,
+        pre_s: float,
+        axes_track: tuple[np.ndarray, np.ndarray],
+    ) -> Modules:
+        assert isinstance(token, _Snapshot)
+        self._sync_physics()
+        moved = self.moves != token.moves_before
+        state_now = copy.deepcopy(self.model.state)
+        drives = self.model.sample_trace(
+            token.q_deg,
+            token.payload,
+            n_samples,
+            period_s,
+            t_since_release_s=max(0.0, token.state.t_since_release_s - pre_s),
+            motor_temp_k=token.state.motor_temp_k,
+            last_approach_sign=token.state.last_approach_sign,
+        )
+        if moved:  # the motion's effect on the state wins over the trace's standing still
+            self.model.state = state_now
+        self._physics_s = self.clock.now_s()
+        truth = self.model.last_truth
+        assert truth is not None
+        self.truths[token.name] = truth
+        t_s = np.arange(n_samples) * period_s
+        track_t, track_q = axes_track
+        q_t = np.column_stack([np.interp(t_s, track_t, track_q[:, i]) for i in range(6)])  # (n, 6)
+        out: dict[str, dict[str, tuple[np.ndarray, str]]] = {}
+        for k, module in enumerate(DRIVE_MODULES, start=1):
+            if module not in modules:
+                continue
+            ch = drives[k]
+            jitter = ch["Istposition"] - ch["Sollposition"]
+            ch = {**ch, "Sollposition": q_t[:, k - 1], "Istposition": q_t[:, k - 1] + jitter}
+            out[module] = {name: (ch[name], CHANNEL_UNITS[name]) for name in CHANNELS}
+        if IPO_MODULE in modules:
+            poses, where = np.unique(q_t, axis=0, return_inverse=True)  # standing still: one pose
+            xyz = np.array([flange_pose_xyzabc(q)[:3] for q in poses])[where.reshape(-1)]
+            override = float(self.store.read("$OV_PRO"))
+            out[IPO_MODULE] = {
+                "Sollposition X": (xyz[:, 0], "mm"),
+                "Sollposition Y": (xyz[:, 1], "mm"),
+                "Sollposition Z": (xyz[:, 2], "mm"),
+                "Programmoverride": (np.full(n_samples, override), "%"),
+            }
+        return out
+
+    def program_text(self) -> str | None:
+        selected = module_name(self.store.read("$PRO_NAME1[]").strip().strip('"'))
+        if self._selected is None or not selected or selected != self._selected[0]:
+            return None
+        return self._selected[1]
