@@ -20,6 +20,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	$(BIN)/ruff check rgse_daemon simulators tests bench
+	bash scripts/ensure-services.sh
 	$(BIN)/python -m pytest
 
 lint: $(STAMP)
