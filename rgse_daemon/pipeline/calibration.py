@@ -315,7 +315,7 @@ def fit_poly_k(x: np.ndarray, y: np.ndarray, degree: int) -> tuple[PolyK, np.nda
     return PolyK(coef), cov, r_squared(y, a @ coef)
 
 
-def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: int = 6
+def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: int = 3
                      ) -> tuple[DoubleExpK, np.ndarray, float]:
     """Eq. 20 fitted robustly: variable projection on a grid of rates, then bounded least squares from the best starts.
 

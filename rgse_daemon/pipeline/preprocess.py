@@ -94,7 +94,10 @@ def crop_outliers(x: np.ndarray, crop_sigma: float | None) -> np.ndarray:
         return x
     mu = np.nanmean(x, axis=1, keepdims=True)
     sd = np.nanstd(x, axis=1, keepdims=True)
-    return np.where(np.abs(x - mu) <= crop_sigma * sd, x, np.nan)
+    dev = np.abs(x - mu)
+    # for crop_sigma >= 1 some sample always lies within 1σ; the floor keeps that true under rounding too
+    threshold = np.maximum(crop_sigma * sd, np.nanmin(dev, axis=1, keepdims=True))
+    return np.where(dev <= threshold, x, np.nan)
 
 
 def moving_average(x: np.ndarray, windows: np.ndarray | int) -> np.ndarray:
@@ -181,11 +184,10 @@ class LoopTorque:
     n_total: int
 
 
-def process_loop_windows(values: np.ndarray, period_s: float, cfg: Preprocessing, windows: np.ndarray
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pre-process one loop for several filter windows at once (the parameter study's inner kernel).
+def filtered_rows(values: np.ndarray, period_s: float, cfg: Preprocessing, windows: np.ndarray) -> np.ndarray:
+    """Settle cut, crop and filter (in ``cfg.order``) of one loop for several windows; NaN marks cropped samples.
 
-    Returns per window: location (Nm), standard deviation of the used samples (Nm), samples used.
+    Returns one row per window (the parameter study's inner kernel).
     """
     x = np.asarray(values, float)
     if x.ndim != 1:
@@ -201,14 +203,22 @@ def process_loop_windows(values: np.ndarray, period_s: float, cfg: Preprocessing
     windows = np.atleast_1d(np.asarray(windows, int))
     if cfg.order == "backward":  # crop, then filter the remaining samples
         kept = crop_outliers(x, cfg.crop_sigma)[0]
-        kept = kept[np.isfinite(kept)]
-        rows = smooth(kept, cfg.filter, windows)
+        rows = smooth(kept[np.isfinite(kept)], cfg.filter, windows)
     else:  # forward: filter, then crop
         rows = crop_outliers(smooth(x, cfg.filter, windows), cfg.crop_sigma)
-    used = np.isfinite(rows).sum(axis=1)
-    if np.any(used < 1):
+    if np.any(np.isfinite(rows).sum(axis=1) < 1):
         raise PreprocessError("pre-processing: no samples left after cropping")
-    return location_rows(rows, cfg.location), np.nanstd(rows, axis=1), used
+    return rows
+
+
+def process_loop_windows(values: np.ndarray, period_s: float, cfg: Preprocessing, windows: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pre-process one loop for several filter windows at once.
+
+    Returns per window: location (Nm), standard deviation of the used samples (Nm), samples used.
+    """
+    rows = filtered_rows(values, period_s, cfg, windows)
+    return location_rows(rows, cfg.location), np.nanstd(rows, axis=1), np.isfinite(rows).sum(axis=1)
 
 
 def process_loop(values: np.ndarray, period_s: float, cfg: Preprocessing = PAPER) -> LoopTorque:

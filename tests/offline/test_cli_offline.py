@@ -145,3 +145,11 @@ def test_points_csv_with_nan(tmp_path, capsys, paper_dir):
     p = Path(tmp_path / "t.csv")
     p.write_text(text)
     expect_error(capsys, ["calibrate", "--points", str(p), "--out", str(tmp_path / "o.json")], "t.csv")
+
+
+def test_study_points_and_campaign(capsys, paper_dir, dirs):
+    res = run_json(capsys, ["study", "--points", str(paper_dir / "table1_calibration.csv"), "--json"])
+    loo = [r["loo_mean_abs_err_pct"] for r in res["rows"]]
+    assert loo == sorted(loo) and res["rows"][-1]["method"] in {m["method"] for m in res["rows"]}
+    assert main(["study", "--points", str(paper_dir / "table1_calibration.csv")]) == 0
+    assert "paper" in capsys.readouterr().out

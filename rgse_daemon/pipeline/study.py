@@ -1,0 +1,116 @@
+"""The pre-processing parameter study (paper §2.4.6, Fig. 26, Table A2): crop σ × filter × window × order
+(× location), each combination ranked by the mass error of the calibration it leads to.
+
+Per loop and per (crop, filter, order) all windows are processed at once (:func:`preprocess.filtered_rows`);
+the calibration is then fitted once per combination.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from rgse_daemon.pipeline import calibration as cal_mod
+from rgse_daemon.pipeline import preprocess as pp
+
+#: Largest running-median window the study tries: its cost grows with the window (the paper's study found the
+#: moving average best; the median is a robust comparison, not worth seconds per loop at 5000 samples).
+MEDIAN_MAX_WINDOW = 501
+
+#: One loop: (A3 torque samples, A5 torque samples, sample period in s).
+LoopData = tuple[np.ndarray, np.ndarray, float]
+
+
+@dataclass(frozen=True)
+class StudyGrid:
+    crop_sigmas: tuple[float | None, ...] = (1.0, 2.0, 3.0)
+    filters: tuple[str, ...] = ("moving_average", "gaussian", "median")
+    windows: tuple[int, ...] = (5, 50, 100, 150, 200, 500, 1000, 5000)
+    orders: tuple[str, ...] = ("backward", "forward")
+    locations: tuple[str, ...] = ("mean",)
+
+    @property
+    def size(self) -> int:
+        """Number of combinations actually run."""
+        per_filter = sum(len(filter_windows(self, f)) for f in self.filters)
+        return len(self.crop_sigmas) * per_filter * len(self.orders) * len(self.locations)
+
+
+@dataclass(frozen=True)
+class StudyRow:
+    crop_sigma: float | None
+    filter: str
+    window: int
+    order: str
+    location: str
+    mass_err_pct: float
+    r2_a3: float
+    r2_a5: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready (NaN, e.g. R² of a model fitted to masses, becomes None)."""
+        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in self.__dict__.items()}
+
+
+def filter_windows(grid: StudyGrid, filt: str) -> tuple[int, ...]:
+    """The windows tried with filter ``filt`` (the running median is capped at :data:`MEDIAN_MAX_WINDOW`)."""
+    if filt == "median":
+        return tuple(w for w in grid.windows if w <= MEDIAN_MAX_WINDOW)
+    if filt == "none":
+        return (1,)
+    return grid.windows
+
+
+def point_torques(points_loops: Sequence[Sequence[LoopData]], grid: StudyGrid
+                  ) -> dict[tuple, tuple[np.ndarray, np.ndarray]]:
+    """Eq. 16 point torques (raw, not yet bias-normalised) for every combination of the grid.
+
+    Returns ``{(crop, filter, order, location): (raw_a3, raw_a5)}`` with arrays of shape (n_windows, n_points).
+    """
+    out: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+    for crop in grid.crop_sigmas:
+        for filt in grid.filters:
+            windows = np.asarray(filter_windows(grid, filt), int)
+            for order in grid.orders:
+                cfg = pp.Preprocessing(crop_sigma=crop, filter=filt, window=1, order=order)
+                shape = (windows.size, len(points_loops))
+                acc = {loc: (np.zeros(shape), np.zeros(shape)) for loc in grid.locations}
+                for j, loops in enumerate(points_loops):
+                    per_loop = {loc: ([], []) for loc in grid.locations}
+                    for a3, a5, dt in loops:
+                        r3 = pp.filtered_rows(a3, dt, cfg, windows)
+                        r5 = pp.filtered_rows(a5, dt, cfg, windows)
+                        for loc in grid.locations:
+                            per_loop[loc][0].append(pp.location_rows(r3, loc))
+                            per_loop[loc][1].append(pp.location_rows(r5, loc))
+                    for loc in grid.locations:
+                        acc[loc][0][:, j] = np.mean(per_loop[loc][0], axis=0)  # eq. 16 outer average
+                        acc[loc][1][:, j] = np.mean(per_loop[loc][1], axis=0)
+                for loc in grid.locations:
+                    out[(crop, filt, order, loc)] = acc[loc]
+    return out
+
+
+def run_study(points_loops: Sequence[Sequence[LoopData]],
+              to_points: Callable[[np.ndarray, np.ndarray], cal_mod.CalibrationPoints],
+              grid: StudyGrid = StudyGrid(), method: str = "paper", g_m_s2: float = 9.81,
+              lever_difference_m: float = 1.025) -> list[StudyRow]:
+    """Every grid combination, ranked by the in-sample mean absolute mass error of ``method`` (as Table A2).
+
+    ``to_points(raw_a3, raw_a5)`` turns eq. 16 point torques into bias-normalised calibration points.
+    """
+    rows = []
+    for (crop, filt, order, loc), (raw3, raw5) in point_torques(points_loops, grid).items():
+        for i, window in enumerate(filter_windows(grid, filt)):
+            points = to_points(raw3[i], raw5[i])
+            try:
+                cal = cal_mod.fit(points, method, g_m_s2, lever_difference_m)
+            except cal_mod.CalibrationError:
+                continue
+            err = cal_mod.mean_abs_pct(points.mass_kg, cal.mass_kg(points.torque_a3_nm, points.torque_a5_nm))
+            rows.append(StudyRow(crop, filt, int(window), order, loc, err, cal.r2.get("A3", float("nan")),
+                                 cal.r2.get("A5", float("nan"))))
+    rows.sort(key=lambda r: r.mass_err_pct)
+    return rows
