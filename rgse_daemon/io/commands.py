@@ -1,0 +1,162 @@
+"""Schemas of the commands that arrive over MQTT on ``<prefix>/cmd/<verb>`` (contracts §4).
+
+Why a schema: a command moves a 500 kg robot, so anything that is not exactly one of these shapes is refused
+before it reaches the daemon — unknown fields are an error (a misspelt ``dry_run`` must not silently become a
+real run), types are strict (``"3"`` is not a loop count, ``"yes"`` is not a boolean) and every number is
+bounded. :func:`parse_command` turns a verb and raw payload bytes into one of the models below, or raises
+:class:`CommandRefused` with a one-line reason and whatever ``request_id`` could be read, so that the refusal
+can still be answered.
+
+Verbs and fields (units in the names):
+
+``measure``    ``{request_id, loops?, fixture_mass_kg?, dry_run?, token?}``
+``calibrate``  ``{request_id, points?, method?, token?}``; a point is a manifest ``[[point]]`` without traces
+``abort``      ``{request_id, run_id?, reason, token?}``
+``confirm``    ``{request_id, run_id, point?, token?}``: the operator confirms the load of a campaign point
+
+Authorisation: when tokens are configured (``MqttConfig.command_tokens``), ``token`` must equal one of them;
+it is checked before the schema, so an unauthorised sender learns nothing about the schema. The token never
+reaches the handler's arguments' ``repr`` (it is excluded) nor the logs.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+from collections.abc import Sequence
+from typing import Annotated, Any, ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from rgse_daemon.errors import RgseError
+
+RequestId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\-]+$")]
+RunId = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9_.\-]+$")]
+Token = Annotated[str | None, Field(default=None, max_length=256, repr=False)]
+
+#: The largest command payload accepted, in bytes; anything longer is refused unread.
+MAX_PAYLOAD_BYTES = 64 * 1024
+
+
+class CommandRefused(RgseError):
+    """A command that is refused without effect: malformed, unauthorised, of unknown verb or against the schema."""
+
+    def __init__(self, verb: str, message: str, request_id: str | None = None) -> None:
+        super().__init__(f"cmd/{verb}: {message}")
+        self.verb = verb
+        self.problem = message
+        self.request_id = request_id
+
+
+class _Command(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+    VERB: ClassVar[str]
+
+    request_id: RequestId
+    """Chosen by the sender; copied into the reply so that it can match answers to questions."""
+    token: Token = None
+
+
+class MeasureCommand(_Command):
+    """Start an in-line mass measurement of the mounted DuT."""
+
+    VERB: ClassVar[str] = "measure"
+    loops: int | None = Field(None, ge=1, le=100)
+    """Measurement loops; ``None``: the configured default."""
+    fixture_mass_kg: float | None = Field(None, ge=0.0, le=500.0)
+    """Mass of the fixture (MPA, adapters) subtracted from the gross mass; ``None``: the configured value."""
+    dry_run: bool = False
+    """Check the plan and the interlock, render and check the KRL, but move nothing."""
+
+
+class CalibrationPoint(BaseModel):
+    """One load configuration of a calibration campaign (contracts §2 ``[[point]]``, without the traces)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+    kind: Literal["zero", "mass", "torque"]
+    mass_kg: float = Field(ge=0.0, le=500.0)
+    lever_a3_m: float = Field(ge=-5.0, le=5.0)
+    lever_a5_m: float = Field(ge=-5.0, le=5.0)
+
+
+class CalibrateCommand(_Command):
+    """Run a calibration campaign (and fit it)."""
+
+    VERB: ClassVar[str] = "calibrate"
+    points: tuple[CalibrationPoint, ...] | None = Field(None, min_length=1, max_length=50)
+    """The campaign's load configurations in order; ``None``: the configured campaign."""
+    method: str | None = Field(None, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")
+    """``paper``, ``auto`` or a model name (as ``rgse calibrate --method``); ``None``: the configured one."""
+
+
+class AbortCommand(_Command):
+    """Stop the running (or the named) run now and leave the robot safe."""
+
+    VERB: ClassVar[str] = "abort"
+    run_id: RunId | None = None
+    reason: str = Field(min_length=1, max_length=500)
+
+
+class ConfirmCommand(_Command):
+    """The operator confirms a step a run waits for (e.g. the calibration load of a campaign point is mounted)."""
+
+    VERB: ClassVar[str] = "confirm"
+    run_id: RunId
+    point: int | None = Field(None, ge=0, le=1000)
+    """Index of the campaign point whose load is mounted; ``None``: the step the run waits for now."""
+
+
+Command = MeasureCommand | CalibrateCommand | AbortCommand | ConfirmCommand
+
+#: The verbs accepted on ``<prefix>/cmd/<verb>`` and their schemas.
+COMMANDS: dict[str, type[_Command]] = {
+    "measure": MeasureCommand,
+    "calibrate": CalibrateCommand,
+    "abort": AbortCommand,
+    "confirm": ConfirmCommand,
+}
+
+
+def _schema_problem(exc: ValidationError) -> str:
+    problems = []
+    for err in exc.errors(include_url=False, include_input=False):
+        where = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        msg = "unknown field" if err["type"] == "extra_forbidden" else err["msg"]
+        problems.append(f"{where}: {msg}")
+    return "schema: " + "; ".join(problems)
+
+
+def _token_ok(given: object, tokens: Sequence[str]) -> bool:
+    if not isinstance(given, str):
+        return False
+    ok = False
+    for t in tokens:  # compare against every token, in constant time each
+        ok |= hmac.compare_digest(given.encode(), t.encode())
+    return ok
+
+
+def parse_command(verb: str, payload: bytes | str, tokens: Sequence[str] = ()) -> Command:
+    """Validate one command; raises :class:`CommandRefused` (with the ``request_id`` if readable) otherwise.
+
+    Order: verb, size, JSON object, authorisation (if ``tokens``), schema.
+    """
+    if verb not in COMMANDS:
+        raise CommandRefused(verb, f"unknown verb {verb!r}; expected one of {', '.join(COMMANDS)}")
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        raise CommandRefused(verb, f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
+    try:
+        doc: Any = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise CommandRefused(verb, f"malformed JSON: {exc}") from exc
+    if not isinstance(doc, dict):
+        raise CommandRefused(verb, f"malformed command: a JSON object expected, got {type(doc).__name__}")
+    rid = doc.get("request_id")
+    request_id = rid if isinstance(rid, str) and 0 < len(rid) <= 64 else None
+    if tokens and not _token_ok(doc.get("token"), tokens):
+        raise CommandRefused(verb, "unauthorised: missing or wrong token", request_id)
+    try:
+        # JSON mode: strict types as JSON knows them (an array is a tuple, an object a nested model).
+        return COMMANDS[verb].model_validate_json(payload)  # type: ignore[return-value]
+    except ValidationError as exc:
+        raise CommandRefused(verb, _schema_problem(exc), request_id) from exc
