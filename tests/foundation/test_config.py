@@ -86,3 +86,20 @@ def test_leak_guard_fails_a_leaking_test(pytester: pytest.Pytester) -> None:
     result = pytester.runpytest_inprocess("-p", "no:cacheprovider")
     result.assert_outcomes(passed=2, errors=1)  # the leaking test errors in teardown
     result.stdout.fnmatch_lines(["*leaked 1 asyncio task*forgotten*"])
+
+
+def test_cli_survives_a_closed_pipe(paper_dir: Path) -> None:
+    """`rgse ... | head`: the reader is gone before we write; no traceback, no failure status."""
+    import subprocess
+    import sys
+
+    rgse = Path(sys.executable).with_name("rgse")
+    proc = subprocess.Popen(
+        [str(rgse), "study", "--points", str(paper_dir / "table1_calibration.csv")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    assert proc.stdout is not None
+    proc.stdout.close()  # the reader goes away while the child is still starting
+    _, err = proc.communicate(timeout=120)
+    assert "Traceback" not in err and "BrokenPipe" not in err, err
+    assert proc.returncode == 0
