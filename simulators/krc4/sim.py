@@ -157,6 +157,8 @@ class SimulatedKrc4:
             store=self.store,
         )
         self.files = self.server.files
+        for folder in ("/TRACE", "KRC:\\R1\\PROGRAM"):  # every KR C4 has them
+            self.files.resolve(folder).mkdir(parents=True, exist_ok=True)
         self._selected: tuple[str, str] | None = None  # (module, .src text) of the last loaded program
         self.interpreter = KrlInterpreter(self.store, self._loader(share_loader(self.files)), time_scale=time_scale)
         self.server.program_host = _ProgramControl(self)

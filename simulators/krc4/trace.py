@@ -10,13 +10,14 @@ Driven exactly as on a real controller (kuka-facts §5)::
 
 Decisions where the public record is silent (said here, tested in ``tests/sim_e2e``):
 
-* **Refusals.** ``#T_START`` is refused *as a write* (C3 Bridge error code 3 on the wire; a KRL program that writes it
-  stops with a runtime error) when the configuration file is missing or invalid (rgse_daemon.trace.config's strict
-  parser: unknown elements, rates other than 1/4/12 ms, ``Time`` beyond the buffer of ``buffer_limit_s``), when it
-  names a module other than ``KRCIpo`` / ``NextGenDrive#1..6`` or a trigger the simulator does not know, when the
-  trace name is not a usable file name, or (code 2) while a trace is still active. ``$TRACE.STATE`` then stays
-  ``#T_END``. A real KR C4 shows a message on the smartHMI and does not start; refusing the write is the nearest
-  thing a client can observe over the link.
+* **Refusals.** ``#T_START`` is refused *as a write* (a failed write on the link, with code 3 where the message
+  type carries one, i.e. #5/#7; a KRL program that writes it stops with a runtime error) when the configuration file
+  is missing or invalid (rgse_daemon.trace.config's strict parser: unknown elements, rates other than 1/4/12 ms,
+  ``Time`` beyond the buffer of ``buffer_limit_s``), when it names a module other than ``KRCIpo`` /
+  ``NextGenDrive#1..6`` or a trigger the simulator does not know, when the trace name is not a usable file name, or
+  (code 2) while a trace is still active. ``$TRACE.STATE`` then stays as it was and :attr:`TraceEngine.last_error`
+  says why. A real KR C4 shows a message on the smartHMI and does not start (the exact behaviour of the write is
+  not documented publicly); refusing the write is the nearest thing a client can observe over the link.
 * **Triggers** (the ID-to-event mapping of KUKA's trigger modules is not public; the simulator's choice):
   no ``<Trigger>``, or ``KRCIpo`` ID 1: triggered at once; ``KRCIpo`` ID 2: when a robot program is started (#10
   start/run); ``KRCIpo`` ID 3: when the next motion starts. A KRL program triggers a trace simply by writing
@@ -240,7 +241,8 @@ class TraceEngine:
             self._stop.set()  # ends a recording early; no effect when idle or writing
             return
         if self._state is not TraceState.END:
-            raise VariableError("$TRACE.MODE", f"a trace is active ({self._state.value})", CODE_ACCESS)
+            self.last_error = f"#T_START refused: a trace is active ({self._state.value})"
+            raise VariableError("$TRACE.MODE", self.last_error, CODE_ACCESS)
         request = self._prepare()
         self._stop = asyncio.Event()
         self._fired = set()
