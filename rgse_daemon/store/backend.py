@@ -13,6 +13,7 @@ Driver errors become :class:`StoreError` here and nowhere else.
 from __future__ import annotations
 
 import sqlite3
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
@@ -104,9 +105,7 @@ class SqliteBackend(Backend):
             raise StoreError(f"{self.description}: cannot open: {exc}") from exc
         self._conn.row_factory = sqlite3.Row
         try:
-            mode = self._execute("PRAGMA journal_mode=WAL", ())[0]["journal_mode"]
-            if mode != "wal":
-                raise StoreError(f"{self.description}: cannot switch to WAL journal mode (got {mode!r})")
+            self._enable_wal(busy_timeout_s)
             # FULL: a commit survives power loss, which the outbox and "result after raw files" rely on.
             self._execute("PRAGMA synchronous=FULL", ())
             self._execute("PRAGMA foreign_keys=ON", ())
@@ -115,6 +114,24 @@ class SqliteBackend(Backend):
         except BaseException:
             self._conn.close()
             raise
+
+    def _enable_wal(self, timeout_s: float) -> None:
+        """Switch a new database file to WAL (persistent, so later opens find it set).
+
+        Changing the journal mode does not wait on SQLite's busy handler: when several processes open a brand-new
+        file at once, the losers get "database is locked" at once. Retry until the busy timeout instead.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                mode = self._conn.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+                break
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() >= deadline:
+                    raise StoreError(f"{self.description}: cannot switch to WAL journal mode: {exc}") from exc
+                time.sleep(0.01)
+        if mode != "wal":
+            raise StoreError(f"{self.description}: cannot switch to WAL journal mode (got {mode!r})")
 
     def _execute(self, sql: str, params: Sequence[Any]) -> list[Row]:
         try:

@@ -589,10 +589,20 @@ class Repository:
         )
         return _outbox(rows[0])
 
-    def pending_outbox(self, limit: int = 100) -> list[OutboxRecord]:
-        """Messages not yet published, oldest first: publish them in this order."""
+    def pending_outbox(self, limit: int = 100, *, topic_prefix: str | None = None) -> list[OutboxRecord]:
+        """Messages not yet published, oldest first: publish them in this order.
+
+        On a shared (fleet) database pass ``topic_prefix`` (e.g. ``rgse/<robot>/``) so each daemon publishes only
+        its own robot's messages.
+        """
         check_index(limit, "limit")
-        rows = self._db.execute("SELECT * FROM outbox WHERE published_utc IS NULL ORDER BY id LIMIT ?", (limit,))
+        if topic_prefix is None:
+            rows = self._db.execute("SELECT * FROM outbox WHERE published_utc IS NULL ORDER BY id LIMIT ?", (limit,))
+        else:
+            rows = self._db.execute(
+                "SELECT * FROM outbox WHERE published_utc IS NULL AND substr(topic, 1, ?) = ? ORDER BY id LIMIT ?",
+                (len(topic_prefix), topic_prefix, limit),
+            )
         return [_outbox(r) for r in rows]
 
     def mark_published(self, outbox_id: int) -> OutboxRecord:

@@ -203,6 +203,10 @@ def test_outbox_rows_are_marked_published_never_deleted(repo: Repository) -> Non
     a = repo.enqueue("rgse/R/alarm", {"kind": "interlock_trip"}, qos=1)
     b = repo.enqueue("rgse/R/status", '{"state":"online"}', retained=True, qos=1)
     assert [m.id for m in repo.pending_outbox()] == [a.id, b.id]
+    other = repo.enqueue("rgse/OTHER/alarm", {"kind": "link_lost"})  # another robot's daemon on a fleet store
+    assert [m.id for m in repo.pending_outbox(topic_prefix="rgse/R/")] == [a.id, b.id]
+    assert [m.id for m in repo.pending_outbox(topic_prefix="rgse/OTHER/")] == [other.id]
+    assert [m.id for m in repo.pending_outbox(limit=1)] == [a.id]
     assert json.loads(a.payload) == {"kind": "interlock_trip"} and b.payload == '{"state":"online"}'
 
     failed = repo.record_publish_failure(a.id, "broker unreachable")
@@ -210,7 +214,7 @@ def test_outbox_rows_are_marked_published_never_deleted(repo: Repository) -> Non
     done = repo.mark_published(a.id)
     assert done.published_utc is not None and done.attempts == 2
     assert repo.mark_published(a.id).published_utc == done.published_utc  # idempotent, first time kept
-    assert [m.id for m in repo.pending_outbox()] == [b.id]
+    assert [m.id for m in repo.pending_outbox(topic_prefix="rgse/R/")] == [b.id]
     assert repo.get_outbox(a.id).published_utc == done.published_utc  # still there
 
     with pytest.raises(StoreError, match="MQTT QoS 3"):
