@@ -190,3 +190,23 @@ async def test_files_appear_atomically_while_writing(sim: SimulatedKrc4, krc: Co
     entries = [base_name(e.name) for e in await krc.list_dir(TRACE_DIR)]
     assert not [n for n in entries if n.startswith(".")], "temporary files left behind"
     read_trace_set(save(final, tmp_path / "atomic"), "atomic")
+
+
+async def test_pretrigger_part_is_what_was_available(sim: SimulatedKrc4, krc: Controller, tmp_path: Path) -> None:
+    """Time 6 s with PreTrigger 2 s: armed long enough, the file holds all 6 s; triggered at once, only 4 s."""
+    period_s = 0.012
+    await put_config(krc, "pre_start.xml", trace_config_xml(6.0, pretrigger_s=2.0, trigger=TRIGGER_PROGRAM_START))
+    await put_config(krc, "pre_now.xml", trace_config_xml(6.0, pretrigger_s=2.0))
+    program = await put_program(krc, "SHORT", SHORT_SRC)
+    await start_trace(krc, "pre_start.xml", "armed")
+    armed_s = sim.clock.now_s()
+    async with asyncio.timeout(DEADLINE_S):
+        while sim.clock.now_s() < armed_s + 3.0:  # noqa: ASYNC110 - simulated time passing is the point
+            await asyncio.sleep(0.005)
+    await run_to_end(krc, program)
+    await poll(krc, "$TRACE.STATE", lambda v: v == "#T_END")
+    await start_trace(krc, "pre_now.xml", "at_once")
+    await poll(krc, "$TRACE.STATE", lambda v: v == "#T_END")
+    for name, expected_s in (("armed", 6.0), ("at_once", 4.0)):
+        ts = read_trace_set(save(await pull_trace(krc, name), tmp_path / name), name)
+        assert ts.channel("NextGenDrive#5", "Istmoment").values.size == round(expected_s / period_s)
