@@ -1,0 +1,637 @@
+"""The daemon's MQTT face (contracts §4): status, state, progress, results, alarms out; commands in.
+
+Why it is shaped like this: the broker is another machine on a plant network. It goes away, restarts and comes
+back, and none of that may lose a measurement result, block a procedure or execute a stale command. So:
+
+* **Lifecycle** (architecture lessons 6, 9): ``await bridge.start()`` starts one task running an outer reconnect
+  loop around ``async with aiomqtt.Client(...)``; attempts are spaced by jittered exponential backoff between
+  ``reconnect_min_s`` and ``reconnect_max_s``. The client registers a RETAINED last will
+  ``{"state": "offline", "version", "since": null}`` on ``<prefix>/status`` (``since`` is null because only the
+  broker knows when it fired), publishes retained ``{"state": "online", "version", "since": <connect time>}``
+  on every connect, and ``await bridge.stop()`` publishes retained ``{"state": "offline", "since": <now>}`` before
+  disconnecting cleanly (a clean DISCONNECT discards the will). Every step of stop is bounded; past
+  ``stop_timeout_s`` the task is cancelled.
+* **Results only through the store's outbox.** ``store.record_result(..., publish=bridge.result_message(run_id))``
+  writes the result and its outbox row in one transaction; the bridge's drainer publishes pending rows in id
+  order (QoS 1, retained) and marks each published only after the broker's PUBACK. ``bridge.notify_outbox()``
+  wakes the drainer at once; a sweep every ``outbox_sweep_s`` catches anything else (a row written by another
+  process, a failed mark). Delivery is at least once: a broker outage or restart loses nothing (rows stay
+  pending), and a crash between PUBACK and the mark re-publishes the row — to the same retained topic
+  (``run/<run_id>/result``) with byte-identical content, so the retained message a subscriber reads is
+  unchanged and a live subscriber sees at most an identical copy (as QoS 1 allows anyway). Nothing visible is
+  duplicated.
+* **Bounded memory, counted drops** (lessons 7, 9). ``publish_state`` keeps only the latest snapshot and sends
+  at most ``state_rate_hz``; a snapshot replaced before it was sent counts in ``dropped_state``. Alarms, command
+  replies and progress wait in one bounded queue (``queue_size``); overflow counts in ``dropped_messages``.
+  Progress (QoS 0) published while disconnected is dropped and counted (``dropped_progress``): stale progress
+  is noise. Alarms and replies queued during an outage are sent after the reconnect.
+* **Commands** arrive on ``<prefix>/cmd/<verb>`` (QoS 1) and are validated by :mod:`rgse_daemon.io.commands`.
+  Malformed, unauthorised, schema-violating and unknown-verb commands are refused WITHOUT EFFECT: a reply
+  ``{request_id, ok: false, error}`` on ``<prefix>/cmd/<verb>/reply`` and an ``alarm``. Valid ones call the
+  :class:`CommandHandler` (each in its own task, so ``abort`` is served while ``measure`` is still answering,
+  bounded by ``command_timeout_s``) and get ``{request_id, ok: true, ...handler's dict}``; a handler exception
+  becomes ``{ok: false, error}`` (logged once). The session is clean (``clean_session``): commands sent while
+  the daemon was away are NOT delivered later — a "measure" from ten minutes ago must not move the robot now.
+* **Counters** (:class:`MqttCounters`) are exposed as ``bridge.counters`` and published inside every state
+  message under ``"mqtt"``, with the connection state. Each distinct error is logged once (lesson 11).
+
+Public API::
+
+    bridge = MqttBridge(cfg.mqtt, cfg.robot.name, store, handler, version)   # validates, no I/O
+    await bridge.start() ... await bridge.stop()        # or: async with bridge: ...
+    bridge.publish_state({...})                         # non-blocking; rate-limited, keep-latest
+    bridge.publish_progress(run_id, {...})              # non-blocking; QoS 0
+    bridge.publish_alarm({"kind": ..., "message": ...}) # non-blocking; QoS 1
+    await store.record_result(run_id, result, hashes, publish=bridge.result_message(run_id)); bridge.notify_outbox()
+    bridge.counters, bridge.connection_state, bridge.topics
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import json
+import logging
+import math
+import random
+import secrets
+import ssl
+from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
+from enum import StrEnum
+from types import TracebackType
+from typing import Any, Protocol, Self
+
+import aiomqtt
+
+from rgse_daemon.config import MqttConfig
+from rgse_daemon.errors import ConfigError, RgseError
+from rgse_daemon.io.commands import (
+    AbortCommand,
+    CalibrateCommand,
+    Command,
+    CommandRefused,
+    ConfirmCommand,
+    MeasureCommand,
+    parse_command,
+)
+from rgse_daemon.store import OutboxMessage, Store, StoreError
+
+log = logging.getLogger(__name__)
+
+#: Command handler calls in flight at once; more are refused ("busy") rather than queued without bound.
+MAX_COMMANDS_IN_FLIGHT = 8
+_FORBIDDEN_IN_LEVEL = ("/", "+", "#", "\x00")
+
+
+class MqttError(RgseError):
+    """The MQTT bridge was misused (e.g. started twice) or given an unpublishable message."""
+
+
+class ConnectionState(StrEnum):
+    STOPPED = "stopped"
+    CONNECTING = "connecting"
+    CONNECTED = "connected"
+    BACKOFF = "backoff"  # waiting before the next connection attempt
+
+
+@dataclass
+class MqttCounters:
+    """What the bridge did since it was created; published in the state message under ``"mqtt"``."""
+
+    connects: int = 0
+    """Successful connections (CONNACK accepted)."""
+    reconnects: int = 0
+    """Successful connections after the first one."""
+    connect_failures: int = 0
+    published: int = 0
+    """Messages the broker took (QoS 1: acknowledged; QoS 0: written), every topic."""
+    publish_errors: int = 0
+    state_published: int = 0
+    dropped_state: int = 0
+    """State snapshots replaced by a newer one before they were sent (rate limit, outage)."""
+    dropped_progress: int = 0
+    dropped_messages: int = 0
+    """Alarms, replies or progress refused because the outgoing queue was full."""
+    commands: int = 0
+    """Valid commands passed to the handler."""
+    command_errors: int = 0
+    """Valid commands whose handler raised or timed out."""
+    refused_commands: int = 0
+    outbox_published: int = 0
+    """Outbox rows (results) published and marked published in the store."""
+    outbox_sweeps: int = 0
+    """Completed passes of the outbox drainer that left nothing pending."""
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+
+class CommandHandler(Protocol):
+    """What the daemon does on a valid command. Each returns a JSON-serialisable dict copied into the reply.
+
+    A method should answer promptly (accept, queue, return a run id); it is cancelled after
+    ``command_timeout_s`` and the sender gets an error reply. Raising refuses the command with the message.
+    """
+
+    async def measure(self, cmd: MeasureCommand) -> dict[str, Any]: ...
+
+    async def calibrate(self, cmd: CalibrateCommand) -> dict[str, Any]: ...
+
+    async def abort(self, cmd: AbortCommand) -> dict[str, Any]: ...
+
+    async def confirm(self, cmd: ConfirmCommand) -> dict[str, Any]: ...
+
+
+@dataclass(frozen=True)
+class Topics:
+    """The bridge's topics (contracts §4) under one prefix."""
+
+    prefix: str
+
+    @property
+    def status(self) -> str:
+        return f"{self.prefix}/status"
+
+    @property
+    def state(self) -> str:
+        return f"{self.prefix}/state"
+
+    @property
+    def alarm(self) -> str:
+        return f"{self.prefix}/alarm"
+
+    @property
+    def commands(self) -> str:
+        """The subscription: every verb, one level (so ``cmd/<verb>/reply`` is not ours to read)."""
+        return f"{self.prefix}/cmd/+"
+
+    def command(self, verb: str) -> str:
+        return f"{self.prefix}/cmd/{verb}"
+
+    def reply(self, verb: str) -> str:
+        return f"{self.prefix}/cmd/{verb}/reply"
+
+    def progress(self, run_id: str) -> str:
+        return f"{self.prefix}/run/{_level(run_id, 'run id')}/progress"
+
+    def result(self, run_id: str) -> str:
+        return f"{self.prefix}/run/{_level(run_id, 'run id')}/result"
+
+
+@dataclass(frozen=True)
+class _Out:
+    topic: str
+    payload: str
+    qos: int
+    retain: bool = False
+
+
+def _level(value: str, what: str) -> str:
+    if not isinstance(value, str) or not value or any(c in value for c in _FORBIDDEN_IN_LEVEL):
+        raise MqttError(f"{what} {value!r}: must be a non-empty topic level without '/', '+', '#'")
+    return value
+
+
+def _dumps(value: Any, what: str) -> str:
+    try:
+        return json.dumps(value, separators=(",", ":"), allow_nan=False, ensure_ascii=False)
+    except (TypeError, ValueError) as exc:
+        raise MqttError(f"{what}: not JSON-serialisable: {exc}") from exc
+
+
+def _iso(ts: datetime) -> str:
+    return ts.astimezone(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def _now() -> str:
+    return _iso(datetime.now(UTC))
+
+
+class _LogOnce:
+    """Log each distinct problem once per key, and again only when it changes or after it was resolved."""
+
+    def __init__(self, logger: logging.Logger) -> None:
+        self._logger = logger
+        self._last: dict[str, str] = {}
+
+    def problem(self, key: str, message: str, *, level: int = logging.WARNING, exc_info: bool = False) -> None:
+        if self._last.get(key) != message:
+            self._last[key] = message
+            self._logger.log(level, "%s", message, exc_info=exc_info)
+
+    def resolved(self, key: str, message: str | None = None) -> None:
+        if self._last.pop(key, None) is not None and message:
+            self._logger.info("%s", message)
+
+
+def _tls_context(cfg: MqttConfig) -> ssl.SSLContext | None:
+    if not cfg.tls:
+        if cfg.tls_ca_file is not None:
+            raise ConfigError("mqtt.tls_ca_file is set but mqtt.tls is false")
+        return None
+    try:
+        return ssl.create_default_context(cafile=None if cfg.tls_ca_file is None else str(cfg.tls_ca_file))
+    except (OSError, ssl.SSLError) as exc:
+        raise ConfigError(f"mqtt.tls_ca_file {cfg.tls_ca_file}: cannot load CA certificates: {exc}") from exc
+
+
+class MqttBridge:
+    """Publishes the daemon's status, state, progress, alarms and (from the outbox) results; serves commands.
+
+    Construction validates everything and does no I/O (lesson 6). Times are in seconds.
+    """
+
+    def __init__(
+        self,
+        cfg: MqttConfig,
+        robot: str,
+        store: Store,
+        handler: CommandHandler,
+        version: str,
+        *,
+        timeout_s: float = 10.0,
+        command_timeout_s: float = 30.0,
+        outbox_sweep_s: float = 5.0,
+        queue_size: int = 1000,
+        stop_timeout_s: float | None = None,
+    ) -> None:
+        if cfg.reconnect_min_s > cfg.reconnect_max_s:
+            raise ConfigError("mqtt.reconnect_min_s must not exceed mqtt.reconnect_max_s")
+        if cfg.password is not None and cfg.username is None:
+            raise ConfigError("mqtt.password is set without mqtt.username")
+        for name, value in (
+            ("timeout_s", timeout_s),
+            ("command_timeout_s", command_timeout_s),
+            ("outbox_sweep_s", outbox_sweep_s),
+        ):
+            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+                raise ConfigError(f"mqtt bridge {name} {value!r}: must be a finite number > 0")
+        if queue_size < 1:
+            raise ConfigError(f"mqtt bridge queue_size {queue_size!r}: must be >= 1")
+        prefix = (cfg.prefix or f"rgse/{robot}").rstrip("/")
+        if not prefix:
+            raise ConfigError("mqtt.prefix: empty")
+        self._cfg = cfg
+        self._robot = robot
+        self._store = store
+        self._handler = handler
+        self._version = version
+        self._timeout_s = float(timeout_s)
+        self._command_timeout_s = float(command_timeout_s)
+        self._outbox_sweep_s = float(outbox_sweep_s)
+        self._queue_size = queue_size
+        # Connect (socket + CONNACK), offline publish and disconnect each take at most about timeout_s.
+        self._stop_timeout_s = 4 * self._timeout_s if stop_timeout_s is None else float(stop_timeout_s)
+        self._tls = _tls_context(cfg)
+        self._client_id = cfg.client_id or f"rgse-{robot}-{secrets.token_hex(4)}"
+        self.topics = Topics(prefix)
+        self.counters = MqttCounters()
+
+        self._state = ConnectionState.STOPPED
+        self._task: asyncio.Task[None] | None = None
+        self._stopping = asyncio.Event()
+        self._outbox_wake = asyncio.Event()
+        self._connected = False
+        # Latest state snapshot not yet sent: (sequence, snapshot).
+        self._state_pending: tuple[int, dict[str, Any]] | None = None
+        self._state_seq = 0
+        self._state_wake = asyncio.Event()
+        self._outq: collections.deque[_Out] = collections.deque()
+        self._outq_wake = asyncio.Event()
+        self._command_tasks: set[asyncio.Task[None]] = set()
+        self._log = _LogOnce(log)
+
+    # --- properties ----------------------------------------------------------------------------------------------
+    @property
+    def prefix(self) -> str:
+        return self.topics.prefix
+
+    @property
+    def connection_state(self) -> ConnectionState:
+        return self._state
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    def result_message(self, run_id: str) -> OutboxMessage:
+        """The outbox message under which a run's result is to be published (retained, QoS 1)."""
+        return OutboxMessage(self.topics.result(run_id), retained=True, qos=1)
+
+    # --- lifecycle ----------------------------------------------------------------------------------------------
+    async def start(self) -> None:
+        """Start the reconnect loop; returns at once (the first connection is made in the background)."""
+        if self._task is not None:
+            raise MqttError("mqtt bridge: already started")
+        self._stopping.clear()
+        self._task = asyncio.create_task(self._run(), name=f"mqtt-bridge {self.prefix}")
+
+    async def stop(self) -> None:
+        """Publish retained offline, disconnect, end the loop and the command tasks; bounded. Idempotent."""
+        task, self._task = self._task, None
+        self._stopping.set()
+        commands = list(self._command_tasks)
+        for t in commands:
+            t.cancel()
+        try:
+            if commands:
+                await asyncio.gather(*commands, return_exceptions=True)
+            if task is not None:
+                try:
+                    await asyncio.wait_for(asyncio.shield(task), self._stop_timeout_s)
+                except TimeoutError:
+                    log.warning("mqtt %s: no clean stop within %g s; cancelling", self.prefix, self._stop_timeout_s)
+        finally:
+            if task is not None and not task.done():
+                task.cancel()
+                await asyncio.gather(task, return_exceptions=True)
+            self._state = ConnectionState.STOPPED
+            self._connected = False
+
+    async def __aenter__(self) -> Self:
+        await self.start()
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.stop()
+
+    # --- publishing (non-blocking) ------------------------------------------------------------------------------
+    def publish_state(self, snapshot: dict[str, Any]) -> None:
+        """Offer the latest controller/interlock/link snapshot; sent retained at most ``state_rate_hz``.
+
+        Keeps only the newest: a snapshot replaced before it was sent counts in ``dropped_state``.
+        """
+        if not isinstance(snapshot, dict):
+            raise MqttError(f"state: a dict expected, got {type(snapshot).__name__}")
+        _dumps(snapshot, "state")  # refuse a bad snapshot here, at its source
+        if self._state_pending is not None:
+            self.counters.dropped_state += 1
+        self._state_seq += 1
+        self._state_pending = (self._state_seq, dict(snapshot))
+        self._state_wake.set()
+
+    def publish_progress(self, run_id: str, progress: dict[str, Any]) -> None:
+        """Progress of a run (step, loop i/n, eta); QoS 0, dropped (and counted) while disconnected."""
+        topic = self.topics.progress(run_id)
+        payload = _dumps(progress, f"progress of run {run_id}")
+        if not self._connected:
+            self.counters.dropped_progress += 1
+            return
+        self._enqueue(_Out(topic, payload, qos=0))
+
+    def publish_alarm(self, alarm: dict[str, Any]) -> None:
+        """An alarm (interlock trip, link loss, refused command); QoS 1, queued across outages (bounded).
+
+        ``time`` is added (UTC) unless given.
+        """
+        if not isinstance(alarm, dict):
+            raise MqttError(f"alarm: a dict expected, got {type(alarm).__name__}")
+        self._enqueue(_Out(self.topics.alarm, _dumps({"time": _now(), **alarm}, "alarm"), qos=1))
+
+    def notify_outbox(self) -> None:
+        """A row was added to the outbox: publish it now rather than at the next sweep."""
+        self._outbox_wake.set()
+
+    def _enqueue(self, out: _Out) -> None:
+        if len(self._outq) >= self._queue_size:
+            self.counters.dropped_messages += 1
+            self._log.problem("queue", f"mqtt {self.prefix}: outgoing queue full ({self._queue_size}); dropping")
+            return
+        self._outq.append(out)
+        self._outq_wake.set()
+
+    # --- the reconnect loop -------------------------------------------------------------------------------------
+    def _client(self) -> aiomqtt.Client:
+        will = aiomqtt.Will(
+            self.topics.status,
+            _dumps({"state": "offline", "version": self._version, "since": None}, "will"),
+            qos=1,
+            retain=True,
+        )
+        return aiomqtt.Client(
+            self._cfg.host,
+            self._cfg.port,
+            username=self._cfg.username,
+            password=self._cfg.password,
+            identifier=self._client_id,
+            logger=log.getChild("client"),
+            will=will,
+            clean_session=True,
+            keepalive=self._cfg.keepalive_s,
+            timeout=self._timeout_s,
+            tls_context=self._tls,
+            max_queued_incoming_messages=256,
+            max_queued_outgoing_messages=self._queue_size,
+        )
+
+    def _backoff_s(self, attempt: int) -> float:
+        lo, hi = self._cfg.reconnect_min_s, self._cfg.reconnect_max_s
+        return random.uniform(lo, min(hi, lo * 2.0 ** min(attempt, 30)))
+
+    async def _run(self) -> None:
+        attempt = 0
+        where = f"mqtt {self._cfg.host}:{self._cfg.port}"
+        while not self._stopping.is_set():
+            self._state = ConnectionState.CONNECTING
+            connected = False
+            try:
+                async with self._client() as client:
+                    connected = True
+                    attempt = 0
+                    self._log.resolved("connect", f"{where}: connected")
+                    await self._session(client)
+            except aiomqtt.MqttError as exc:
+                if connected:
+                    self._log.problem("connect", f"{where}: connection lost: {exc}")
+                else:
+                    self.counters.connect_failures += 1
+                    self._log.problem("connect", f"{where}: cannot connect: {exc}")
+            except (MqttError, StoreError, OSError) as exc:
+                self._log.problem("connect", f"{where}: {exc}")
+            except Exception as exc:  # a bug: keep the daemon's MQTT face alive, but say so loudly
+                self._log.problem(
+                    "unexpected", f"{where}: unexpected error: {exc!r}", level=logging.ERROR, exc_info=True
+                )
+            finally:
+                self._connected = False
+            if self._stopping.is_set():
+                break
+            self._state = ConnectionState.BACKOFF
+            delay = self._backoff_s(attempt)
+            attempt += 1
+            try:
+                await asyncio.wait_for(self._stopping.wait(), delay)
+            except TimeoutError:
+                pass
+        self._state = ConnectionState.STOPPED
+
+    async def _session(self, client: aiomqtt.Client) -> None:
+        """One connection: announce online, subscribe, run the workers until the connection ends or stop."""
+        self.counters.connects += 1
+        if self.counters.connects > 1:
+            self.counters.reconnects += 1
+        online = {"state": "online", "version": self._version, "since": _now()}
+        await self._publish(client, _Out(self.topics.status, _dumps(online, "status"), qos=1, retain=True))
+        await client.subscribe(self.topics.commands, qos=1, timeout=self._timeout_s)
+        self._connected = True
+        self._state = ConnectionState.CONNECTED
+        workers = [
+            asyncio.create_task(self._receive(client), name="mqtt receive"),
+            asyncio.create_task(self._send_queued(client), name="mqtt send"),
+            asyncio.create_task(self._send_state(client), name="mqtt state"),
+            asyncio.create_task(self._drain_outbox(client), name="mqtt outbox"),
+        ]
+        stop = asyncio.create_task(self._stopping.wait(), name="mqtt stop")
+        try:
+            done, _ = await asyncio.wait([*workers, stop], return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            self._connected = False
+            for t in (*workers, stop):
+                t.cancel()
+            await asyncio.gather(*workers, stop, return_exceptions=True)
+        for t in workers:
+            if t in done:
+                t.result()  # the connection ended: raises why (aiomqtt.MqttError)
+        # A clean stop: the will is discarded on DISCONNECT, so say offline ourselves first.
+        offline = {"state": "offline", "version": self._version, "since": _now()}
+        await self._publish(client, _Out(self.topics.status, _dumps(offline, "status"), qos=1, retain=True))
+
+    async def _publish(self, client: aiomqtt.Client, out: _Out) -> None:
+        try:
+            await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain, timeout=self._timeout_s)
+        except aiomqtt.MqttError:
+            self.counters.publish_errors += 1
+            raise
+        self.counters.published += 1
+
+    # --- session workers ----------------------------------------------------------------------------------------
+    async def _send_queued(self, client: aiomqtt.Client) -> None:
+        while True:
+            if not self._outq:
+                self._outq_wake.clear()
+                await self._outq_wake.wait()
+                continue
+            out = self._outq[0]
+            await self._publish(client, out)  # on failure the message stays first, for the next connection
+            self._outq.popleft()
+            self._log.resolved("queue")
+
+    async def _send_state(self, client: aiomqtt.Client) -> None:
+        period_s = 1.0 / self._cfg.state_rate_hz
+        while True:
+            if self._state_pending is None:
+                self._state_wake.clear()
+                await self._state_wake.wait()
+                continue
+            seq, snapshot = self._state_pending
+            payload = {
+                **snapshot,
+                "time": _now(),
+                "mqtt": {"connection": self._state.value, **self.counters.as_dict()},
+            }
+            await self._publish(client, _Out(self.topics.state, _dumps(payload, "state"), qos=1, retain=True))
+            self.counters.state_published += 1
+            if self._state_pending is not None and self._state_pending[0] == seq:
+                self._state_pending = None
+            await asyncio.sleep(period_s)  # the rate limit: newer snapshots meanwhile replace each other
+
+    async def _drain_outbox(self, client: aiomqtt.Client) -> None:
+        while True:
+            self._outbox_wake.clear()  # before reading: a row added from here on wakes the next round
+            try:
+                await self._publish_pending(client)
+                self._log.resolved("outbox", f"mqtt {self.prefix}: outbox drained again")
+            except StoreError as exc:
+                self._log.problem("outbox", f"mqtt {self.prefix}: outbox: {exc}")
+            try:
+                await asyncio.wait_for(self._outbox_wake.wait(), self._outbox_sweep_s)
+            except TimeoutError:
+                pass
+
+    async def _publish_pending(self, client: aiomqtt.Client) -> None:
+        while True:
+            rows = await self._store.pending_outbox(100)
+            if not rows:
+                self.counters.outbox_sweeps += 1
+                return
+            for row in rows:
+                try:
+                    await self._publish(client, _Out(row.topic, row.payload, qos=row.qos, retain=row.retained))
+                except aiomqtt.MqttError as exc:
+                    try:
+                        await self._store.record_publish_failure(row.id, str(exc) or type(exc).__name__)
+                    except StoreError as store_exc:
+                        self._log.problem("outbox", f"mqtt {self.prefix}: outbox: {store_exc}")
+                    raise
+                # Published (PUBACK) but not yet marked: a crash here re-publishes identical retained content.
+                await self._store.mark_published(row.id)
+                self.counters.outbox_published += 1
+
+    async def _receive(self, client: aiomqtt.Client) -> None:
+        prefix_len = len(self.prefix) + len("/cmd/")
+        async for message in client.messages:
+            verb = message.topic.value[prefix_len:]
+            payload = message.payload
+            if isinstance(payload, str):
+                payload = payload.encode()
+            elif not isinstance(payload, bytes | bytearray):
+                payload = b"" if payload is None else str(payload).encode()
+            self._dispatch(verb, bytes(payload))
+
+    # --- commands -----------------------------------------------------------------------------------------------
+    def _dispatch(self, verb: str, payload: bytes) -> None:
+        try:
+            cmd = parse_command(verb, payload, self._cfg.command_tokens)
+            if len(self._command_tasks) >= MAX_COMMANDS_IN_FLIGHT:
+                raise CommandRefused(verb, f"busy: {MAX_COMMANDS_IN_FLIGHT} commands in flight", cmd.request_id)
+        except CommandRefused as exc:
+            self._refuse(exc)
+            return
+        task = asyncio.create_task(self._run_command(cmd), name=f"mqtt cmd {verb} {cmd.request_id}")
+        self._command_tasks.add(task)
+        task.add_done_callback(self._command_tasks.discard)
+
+    def _refuse(self, exc: CommandRefused) -> None:
+        self.counters.refused_commands += 1
+        self._log.problem(f"refused {exc.verb}", f"mqtt {self.prefix}: refused command: {exc}")
+        reply = {"request_id": exc.request_id, "ok": False, "error": exc.problem}
+        # An unknown verb is still answered on its own reply topic: the sender listens there.
+        if all(c not in exc.verb for c in _FORBIDDEN_IN_LEVEL) and exc.verb:
+            self._enqueue(_Out(self.topics.reply(exc.verb), _dumps(reply, "reply"), qos=1))
+        self.publish_alarm(
+            {
+                "kind": "refused_command",
+                "message": "refused command",
+                "verb": exc.verb,
+                "request_id": exc.request_id,
+                "error": exc.problem,
+            }
+        )
+
+    async def _run_command(self, cmd: Command) -> None:
+        verb = cmd.VERB
+        self.counters.commands += 1
+        try:
+            async with asyncio.timeout(self._command_timeout_s):
+                result = await getattr(self._handler, verb)(cmd)
+            if not isinstance(result, dict):
+                raise MqttError(f"handler returned {type(result).__name__}, not a dict")
+            payload = _dumps({**result, "request_id": cmd.request_id, "ok": True}, f"reply to {verb}")
+        except TimeoutError:
+            self.counters.command_errors += 1
+            error = f"no answer from the daemon within {self._command_timeout_s:g} s; outcome unknown"
+            self._log.problem(f"command {verb}", f"mqtt {self.prefix}: cmd/{verb}: {error}")
+            payload = _dumps({"request_id": cmd.request_id, "ok": False, "error": error}, "reply")
+        except Exception as exc:
+            self.counters.command_errors += 1
+            error = str(exc) if isinstance(exc, RgseError) else f"{type(exc).__name__}: {exc}"
+            self._log.problem(
+                f"command {verb}",
+                f"mqtt {self.prefix}: cmd/{verb} failed: {error}",
+                exc_info=not isinstance(exc, RgseError),
+            )
+            payload = _dumps({"request_id": cmd.request_id, "ok": False, "error": error}, "reply")
+        self._enqueue(_Out(self.topics.reply(verb), payload, qos=1))

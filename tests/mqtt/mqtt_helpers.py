@@ -1,0 +1,239 @@
+"""Helpers of the MQTT tests: a private Mosquitto process, a collecting subscriber, a recording handler."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import signal
+import socket
+import subprocess
+import uuid
+from collections.abc import Callable
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self
+
+import aiomqtt
+import pytest
+
+from rgse_daemon.config import MqttConfig
+from rgse_daemon.io.commands import AbortCommand, CalibrateCommand, ConfirmCommand, MeasureCommand
+from rgse_daemon.store import ResultRecord, RunRecord, Store, archive_file_async, archive_root
+
+MOSQUITTO = "/usr/sbin/mosquitto"
+ROBOT = "KR500R2830-1234"
+
+
+async def port_open(host: str, port: int, timeout_s: float = 2.0) -> bool:
+    try:
+        _, writer = await asyncio.wait_for(asyncio.open_connection(host, port), timeout_s)
+    except (OSError, TimeoutError):
+        return False
+    writer.close()
+    await writer.wait_closed()
+    return True
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+async def wait_until(predicate: Callable[[], bool], what: str, timeout_s: float = 15.0) -> None:
+    """Poll ``predicate`` until true; fail naming ``what`` at the deadline (a hang guard, not a timing check)."""
+    async with asyncio.timeout(timeout_s):
+        while not predicate():  # noqa: ASYNC110 - counters and flags of the code under test have no event to await
+            await asyncio.sleep(0.02)
+    assert predicate(), what
+
+
+class MosquittoProcess:
+    """A Mosquitto of the test's own on a free loopback port, with persistence (retained messages survive restarts)."""
+
+    def __init__(self, directory: Path, extra_config: str = "") -> None:
+        self.dir = directory
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.port = free_port()
+        self.extra_config = extra_config
+        self.proc: asyncio.subprocess.Process | None = None
+
+    @property
+    def log_text(self) -> str:
+        path = self.dir / "mosquitto.log"
+        return path.read_text(errors="replace") if path.exists() else ""
+
+    async def start(self) -> None:
+        conf = self.dir / "mosquitto.conf"
+        conf.write_text(
+            f"listener {self.port} 127.0.0.1\n"
+            "user root\n"
+            "persistence true\n"
+            f"persistence_location {self.dir}/\n"
+            f"log_dest file {self.dir}/mosquitto.log\n"
+            "log_type all\n" + (self.extra_config or "allow_anonymous true\n")
+        )
+        self.proc = await asyncio.create_subprocess_exec(MOSQUITTO, "-c", str(conf), stdin=subprocess.DEVNULL)
+        async with asyncio.timeout(10):
+            while not await port_open("127.0.0.1", self.port):
+                if self.proc.returncode is not None:
+                    pytest.fail(f"mosquitto exited with {self.proc.returncode}: {self.log_text[-2000:]}")
+                await asyncio.sleep(0.05)
+
+    async def stop(self) -> None:
+        """SIGTERM (mosquitto writes its persistence file on the way out) and wait; SIGKILL after 10 s."""
+        proc, self.proc = self.proc, None
+        if proc is None:
+            return
+        if proc.returncode is None:
+            proc.send_signal(signal.SIGTERM)
+        try:
+            await asyncio.wait_for(proc.wait(), 10)
+        except TimeoutError:
+            proc.kill()
+            await asyncio.wait_for(proc.wait(), 10)
+
+
+class Collector:
+    """A real MQTT client subscribed to ``topics`` that keeps every message it receives, in order.
+
+    :meth:`sync` makes "everything published before now has arrived" observable without sleeping: it publishes
+    a sentinel to a topic of its own and waits for it to come back; the broker delivers in order.
+    """
+
+    def __init__(self, host: str, port: int, *topics: str, **client_kwargs: Any) -> None:
+        self._client = aiomqtt.Client(
+            host, port, identifier=f"collector-{uuid.uuid4().hex[:8]}", timeout=5, **client_kwargs
+        )
+        self._topics = topics
+        self._sentinel_topic = f"rgse-test-sentinel/{uuid.uuid4().hex}"
+        self._sentinels_seen: set[str] = set()
+        self.messages: list[aiomqtt.Message] = []
+        self._changed = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+
+    async def __aenter__(self) -> Self:
+        await self._client.__aenter__()
+        try:
+            for t in (*self._topics, self._sentinel_topic):
+                await self._client.subscribe(t, qos=1)
+        except BaseException:
+            await self._client.__aexit__(None, None, None)
+            raise
+        self._task = asyncio.create_task(self._collect(), name="collector")
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        assert self._task is not None
+        self._task.cancel()
+        await asyncio.gather(self._task, return_exceptions=True)
+        await self._client.__aexit__(exc_type, exc, tb)
+
+    async def _collect(self) -> None:
+        async for m in self._client.messages:
+            if m.topic.value == self._sentinel_topic:
+                self._sentinels_seen.add(bytes(m.payload).decode())  # type: ignore[arg-type]
+            else:
+                self.messages.append(m)
+            self._changed.set()
+
+    async def wait_for(
+        self, predicate: Callable[[list[aiomqtt.Message]], bool], what: str, timeout_s: float = 15.0
+    ) -> None:
+        async with asyncio.timeout(timeout_s):
+            while not predicate(self.messages):
+                self._changed.clear()
+                await self._changed.wait()
+        assert predicate(self.messages), what
+
+    async def sync(self, timeout_s: float = 10.0) -> None:
+        token = uuid.uuid4().hex
+        await self._client.publish(self._sentinel_topic, token, qos=1)
+        async with asyncio.timeout(timeout_s):
+            while token not in self._sentinels_seen:
+                self._changed.clear()
+                await self._changed.wait()
+
+    async def publish(self, topic: str, payload: bytes | str, qos: int = 1) -> None:
+        await self._client.publish(topic, payload, qos=qos)
+
+    def on(self, topic: str) -> list[aiomqtt.Message]:
+        return [m for m in self.messages if m.topic.value == topic]
+
+    def json_on(self, topic: str) -> list[Any]:
+        return [json.loads(m.payload) for m in self.on(topic)]  # type: ignore[arg-type]
+
+
+async def clear_retained(host: str, port: int, prefix: str) -> None:
+    """Remove the retained messages a test left under ``prefix`` on a shared broker."""
+    async with Collector(host, port, f"{prefix}/#") as c:
+        await c.sync()
+        topics = {m.topic.value for m in c.messages if m.retain and m.payload}
+        for topic in topics:
+            await c._client.publish(topic, b"", qos=1, retain=True)
+
+
+async def retained(host: str, port: int, topic_filter: str, **client_kwargs: Any) -> list[aiomqtt.Message]:
+    """What a fresh subscriber gets for ``topic_filter`` right after subscribing: the retained messages."""
+    async with Collector(host, port, topic_filter, **client_kwargs) as c:
+        await c.sync()
+        return list(c.messages)
+
+
+def mqtt_config(host: str, port: int, prefix: str | None, **overrides: Any) -> MqttConfig:
+    values: dict[str, Any] = {
+        "enabled": True,
+        "host": host,
+        "port": port,
+        "prefix": prefix,
+        "reconnect_min_s": 0.05,
+        "reconnect_max_s": 0.5,
+        "state_rate_hz": 50.0,
+    }
+    values.update(overrides)
+    return MqttConfig(**values)
+
+
+class RecordingHandler:
+    """The daemon's side of commands, recording what it was asked; ``fail`` makes every call raise it."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, Any]] = []
+        self.fail: Exception | None = None
+
+    async def _record(self, verb: str, cmd: Any) -> dict[str, Any]:
+        self.calls.append((verb, cmd))
+        if self.fail is not None:
+            raise self.fail
+        return {"accepted": True, "run_id": f"run-{len(self.calls)}"}
+
+    async def measure(self, cmd: MeasureCommand) -> dict[str, Any]:
+        return await self._record("measure", cmd)
+
+    async def calibrate(self, cmd: CalibrateCommand) -> dict[str, Any]:
+        return await self._record("calibrate", cmd)
+
+    async def abort(self, cmd: AbortCommand) -> dict[str, Any]:
+        return await self._record("abort", cmd)
+
+    async def confirm(self, cmd: ConfirmCommand) -> dict[str, Any]:
+        return await self._record("confirm", cmd)
+
+
+async def stored_result(
+    store: Store, data_dir: Path, tmp_path: Path, result_topic: Callable[[str], Any], mass_kg: float
+) -> tuple[RunRecord, ResultRecord]:
+    """A measurement run with one archived raw file and its result, recorded with an outbox message."""
+    run = await store.create_run("measurement", ROBOT, {"fixture_mass_kg": 10.288})
+    await store.set_run_state(run.id, "running")
+    src = tmp_path / "share" / f"{run.id}_NextGenDrive#3.r64"
+    src.parent.mkdir(exist_ok=True)
+    src.write_bytes(run.id.encode() * 64)
+    f = await archive_file_async(src, archive_root(data_dir) / run.directory, timeout_s=30)
+    await store.add_trace_file(run.id, f"{run.directory}/{src.name}", f.sha256, f.size)
+    result = {"mass_kg": mass_kg, "u_kg": 0.35, "U_kg": 0.70, "k": 2, "loops": 10, "warnings": []}
+    rec = await store.record_result(run.id, result, [f.sha256], publish=result_topic(run.id))
+    await store.set_run_state(run.id, "completed")
+    return run, rec
