@@ -32,7 +32,8 @@ Decisions where the public record is silent (said here, tested in ``tests/sim_e2
 * **Writing.** ``#T_WRITING`` lasts as long as the controller needs to write the files, modelled as
   ``write_rate_bytes_s`` (simulated bytes per second, settable at runtime). The file sets appear one module after
   the other, each file atomically (``tracefiles.write_trace_set``: temporary name, fsync, rename, data before
-  header); ``N_PROG.TXT`` first, holding the selected program's text if there is one. Only then ``#T_END``.
+  header; written in a staging folder beside the share and renamed into ``TRACE``, so that no temporary name is
+  ever listed there); ``N_PROG.TXT`` first, holding the selected program's text if there is one. Only then ``#T_END``.
 * ``$TRACE.MODE`` keeps the value last written (the trace's end does not write it back).
 """
 
@@ -41,7 +42,10 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
+import os
 import re
+import shutil
+import tempfile
 import time
 from collections import deque
 from collections.abc import Mapping
@@ -333,18 +337,68 @@ class TraceEngine:
         directory = self.trace_dir
         prog_text = self.source.program_text()
         written: list[Path] = []
-        for module in request.config.modules:
-            step = round(module.period_s / period_s)
-            channels = {ch: (np.asarray(v)[::step], unit) for ch, (v, unit) in samples[module.name].items()}
-            n_bytes = sum(v.nbytes for v, _ in channels.values())
-            await asyncio.sleep(n_bytes / self.write_rate_bytes_s / self.clock.time_scale)
-            async with asyncio.timeout(WRITE_DEADLINE_S):
-                written += await asyncio.to_thread(
-                    write_trace_set,
-                    directory,
-                    request.name,
-                    module.period_s,
-                    {module.name: channels},
-                    prog_text=prog_text if not written else None,
-                )
+        async with asyncio.timeout(WRITE_DEADLINE_S):
+            staging = await asyncio.to_thread(_make_staging, self.files.root.parent, directory)
+        try:
+            for module in request.config.modules:
+                step = round(module.period_s / period_s)
+                channels = {ch: (np.asarray(v)[::step], unit) for ch, (v, unit) in samples[module.name].items()}
+                n_bytes = sum(v.nbytes for v, _ in channels.values())
+                await asyncio.sleep(n_bytes / self.write_rate_bytes_s / self.clock.time_scale)
+                async with asyncio.timeout(WRITE_DEADLINE_S):
+                    written += await asyncio.to_thread(
+                        _write_module,
+                        staging,
+                        directory,
+                        request.name,
+                        module.period_s,
+                        {module.name: channels},
+                        prog_text if not written else None,
+                    )
+        finally:
+            if staging is not None:
+                shutil.rmtree(staging, ignore_errors=True)
         self.written[request.name] = written
+
+
+def _make_staging(parent: Path, directory: Path) -> Path | None:
+    """A private folder beside the share (same file system as ``directory``) to write trace files in before they
+    are renamed into ``TRACE``: the folder then never shows a temporary name. None if that is not possible (the
+    files are then written in ``TRACE`` itself, still atomically, via hidden temporary names)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=".krc4-trace-staging-", dir=parent))
+    except OSError:
+        return None
+    if staging.stat().st_dev != directory.stat().st_dev:
+        shutil.rmtree(staging, ignore_errors=True)
+        return None
+    return staging
+
+
+def _write_module(
+    staging: Path | None,
+    directory: Path,
+    name: str,
+    period_s: float,
+    modules: Modules,
+    prog_text: str | None,
+) -> list[Path]:
+    """Write one module's files (and ``N_PROG.TXT`` if given) into ``directory``; their final paths.
+
+    With a staging folder, every file is complete there first and then renamed into ``directory`` in the order
+    ``write_trace_set`` wrote them (data, .trc, then the .dat header).
+    """
+    if staging is None:
+        return write_trace_set(directory, name, period_s, modules, prog_text=prog_text)
+    final = []
+    for path in write_trace_set(staging, name, period_s, modules, prog_text=prog_text):
+        target = directory / path.name
+        os.replace(path, target)
+        final.append(target)
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    return final

@@ -177,7 +177,9 @@ async def test_files_appear_atomically_while_writing(sim: SimulatedKrc4, krc: Co
     snapshots: list[dict[str, bytes]] = []
     async with asyncio.timeout(DEADLINE_S):
         while await krc.read_raw("$TRACE.STATE") == "#T_WRITING":
-            snapshots.append(await pull_trace(krc, "atomic"))
+            listed = [base_name(e.name) for e in await krc.list_dir(TRACE_DIR)]
+            assert not [n for n in listed if n.startswith(".")], f"temporary names visible: {listed}"
+            snapshots.append({n: await krc.get_file(TRACE_DIR + n) for n in listed if n.startswith("atomic_")})
     final = await pull_trace(krc, "atomic")
     assert len(final) == 7 * 3  # no program selected: no N_PROG.TXT
     partial = [s for s in snapshots if 0 < len(s) < len(final)]
@@ -189,6 +191,7 @@ async def test_files_appear_atomically_while_writing(sim: SimulatedKrc4, krc: Co
                 assert file_name[:-4] + ".r64" in snap
     entries = [base_name(e.name) for e in await krc.list_dir(TRACE_DIR)]
     assert not [n for n in entries if n.startswith(".")], "temporary files left behind"
+    assert not list(sim.share_dir.parent.glob(".krc4-trace-staging-*")), "staging folder left behind"
     read_trace_set(save(final, tmp_path / "atomic"), "atomic")
 
 
