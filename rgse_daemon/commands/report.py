@@ -1,0 +1,55 @@
+"""``rgse report RUN_ID | --calibration ID [--out DIR] [--config FILE]``: the HTML report of a measurement run or
+of a calibration, from the configured store (see :mod:`rgse_daemon.report`). Prints the path written.
+
+Also runnable as ``python -m rgse_daemon.commands.report`` with the same arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from rgse_daemon.config import load_config
+from rgse_daemon.errors import ConfigError, DataError, RgseError
+from rgse_daemon.report import build_report
+from rgse_daemon.store import Repository
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse report`` (also used by ``python -m``)."""
+    p.add_argument("run_id", nargs="?", metavar="RUN_ID", help="a measurement run")
+    p.add_argument("--calibration", metavar="ID", help="report a calibration instead of a run")
+    p.add_argument("--out", type=Path, metavar="DIR", help="directory for the HTML file (default <data_dir>/reports)")
+    p.add_argument("--config", type=Path, metavar="FILE")
+
+
+def run(args: argparse.Namespace) -> int:
+    if (args.run_id is None) == (args.calibration is None):
+        raise DataError("give either RUN_ID or --calibration ID")
+    cfg = load_config(args.config)
+    data_dir = cfg.paths.data_dir
+    out_dir = args.out if args.out is not None else data_dir / "reports"
+    with Repository.open(cfg.store.url, data_dir) as repo:
+        path = build_report(repo, data_dir, out_dir, run_id=args.run_id, calibration_id=args.calibration)
+    print(path)
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m rgse_daemon.commands.report", description=__doc__)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except (ConfigError, DataError) as exc:
+        print(f"rgse report: error: {exc}", file=sys.stderr)
+        return 2
+    except RgseError as exc:
+        print(f"rgse report: failed: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

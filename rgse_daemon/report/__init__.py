@@ -1,0 +1,85 @@
+"""Plots and the HTML report of a measurement run or a calibration (one self-contained page).
+
+Public API
+----------
+``build_report(repo, data_dir, out_dir, run_id=... | calibration_id=...) -> Path``
+    Gathers from the store and the archive, checks (see below), renders and writes ``report-<id>.html``
+    atomically into ``out_dir``; returns its path.
+``load_measurement(repo, data_dir, run_id)`` / ``load_calibration(repo, data_dir, calibration_id)``
+    The checked views a page is drawn from (:mod:`.data`).
+``render_measurement(view, meta)`` / ``render_calibration(view, meta)``
+    The page as a string (:mod:`.page`); figures from :mod:`.plots`.
+``ReportConsistencyError``
+    A recomputation from the archived raw files disagrees with the store: no report is written.
+
+Every number comes from the store or is recomputed from the archived raw files with the pipeline code that made
+the stored result, and then asserted equal to it (file hashes, mass, u, U, sample counts, bias, K parameters).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from rgse_daemon.errors import DataError
+from rgse_daemon.report.data import (
+    CalibrationView,
+    MeasurementView,
+    ReportConsistencyError,
+    ReportMeta,
+    load_calibration,
+    load_measurement,
+    meta,
+)
+from rgse_daemon.report.page import render_calibration, render_measurement
+from rgse_daemon.store import Repository
+
+__all__ = [
+    "CalibrationView",
+    "MeasurementView",
+    "ReportConsistencyError",
+    "ReportMeta",
+    "build_report",
+    "load_calibration",
+    "load_measurement",
+    "render_calibration",
+    "render_measurement",
+    "write_atomic",
+]
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` via a temporary file in the same directory and a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".report-", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def build_report(repo: Repository, data_dir: Path, out_dir: Path, *, run_id: str | None = None,
+                 calibration_id: str | None = None) -> Path:
+    """Render the report of a measurement run or of a calibration into ``out_dir``; returns the file written."""
+    if (run_id is None) == (calibration_id is None):
+        raise DataError("report: give either a run id or a calibration id")
+    m = meta(repo)
+    if run_id is not None:
+        text = render_measurement(load_measurement(repo, Path(data_dir), run_id), m)
+        name = f"report-{run_id}.html"
+    else:
+        assert calibration_id is not None
+        text = render_calibration(load_calibration(repo, Path(data_dir), calibration_id), m)
+        name = f"report-calibration-{calibration_id}.html"
+    path = Path(out_dir) / name
+    try:
+        write_atomic(path, text)
+    except OSError as exc:
+        raise DataError(f"{path}: cannot write the report: {exc}") from exc
+    return path

@@ -1,0 +1,365 @@
+"""What a report shows, gathered from the store and the archived raw files, and checked before anything is drawn.
+
+Every number on a report page is either a value stored in the store (run, loops, trace files, result, calibration
+document, reference weighings) or a quantity recomputed from the archived raw files with the same pipeline code
+that produced the stored result. Recomputations are *checked*: the archived files must match their recorded
+SHA-256 and size, and the recomputed mass, uncertainty, sample counts (measurement) or bias and K parameters
+(calibration) must equal the stored ones. Any difference is a :class:`ReportConsistencyError` — a report that
+disagrees with its own record is never written.
+
+Store conventions the report relies on (what the daemon and ``tests/report/storefill.py`` write):
+
+* measurement run: ``loops`` with their ``trace_name``; each loop's ``.dat``/``.r64`` files indexed as trace files
+  with that ``loop_index`` (all files of a loop in one archive directory); one or more ``results`` (the newest is
+  reported), whose ``calibration_id`` is a stored calibration.
+* calibration run (``calibrations.run_id``): ``points`` whose ``spec`` holds ``kind``, ``mass_kg``,
+  ``lever_a3_m``, ``lever_a5_m`` (manifest ``[[point]]``); ``loops`` with ``point_index``; trace files as above.
+  A calibration without a run (fitted from a points CSV) is reported from its document alone.
+* reference weighings: events of kind :data:`rgse_daemon.reference.EVENT_KIND` (see :mod:`rgse_daemon.reference`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tempfile
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon import __version__, calfile
+from rgse_daemon import reference as ref
+from rgse_daemon.commands.mass import measure
+from rgse_daemon.errors import DataError, RgseError
+from rgse_daemon.manifest import Loop, read_loop
+from rgse_daemon.pipeline import calibration as cal_mod
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline.calibration import Calibration, CalibrationPoints
+from rgse_daemon.store import (
+    CalibrationRecord,
+    LoopRecord,
+    NotFound,
+    Repository,
+    ResultRecord,
+    RunKind,
+    RunRecord,
+    TraceFileRecord,
+    archive_root,
+    verify_file,
+)
+
+#: Stored and recomputed floats must agree to this relative tolerance (same code, same inputs: bit-identical in
+#: practice; the tolerance only absorbs a JSON round trip).
+REL_TOL = 1e-9
+
+#: ECSS-E-10-03C mass accuracy requirement, relative (±0.05 %).
+ECSS_MASS_REL = 0.0005
+
+#: Coverage factor of the error corridors drawn from a parameter covariance.
+BAND_K = 2.0
+
+
+class ReportConsistencyError(RgseError):
+    """A quantity recomputed from the archived raw files differs from the value the store holds."""
+
+
+# ------------------------------------------------------------------------------------------------------------
+# records
+# ------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class AxisProcessing:
+    """Fig. 22 of one loop and one axis: raw samples, what survived the settle cut and the crop, the filtered
+    series, and the loop mean (inner average of eq. 16)."""
+
+    time_s: np.ndarray
+    raw_nm: np.ndarray
+    kept_time_s: np.ndarray
+    kept_nm: np.ndarray
+    filtered_time_s: np.ndarray
+    filtered_nm: np.ndarray
+    loop_mean_nm: float
+    n_used: int
+    n_total: int
+
+
+@dataclass(frozen=True)
+class LoopView:
+    index: int
+    record: LoopRecord
+    period_s: float
+    a3: AxisProcessing
+    a5: AxisProcessing
+    gross_mass_kg: float | None
+    """Mass of this loop alone (eq. 21 on its normalised loop means, fixture included); measurement runs only."""
+
+
+@dataclass(frozen=True)
+class PointView:
+    """One calibration point recomputed from its archived loops."""
+
+    index: int
+    spec: dict[str, Any]
+    loop_indices: tuple[int, ...]
+    measured_a3_nm: float
+    measured_a5_nm: float
+    """Bias-normalised double averages (eq. 16 minus M_0)."""
+    expected_a3_nm: float
+    expected_a5_nm: float
+    mass_calc_kg: float
+    """Mass of the point by eq. 21 with the stored calibration."""
+    u_mass_cal_kg: float
+    """Standard uncertainty of that mass from the calibration's parameter covariance (linearised)."""
+
+
+@dataclass(frozen=True)
+class CalibrationView:
+    record: CalibrationRecord
+    document: dict[str, Any]
+    calibration: Calibration
+    preprocessing: pp.Preprocessing
+    run: RunRecord | None
+    points: list[PointView] = field(default_factory=list)
+    files: list[TraceFileRecord] = field(default_factory=list)
+    checks: list[str] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class MeasurementView:
+    run: RunRecord
+    result: ResultRecord
+    all_results: list[ResultRecord]
+    loops: list[LoopView]
+    files: list[TraceFileRecord]
+    calibration: CalibrationView
+    references: list[ref.ReferenceRecord]
+    working_a3_nm: float
+    working_a5_nm: float
+    """Normalised double averages of the run (eq. 16 minus M_0): the calibration's working point."""
+    checks: list[str]
+    events: list[Any]
+
+
+@dataclass(frozen=True)
+class ReportMeta:
+    software_version: str
+    generated_utc: datetime
+    store: str
+
+
+# ------------------------------------------------------------------------------------------------------------
+# helpers
+# ------------------------------------------------------------------------------------------------------------
+def calibration_from_document(doc: dict[str, Any], what: str) -> tuple[Calibration, pp.Preprocessing | None]:
+    """Validate a stored CAL.json document exactly as ``rgse mass`` reads the file (:func:`calfile.read`)."""
+    with tempfile.TemporaryDirectory(prefix="rgse-report-") as tmp:
+        path = Path(tmp) / f"{what}.json"
+        path.write_text(json.dumps(doc), encoding="utf-8")
+        try:
+            _, cal, pre = calfile.read(path)
+        except DataError as exc:
+            raise DataError(f"{what}: stored calibration document is invalid: {str(exc).split(': ', 1)[-1]}") from exc
+    return cal, pre
+
+
+def _same(a: float, b: float) -> bool:
+    return math.isclose(float(a), float(b), rel_tol=REL_TOL, abs_tol=1e-12)
+
+
+def _check(checks: list[str], what: str, stored: Any, recomputed: Any) -> None:
+    if isinstance(stored, float | int) and not isinstance(stored, bool) and isinstance(recomputed, float | int):
+        ok = _same(stored, recomputed)
+    else:
+        ok = stored == recomputed
+    if not ok:
+        raise ReportConsistencyError(f"{what}: the store holds {stored!r}, the archived raw files give {recomputed!r}")
+    checks.append(what)
+
+
+def _verify_files(root: Path, files: list[TraceFileRecord], checks: list[str], owner: str) -> None:
+    for f in files:
+        verify_file(root / f.path, f.sha256, f.size_bytes)  # ArchiveError names the file and the difference
+    checks.append(f"{owner}: {len(files)} archived file(s) match their recorded SHA-256 and size")
+
+
+def _loop_directory(root: Path, loop: LoopRecord, files: list[TraceFileRecord]) -> Path:
+    mine = [f for f in files if f.loop_index == loop.index]
+    if not mine:
+        raise DataError(f"run {loop.run_id} loop {loop.index} ({loop.trace_name}): no archived trace files")
+    dirs = {PurePosixPath(f.path).parent for f in mine}
+    if len(dirs) != 1:
+        raise DataError(f"run {loop.run_id} loop {loop.index}: trace files lie in several directories {sorted(dirs)}")
+    return root / str(dirs.pop())
+
+
+def axis_processing(values: np.ndarray, period_s: float, cfg: pp.Preprocessing) -> AxisProcessing:
+    """The stages of :func:`~rgse_daemon.pipeline.preprocess.filtered_rows` kept apart for plotting (Fig. 22)."""
+    x = np.asarray(values, float)
+    t = np.arange(x.size) * period_s
+    skip = round(cfg.settle_s / period_s)
+    xs, ts = x[skip:], t[skip:]
+    rows = pp.filtered_rows(x, period_s, cfg, np.array([cfg.window]))
+    if cfg.order == "backward":
+        kept = pp.crop_outliers(xs, cfg.crop_sigma)[0]
+        mask = np.isfinite(kept)
+        kept_t, kept_x = ts[mask], xs[mask]
+        filt_t, filt_x = kept_t, rows[0]
+    else:
+        mask = np.isfinite(rows[0])
+        kept_t, kept_x = ts[mask], xs[mask]
+        filt_t, filt_x = ts[mask], rows[0][mask]
+    loop = pp.process_loop(x, period_s, cfg)
+    return AxisProcessing(t, x, kept_t, kept_x, filt_t, filt_x, loop.torque_nm, loop.n_used, loop.n_total)
+
+
+def band_of_k(axis_k: cal_mod.AxisK, cov: np.ndarray, torque_nm: np.ndarray) -> np.ndarray:
+    """Standard deviation of K(M) from the axis's parameter covariance, linearised (central differences)."""
+    p0 = np.asarray(axis_k.params, float)
+    jac = np.empty((np.size(torque_nm), p0.size))
+    for j in range(p0.size):
+        h = 1e-6 * max(abs(p0[j]), 1e-6)
+        up, dn = p0.copy(), p0.copy()
+        up[j] += h
+        dn[j] -= h
+        jac[:, j] = (cal_mod._replace_params(axis_k, up).k(torque_nm) - cal_mod._replace_params(axis_k, dn).k(torque_nm)
+                     ) / (2 * h)
+    var = np.einsum("ij,jk,ik->i", jac, cov, jac)
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def mass_sigma_cal_kg(cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
+    """Standard uncertainty of eq. 21 from the full parameter covariance, linearised."""
+    p0 = cal.params
+    grad = np.empty(p0.size)
+    for j in range(p0.size):
+        h = 1e-6 * max(abs(p0[j]), 1e-6)
+        up, dn = p0.copy(), p0.copy()
+        up[j] += h
+        dn[j] -= h
+        grad[j] = (float(cal.with_params(up).mass_kg(torque_a3_nm, torque_a5_nm))
+                   - float(cal.with_params(dn).mass_kg(torque_a3_nm, torque_a5_nm))) / (2 * h)
+    return float(math.sqrt(max(float(grad @ np.asarray(cal.covariance) @ grad), 0.0)))
+
+
+# ------------------------------------------------------------------------------------------------------------
+# calibration
+# ------------------------------------------------------------------------------------------------------------
+def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> CalibrationView:
+    """A stored calibration; with its campaign run, the points recomputed from the archive and checked."""
+    try:
+        rec = repo.get_calibration(calibration_id)
+    except NotFound as exc:
+        raise DataError(str(exc)) from exc
+    doc = rec.document
+    cal, pre = calibration_from_document(doc, f"calibration {calibration_id}")
+    cfg = pre or pp.PAPER
+    checks: list[str] = [f"calibration {calibration_id}: document valid (schema {doc.get('schema')})"]
+    if rec.run_id is None:
+        return CalibrationView(rec, doc, cal, cfg, None, [], [], checks)
+    run = repo.get_run(rec.run_id)
+    specs = repo.points(run.id)
+    loops = repo.loops(run.id)
+    files = repo.trace_files(run.id)
+    if not specs:
+        return CalibrationView(rec, doc, cal, cfg, run, [], files, checks)
+    root = archive_root(data_dir)
+    _verify_files(root, files, checks, f"calibration run {run.id}")
+    raw3, raw5, loop_idx = [], [], []
+    for p in specs:
+        mine = [lp for lp in loops if lp.point_index == p.index]
+        if not mine:
+            raise DataError(f"calibration run {run.id} point {p.index}: no loops recorded")
+        l3, l5 = [], []
+        for lp in mine:
+            loop = read_loop(_loop_directory(root, lp, files), lp.trace_name)
+            l3.append(pp.process_loop(loop.torque_a3_nm, loop.period_s, cfg).torque_nm)
+            l5.append(pp.process_loop(loop.torque_a5_nm, loop.period_s, cfg).torque_nm)
+        raw3.append(pp.double_average_nm(l3))
+        raw5.append(pp.double_average_nm(l5))
+        loop_idx.append(tuple(lp.index for lp in mine))
+    kinds = np.array([str(p.spec.get("kind")) for p in specs])
+    zero = kinds == "zero"
+    if not zero.any():
+        raise DataError(f"calibration run {run.id}: no 'zero' point, so no bias M_0")
+    bias3, bias5 = float(np.array(raw3)[zero].mean()), float(np.array(raw5)[zero].mean())
+    _check(checks, "bias M_0 of A3 (Nm)", float(doc["bias_nm"]["A3"]), bias3)
+    _check(checks, "bias M_0 of A5 (Nm)", float(doc["bias_nm"]["A5"]), bias5)
+    mass = np.array([float(p.spec["mass_kg"]) for p in specs])
+    e3 = cal.g_m_s2 * mass * np.array([float(p.spec["lever_a3_m"]) for p in specs])
+    e5 = cal.g_m_s2 * mass * np.array([float(p.spec["lever_a5_m"]) for p in specs])
+    n3, n5 = pp.normalise(np.array(raw3), bias3), pp.normalise(np.array(raw5), bias5)
+    points = CalibrationPoints(kinds, mass, n3, n5, e3, e5)
+    refit = cal_mod.fit(points, cal.method, cal.g_m_s2, cal.lever_difference_m)
+    for name, stored, again in (("A3", cal.k_a3.params, refit.k_a3.params), ("A5", cal.k_a5.params, refit.k_a5.params)):
+        if stored.shape != again.shape or not np.allclose(stored, again, rtol=1e-7, atol=1e-12):
+            raise ReportConsistencyError(f"calibration {calibration_id}: K parameters of {name} refitted from the "
+                                         f"archived campaign are {again.tolist()}, the store holds {stored.tolist()}")
+    checks.append(f"K of A3 and A5 ({cal.method}) refitted from the archived campaign equals the stored parameters")
+    calc = np.asarray(cal.mass_kg(n3, n5), float)
+    views = [PointView(p.index, p.spec, loop_idx[i], float(n3[i]), float(n5[i]), float(e3[i]), float(e5[i]),
+                       float(calc[i]), mass_sigma_cal_kg(cal, float(n3[i]), float(n5[i])))
+             for i, p in enumerate(specs)]
+    return CalibrationView(rec, doc, cal, cfg, run, views, files, checks)
+
+
+# ------------------------------------------------------------------------------------------------------------
+# measurement
+# ------------------------------------------------------------------------------------------------------------
+def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> MeasurementView:
+    """A measurement run with its newest result, recomputed from the archived loops and checked against it."""
+    try:
+        run = repo.get_run(run_id)
+    except NotFound as exc:
+        raise DataError(str(exc)) from exc
+    if run.kind != RunKind.MEASUREMENT:
+        raise DataError(f"run {run_id} is a {run.kind.value} run; report its calibration with --calibration ID")
+    results = repo.results(run_id)
+    if not results:
+        raise DataError(f"run {run_id}: no result stored (state {run.state.value}); nothing to report")
+    result = results[-1]
+    res = result.result
+    cal_id = res.get("calibration_id")
+    if not isinstance(cal_id, str):
+        raise DataError(f"run {run_id} result {result.id}: names no calibration_id")
+    calv = load_calibration(repo, data_dir, cal_id)
+    cal, cfg, doc = calv.calibration, calv.preprocessing, calv.document
+    loops = repo.loops(run_id)
+    files = repo.trace_files(run_id)
+    if not loops:
+        raise DataError(f"run {run_id}: no loops recorded")
+    root = archive_root(data_dir)
+    checks: list[str] = []
+    _verify_files(root, files, checks, f"run {run_id}")
+    stored_inputs = set(result.trace_sha256)
+    loop_shas = {f.sha256 for f in files if f.loop_index is not None}
+    if not loop_shas <= stored_inputs:
+        raise ReportConsistencyError(f"run {run_id} result {result.id}: loop trace files not among its inputs")
+    raw: list[Loop] = [read_loop(_loop_directory(root, lp, files), lp.trace_name) for lp in loops]
+    fixture = float(res.get("fixture_mass_kg", 0.0))
+    again = measure(raw, cal, doc, cfg, fixture).to_json()
+    for key in ("mass_kg", "u_kg", "U_kg", "gross_mass_kg", "fixture_mass_kg", "loops", "samples_used",
+                "samples_total", "calibration_id", "method"):
+        if key in res:
+            _check(checks, f"result {key}", res[key], again[key])
+    bias3, bias5 = float(doc["bias_nm"]["A3"]), float(doc["bias_nm"]["A5"])
+    views, t3, t5 = [], [], []
+    for lp, loop in zip(loops, raw, strict=True):
+        a3 = axis_processing(loop.torque_a3_nm, loop.period_s, cfg)
+        a5 = axis_processing(loop.torque_a5_nm, loop.period_s, cfg)
+        t3.append(a3.loop_mean_nm)
+        t5.append(a5.loop_mean_nm)
+        gross = float(cal.mass_kg(pp.normalise(a3.loop_mean_nm, bias3), pp.normalise(a5.loop_mean_nm, bias5)))
+        views.append(LoopView(lp.index, lp, loop.period_s, a3, a5, gross))
+    w3 = float(pp.normalise(pp.double_average_nm(t3), bias3))
+    w5 = float(pp.normalise(pp.double_average_nm(t5), bias5))
+    _check(checks, "gross mass from the plotted loop means (eq. 16, eq. 21)",
+           res.get("gross_mass_kg", again["gross_mass_kg"]), float(cal.mass_kg(w3, w5)))
+    refs = ref.references(repo, run_id)
+    return MeasurementView(run, result, results, views, files, calv, refs, w3, w5, checks,
+                           repo.events(run_id=run_id))
+
+
+def meta(repo: Repository) -> ReportMeta:
+    return ReportMeta(__version__, datetime.now(UTC), repo.description)
