@@ -1,0 +1,294 @@
+"""The calibration campaign (paper Fig. 23, Table 1) as a resumable plan.
+
+Points: the zero point (empty MPA: the bias M_0), n = 1…10 calibration bodies (mass-based), and the torque-based
+points (test adapter with the bodies on a longer lever). For each point the operator mounts the configuration and
+confirms (a ``Confirm`` message, answered by CLI/MQTT ``confirm``); then ``loops`` × (brake-release move → settle →
+trace → pull → archive). Each point's state is stored, so the campaign **survives a daemon restart**: started again
+on the same run, it skips finished points and measures the first incomplete one anew (its earlier, partial loops are
+marked ``failed`` and left out of the manifest). At the end it writes the campaign ``manifest.toml`` and fits the
+calibration **by the same code as** ``rgse calibrate --campaign DIR`` (:func:`fit_campaign`), stores it and makes it
+the robot's active calibration.
+
+::
+
+    cal = await run_calibration(engine, store, cfg, points=table1_points())             # a new campaign
+    cal = await run_calibration(engine, store, cfg, points=..., run_id=interrupted_id)   # continue after a restart
+"""
+
+from __future__ import annotations
+
+import secrets
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+from rgse_daemon import calfile
+from rgse_daemon import kinematics as kin
+from rgse_daemon.commands.calibrate import _rel_rms, campaign_points, fit_and_describe, load_campaign
+from rgse_daemon.config import Config
+from rgse_daemon.errors import DataError
+from rgse_daemon.io.modbus import SafetyInputs
+from rgse_daemon.manifest import source_sha256
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.common import (
+    LoopOutcome,
+    RunSettings,
+    axes_of,
+    close_run,
+    loop,
+    prepare,
+    program,
+    run_checked,
+    run_directory,
+    setup_toml,
+    traces_toml,
+    verify_start,
+    write_text_durably,
+)
+from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.measurement import result_topic
+from rgse_daemon.store import LoopState, OutboxMessage, PointState, RunKind, RunState, Store
+from rgse_daemon.store.errors import StoreConflict
+
+CALIBRATION_FILE = "CAL.json"
+
+# Paper constants of the calibration equipment (§2.4.2–2.4.3, Table 1, Table A1).
+CB_MASS_KG = 20.93
+"""One calibration body."""
+ZERO_LEVER_A5_M = 0.265
+"""Effective lever of the empty MPA's CoG to A5 in the measurement pose (Table 1 '0 (MPA)' row)."""
+STACK_LEVER_A5_M = 0.275
+STACK_STEP_M = 0.0075
+"""Effective A5 lever of n stacked bodies: 0.275 + 0.0075·n m (Table 1's printed levers − 0.020 m)."""
+TA_MASS_KG = 19.20
+TA_TORQUE_A5_NM = 217.95
+"""The test adapter: Table 1's 228.51 kg − 10 bodies, its A5 torque in the measurement pose from Table A1."""
+TORQUE_LEVERS_A5_M = (0.761, 1.011, 1.261)
+"""Where the bodies' common CoG sits on the test adapter's rail for the three torque-based points."""
+
+
+@dataclass(frozen=True)
+class CampaignPoint:
+    """One load configuration: a manifest ``[[point]]`` plus what the operator mounts (``n_cb`` bodies, on the test
+    adapter at ``cb_lever_a5_m`` for a torque point)."""
+
+    kind: str
+    mass_kg: float
+    lever_a3_m: float
+    lever_a5_m: float
+    n_cb: int
+    cb_lever_a5_m: float | None = None
+
+    @property
+    def label(self) -> str:
+        if self.kind == "zero":
+            return "empty MPA"
+        if self.kind == "mass":
+            return f"{self.n_cb} calibration bod{'y' if self.n_cb == 1 else 'ies'} on the MPA"
+        return f"test adapter with {self.n_cb} calibration bodies at {self.cb_lever_a5_m:.3f} m from A5"
+
+    def spec(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_spec(cls, spec: dict[str, Any]) -> CampaignPoint:
+        return cls(**spec)
+
+
+def mass_point(n_cb: int, dr_m: float = kin.D4_M) -> CampaignPoint:
+    """MPA + ``n_cb`` stacked bodies (n = 0: the zero point)."""
+    if n_cb == 0:
+        return CampaignPoint("zero", 0.0, ZERO_LEVER_A5_M + dr_m, ZERO_LEVER_A5_M, 0)
+    lever_a5 = STACK_LEVER_A5_M + STACK_STEP_M * n_cb
+    return CampaignPoint("mass", CB_MASS_KG * n_cb, lever_a5 + dr_m, lever_a5, n_cb)
+
+
+def torque_point(cb_lever_a5_m: float, n_cb: int = 10, g_m_s2: float = kin.G_PAPER_M_S2,
+                 dr_m: float = kin.D4_M) -> CampaignPoint:
+    """Test adapter + ``n_cb`` bodies at ``cb_lever_a5_m``: mass and effective lever of the combined load."""
+    ta_lever_a5 = TA_TORQUE_A5_NM / (g_m_s2 * TA_MASS_KG)
+    mass = TA_MASS_KG + CB_MASS_KG * n_cb
+    lever_a5 = (TA_MASS_KG * ta_lever_a5 + CB_MASS_KG * n_cb * cb_lever_a5_m) / mass
+    return CampaignPoint("torque", mass, lever_a5 + dr_m, lever_a5, n_cb, cb_lever_a5_m)
+
+
+def table1_points(n_bodies: Sequence[int] = range(0, 11),
+                  torque_levers_a5_m: Sequence[float] = TORQUE_LEVERS_A5_M) -> list[CampaignPoint]:
+    """The paper's campaign (Table 1): zero, 1…10 bodies, three torque points; pass subsets for short campaigns."""
+    pts = [mass_point(n) for n in n_bodies]
+    if not any(p.kind == "zero" for p in pts):
+        pts.insert(0, mass_point(0))
+    return pts + [torque_point(lever) for lever in torque_levers_a5_m]
+
+
+# --- the offline path ---------------------------------------------------------------------------------------------
+def fit_campaign(directory: Path, method: str = "auto") -> tuple[dict[str, Any], dict[str, Any]]:
+    """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --json`` as a function: the same calls in the
+    same order (commands/calibrate.py ``run``, campaign branch). Returns (CAL.json document, the JSON summary)."""
+    data = load_campaign(directory)
+    pre = pp.PAPER
+    points, bias3, bias5 = campaign_points(data, pre)
+    g, dr, robot = data.manifest.setup.g_m_s2, data.manifest.setup.lever_difference_m, data.manifest.setup.robot
+    sources = source_sha256(data.files)
+    try:
+        cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
+    except DataError as exc:
+        raise DataError(f"{directory}: {exc}") from exc
+    doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
+                        in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
+                        loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
+                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": _rel_rms(points, chosen)})
+    calfile.write(directory / CALIBRATION_FILE, doc)
+    summary = {
+        "calibration_id": doc["calibration_id"],
+        "method": cal.method,
+        "in_sample_mean_abs_err_pct": chosen.in_sample_mean_abs_err_pct,
+        "loo_mean_abs_err_pct": chosen.loo_mean_abs_err_pct,
+        "loo_max_abs_err_kg": chosen.loo_max_abs_err_kg,
+        "points": len(points),
+        "r2": cal.r2,
+        "models": [{"method": e.method, "in_sample_mean_abs_err_pct": e.in_sample_mean_abs_err_pct,
+                    "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg,
+                    "n_params": e.n_params} for e in evaluations],
+    }
+    return doc, summary
+
+
+def write_campaign_manifest(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, list[str]]]) -> None:
+    lines = setup_toml(s)
+    for p, traces in points:
+        lines += ["[[point]]", f'kind = "{p.kind}"', f"mass_kg = {p.mass_kg!r}", f"lever_a3_m = {p.lever_a3_m!r}",
+                  f"lever_a5_m = {p.lever_a5_m!r}", traces_toml(traces), ""]
+    run_dir.mkdir(parents=True, exist_ok=True)
+    write_text_durably(run_dir / "manifest.toml", "\n".join(lines))
+
+
+def _finish(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, list[str]]],
+            method: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    write_campaign_manifest(run_dir, s, points)
+    return fit_campaign(run_dir, method)
+
+
+# --- the plan ---------------------------------------------------------------------------------------------------------
+def campaign_plan(
+    store: Store,
+    run_id: str,
+    run_dir: Path,
+    archive: Path,
+    s: RunSettings,
+    *,
+    method: str = "auto",
+    inputs: Callable[[], SafetyInputs] | None = None,
+    result_topic: str | None = None,
+) -> m.Plan:
+    """The campaign as a plan over the points stored for ``run_id`` (see the module docstring); returns the
+    calibration summary (None in a dry run)."""
+    records = yield m.Call("campaign points", store.points, (run_id,), dry_run_safe=True)
+    loops_before = yield m.Call("campaign loops", store.loops, (run_id,), dry_run_safe=True)
+    next_index = 1 + max((lp.index for lp in loops_before), default=0)
+    session = secrets.token_hex(2)  # new trace names on every (re)start: raw files are never replaced
+    prepared = False
+    n = len(records)
+    for rec in records:
+        point = CampaignPoint.from_spec(rec.spec)
+        if rec.state == PointState.DONE:
+            continue
+        yield m.Checkpoint(f"point {rec.index}")
+        yield m.Emit(Event("step", f"point {rec.index + 1}/{n}: {point.label}", step="point",
+                           data={"point_index": rec.index, **point.spec()}))
+        yield m.Confirm(f"mount {point.label} (point {rec.index + 1}/{n}) and confirm",
+                        data={"point_index": rec.index, **point.spec()})
+        for lp in loops_before:  # an earlier attempt at this point (daemon stopped): superseded
+            if lp.point_index == rec.index and lp.state != LoopState.FAILED:
+                yield m.Call("supersede loop", store.update_loop, (run_id, lp.index), {"state": LoopState.FAILED})
+        yield m.Call("point measuring", store.set_point_state, (run_id, rec.index, PointState.MEASURING))
+        if not prepared:
+            yield from prepare(s, inputs)
+            prepared = True
+        else:  # a new load was mounted: verify again and return to the measurement pose
+            snap = yield from verify_start(inputs)
+            yield from run_checked(program("rgse_meas_pose", s, axes_of(snap, s.meas_pose_deg)), s)
+        outcomes: list[LoopOutcome] = []
+        for j in range(1, s.loops + 1):
+            yield m.Checkpoint(f"point {rec.index} loop {j}")
+            trace = f"cal{rec.index:02d}_{session}_l{j:02d}"
+            out = yield from loop(store, run_id, run_dir, archive, next_index, trace, s, point_index=rec.index)
+            next_index += 1
+            outcomes.append(out)
+            yield m.Emit(Event("loop", f"point {rec.index + 1}/{n} loop {j}/{s.loops} done", step="loop",
+                               loop_index=j, loop_count=s.loops, data={"point_index": rec.index,
+                                                                       **out.timing.to_json()}))
+        yield m.Call("point done", store.set_point_state, (run_id, rec.index, PointState.DONE))
+    # every point done: the campaign directory from the stored loops (this session's and earlier ones)
+    records = yield m.Call("campaign points", store.points, (run_id,), dry_run_safe=True)
+    loops_all = yield m.Call("campaign loops", store.loops, (run_id,), dry_run_safe=True)
+    if records is None or loops_all is None:
+        return None
+    used = [lp for lp in loops_all if lp.state == LoopState.ARCHIVED]
+    manifest_points = [
+        (CampaignPoint.from_spec(r.spec), [lp.trace_name for lp in used if lp.point_index == r.index]) for r in records
+    ]
+    yield m.Emit(Event("step", "fitting the calibration (offline path)", step="compute"))
+    t0 = time.monotonic()
+    fitted = yield m.Process("fit calibration", _finish, (run_dir, s, manifest_points, method))
+    if fitted is None:
+        return None
+    doc, summary = fitted
+    files = yield m.Call("trace files", store.trace_files, (run_id,))
+    used_idx = {lp.index for lp in used}
+    shas = sorted({f.sha256 for f in files if f.loop_index in used_idx})
+    yield m.Call("store calibration", store.add_calibration, (doc,), {"run_id": run_id, "activate": True})
+    summary = {**summary, "run_id": run_id, "robot": s.robot, "trace_sha256": shas,
+               "compute_s": time.monotonic() - t0}
+    publish = OutboxMessage(result_topic) if result_topic else None
+    yield m.Call("record result", store.record_result, (run_id, summary, shas), {"publish": publish})
+    yield m.Emit(Event("result", f"calibration {doc['calibration_id']} ({summary['method']}) active",
+                       step="result", data=summary))
+    return summary
+
+
+async def run_calibration(
+    engine: RunEngine,
+    store: Store,
+    cfg: Config,
+    *,
+    points: Sequence[CampaignPoint] | None = None,
+    settings: RunSettings | None = None,
+    method: str = "auto",
+    run_id: str | None = None,
+    inputs: Callable[[], SafetyInputs] | None = None,
+) -> dict[str, Any] | None:
+    """Start a campaign over ``points`` (default: Table 1), or continue run ``run_id`` (its stored points win).
+
+    The run's state records the end: completed, failed, aborted, or interrupted when this task is cancelled (daemon
+    shutdown) — then call again with the same ``run_id`` to continue at the first incomplete point.
+    """
+    s = settings or RunSettings.from_config(cfg)
+    if run_id is None:
+        pts = list(points) if points is not None else table1_points()
+        run = await store.create_run(RunKind.CALIBRATION, s.robot, {"settings": s.to_json(), "method": method})
+        await store.add_points(run.id, [p.spec() for p in pts])
+    else:
+        run = await store.get_run(run_id)
+        if run.kind != RunKind.CALIBRATION or run.robot != s.robot:
+            raise StoreConflict(f"run {run_id}: not a calibration campaign of robot {s.robot}")
+        if run.state not in (RunState.INTERRUPTED, RunState.QUEUED, RunState.RUNNING):
+            raise StoreConflict(f"run {run_id}: is {run.state.value}, cannot continue")
+    archive, run_dir = run_directory(cfg.paths.data_dir, run.directory)
+    await store.set_run_state(run.id, RunState.RUNNING)
+    error: BaseException | None = None
+    try:
+        return await engine.run(
+            campaign_plan(store, run.id, run_dir, archive, s, method=method, inputs=inputs,
+                          result_topic=result_topic(cfg, run.id)),
+            run_id=run.id,
+        )
+    except BaseException as exc:
+        error = exc
+        raise
+    finally:
+        await close_run(store, run.id, error)

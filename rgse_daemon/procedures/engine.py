@@ -1,0 +1,427 @@
+"""The run engine: executes plans (generators of :mod:`~rgse_daemon.procedures.messages`) against the controller.
+
+::
+
+    engine = RunEngine(krc, checker=static_checker(cfg), monitor=Monitor(krc), share_dir=cfg.controller.share_dir)
+    engine.subscribe(lambda ev: queue.put_nowait(ev))          # progress, alarms, confirm prompts, results
+    result = await engine.run(measurement_plan(...), run_id=run.id)
+    engine.pause(); engine.resume(); engine.abort("operator"); engine.confirm()   # from CLI/MQTT commands
+
+What the engine guarantees, whatever the plan does (bluesky's RunEngine + ``finalize_wrapper``, architecture
+lessons 1–3):
+
+* **Finaliser.** Every plan runs inside :func:`finalize_wrapper` with :func:`make_safe`: stop the trace if one is
+  armed or recording, stop the program, leave the robot holding still — on success, error, abort, interlock trip or
+  task cancellation. Each cleanup step has a deadline; a cleanup error is logged and never masks the plan's error.
+* **Interlock.** A :class:`~rgse_daemon.safety.monitor.Monitor` polls while the plan runs (not in a dry run). A trip
+  stops program and trace at once, publishes an ``alarm`` event and fails the plan with
+  :class:`~rgse_daemon.safety.monitor.InterlockTrip`, interrupting whatever message was executing.
+* **Static check before motion.** ``Push`` runs the checker (the interlock's static check against the live
+  snapshot) and refuses before a byte reaches the controller; a refusal is an ``alarm`` too.
+* **Pause/resume** take effect at ``Checkpoint`` messages (robot still, nothing recording); **abort** interrupts
+  at once with :class:`PlanAborted` (then the finaliser runs); cancelling the task does the same and re-raises.
+* **Dry run:** messages are logged and checked (``Push`` still runs the static check on the live state), nothing
+  is sent; replies are ``None`` for acting messages.
+* Every wait on the outside world has a deadline; ``CancelledError`` is never swallowed.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable, Generator
+from pathlib import Path
+from typing import Any
+
+from rgse_daemon.controller import Controller, Snapshot
+from rgse_daemon.errors import InterlockError, LinkError, RgseError
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.events import Event, Subscriber
+from rgse_daemon.procedures.retrieval import TRACE_DIR, pull_trace
+from rgse_daemon.safety.monitor import TRACE_ACTIVE_STATES, Expect, InterlockTrip, Monitor
+
+_log = logging.getLogger(__name__)
+
+#: Where the daemon's programs go on the controller.
+PROGRAM_DIR = "KRC:\\R1\\PROGRAM\\"
+#: Deadline of each step of the finaliser (s).
+CLEANUP_TIMEOUT_S = 5.0
+#: Deadline of single requests the engine sends (select, start, write) (s).
+REQUEST_TIMEOUT_S = 10.0
+#: How often waits poll the controller (s).
+WAIT_POLL_S = 0.02
+
+ProgramChecker = Callable[[m.Program, Snapshot], None]
+"""Raise :class:`InterlockError` if ``program`` may not run in the state ``snapshot`` shows."""
+
+
+class PlanAborted(RgseError):
+    """The plan was aborted (operator, MQTT ``abort``); the finaliser ran."""
+
+
+class StepTimeout(RgseError):
+    """A controller wait (program end, trace written, operator confirmation) passed its deadline."""
+
+
+class ProgramStopped(RgseError):
+    """The program stopped (``#P_STOP``) or was reset while the plan waited for its end."""
+
+
+# --- plan helpers ---------------------------------------------------------------------------------------------------
+def make_safe() -> m.Plan:
+    """The finaliser: stop the trace, stop the program. Each step is independent: a failure is logged and the next
+    step still runs (a cleanup error must not hide the cause, and must not leave the program running)."""
+    for msg in (m.TraceStop(), m.StopProgram()):
+        try:
+            yield msg
+        except Exception as exc:
+            _log.error("finaliser: %s failed: %r", msg.describe(), exc)
+
+
+def finalize_wrapper(plan: m.Plan, final: Callable[[], m.Plan] = make_safe) -> m.Plan:
+    """Run ``plan``; then, however it ended, ``final()`` (bluesky's ``finalize_wrapper``). Returns the plan's value."""
+    try:
+        result = yield from plan
+    finally:
+        yield from final()
+    return result
+
+
+def run_program(program: m.Program, timeout_s: float) -> Generator[m.Msg, Any, tuple[float, float]]:
+    """Push (static check first), select, start and wait for ``#P_END``. Returns (start time, robot time in s):
+    the time from the start command until the controller reported the end (motion and the program's own waits)."""
+    name = yield m.Push(program)
+    yield m.Select(name if name is not None else PROGRAM_DIR + program.name.upper() + ".SRC")
+    t_start = yield m.Start()
+    reply = yield m.WaitProgram(frozenset({"P_END"}), timeout_s)
+    waited_s = reply[1] if reply is not None else 0.0
+    return (t_start or 0.0), waited_s
+
+
+# --- the engine -------------------------------------------------------------------------------------------------------
+class RunEngine:
+    """Executes one plan at a time; see the module docstring."""
+
+    def __init__(
+        self,
+        krc: Controller,
+        *,
+        checker: ProgramChecker,
+        monitor: Monitor | None = None,
+        dry_run: bool = False,
+        share_dir: Path | None = None,
+        trace_dir: str = TRACE_DIR,
+    ) -> None:
+        if monitor is None and not dry_run:
+            raise InterlockError("a run engine that may move the robot needs the runtime monitor")
+        self.krc = krc
+        self.checker = checker
+        self.monitor = monitor
+        self.dry_run = dry_run
+        self.share_dir = share_dir
+        self.trace_dir = trace_dir
+        self.run_id: str | None = None
+        self.state = "idle"
+        self._subscribers: list[Subscriber] = []
+        self._resume = asyncio.Event()
+        self._resume.set()
+        self._confirm = asyncio.Event()
+        self._confirm_note = ""
+        self._current: asyncio.Task[Any] | None = None
+        self._interrupt: BaseException | None = None
+        self._trace_armed = False
+        self._running = False
+
+    # --- control from outside (CLI, MQTT) -----------------------------------------------------------------------
+    def subscribe(self, subscriber: Subscriber) -> Callable[[], None]:
+        """Call ``subscriber(event)`` for every event; returns a function that unsubscribes."""
+        self._subscribers.append(subscriber)
+        return lambda: self._subscribers.remove(subscriber) if subscriber in self._subscribers else None
+
+    def pause(self) -> None:
+        """Pause at the next checkpoint."""
+        self._resume.clear()
+
+    def resume(self) -> None:
+        self._resume.set()
+
+    def abort(self, reason: str = "aborted") -> None:
+        """Interrupt the running message now; the finaliser runs and :meth:`run` raises :class:`PlanAborted`."""
+        self._deliver(PlanAborted(reason))
+
+    def confirm(self, note: str = "") -> None:
+        """The operator confirms the pending :class:`~messages.Confirm` (e.g. 'calibration body 3 mounted')."""
+        self._confirm_note = note
+        self._confirm.set()
+
+    @property
+    def waiting_for_confirmation(self) -> bool:
+        return self.state == "confirm"
+
+    # --- events -------------------------------------------------------------------------------------------------
+    def emit(self, event: Event) -> None:
+        if event.run_id is None and self.run_id is not None:
+            event = Event(**{**event.__dict__, "run_id": self.run_id})
+        for sub in list(self._subscribers):
+            try:
+                sub(event)
+            except Exception:
+                _log.exception("event subscriber %r failed", sub)
+
+    def _set_state(self, state: str) -> None:
+        self.state = state
+        self.emit(Event("state", state, data={"state": state}))
+
+    # --- running a plan -----------------------------------------------------------------------------------------
+    async def run(self, plan: m.Plan, *, run_id: str | None = None) -> Any:
+        """Execute ``plan`` inside the finaliser; returns its value or raises what failed it."""
+        if self._running:
+            raise RgseError("the engine already runs a plan")
+        self._running = True
+        self.run_id = run_id
+        self._interrupt = None
+        self._trace_armed = False
+        self._set_state("running")
+        outcome = "failed"
+        try:
+            if self.monitor is not None and not self.dry_run:
+                self.monitor.expect(Expect.IDLE)
+                async with self.monitor.running(self._on_trip):
+                    result = await self._drive(finalize_wrapper(plan))
+            else:
+                result = await self._drive(finalize_wrapper(plan))
+            outcome = "done"
+            return result
+        except PlanAborted:
+            outcome = "aborted"
+            raise
+        finally:
+            self._running = False
+            self._set_state(outcome)
+
+    def _on_trip(self, trip: InterlockTrip) -> None:
+        self.emit(Event("alarm", str(trip), data={"watcher": trip.watcher, "detail": trip.detail}))
+        self._deliver(trip)
+
+    def _deliver(self, exc: BaseException) -> None:
+        if not self._running or self._interrupt is not None:
+            return
+        self._interrupt = exc
+        self._resume.set()
+        if self._current is not None and not self._current.done():
+            self._current.cancel()
+
+    async def _drive(self, gen: m.Plan) -> Any:
+        reply: Any = None
+        error: BaseException | None = None
+        cancelled: asyncio.CancelledError | None = None
+        delivered = False
+        while True:
+            try:
+                msg = gen.throw(error) if error is not None else gen.send(reply)
+            except StopIteration as stop:
+                if cancelled is not None:
+                    raise cancelled from None
+                return stop.value
+            reply, error = None, None
+            self._current = asyncio.get_running_loop().create_task(self._execute(msg), name=f"rgse:{msg.describe()}")
+            try:
+                reply = await self._current
+            except asyncio.CancelledError as exc:
+                task = asyncio.current_task()
+                if task is not None and task.cancelling():
+                    # this task is cancelled: let the plan's finaliser run, then re-raise
+                    cancelled = cancelled or exc
+                    error = exc
+                elif self._interrupt is not None and not delivered:
+                    error = self._interrupt
+                else:
+                    error = exc
+            except Exception as exc:
+                error = exc
+            finally:
+                self._current = None
+            if error is None and self._interrupt is not None and not delivered:
+                error = self._interrupt  # a trip/abort between two messages
+            if error is self._interrupt and error is not None:
+                delivered = True
+
+    # --- message execution --------------------------------------------------------------------------------------
+    async def _execute(self, msg: m.Msg) -> Any:
+        if self.dry_run and isinstance(msg, m.ACTING):
+            _log.info("dry run: %s", msg.describe())
+            if isinstance(msg, m.Start):
+                return time.monotonic()
+            return None
+        handler = getattr(self, f"_do_{type(msg).__name__}", None)
+        if handler is None:
+            raise RgseError(f"the engine does not know message {type(msg).__name__}")
+        _log.debug("%s", msg.describe())
+        return await handler(msg)
+
+    async def _snapshot(self) -> Snapshot:
+        try:
+            return await asyncio.wait_for(self.krc.snapshot(), REQUEST_TIMEOUT_S)
+        except TimeoutError as exc:
+            raise LinkError(f"no snapshot within {REQUEST_TIMEOUT_S:g} s") from exc
+
+    async def _bounded(self, what: str, aw: Any, timeout_s: float = REQUEST_TIMEOUT_S) -> Any:
+        try:
+            return await asyncio.wait_for(aw, timeout_s)
+        except TimeoutError as exc:
+            raise StepTimeout(f"{what}: no answer within {timeout_s:g} s") from exc
+
+    async def _do_Push(self, msg: m.Push) -> str | None:
+        prog = msg.program
+        snap = await self._snapshot()
+        try:
+            self.checker(prog, snap)
+        except InterlockError as exc:
+            self.emit(Event("alarm", f"program {prog.name} refused: {exc}",
+                            data={"watcher": "static_check", "program": prog.name, "detail": str(exc)}))
+            raise
+        src_name = PROGRAM_DIR + prog.name.upper() + ".SRC"
+        if self.dry_run:
+            _log.info("dry run: Push %s (static check passed)", prog.name)
+            return src_name
+        if prog.dat_text is not None:
+            await self._bounded(f"put {prog.name}.DAT", self.krc.put_file(PROGRAM_DIR + prog.name.upper() + ".DAT",
+                                                                          prog.dat_text.encode("latin-1")))
+        await self._bounded(f"put {src_name}", self.krc.put_file(src_name, prog.src_text.encode("latin-1")))
+        return src_name
+
+    async def _do_Select(self, msg: m.Select) -> None:
+        self._expect(Expect.IDLE)
+        await self._bounded(f"select {msg.name}", self.krc.select_program(msg.name, force=True))
+
+    async def _do_Start(self, msg: m.Start) -> float:
+        self._expect(Expect.RUNNING)
+        t0 = time.monotonic()
+        await self._bounded("start", self.krc.start_program())
+        return t0
+
+    async def _do_WaitProgram(self, msg: m.WaitProgram) -> tuple[str, float]:
+        t0 = time.monotonic()
+        deadline = t0 + msg.timeout_s
+        while True:
+            state = _enum(await self._bounded("read $PRO_STATE1", self.krc.read("$PRO_STATE1")))
+            if state in msg.states:
+                if state in ("P_END", "P_FREE", "P_RESET"):
+                    self._expect(Expect.IDLE)
+                return state, time.monotonic() - t0
+            if state == "P_STOP" and "P_STOP" not in msg.states:
+                raise ProgramStopped(f"program stopped (#P_STOP) while waiting for {'/'.join(sorted(msg.states))}")
+            if time.monotonic() >= deadline:
+                raise StepTimeout(f"program did not reach {'/'.join(sorted(msg.states))} within {msg.timeout_s:g} s"
+                                  f" (it is #{state})")
+            await asyncio.sleep(WAIT_POLL_S)
+
+    async def _do_VerifyDone(self, msg: m.VerifyDone) -> None:
+        value = await self._bounded(f"read {msg.variable}", self.krc.read(msg.variable))
+        if value is not True:
+            raise ProgramStopped(f"program ended but {msg.variable} is {value!r}: it did not reach its end state")
+
+    async def _do_StopProgram(self, msg: m.StopProgram) -> None:
+        self._expect(Expect.ANY)
+        state = _enum(await self._bounded("read $PRO_STATE1", self.krc.read("$PRO_STATE1"), CLEANUP_TIMEOUT_S))
+        if state == "P_ACTIVE":
+            await self._bounded("stop program", self.krc.stop_program(), CLEANUP_TIMEOUT_S)
+        self._expect(Expect.IDLE)
+
+    async def _do_ReadState(self, msg: m.ReadState) -> Snapshot:
+        return await self._snapshot()
+
+    async def _do_ReadVar(self, msg: m.ReadVar) -> Any:
+        return await self._bounded(f"read {msg.name}", self.krc.read(msg.name))
+
+    async def _do_WriteVar(self, msg: m.WriteVar) -> None:
+        await self._bounded(f"write {msg.name}", self.krc.write_raw(msg.name, msg.text))
+
+    async def _do_PutFile(self, msg: m.PutFile) -> None:
+        await self._bounded(f"put {msg.name}", self.krc.put_file(msg.name, msg.data))
+
+    async def _do_TraceStart(self, msg: m.TraceStart) -> float:
+        await self._bounded("write $TRACE.CONFIG[]", self.krc.write("$TRACE.CONFIG[]", msg.config))
+        await self._bounded("write $TRACE.NAME[]", self.krc.write("$TRACE.NAME[]", msg.name))
+        self._trace_armed = True
+        t0 = time.monotonic()
+        await self._bounded("write $TRACE.MODE", self.krc.write_raw("$TRACE.MODE", "#T_START"))
+        return t0
+
+    async def _do_TraceWait(self, msg: m.TraceWait) -> float:
+        t0 = time.monotonic()
+        deadline = t0 + msg.timeout_s
+        while True:
+            state = _enum(await self._bounded("read $TRACE.STATE", self.krc.read("$TRACE.STATE")))
+            if state == "T_END":
+                self._trace_armed = False
+                return time.monotonic() - t0
+            if time.monotonic() >= deadline:
+                raise StepTimeout(f"trace not written within {msg.timeout_s:g} s ($TRACE.STATE #{state})")
+            await asyncio.sleep(WAIT_POLL_S)
+
+    async def _do_TraceStop(self, msg: m.TraceStop) -> None:
+        state = _enum(await self._bounded("read $TRACE.STATE", self.krc.read("$TRACE.STATE"), CLEANUP_TIMEOUT_S))
+        if state in TRACE_ACTIVE_STATES or (self._trace_armed and state != "T_END"):
+            await self._bounded("stop trace", self.krc.write_raw("$TRACE.MODE", "#T_STOP"), CLEANUP_TIMEOUT_S)
+        self._trace_armed = False
+
+    async def _do_Pull(self, msg: m.Pull) -> Any:
+        return await self._bounded(f"pull {msg.trace}", pull_trace(self.krc, msg.trace, msg.dest_dir,
+                                                                   trace_dir=self.trace_dir,
+                                                                   share_dir=self.share_dir), msg.timeout_s)
+
+    async def _do_Sleep(self, msg: m.Sleep) -> None:
+        if not self.dry_run:
+            await asyncio.sleep(msg.seconds)
+
+    async def _do_Checkpoint(self, msg: m.Checkpoint) -> None:
+        if self._resume.is_set():
+            return
+        self._set_state("paused")
+        await self._resume.wait()  # abort also sets it; the interrupt is then thrown into the plan
+        self._set_state("running")
+
+    async def _do_Confirm(self, msg: m.Confirm) -> str:
+        self._confirm.clear()
+        self._confirm_note = ""
+        self.emit(Event("confirm", msg.prompt, data=dict(msg.data)))
+        if self.dry_run:
+            return ""
+        self._set_state("confirm")
+        try:
+            if msg.timeout_s is None:
+                await self._confirm.wait()
+            else:
+                await self._bounded(f"confirm '{msg.prompt}'", self._confirm.wait(), msg.timeout_s)
+        finally:
+            self.state = "running"
+        self.emit(Event("state", "running", data={"state": "running"}))
+        return self._confirm_note
+
+    async def _do_Emit(self, msg: m.Emit) -> None:
+        self.emit(msg.event)
+
+    async def _do_Process(self, msg: m.Process) -> Any:
+        if self.dry_run and not msg.dry_run_safe:
+            _log.info("dry run: skip %s", msg.describe())
+            return None
+        return await self._bounded(msg.label, asyncio.to_thread(msg.fn, *msg.args), msg.timeout_s)
+
+    async def _do_Call(self, msg: m.Call) -> Any:
+        if self.dry_run and not msg.dry_run_safe:
+            _log.info("dry run: skip %s", msg.describe())
+            return None
+        return await self._bounded(msg.label, msg.fn(*msg.args, **msg.kwargs), msg.timeout_s)
+
+    def _expect(self, expect: Expect) -> None:
+        if self.monitor is not None:
+            self.monitor.expect(expect)
+
+
+def _enum(value: object) -> str:
+    """``#P_END`` / KrlEnum → ``P_END``."""
+    name = getattr(value, "name", None)
+    return str(name if name is not None else value).lstrip("#")
+

@@ -1,0 +1,181 @@
+"""The in-line mass measurement run (paper Fig. 24) as a plan, and the function that runs it with its store record.
+
+Flow: verify the controller (T1, or AUT with the area cleared; ``$LOAD.M = -1``; no stop message) → push the trace
+configuration → warm-up move → measurement pose → ``loops`` × (brake-release move → settle → trace → pull, verify,
+archive, delete the controller copy) → write ``manifest.toml`` → compute the mass **by the same code as**
+``rgse mass --traces DIR --calibration CAL.json`` (:func:`compute_mass`) with the robot's *active* calibration, whose
+document is written beside the traces as ``CAL.json`` → store the result with the SHA-256 of its raw files and
+queue it for MQTT. The run directory is thus a complete contract-§2 measurement directory: the result is always
+reproducible from it with the offline command.
+
+::
+
+    result = await run_measurement(engine, store, cfg)                     # settings from cfg.measurement
+    result = await run_measurement(engine, store, cfg, settings=RunSettings.from_config(cfg, loops=3))
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon import calfile
+from rgse_daemon.commands.mass import measure
+from rgse_daemon.config import Config
+from rgse_daemon.errors import DataError
+from rgse_daemon.io.modbus import SafetyInputs
+from rgse_daemon.manifest import load_manifest, read_loops
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.common import (
+    LoopOutcome,
+    PreconditionError,
+    RunSettings,
+    close_run,
+    loop,
+    prepare,
+    run_directory,
+    setup_toml,
+    traces_toml,
+    write_text_durably,
+)
+from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.store import OutboxMessage, RunKind, RunState, Store
+
+CALIBRATION_FILE = "CAL.json"
+
+
+def compute_mass(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None) -> dict[str, Any]:
+    """``rgse mass --traces DIR --calibration CAL --json`` as a function: the same calls in the same order
+    (commands/mass.py ``run`` minus argument parsing and printing). Returns the contract-§1 JSON object."""
+    man = load_manifest(directory)
+    if not man.measurement_traces:
+        raise DataError(f"{man.path}: no [measurement] table (is this a calibration campaign?)")
+    doc, cal, pre = calfile.read(calibration_path)
+    calfile.check_robot(calibration_path, doc, man.setup.robot)
+    fixture = fixture_mass_kg if fixture_mass_kg is not None else (man.fixture_mass_kg or 0.0)
+    if not np.isfinite(fixture) or fixture < 0:
+        raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")
+    loops = read_loops(directory, man.measurement_traces)
+    result = measure(loops, cal, doc, pre or pp.PAPER, fixture)
+    if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
+        result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
+    return result.to_json()
+
+
+def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> None:
+    """manifest.toml (contract §2, ``[measurement]``) and the calibration used, as ``CAL.json``."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    lines = [*setup_toml(s), "[measurement]", f"fixture_mass_kg = {float(s.fixture_mass_kg)!r}", traces_toml(traces)]
+    write_text_durably(run_dir / "manifest.toml", "\n".join(lines) + "\n")
+    write_text_durably(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
+
+
+def _finish(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> dict[str, Any]:
+    write_measurement_dir(run_dir, s, traces, cal_doc)
+    return compute_mass(run_dir, run_dir / CALIBRATION_FILE, s.fixture_mass_kg)
+
+
+def timing_summary(outcomes: list[LoopOutcome], compute_s: float) -> dict[str, Any]:
+    robot = sum(o.timing.robot_s for o in outcomes)
+    overhead = sum(o.timing.overhead_s for o in outcomes) + compute_s
+    return {
+        "robot_time_s": robot,
+        "overhead_s": overhead,
+        "compute_s": compute_s,
+        "per_loop": [{"trace": o.trace, **o.timing.to_json()} for o in outcomes],
+    }
+
+
+def measurement_plan(
+    store: Store,
+    run_id: str,
+    run_dir: Path,
+    archive: Path,
+    s: RunSettings,
+    cal_doc: dict[str, Any],
+    *,
+    inputs: Callable[[], SafetyInputs] | None = None,
+    result_topic: str | None = None,
+) -> m.Plan:
+    """The measurement run as a plan (see the module docstring); returns the stored result (or None in a dry run)."""
+    yield from prepare(s, inputs)
+    tag = run_id.rsplit("-", 1)[-1][:8].lower()
+    outcomes: list[LoopOutcome] = []
+    for i in range(1, s.loops + 1):
+        yield m.Checkpoint(f"loop {i}")
+        yield m.Emit(Event("step", f"loop {i}/{s.loops}", step="loop", loop_index=i, loop_count=s.loops))
+        out = yield from loop(store, run_id, run_dir, archive, i, f"dut_{tag}_l{i:02d}", s)
+        outcomes.append(out)
+        per_loop_s = sum(o.timing.robot_s + o.timing.overhead_s for o in outcomes) / len(outcomes)
+        yield m.Emit(Event("loop", f"loop {i}/{s.loops} done", step="loop", loop_index=i, loop_count=s.loops,
+                           eta_s=per_loop_s * (s.loops - i), data=out.timing.to_json()))
+    yield m.Emit(Event("step", "computing the mass (offline path)", step="compute"))
+    t0 = time.monotonic()
+    result = yield m.Process("compute mass", _finish, (run_dir, s, [o.trace for o in outcomes], cal_doc))
+    if result is None:  # dry run
+        return None
+    compute_s = time.monotonic() - t0
+    shas = sorted({h for o in outcomes for h in o.sha256s})
+    result = {
+        **result,
+        "run_id": run_id,
+        "robot": s.robot,
+        "trace_sha256": shas,
+        "controller_copies_deleted": all(o.deleted for o in outcomes),
+        "timing": timing_summary(outcomes, compute_s),
+    }
+    publish = OutboxMessage(result_topic) if result_topic else None
+    yield m.Call("record result", store.record_result, (run_id, result, shas), {"publish": publish})
+    yield m.Emit(Event("result", f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg (k = 2)",
+                       step="result", data=result))
+    return result
+
+
+def result_topic(cfg: Config, run_id: str) -> str:
+    """``<prefix>/run/<run_id>/result`` (contracts §4)."""
+    prefix = cfg.mqtt.prefix or f"rgse/{cfg.robot.name}"
+    return f"{prefix}/run/{run_id}/result"
+
+
+async def run_measurement(
+    engine: RunEngine,
+    store: Store,
+    cfg: Config,
+    *,
+    settings: RunSettings | None = None,
+    inputs: Callable[[], SafetyInputs] | None = None,
+) -> dict[str, Any] | None:
+    """Create the run record, execute :func:`measurement_plan` on ``engine``, record how it ended.
+
+    Refuses (PreconditionError) without an active calibration for this robot. In a dry run nothing is stored.
+    """
+    s = settings or RunSettings.from_config(cfg)
+    cal = await store.active_calibration(s.robot)
+    if cal is None:
+        raise PreconditionError(f"robot {s.robot}: no active calibration; run a calibration campaign first")
+    if engine.dry_run:
+        archive, run_dir = run_directory(cfg.paths.data_dir, "dry-run")
+        return await engine.run(measurement_plan(store, "dry-run", run_dir, archive, s, cal.document,
+                                                 inputs=inputs))
+    run = await store.create_run(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json(), "calibration_id": cal.id})
+    archive, run_dir = run_directory(cfg.paths.data_dir, run.directory)
+    await store.set_run_state(run.id, RunState.RUNNING)
+    error: BaseException | None = None
+    try:
+        return await engine.run(
+            measurement_plan(store, run.id, run_dir, archive, s, cal.document, inputs=inputs,
+                             result_topic=result_topic(cfg, run.id)),
+            run_id=run.id,
+        )
+    except BaseException as exc:
+        error = exc
+        raise
+    finally:
+        await close_run(store, run.id, error)

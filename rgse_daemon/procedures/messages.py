@@ -1,0 +1,236 @@
+"""The small messages a plan yields; :class:`~rgse_daemon.procedures.engine.RunEngine` executes them.
+
+A plan is a generator: ``reply = yield Msg(...)``. Keeping every action a plain, inspectable value is what gives
+a dry run (the engine logs and checks, sends nothing), limit checks before motion (``Push`` runs the interlock's
+static check against the live controller state), pause/resume at ``Checkpoint`` and a resumable campaign
+(the plan asks the store where it stopped, via ``Call``) — bluesky's plan/engine split (architecture lesson 1).
+
+Replies (what ``yield`` returns) are named in each docstring. In a dry run, messages that would act on the
+controller or the store return ``None`` (see :attr:`Msg.dry_reply`); reads still happen.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Awaitable, Callable, Generator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from rgse_daemon.procedures.events import Event
+
+
+class Program(Protocol):
+    """A rendered KRL program (``rgse_daemon.krl.render.RenderedProgram``): module name, .src and .dat text."""
+
+    @property
+    def name(self) -> str: ...
+    @property
+    def src_text(self) -> str: ...
+    @property
+    def dat_text(self) -> str | None: ...
+
+
+@dataclass(frozen=True)
+class Msg:
+    """Base of every message."""
+
+    def describe(self) -> str:
+        return type(self).__name__
+
+
+Plan = Generator[Msg, Any, Any]
+
+
+# --- programs ----------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Push(Msg):
+    """Statically check ``program`` against the live context and, only if allowed, write its .src/.dat to the
+    controller. Reply: the controller name of the .src (``KRC:\\R1\\PROGRAM\\<NAME>.SRC``). A refusal raises
+    :class:`~rgse_daemon.errors.InterlockError` before a byte is sent. Dry run: the check runs, nothing is sent."""
+
+    program: Program
+
+    def describe(self) -> str:
+        return f"Push {self.program.name}"
+
+
+@dataclass(frozen=True)
+class Select(Msg):
+    """Select a pushed program (controller name) in the robot interpreter."""
+
+    name: str
+
+    def describe(self) -> str:
+        return f"Select {self.name}"
+
+
+@dataclass(frozen=True)
+class Start(Msg):
+    """Start the selected program; from here the monitor expects it running. Reply: wall time of the start (s,
+    monotonic). In T1 the operator still holds the enabling switch; the controller refuses a start without it."""
+
+
+@dataclass(frozen=True)
+class WaitProgram(Msg):
+    """Wait until ``$PRO_STATE1`` is one of ``states`` (without ``#``), polling, at most ``timeout_s``.
+    Reply: (state, waited_s). ``P_STOP`` while waiting for the end is an error (the program stopped)."""
+
+    states: frozenset[str] = frozenset({"P_END"})
+    timeout_s: float = 600.0
+
+    def describe(self) -> str:
+        return f"WaitProgram {'/'.join(sorted(self.states))} ≤ {self.timeout_s:g} s"
+
+
+@dataclass(frozen=True)
+class VerifyDone(Msg):
+    """Read the program's handshake flag after ``#P_END`` and fail unless it is TRUE: the daemon never claims a
+    motion happened without reading it back. Not sent in a dry run."""
+
+    variable: str = "RGSE_DONE"
+
+
+@dataclass(frozen=True)
+class StopProgram(Msg):
+    """Stop the robot interpreter if a program is active (idempotent; part of every finaliser)."""
+
+
+# --- variables and files -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ReadState(Msg):
+    """Reply: a fresh :class:`~rgse_daemon.controller.Snapshot` (also in a dry run: reading changes nothing)."""
+
+
+@dataclass(frozen=True)
+class ReadVar(Msg):
+    """Reply: the parsed value of one variable (also in a dry run)."""
+
+    name: str
+
+
+@dataclass(frozen=True)
+class WriteVar(Msg):
+    """Write KRL value text (``#T_START``, ``"name"``, ``30``) to an allow-listed variable."""
+
+    name: str
+    text: str
+
+    def describe(self) -> str:
+        return f"WriteVar {self.name} = {self.text}"
+
+
+@dataclass(frozen=True)
+class PutFile(Msg):
+    """Write a controller file (e.g. the trace configuration XML in the TRACE folder)."""
+
+    name: str
+    data: bytes
+
+    def describe(self) -> str:
+        return f"PutFile {self.name} ({len(self.data)} bytes)"
+
+
+# --- trace -------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TraceStart(Msg):
+    """``$TRACE.CONFIG[]``, ``$TRACE.NAME[]``, then ``$TRACE.MODE = #T_START``; the monitor/finaliser knows a
+    trace may be recording from here."""
+
+    name: str
+    config: str
+
+    def describe(self) -> str:
+        return f"TraceStart {self.name} ({self.config})"
+
+
+@dataclass(frozen=True)
+class TraceWait(Msg):
+    """Wait until the trace has been written (``$TRACE.STATE`` back to ``#T_END`` after leaving it), at most
+    ``timeout_s``. Reply: waited_s."""
+
+    timeout_s: float = 120.0
+
+
+@dataclass(frozen=True)
+class TraceStop(Msg):
+    """``$TRACE.MODE = #T_STOP`` if a trace is armed or recording (idempotent; part of every finaliser)."""
+
+
+@dataclass(frozen=True)
+class Pull(Msg):
+    """Fetch every file of trace ``trace`` from the controller's TRACE folder into ``dest_dir`` durably, verified,
+    and delete the controller copies once archived. Reply: :class:`~rgse_daemon.procedures.retrieval.PulledTrace`."""
+
+    trace: str
+    dest_dir: Path
+    timeout_s: float = 120.0
+
+    def describe(self) -> str:
+        return f"Pull {self.trace} → {self.dest_dir}"
+
+
+# --- flow --------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Sleep(Msg):
+    """Wait ``seconds`` of daemon (wall) time. Controller-timed waits (settling) belong in the KRL program."""
+
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Checkpoint(Msg):
+    """A point where the plan may pause (robot still, nothing recording)."""
+
+    label: str = ""
+
+
+@dataclass(frozen=True)
+class Confirm(Msg):
+    """Ask the operator (CLI/MQTT ``confirm``) and wait for :meth:`RunEngine.confirm`; ``timeout_s`` None: no limit.
+    Reply: the operator's note (str) or ``""``. Dry run: confirmed at once."""
+
+    prompt: str
+    timeout_s: float | None = None
+    data: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Emit(Msg):
+    """Publish a progress event to the engine's subscribers."""
+
+    event: Event
+
+
+@dataclass(frozen=True)
+class Process(Msg):
+    """Run blocking work (the pipeline: reading traces, fitting) in a worker thread, at most ``timeout_s``.
+    Reply: ``fn(*args)``. Dry run: skipped (reply None) unless ``dry_run_safe``."""
+
+    label: str
+    fn: Callable[..., Any]
+    args: tuple[Any, ...] = ()
+    timeout_s: float = 300.0
+    dry_run_safe: bool = False
+
+    def describe(self) -> str:
+        return f"Process {self.label}"
+
+
+@dataclass(frozen=True)
+class Call(Msg):
+    """Await an async function (the store), at most ``timeout_s``. Reply: its result.
+    Dry run: skipped (reply None) unless ``dry_run_safe``."""
+
+    label: str
+    fn: Callable[..., Awaitable[Any]]
+    args: tuple[Any, ...] = ()
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    timeout_s: float = 30.0
+    dry_run_safe: bool = False
+
+    def describe(self) -> str:
+        return f"Call {self.label}"
+
+
+#: Messages that change the controller; in a dry run they are logged, not sent.
+ACTING: tuple[type[Msg], ...] = (Select, Start, VerifyDone, StopProgram, WriteVar, PutFile, TraceStart, TraceStop, Pull)

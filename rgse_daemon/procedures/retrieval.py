@@ -1,0 +1,127 @@
+"""Trace retrieval: from the controller's TRACE folder into the run directory, verified and durable.
+
+Raw data is the one thing that cannot be made again, so a trace is pulled like this (:func:`pull_trace`):
+
+1. list the TRACE folder and take every file of the trace name (``<name>_<module>.dat/.r64/.trc``,
+   ``<name>_PROG.TXT``); refuse a set without the ``.dat``/``.r64`` pair of each drive module the pipeline reads;
+2. read each file over the link; its size must equal the size the listing reported (when the server reports one);
+3. write it to a staging file, then :func:`~rgse_daemon.store.archive.archive_file` it into ``dest_dir`` with the
+   size and SHA-256 of *what was read* as expectations: a short or corrupted local copy is an error, never archived;
+4. only after every file is durable, delete the controller copies. The link (C3 Bridge #23 Delete) has no delete in
+   this daemon yet; where the controller's share is mounted (``controller.share_dir``) the copy is deleted there,
+   else it is left on the controller and :attr:`PulledTrace.deleted` is False (recorded with the loop).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import logging
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from rgse_daemon.controller import Controller, share_path
+from rgse_daemon.errors import DataError, RgseError
+from rgse_daemon.manifest import MODULE_A3, MODULE_A5
+from rgse_daemon.store.archive import ArchivedFile, archive_file_async
+
+_log = logging.getLogger(__name__)
+
+#: The controller's trace folder (kuka-facts §5).
+TRACE_DIR = "C:\\KRC\\ROBOTER\\TRACE\\"
+#: Files the pipeline needs of every trace: the A3 and A5 drive modules, header and data.
+REQUIRED_SUFFIXES = tuple(f"_{mod}{ext}" for mod in (MODULE_A3, MODULE_A5) for ext in (".dat", ".r64"))
+STAGING_DIRNAME = ".incoming"
+
+
+@dataclass(frozen=True)
+class PulledTrace:
+    """One trace, archived: the files (path, sha256, size), whether the controller copies were deleted and how
+    long pulling + archiving took (s, daemon overhead)."""
+
+    trace: str
+    files: tuple[ArchivedFile, ...]
+    deleted: bool
+    delete_note: str
+    duration_s: float
+
+    @property
+    def sha256s(self) -> tuple[str, ...]:
+        return tuple(f.sha256 for f in self.files)
+
+
+def _base_name(full: str) -> str:
+    return re.split(r"[\\/]", full.rstrip("\\/"))[-1]
+
+
+def _listed_size(info: str) -> int | None:
+    """The size in the server's info text ``<itemType>;<sizeBytes>;...`` if it has one."""
+    parts = info.split(";")
+    if len(parts) >= 2 and parts[1].isdigit():
+        return int(parts[1])
+    return None
+
+
+def _write_staging(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
+
+
+async def pull_trace(
+    krc: Controller,
+    trace: str,
+    dest_dir: Path,
+    *,
+    trace_dir: str = TRACE_DIR,
+    share_dir: Path | None = None,
+) -> PulledTrace:
+    """Pull, verify and archive every file of ``trace``; see the module docstring. Raises DataError if the set is
+    incomplete or a copy does not match what was read (nothing is deleted then)."""
+    t0 = asyncio.get_running_loop().time()
+    prefix = f"{trace}_".upper()
+    listing = await krc.list_dir(trace_dir)
+    entries = [e for e in listing if not e.is_dir and _base_name(e.name).upper().startswith(prefix)]
+    names = {_base_name(e.name): e for e in entries}
+    missing = [trace + s for s in REQUIRED_SUFFIXES if not any(n.upper() == (trace + s).upper() for n in names)]
+    if missing:
+        raise DataError(f"{trace_dir}{trace}: trace incomplete on the controller, missing {', '.join(missing)}")
+    staging = dest_dir / STAGING_DIRNAME
+    archived: list[ArchivedFile] = []
+    for base, entry in sorted(names.items()):
+        data = await krc.get_file(trace_dir + base)
+        listed = _listed_size(entry.info)
+        if listed is not None and listed != len(data):
+            raise DataError(f"{trace_dir}{base}: read {len(data)} bytes, the controller lists {listed}")
+        sha = hashlib.sha256(data).hexdigest()
+        tmp = staging / base
+        await asyncio.to_thread(_write_staging, tmp, data)
+        try:
+            archived.append(await archive_file_async(tmp, dest_dir, expected_size=len(data), expected_sha256=sha))
+        finally:
+            tmp.unlink(missing_ok=True)
+    try:
+        staging.rmdir()
+    except OSError:
+        pass  # not empty (another pull in flight) or already gone
+    if len(archived) != len(names):
+        raise DataError(f"{trace}: archived {len(archived)} of {len(names)} files")
+    deleted, note = await _delete_controller_copies(trace_dir, list(names), share_dir)
+    return PulledTrace(trace, tuple(archived), deleted, note, asyncio.get_running_loop().time() - t0)
+
+
+async def _delete_controller_copies(trace_dir: str, names: list[str], share_dir: Path | None) -> tuple[bool, str]:
+    """Delete the controller's copies (called only once all are archived); returns (deleted, note)."""
+    if share_dir is None:
+        return False, "left on the controller: no delete over the link and no share mounted"
+    try:
+        paths = [share_path(share_dir, trace_dir + n) for n in names]
+        await asyncio.to_thread(lambda: [p.unlink(missing_ok=True) for p in paths])
+    except (OSError, RgseError) as exc:
+        _log.warning("could not delete trace files on the controller share: %r", exc)
+        return False, f"delete on the share failed: {exc}"
+    return True, "deleted on the controller share"

@@ -1,0 +1,326 @@
+"""The runtime interlock: polls the controller while a plan runs and trips on the first sign of danger or doubt.
+
+Interlocks are **declarative watchers** (bluesky suspenders, architecture lesson 3): :data:`DEFAULT_WATCHERS` is a
+list of small :class:`Watcher` objects, each a name, a message, the snapshot fields it needs and a predicate —
+not ``if``\\ s scattered through the plans. A watcher whose fields are unreadable (``None``) trips: doubt = trip.
+
+Every ``poll_period_s`` (default 50 ms, i.e. 20 Hz) the monitor takes one :meth:`Controller.snapshot` (one
+multi-read with C3 Bridge) with a deadline of ``stale_periods`` poll periods; a failed or late snapshot is link
+loss. On a trip it, in this order and each step bounded by ``stop_timeout_s``:
+
+1. stops the robot program (``#10 STOP``) — a STOP 2 equivalent: the robot ramps down on its path and holds;
+2. stops the trace (``$TRACE.MODE = #T_STOP``) if one is armed or recording;
+3. calls ``on_trip(trip)`` (the engine publishes the alarm and fails the plan with :class:`InterlockTrip`).
+
+The plan tells the monitor what to expect through :attr:`Monitor.context` (allowed modes, program expected
+running or idle, safety inputs): the engine updates it as it starts and ends programs.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from enum import StrEnum
+
+from rgse_daemon.config import LimitsConfig
+from rgse_daemon.controller import Controller, Snapshot
+from rgse_daemon.errors import InterlockError, LinkError, RgseError
+from rgse_daemon.io.modbus import SafetyInputs
+
+_log = logging.getLogger(__name__)
+
+#: The monitor's poll period (s): 20 Hz.
+DEFAULT_POLL_PERIOD_S = 0.05
+#: A snapshot older than this many poll periods is link loss.
+STALE_PERIODS = 2.0
+#: Deadline of each stop step after a trip (s).
+STOP_TIMEOUT_S = 2.0
+#: Trace states in which a trace is armed, recording or being written (stop it on a trip).
+TRACE_ACTIVE_STATES = frozenset({"T_WAIT", "TRIGGERED", "T_START"})
+
+
+class InterlockTrip(InterlockError):
+    """The runtime monitor tripped: ``watcher`` names the watcher, ``detail`` what it saw."""
+
+    def __init__(self, watcher: str, message: str, detail: str) -> None:
+        super().__init__(f"interlock trip [{watcher}]: {message}: {detail}")
+        self.watcher = watcher
+        self.message = message
+        self.detail = detail
+
+
+class Expect(StrEnum):
+    """What the plan expects of the robot interpreter right now."""
+
+    IDLE = "idle"  # no program may be running
+    RUNNING = "running"  # our program runs; stopping by itself is unexpected
+    ANY = "any"  # in transition (the engine itself is stopping the program)
+
+
+#: Program states that are fine while a program is expected running (reset just before start, end just before the
+#: engine noticed), and states that are not while the daemon expects none.
+RUNNING_OK = frozenset({"P_RESET", "P_ACTIVE", "P_END"})
+IDLE_BAD = frozenset({"P_ACTIVE"})
+
+
+@dataclass(frozen=True)
+class WatchContext:
+    """What the plan allows right now; the engine replaces it (it is immutable) as the plan goes on."""
+
+    allowed_modes: frozenset[str] = frozenset({"T1"})
+    expect: Expect = Expect.IDLE
+    speed_limit_mm_s: float = LimitsConfig().t1_speed_mm_s
+
+
+@dataclass(frozen=True)
+class Observation:
+    """One poll: the snapshot (``None`` if the read failed), the link error if any, the time since the last
+    good snapshot (s) and the safety inputs (``None``: no Modbus I/O configured)."""
+
+    snapshot: Snapshot | None
+    link_error: str | None
+    age_s: float
+    stale_after_s: float
+    inputs: SafetyInputs | None
+
+
+Predicate = Callable[[Observation, WatchContext], str | None]
+
+
+@dataclass(frozen=True)
+class Watcher:
+    """One interlock condition. ``check`` returns a detail text when unsafe, else ``None``. ``needs`` names the
+    :class:`Snapshot` fields the check reads; one of them unreadable trips the watcher by itself."""
+
+    name: str
+    message: str
+    check: Predicate
+    needs: tuple[str, ...] = ()
+
+    def evaluate(self, obs: Observation, ctx: WatchContext) -> str | None:
+        snap = obs.snapshot
+        if self.needs:
+            if snap is None:
+                return None  # the link watcher reports a missing snapshot
+            missing = [f for f in self.needs if getattr(snap, f) is None]
+            if missing:
+                why = "; ".join(f"{f}: {snap.errors.get(_VARIABLE.get(f, f), 'unreadable')}" for f in missing)
+                return f"cannot read {why} (doubt = trip)"
+        return self.check(obs, ctx)
+
+
+_VARIABLE = {
+    "mode_op": "$MODE_OP",
+    "pro_state1": "$PRO_STATE1",
+    "stopmess": "$STOPMESS",
+    "peri_rdy": "$PERI_RDY",
+    "user_saf": "$USER_SAF",
+    "vel_act_m_s": "$VEL_ACT",
+}
+
+
+def _link(obs: Observation, ctx: WatchContext) -> str | None:
+    if obs.link_error is not None:
+        return obs.link_error
+    if obs.snapshot is None or obs.age_s > obs.stale_after_s:
+        return f"last good snapshot {obs.age_s * 1e3:.0f} ms old (limit {obs.stale_after_s * 1e3:.0f} ms)"
+    return None
+
+
+def _mode(obs: Observation, ctx: WatchContext) -> str | None:
+    assert obs.snapshot is not None
+    mode = obs.snapshot.mode_op
+    if mode not in ctx.allowed_modes:
+        return f"$MODE_OP is #{mode}, allowed: {', '.join('#' + m for m in sorted(ctx.allowed_modes))}"
+    return None
+
+
+def _aut_inputs(obs: Observation, ctx: WatchContext) -> str | None:
+    assert obs.snapshot is not None
+    if obs.snapshot.mode_op != "AUT":
+        return None
+    if obs.inputs is None:
+        return "AUT without safety inputs (no Modbus I/O configured)"
+    if not obs.inputs.valid:
+        return f"safety inputs invalid: {obs.inputs.reason}"
+    bad = [n for n, ok in (("E-stop", obs.inputs.estop_ok), ("area cleared", obs.inputs.area_cleared),
+                           ("AUT key", obs.inputs.aut_permitted)) if not ok]
+    return f"safety inputs not OK in AUT: {', '.join(bad)}" if bad else None
+
+
+def _stop2(obs: Observation, ctx: WatchContext) -> str | None:
+    assert obs.snapshot is not None
+    return "$STOPMESS is TRUE (enabling switch released, STOP 2 or another stop message)" if obs.snapshot.stopmess \
+        else None
+
+
+def _program_state(obs: Observation, ctx: WatchContext) -> str | None:
+    assert obs.snapshot is not None
+    state = obs.snapshot.pro_state1
+    if ctx.expect is Expect.RUNNING and state not in RUNNING_OK:
+        return f"program {obs.snapshot.pro_name1 or '?'} is #{state} while it should run (stopped unexpectedly)"
+    if ctx.expect is Expect.IDLE and state in IDLE_BAD:
+        return f"program {obs.snapshot.pro_name1 or '?'} is #{state} while the daemon runs none"
+    return None
+
+
+def _drives(obs: Observation, ctx: WatchContext) -> str | None:
+    assert obs.snapshot is not None
+    if ctx.expect is Expect.RUNNING and obs.snapshot.pro_state1 == "P_ACTIVE" and not obs.snapshot.peri_rdy:
+        return "$PERI_RDY is FALSE while the program runs (drives off)"
+    return None
+
+
+def _safety_gate(obs: Observation, ctx: WatchContext) -> str | None:
+    assert obs.snapshot is not None
+    return None if obs.snapshot.user_saf else "$USER_SAF is FALSE (operator safety / safety gate open)"
+
+
+def _speed(obs: Observation, ctx: WatchContext) -> str | None:
+    assert obs.snapshot is not None and obs.snapshot.vel_act_m_s is not None
+    speed_mm_s = abs(obs.snapshot.vel_act_m_s) * 1000.0
+    if speed_mm_s > ctx.speed_limit_mm_s:
+        return f"$VEL_ACT {speed_mm_s:.1f} mm/s above the limit {ctx.speed_limit_mm_s:.1f} mm/s"
+    return None
+
+
+#: The interlock, in the order the watchers are evaluated (the first that trips names the trip).
+DEFAULT_WATCHERS: tuple[Watcher, ...] = (
+    Watcher("link", "controller link lost or snapshot stale", _link),
+    Watcher("mode", "operating mode changed from the allowed one", _mode, ("mode_op",)),
+    Watcher("aut_inputs", "automatic mode without E-stop OK, area cleared and key", _aut_inputs, ("mode_op",)),
+    Watcher("stop2", "enabling switch released / STOP 2 / stop message", _stop2, ("stopmess",)),
+    Watcher("program_state", "unexpected program state", _program_state, ("pro_state1",)),
+    Watcher("drives", "drives not ready while the program runs", _drives, ("pro_state1", "peri_rdy")),
+    Watcher("safety_gate", "operator safety open", _safety_gate, ("user_saf",)),
+    Watcher("speed", "Cartesian speed above the T1 limit", _speed, ("vel_act_m_s",)),
+)
+
+
+@dataclass
+class MonitorStats:
+    polls: int = 0
+    snapshot_s_max: float = 0.0
+    trip_latency_s: float | None = None
+    """Time from the start of the poll that saw the trip until the program stop was acknowledged."""
+    stop_errors: list[str] = field(default_factory=list)
+
+
+TripHandler = Callable[[InterlockTrip], None]
+
+
+class Monitor:
+    """Polls the controller and evaluates the watchers; see the module docstring.
+
+    ``inputs`` returns the current Modbus safety inputs (``SafetyIo.inputs``) or is ``None`` when there are none.
+    Use as ``async with monitor.running(on_trip):`` around a plan.
+    """
+
+    def __init__(
+        self,
+        krc: Controller,
+        *,
+        watchers: Sequence[Watcher] = DEFAULT_WATCHERS,
+        context: WatchContext | None = None,
+        poll_period_s: float = DEFAULT_POLL_PERIOD_S,
+        stale_periods: float = STALE_PERIODS,
+        stop_timeout_s: float = STOP_TIMEOUT_S,
+        inputs: Callable[[], SafetyInputs] | None = None,
+    ) -> None:
+        if not 0.0 < poll_period_s <= 0.05:
+            raise InterlockError(f"monitor poll period {poll_period_s} s: must be > 0 and <= 0.05 s (>= 20 Hz)")
+        if stale_periods < 1.0:
+            raise InterlockError(f"monitor stale_periods {stale_periods}: must be >= 1")
+        self.krc = krc
+        self.watchers = tuple(watchers)
+        self.context = context or WatchContext()
+        self.poll_period_s = poll_period_s
+        self.stale_after_s = stale_periods * poll_period_s
+        self.stop_timeout_s = stop_timeout_s
+        self.inputs = inputs
+        self.stats = MonitorStats()
+        self.latest: Snapshot | None = None
+        self.trip: InterlockTrip | None = None
+        self._task: asyncio.Task[None] | None = None
+
+    def expect(self, expect: Expect) -> None:
+        self.context = replace(self.context, expect=expect)
+
+    def check_once(self, obs: Observation, ctx: WatchContext) -> tuple[Watcher, str] | None:
+        """The first watcher that trips on ``obs`` (pure: no I/O), or ``None``."""
+        for w in self.watchers:
+            detail = w.evaluate(obs, ctx)
+            if detail is not None:
+                return w, detail
+        return None
+
+    @contextlib.asynccontextmanager
+    async def running(self, on_trip: TripHandler):  # type: ignore[no-untyped-def]
+        """Poll in a background task while the block runs; the task ends with the block (or at a trip)."""
+        self.trip = None
+        self._task = asyncio.get_running_loop().create_task(self._poll(on_trip), name="rgse-interlock-monitor")
+        try:
+            yield self
+        finally:
+            task, self._task = self._task, None
+            if task is not None:
+                task.cancel()
+                await asyncio.wait({task})  # a cancel of *this* task still propagates from here
+
+    async def _poll(self, on_trip: TripHandler) -> None:
+        last_good = time.monotonic()
+        while True:
+            t0 = time.monotonic()
+            ctx = self.context
+            snap: Snapshot | None = None
+            error: str | None = None
+            try:
+                snap = await asyncio.wait_for(self.krc.snapshot(), self.stale_after_s)
+            except TimeoutError:
+                error = f"no snapshot within {self.stale_after_s * 1e3:.0f} ms"
+            except (LinkError, RgseError) as exc:
+                error = f"{type(exc).__name__}: {exc}"
+            now = time.monotonic()
+            self.stats.polls += 1
+            self.stats.snapshot_s_max = max(self.stats.snapshot_s_max, now - t0)
+            if snap is not None:
+                last_good = now
+                self.latest = snap
+            if self.context.expect is not ctx.expect:
+                # the plan changed its expectation while this snapshot was in flight: judge the program state
+                # by neither (the next poll, < one period away, sees the new state)
+                ctx = replace(ctx, expect=Expect.ANY)
+            obs = Observation(snap, error, now - last_good, self.stale_after_s,
+                              self.inputs() if self.inputs is not None else None)
+            found = self.check_once(obs, ctx)
+            if found is not None:
+                watcher, detail = found
+                trip = InterlockTrip(watcher.name, watcher.message, detail)
+                self.trip = trip
+                _log.error("%s", trip)
+                await self.make_safe(snap)
+                self.stats.trip_latency_s = time.monotonic() - t0
+                on_trip(trip)
+                return
+            await asyncio.sleep(max(0.0, self.poll_period_s - (time.monotonic() - t0)))
+
+    async def make_safe(self, snap: Snapshot | None) -> None:
+        """Stop the program, then the trace; each step bounded, errors recorded (never raised: the trip is the
+        cause that must reach the plan)."""
+        if snap is None or snap.pro_state1 in (None, "P_ACTIVE"):
+            try:
+                await asyncio.wait_for(self.krc.stop_program(), self.stop_timeout_s)
+            except (TimeoutError, RgseError) as exc:
+                self.stats.stop_errors.append(f"stop program: {exc!r}")
+                _log.error("interlock: could not stop the program: %r", exc)
+        trace_state = snap.trace_state if snap is not None else None
+        if trace_state is None or trace_state in TRACE_ACTIVE_STATES:
+            try:
+                await asyncio.wait_for(self.krc.write_raw("$TRACE.MODE", "#T_STOP"), self.stop_timeout_s)
+            except (TimeoutError, RgseError) as exc:
+                self.stats.stop_errors.append(f"stop trace: {exc!r}")
+                _log.error("interlock: could not stop the trace: %r", exc)
