@@ -88,6 +88,7 @@ class _ProgramControl:
         self._interp.select(name, params, force)
 
     def run(self, name: str, params: str, force: bool) -> None:
+        self._sim._sync_physics()  # the time before the start passed with the drives as they were
         self._interp.run(name, params, force)
         self._sim.trace.fire(TRIGGER_PROGRAM_START)
 
@@ -95,6 +96,7 @@ class _ProgramControl:
         self._interp.reset(interpreter)
 
     def start(self, interpreter: int) -> None:
+        self._sim._sync_physics()
         self._interp.start(interpreter)
         if interpreter == INTERPRETER_ROBOT:
             self._sim.trace.fire(TRIGGER_PROGRAM_START)

@@ -298,6 +298,9 @@ class TraceEngine:
         except (OSError, ValueError, TimeoutError) as exc:
             self.last_error = f"{type(exc).__name__}: {exc}"
             _log.error("trace %s failed: %s", request.name, self.last_error)
+        except Exception as exc:  # a simulator bug must not kill the task silently; the trace still ends
+            self.last_error = f"internal error: {exc!r}"
+            _log.exception("trace %s failed", request.name)
         finally:
             self._enter(request.name, TraceState.END)
 

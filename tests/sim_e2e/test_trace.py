@@ -213,3 +213,15 @@ async def test_pretrigger_part_is_what_was_available(sim: SimulatedKrc4, krc: Co
     for name, expected_s in (("armed", 6.0), ("at_once", 4.0)):
         ts = read_trace_set(save(await pull_trace(krc, name), tmp_path / name), name)
         assert ts.channel("NextGenDrive#5", "Istmoment").values.size == round(expected_s / period_s)
+
+
+async def test_trace_name_defaults_to_basename_and_must_be_a_file_name(sim: SimulatedKrc4, krc: Controller) -> None:
+    await put_config(krc, "named.xml", trace_config_xml(1.0, modules=("NextGenDrive#3",), basename="base_run"))
+    with pytest.raises(VariableError):
+        await start_trace(krc, "named.xml", "bad/name")
+    assert sim.trace.last_error is not None and "file name" in sim.trace.last_error
+    await start_trace(krc, "named", "")  # no ".xml" and no name: the config file and its Basename
+    await poll(krc, "$TRACE.STATE", lambda v: v == "#T_END")
+    assert sorted(await pull_trace(krc, "base_run")) == [
+        f"base_run_NextGenDrive#3.{ext}" for ext in ("dat", "r64", "trc")
+    ]
