@@ -197,16 +197,16 @@ def mqtt_config(host: str, port: int, prefix: str | None, **overrides: Any) -> M
 
 
 class RecordingHandler:
-    """The daemon's side of commands, recording what it was asked; ``fail`` makes every call raise it."""
+    """The daemon's side of commands, recording what it was asked; ``failures[request_id]`` is raised for it."""
 
     def __init__(self) -> None:
         self.calls: list[tuple[str, Any]] = []
-        self.fail: Exception | None = None
+        self.failures: dict[str, Exception] = {}
 
     async def _record(self, verb: str, cmd: Any) -> dict[str, Any]:
         self.calls.append((verb, cmd))
-        if self.fail is not None:
-            raise self.fail
+        if cmd.request_id in self.failures:
+            raise self.failures[cmd.request_id]
         return {"accepted": True, "run_id": f"run-{len(self.calls)}"}
 
     async def measure(self, cmd: MeasureCommand) -> dict[str, Any]:

@@ -1,0 +1,279 @@
+"""Commands over a real broker: valid ones reach the handler and are answered; anything else is refused unheard."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from collections.abc import AsyncIterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mqtt_helpers import ROBOT, Collector, MosquittoProcess, RecordingHandler, mqtt_config, retained, wait_until
+
+from rgse_daemon.io.commands import (
+    AbortCommand,
+    CalibrateCommand,
+    CommandRefused,
+    ConfirmCommand,
+    MeasureCommand,
+    parse_command,
+)
+from rgse_daemon.io.mqtt import MqttBridge
+from rgse_daemon.store import Store, StoreError
+
+TOKENS = ("s3cret-1", "s3cret-2")
+
+
+class Session:
+    """A running bridge plus an operator's client listening to replies and alarms."""
+
+    def __init__(self, bridge: MqttBridge, client: Collector) -> None:
+        self.bridge = bridge
+        self.client = client
+
+    async def send(self, verb: str, payload: Any) -> None:
+        raw = payload if isinstance(payload, bytes | str) else json.dumps(payload)
+        await self.client.publish(f"{self.bridge.prefix}/cmd/{verb}", raw)
+
+    async def replies(self, n: int) -> list[tuple[str, dict[str, Any]]]:
+        """The first ``n`` replies as (verb, payload)."""
+        p = self.bridge.prefix
+
+        def got(ms: list[Any]) -> bool:
+            return len([m for m in ms if m.topic.value.endswith("/reply")]) >= n
+
+        await self.client.wait_for(got, f"{n} replies")
+        out = []
+        for m in self.client.messages:
+            if m.topic.value.endswith("/reply"):
+                verb = m.topic.value[len(f"{p}/cmd/") : -len("/reply")]
+                out.append((verb, json.loads(m.payload)))
+        return out[:n]
+
+    def alarms(self) -> list[dict[str, Any]]:
+        return self.client.json_on(f"{self.bridge.prefix}/alarm")
+
+
+@contextlib.asynccontextmanager
+async def _session(
+    broker: tuple[str, int], prefix: str, store: Store, handler: Any, **kw: Any
+) -> AsyncIterator[Session]:
+    cfg_overrides = {k: kw.pop(k) for k in list(kw) if k in ("command_tokens", "username", "password")}
+    bridge = MqttBridge(mqtt_config(*broker, prefix, **cfg_overrides), ROBOT, store, handler, "1", timeout_s=5, **kw)
+    async with Collector(*broker, f"{prefix}/cmd/+/reply", f"{prefix}/alarm") as client, bridge:
+        await wait_until(lambda: bridge.connected, "bridge connected")
+        yield Session(bridge, client)
+
+
+@pytest.fixture
+async def session(
+    system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler
+) -> AsyncIterator[Session]:
+    async with _session(system_broker, prefix, store, handler) as s:
+        yield s
+
+
+@pytest.fixture
+async def guarded(
+    system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler
+) -> AsyncIterator[Session]:
+    """A bridge that demands a token."""
+    async with _session(system_broker, prefix, store, handler, command_tokens=TOKENS) as s:
+        yield s
+
+
+async def test_valid_commands_reach_the_handler_and_are_answered_ok(
+    session: Session, handler: RecordingHandler
+) -> None:
+    await session.send("measure", {"request_id": "m-1", "loops": 10, "fixture_mass_kg": 10.288, "dry_run": True})
+    await session.send(
+        "calibrate",
+        {
+            "request_id": "c-1",
+            "method": "paper",
+            "points": [
+                {"kind": "zero", "mass_kg": 0.0, "lever_a3_m": 1.29, "lever_a5_m": 0.265},
+                {"kind": "mass", "mass_kg": 20.93, "lever_a3_m": 1.3075, "lever_a5_m": 0.2825},
+            ],
+        },
+    )
+    await session.send("confirm", {"request_id": "f-1", "run_id": "run-1", "point": 1})
+    await session.send("abort", {"request_id": "a-1", "reason": "operator"})
+    replies = dict((body["request_id"], (verb, body)) for verb, body in await session.replies(4))
+    assert {rid: verb for rid, (verb, _) in replies.items()} == {
+        "m-1": "measure",
+        "c-1": "calibrate",
+        "f-1": "confirm",
+        "a-1": "abort",
+    }
+    assert all(body["ok"] is True and body["accepted"] is True for _, body in replies.values())
+
+    calls = dict((cmd.request_id, cmd) for _, cmd in handler.calls)
+    assert calls["m-1"] == MeasureCommand(request_id="m-1", loops=10, fixture_mass_kg=10.288, dry_run=True)
+    cal = calls["c-1"]
+    assert isinstance(cal, CalibrateCommand) and cal.method == "paper" and [p.mass_kg for p in cal.points] == [0, 20.93]
+    assert calls["f-1"] == ConfirmCommand(request_id="f-1", run_id="run-1", point=1)
+    assert calls["a-1"] == AbortCommand(request_id="a-1", reason="operator")
+    assert session.bridge.counters.commands == 4 and session.bridge.counters.refused_commands == 0
+    await session.client.sync()
+    assert session.alarms() == []
+
+
+@pytest.mark.parametrize(
+    ("verb", "payload", "request_id", "error"),
+    [
+        ("measure", b'{"request_id": "x-1", "loops": ', None, "malformed JSON"),
+        ("measure", b"\xff\xfe", None, "malformed JSON"),
+        ("measure", b'["request_id", "x-2"]', None, "a JSON object expected"),
+        ("measure", {"request_id": "x-3", "loops": 10, "dryrun": True}, "x-3", "dryrun: unknown field"),
+        ("measure", {"request_id": "x-4", "loops": "10"}, "x-4", "loops: Input should be a valid integer"),
+        ("measure", {"request_id": "x-5", "loops": 0}, "x-5", "loops: Input should be greater than or equal to 1"),
+        ("measure", {"request_id": "x-6", "fixture_mass_kg": "NaN"}, "x-6", "fixture_mass_kg"),
+        ("abort", {"request_id": "x-7"}, "x-7", "reason: Field required"),
+        ("confirm", {"request_id": "x-8", "run_id": "../etc"}, "x-8", "run_id"),
+        ("calibrate", {"request_id": "x-9", "points": [{"kind": "zero"}]}, "x-9", "points.0.mass_kg"),
+        ("selfdestruct", {"request_id": "x-10"}, None, "unknown verb 'selfdestruct'"),
+        ("measure", {"loops": 3}, None, "request_id: Field required"),
+    ],
+)
+async def test_bad_commands_are_refused_without_effect(
+    session: Session,
+    handler: RecordingHandler,
+    verb: str,
+    payload: Any,
+    request_id: str | None,
+    error: str,
+) -> None:
+    await session.send(verb, payload)
+    ((reply_verb, reply),) = await session.replies(1)
+    assert reply_verb == verb
+    assert reply["ok"] is False and reply["request_id"] == request_id and error in reply["error"]
+    await session.client.wait_for(lambda ms: any(m.topic.value.endswith("/alarm") for m in ms), "alarm")
+    (alarm,) = session.alarms()
+    assert alarm["kind"] == "refused_command" and alarm["message"] == "refused command"
+    assert alarm["verb"] == verb and alarm["request_id"] == request_id and error in alarm["error"]
+    assert handler.calls == []
+    assert session.bridge.counters.refused_commands == 1 and session.bridge.counters.commands == 0
+
+
+async def test_without_the_right_token_nothing_happens(guarded: Session, handler: RecordingHandler) -> None:
+    await guarded.send("measure", {"request_id": "t-1", "loops": 3})
+    await guarded.send("measure", {"request_id": "t-2", "loops": 3, "token": "guess"})
+    await guarded.send("abort", {"request_id": "t-3", "reason": "x", "token": None})
+    # unauthorised and against the schema: the sender learns it is unauthorised, nothing about the schema
+    await guarded.send("measure", {"request_id": "t-4", "bogus": 1})
+    refused = await guarded.replies(4)
+    assert [(v, r["request_id"], r["ok"]) for v, r in refused] == [
+        ("measure", "t-1", False),
+        ("measure", "t-2", False),
+        ("abort", "t-3", False),
+        ("measure", "t-4", False),
+    ]
+    assert all("unauthorised" in r["error"] and "bogus" not in r["error"] for _, r in refused)
+    assert handler.calls == [] and guarded.bridge.counters.refused_commands == 4
+
+    await guarded.send("measure", {"request_id": "t-5", "loops": 3, "token": TOKENS[1]})
+    ((_, ok),) = (await guarded.replies(5))[4:]
+    assert ok["ok"] is True and ok["request_id"] == "t-5"
+    ((verb, cmd),) = handler.calls
+    assert verb == "measure" and cmd.loops == 3 and "s3cret" not in repr(cmd)
+    await guarded.client.sync()
+    assert len(guarded.alarms()) == 4
+
+
+async def test_handler_failures_become_error_replies_and_the_bridge_keeps_serving(
+    session: Session, handler: RecordingHandler
+) -> None:
+    handler.failures = {"e-1": StoreError("store: disk full"), "e-2": ValueError("a bug")}
+    await session.send("measure", {"request_id": "e-1"})
+    await session.send("measure", {"request_id": "e-2"})
+    first = await session.replies(2)
+    await session.send("measure", {"request_id": "e-3"})
+    _, _, (_, third) = await session.replies(3)
+    errors = {r["request_id"]: r for _, r in first}
+    assert errors["e-1"] == {"request_id": "e-1", "ok": False, "error": "store: disk full"}
+    assert errors["e-2"]["ok"] is False and errors["e-2"]["error"] == "ValueError: a bug"
+    assert third["ok"] is True and third["request_id"] == "e-3"
+    assert session.bridge.counters.command_errors == 2 and session.bridge.counters.commands == 3
+
+
+class SlowHandler(RecordingHandler):
+    """``measure`` never answers (until cancelled); ``abort`` answers at once."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.cancelled = asyncio.Event()
+
+    async def measure(self, cmd: MeasureCommand) -> dict[str, Any]:
+        self.calls.append(("measure", cmd))
+        try:
+            await asyncio.Event().wait()
+        except asyncio.CancelledError:
+            self.cancelled.set()
+            raise
+        raise AssertionError("unreachable")
+
+
+async def test_a_slow_handler_times_out_and_does_not_block_other_commands(
+    system_broker: tuple[str, int], prefix: str, store: Store
+) -> None:
+    handler = SlowHandler()
+    async with _session(system_broker, prefix, store, handler, command_timeout_s=1.0) as s:
+        await s.send("measure", {"request_id": "slow"})
+        await wait_until(lambda: len(handler.calls) == 1, "measure reached the handler")
+        await s.send("abort", {"request_id": "quick", "reason": "operator"})
+        (verb, quick), (_, slow) = await s.replies(2)
+        assert verb == "abort" and quick["ok"] is True  # answered while measure was still running
+        assert slow["request_id"] == "slow" and slow["ok"] is False and "outcome unknown" in slow["error"]
+        assert handler.cancelled.is_set() and s.bridge.counters.command_errors == 1
+
+
+async def test_commands_in_flight_are_cancelled_on_stop(
+    system_broker: tuple[str, int], prefix: str, store: Store
+) -> None:
+    handler = SlowHandler()
+    async with _session(system_broker, prefix, store, handler) as s:
+        await s.send("measure", {"request_id": "slow"})
+        await wait_until(lambda: len(handler.calls) == 1, "measure reached the handler")
+    assert handler.cancelled.is_set()  # the leak guard of conftest checks nothing else was left running
+
+
+async def test_username_and_password_are_used(tmp_path: Path, store: Store, handler: RecordingHandler) -> None:
+    pw = tmp_path / "passwd"
+    proc = await asyncio.create_subprocess_exec("mosquitto_passwd", "-b", "-c", str(pw), "rgse", "pa55")
+    assert await asyncio.wait_for(proc.wait(), 10) == 0
+    broker = MosquittoProcess(tmp_path / "auth", f"allow_anonymous false\npassword_file {pw}\n")
+    await broker.start()
+    try:
+        addr = ("127.0.0.1", broker.port)
+        wrong = MqttBridge(
+            mqtt_config(*addr, "auth", username="rgse", password="nope"), ROBOT, store, handler, "1", timeout_s=3
+        )
+        async with wrong:
+            await wait_until(lambda: wrong.counters.connect_failures >= 2, "refused twice, backing off")
+            assert not wrong.connected and wrong.counters.connects == 0
+        right = MqttBridge(
+            mqtt_config(*addr, "auth", username="rgse", password="pa55"), ROBOT, store, handler, "1", timeout_s=3
+        )
+        async with right:
+            await wait_until(lambda: right.connected, "connected with the right password")
+        (status,) = await retained(*addr, "auth/status", username="rgse", password="pa55")
+        assert json.loads(status.payload)["state"] == "offline"
+    finally:
+        await broker.stop()
+
+
+def test_parse_command_without_a_broker() -> None:
+    """The schema layer alone: verbs, strict types, bounds, token before schema."""
+    cmd = parse_command("measure", b'{"request_id": "r", "fixture_mass_kg": 10}')
+    assert cmd == MeasureCommand(request_id="r", fixture_mass_kg=10.0) and cmd.dry_run is False
+    with pytest.raises(CommandRefused, match="dry_run") as exc:
+        parse_command("measure", b'{"request_id": "r", "dry_run": "yes"}')
+    assert exc.value.request_id == "r" and exc.value.verb == "measure"
+    with pytest.raises(CommandRefused, match="exceeds"):
+        parse_command("abort", b'{"reason": "' + b"x" * 70000 + b'"}')
+    with pytest.raises(CommandRefused, match="unauthorised"):
+        parse_command("abort", b'{"request_id": "r", "reason": "x", "token": "s3cret-10"}', TOKENS)
+    assert parse_command("abort", b'{"request_id": "r", "reason": "x", "token": "s3cret-1"}', TOKENS).reason == "x"
