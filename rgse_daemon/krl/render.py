@@ -331,10 +331,10 @@ def safe_axis_velocity_pct(
     """
     if not limit_mm_s > 0.0 or not 0.0 < override_pct <= 100.0:
         raise ValueError("limit_mm_s must be positive and override_pct in (0, 100]")
+    segments = {(tuple(q0), tuple(q1)) for path in paths for q0, q1 in itertools.pairwise(path)}
     worst = 0.0
-    for path in paths:
-        for q0, q1 in itertools.pairwise(path):
-            worst = max(worst, path_bound_at_full_speed_mm_s(q0, q1, points_flange_m))
+    for q0, q1 in sorted(segments):
+        worst = max(worst, path_bound_at_full_speed_mm_s(q0, q1, points_flange_m))
     if worst == 0.0:
         return 100.0
     pct = 100.0 * SPEED_HEADROOM * limit_mm_s / (worst * override_pct / 100.0)

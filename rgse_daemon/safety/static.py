@@ -597,6 +597,12 @@ class _Checker:
     def max_a5_torque_nm(self, start: Pose, target: Pose) -> float:
         if self.ctx.payload_mass_kg <= 0.0:
             return 0.0
+        # The CoG is rigidly |c + d6·z| from the wrist centre, a point on the A5 axis, in every pose: if that lever
+        # is short enough, no pose can exceed the limit and the path need not be sampled.
+        cog_from_wrist_m = float(np.linalg.norm(np.asarray(self.ctx.payload_cog_flange_m) + np.array([0, 0, D6_M])))
+        bound = self.ctx.payload_mass_kg * G_PAPER_M_S2 * cog_from_wrist_m
+        if bound <= self.limits.max_a5_torque_nm:
+            return bound
         q0, q1 = np.array(start), np.array(target)
         l1_deg = float(np.abs(q1 - q0).sum())
         n = max(2, int(np.ceil(l1_deg / TORQUE_STEP_DEG)) + 1)
