@@ -36,11 +36,10 @@ from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
     RunSettings,
-    axes_of,
     close_run,
     loop,
     prepare,
-    program,
+    render_program,
     run_checked,
     run_directory,
     setup_toml,
@@ -211,7 +210,7 @@ def campaign_plan(
             prepared = True
         else:  # a new load was mounted: verify again and return to the measurement pose
             snap = yield from verify_start(inputs)
-            yield from run_checked(program("rgse_meas_pose", s, axes_of(snap, s.meas_pose_deg)), s)
+            yield from run_checked((yield from render_program("rgse_meas_pose", s, snap)), s)
         outcomes: list[LoopOutcome] = []
         for j in range(1, s.loops + 1):
             yield m.Checkpoint(f"point {rec.index} loop {j}")

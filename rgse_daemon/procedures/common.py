@@ -117,6 +117,14 @@ def program(name: str, s: RunSettings, start_deg: Sequence[float], **extra: Any)
     return render(name, params)
 
 
+def render_program(name: str, s: RunSettings, snap: Snapshot | None) -> Generator[m.Msg, Any, RenderedProgram]:
+    """:func:`program` from the current axes, rendered in a worker thread (choosing the safe axis speed is numeric
+    work that must not stall the event loop, or the interlock monitor's snapshots would go stale)."""
+    rendered = yield m.Process(f"render {name}", program, (name, s, axes_of(snap, s.meas_pose_deg)), timeout_s=60.0,
+                               dry_run_safe=True)
+    return rendered
+
+
 def trace_config_xml(s: RunSettings) -> str:
     """The KUKA Trace configuration for one loop: ``trace_samples`` at ``trace_period_s``, triggered at once."""
     rate_us = round(s.trace_period_s * 1e6)
@@ -219,10 +227,10 @@ def prepare(s: RunSettings, inputs: Callable[[], SafetyInputs] | None) -> Genera
     yield m.PutFile(TRACE_DIR + TRACE_CONFIG_NAME, trace_config_xml(s).encode("utf-8"))
     if s.warmup_cycles > 0:
         yield m.Emit(Event("step", f"warm-up move, {s.warmup_cycles} cycles", step="warm-up"))
-        yield from run_checked(program("rgse_warmup", s, axes_of(snap, s.meas_pose_deg)), s)
+        yield from run_checked((yield from render_program("rgse_warmup", s, snap)), s)
         snap = yield m.ReadState()
     yield m.Emit(Event("step", "moving to the measurement pose", step="measurement-pose"))
-    yield from run_checked(program("rgse_meas_pose", s, axes_of(snap, s.meas_pose_deg)), s)
+    yield from run_checked((yield from render_program("rgse_meas_pose", s, snap)), s)
 
 
 # --- one loop ----------------------------------------------------------------------------------------------
@@ -275,7 +283,7 @@ def loop(
     timing = LoopTiming()
     yield m.Call("add loop", store.add_loop, (run_id, index, trace), {"point_index": point_index})
     snap = yield m.ReadState()
-    brake = program("rgse_brake_release", s, axes_of(snap, s.meas_pose_deg))
+    brake = yield from render_program("rgse_brake_release", s, snap)
     yield m.Call("loop robot start", store.update_loop, (run_id, index), {"robot_start_utc": _now()})
     timing.motion_s = (yield from run_checked(brake, s)) or 0.0
     t0 = time.monotonic()

@@ -276,7 +276,8 @@ class RunEngine:
         prog = msg.program
         snap = await self._snapshot()
         try:
-            self.checker(prog, snap)
+            # the check is numeric work: off the event loop, so the monitor keeps polling
+            await self._bounded(f"static check {prog.name}", asyncio.to_thread(self.checker, prog, snap), 60.0)
         except InterlockError as exc:
             self.emit(Event("alarm", f"program {prog.name} refused: {exc}",
                             data={"watcher": "static_check", "program": prog.name, "detail": str(exc)}))

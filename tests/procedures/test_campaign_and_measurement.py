@@ -1,0 +1,144 @@
+"""End to end on the simulated KR C4: a short calibration campaign, then an in-line measurement of a known DuT."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+from rgse_daemon.controller import Controller
+from rgse_daemon.procedures.calibration import fit_campaign, run_calibration, table1_points
+from rgse_daemon.procedures.common import RunSettings
+from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.measurement import compute_mass, run_measurement
+from rgse_daemon.store import LoopState, PointState, RunState, Store, archive_root, verify_file
+from simulators.krc4.physics import dut_payload, mass_calibration_payload, torque_calibration_payload
+from simulators.krc4.sim import SimulatedKrc4
+
+from .conftest import make_engine
+
+DUT_MASS_KG = 95.0
+FIXTURE_KG = 10.288
+#: A short campaign: zero, five stacks, two torque points (Table 1 has 10 stacks and three torque points).
+SHORT_POINTS = table1_points(n_bodies=(0, 1, 3, 5, 7, 10), torque_levers_a5_m=(0.761, 1.261))
+
+
+def mount_on_confirm(sim: SimulatedKrc4, engine: RunEngine, seen: list[int]):
+    """The operator: on each confirm prompt mount the point's load on the simulated flange, then confirm."""
+
+    def on_event(ev: Event) -> None:
+        if ev.kind != "confirm":
+            return
+        d = ev.data
+        seen.append(d["point_index"])
+        if d["kind"] == "torque":
+            sim.mount(torque_calibration_payload(d["n_cb"], d["cb_lever_a5_m"]))
+        else:
+            sim.mount(mass_calibration_payload(d["n_cb"]))
+        asyncio.get_running_loop().call_soon(engine.confirm, f"mounted point {d['point_index']}")
+
+    return on_event
+
+
+def short(cfg, **kw) -> RunSettings:
+    base = {"loops": 1, "trace_samples": 400, "warmup_cycles": 1, "payload_lever_max_m": 1.0}
+    return RunSettings.from_config(cfg, **{**base, **kw})
+
+
+async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store: Store, engine: RunEngine):
+    seen: list[int] = []
+    engine.subscribe(mount_on_confirm(sim, engine, seen))
+    summary = await run_calibration(engine, store, cfg, points=SHORT_POINTS, settings=short(cfg))
+    assert summary is not None
+    assert seen == list(range(len(SHORT_POINTS)))
+    cal = await store.active_calibration(cfg.robot.name)
+    assert cal is not None and cal.id == summary["calibration_id"] and cal.run_id == summary["run_id"]
+    run = await store.get_run(summary["run_id"])
+    assert run.state == RunState.COMPLETED
+    assert all(p.state == PointState.DONE for p in await store.points(run.id))
+    # the campaign directory reproduces the calibration by the offline path
+    run_dir = archive_root(cfg.paths.data_dir) / run.directory
+    doc, again = fit_campaign(run_dir)
+    assert again["calibration_id"] == cal.id == doc["calibration_id"]
+
+    sim.mount(dut_payload(DUT_MASS_KG, (0.0, 0.05, 0.25), fixture_mass_kg=FIXTURE_KG))
+    events: list[Event] = []
+    engine.subscribe(events.append)
+    result = await run_measurement(engine, store, cfg, settings=short(cfg, loops=3, trace_samples=600))
+    assert result is not None
+    assert sim.truth is not None and sim.truth.payload_mass_kg > DUT_MASS_KG + FIXTURE_KG  # + the MPA
+    err_kg = abs(result["mass_kg"] - DUT_MASS_KG)
+    assert err_kg <= result["U_kg"], f"measured {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f}, true {DUT_MASS_KG}"
+    assert result["calibration_id"] == cal.id and result["loops"] == 3
+
+    # raw files: archived, hashed, indexed, reproducible; controller copies gone
+    mrun = await store.get_run(result["run_id"])
+    assert mrun.state == RunState.COMPLETED
+    files = await store.trace_files(mrun.id)
+    assert {f.sha256 for f in files} == set(result["trace_sha256"])
+    for f in files:
+        verify_file(archive_root(cfg.paths.data_dir) / f.path, f.sha256, f.size_bytes)
+    assert all(lp.state == LoopState.ARCHIVED for lp in await store.loops(mrun.id))
+    left = [p.name for p in (sim.share_dir / "TRACE").iterdir() if p.suffix.lower() != ".xml"]
+    assert left == [] and result["controller_copies_deleted"] is True
+    mdir = archive_root(cfg.paths.data_dir) / mrun.directory
+    offline = compute_mass(mdir, mdir / "CAL.json")
+    assert offline["mass_kg"] == result["mass_kg"] and offline["U_kg"] == result["U_kg"]
+    stored = await store.results(mrun.id)
+    assert len(stored) == 1 and stored[0].result["mass_kg"] == result["mass_kg"]
+    outbox = await store.pending_outbox()
+    assert any(o.topic == f"rgse/{cfg.robot.name}/run/{mrun.id}/result" and json.loads(o.payload)["mass_kg"]
+               == result["mass_kg"] for o in outbox)
+    # progress: loop i/n with an eta, and the result
+    loops = [e for e in events if e.kind == "loop"]
+    assert [(e.loop_index, e.loop_count) for e in loops] == [(1, 3), (2, 3), (3, 3)]
+    assert loops[-1].eta_s == 0.0 and all(e.data["robot_s"] > 0 and e.data["overhead_s"] > 0 for e in loops)
+    assert next(e for e in events if e.kind == "result").data["mass_kg"] == result["mass_kg"]
+    timing = result["timing"]
+    print(f"\nper loop: robot {timing['robot_time_s'] / 3:.3f} s, overhead {timing['overhead_s'] / 3:.3f} s (wall);"
+          f" mass {result['mass_kg']:.3f} ± {result['U_kg']:.3f} kg, true {DUT_MASS_KG}")
+
+
+async def test_campaign_resumes_after_restart(sim, cfg, krc, store: Store, engine: RunEngine, tmp_path: Path):
+    points = table1_points(n_bodies=(0, 2, 5, 10), torque_levers_a5_m=(1.011,))
+    seen: list[int] = []
+    engine.subscribe(mount_on_confirm(sim, engine, seen))
+    stop_at = asyncio.Event()
+
+    def cancel_at_point_2(ev: Event) -> None:
+        if ev.kind == "confirm" and ev.data["point_index"] == 2:
+            stop_at.set()
+
+    engine.subscribe(cancel_at_point_2)
+    task = asyncio.create_task(run_calibration(engine, store, cfg, points=points, settings=short(cfg)))
+    await asyncio.wait_for(stop_at.wait(), 60)
+    await asyncio.sleep(0.3)  # point 2 is being measured
+    task.cancel()
+    done, _ = await asyncio.wait({task}, timeout=30)
+    assert task in done and task.cancelled()
+    runs = await store.list_runs(robot=cfg.robot.name)
+    assert len(runs) == 1 and runs[0].state == RunState.INTERRUPTED
+    states = [p.state for p in await store.points(runs[0].id)]
+    assert states[:2] == [PointState.DONE, PointState.DONE] and PointState.DONE not in states[2:]
+    assert await store.active_calibration(cfg.robot.name) is None
+    # the program was stopped by the finaliser
+    assert sim.interpreter.state.name != "ACTIVE"
+
+    # "restart": a new controller link and a new engine on the same store
+    async with Controller.connect(cfg.controller) as krc2:
+        engine2 = make_engine(krc2, cfg)
+        seen2: list[int] = []
+        engine2.subscribe(mount_on_confirm(sim, engine2, seen2))
+        summary = await run_calibration(engine2, store, cfg, settings=short(cfg), run_id=runs[0].id)
+    assert summary is not None and seen2 == [2, 3, 4]
+    run = await store.get_run(runs[0].id)
+    assert run.state == RunState.COMPLETED
+    cal = await store.active_calibration(cfg.robot.name)
+    assert cal is not None and cal.id == summary["calibration_id"]
+    loops = await store.loops(run.id)
+    superseded = [lp for lp in loops if lp.state == LoopState.FAILED]
+    assert all(lp.point_index == 2 for lp in superseded)
+    used = [lp for lp in loops if lp.state == LoopState.ARCHIVED]
+    assert sorted({lp.point_index for lp in used}) == [0, 1, 2, 3, 4]
+    assert summary["points"] == 5
