@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import ssl
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
@@ -60,7 +61,7 @@ class Session:
 async def _session(
     broker: tuple[str, int], prefix: str, store: Store, handler: Any, **kw: Any
 ) -> AsyncIterator[Session]:
-    cfg_overrides = {k: kw.pop(k) for k in list(kw) if k in ("command_tokens", "username", "password")}
+    cfg_overrides = {k: kw.pop(k) for k in list(kw) if k in ("command_tokens",)}
     bridge = MqttBridge(mqtt_config(*broker, prefix, **cfg_overrides), ROBOT, store, handler, "1", timeout_s=5, **kw)
     async with Collector(*broker, f"{prefix}/cmd/+/reply", f"{prefix}/alarm") as client, bridge:
         await wait_until(lambda: bridge.connected, "bridge connected")
@@ -277,3 +278,84 @@ def test_parse_command_without_a_broker() -> None:
     with pytest.raises(CommandRefused, match="unauthorised"):
         parse_command("abort", b'{"request_id": "r", "reason": "x", "token": "s3cret-10"}', TOKENS)
     assert parse_command("abort", b'{"request_id": "r", "reason": "x", "token": "s3cret-1"}', TOKENS).reason == "x"
+
+
+async def _run(*argv: str) -> None:
+    proc = await asyncio.create_subprocess_exec(
+        *argv, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT
+    )
+    out, _ = await asyncio.wait_for(proc.communicate(), 30)
+    assert proc.returncode == 0, f"{argv[0]}: {out.decode(errors='replace')}"
+
+
+async def test_tls_with_a_private_ca(tmp_path: Path, store: Store, handler: RecordingHandler) -> None:
+    """A broker with a certificate signed by our own CA: the bridge verifies it with ``tls_ca_file``."""
+    d = tmp_path / "pki"
+    d.mkdir()
+    ca_key, ca, key, csr, crt = (d / n for n in ("ca.key", "ca.pem", "server.key", "server.csr", "server.pem"))
+    await _run(
+        "openssl",
+        "req",
+        "-x509",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-days",
+        "2",
+        "-subj",
+        "/CN=rgse test CA",
+        "-keyout",
+        str(ca_key),
+        "-out",
+        str(ca),
+    )
+    await _run(
+        "openssl",
+        "req",
+        "-newkey",
+        "rsa:2048",
+        "-nodes",
+        "-subj",
+        "/CN=127.0.0.1",
+        "-keyout",
+        str(key),
+        "-out",
+        str(csr),
+    )
+    ext = d / "san.cnf"
+    ext.write_text("subjectAltName=IP:127.0.0.1\n")
+    await _run(
+        "openssl",
+        "x509",
+        "-req",
+        "-in",
+        str(csr),
+        "-CA",
+        str(ca),
+        "-CAkey",
+        str(ca_key),
+        "-CAcreateserial",
+        "-days",
+        "2",
+        "-extfile",
+        str(ext),
+        "-out",
+        str(crt),
+    )
+    broker = MosquittoProcess(tmp_path / "tls", f"allow_anonymous true\ncafile {ca}\ncertfile {crt}\nkeyfile {key}\n")
+    await broker.start()
+    try:
+        addr = ("127.0.0.1", broker.port)
+        cfg = mqtt_config(*addr, "tls", tls=True, tls_ca_file=ca)
+        bridge = MqttBridge(cfg, ROBOT, store, handler, "1", timeout_s=3)
+        async with bridge:
+            await wait_until(lambda: bridge.connected, "connected over TLS")
+        untrusting = MqttBridge(mqtt_config(*addr, "tls", tls=True), ROBOT, store, handler, "1", timeout_s=3)
+        async with untrusting:  # the system CAs do not know our CA: the handshake must fail
+            await wait_until(lambda: untrusting.counters.connect_failures >= 1, "certificate refused")
+            assert untrusting.counters.connects == 0
+        tls = ssl.create_default_context(cafile=str(ca))
+        (status,) = await retained(*addr, "tls/status", tls_context=tls)
+        assert json.loads(status.payload)["state"] == "offline"
+    finally:
+        await broker.stop()
