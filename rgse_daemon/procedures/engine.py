@@ -312,6 +312,9 @@ class RunEngine:
                     self._expect(Expect.IDLE)
                 return state, time.monotonic() - t0
             if state == "P_STOP" and "P_STOP" not in msg.states:
+                if self.monitor is not None and not self.dry_run:
+                    # the monitor names the cause (STOP 2, mode, ...): give it a few polls to trip first
+                    await asyncio.sleep(3 * self.monitor.stale_after_s)
                 raise ProgramStopped(f"program stopped (#P_STOP) while waiting for {'/'.join(sorted(msg.states))}")
             if time.monotonic() >= deadline:
                 raise StepTimeout(f"program did not reach {'/'.join(sorted(msg.states))} within {msg.timeout_s:g} s"

@@ -1,0 +1,51 @@
+"""Plans for the tests: a long warm-up motion with a long trace recording (what a trip has to stop)."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import replace
+
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.common import (
+    TRACE_CONFIG_NAME,
+    RunSettings,
+    render_program,
+    run_checked,
+    trace_config_xml,
+)
+from rgse_daemon.procedures.retrieval import TRACE_DIR
+from simulators.krc4.sim import SimulatedKrc4
+
+LONG_TRACE = "long_trace"
+
+
+def long_motion(s: RunSettings) -> m.Plan:
+    """Start a long trace, then a warm-up of many cycles (minutes of simulated time)."""
+    snap = yield m.ReadState()
+    yield m.PutFile(TRACE_DIR + TRACE_CONFIG_NAME, trace_config_xml(replace(s, trace_samples=40_000)).encode())
+    yield m.TraceStart(LONG_TRACE, TRACE_CONFIG_NAME)
+    prog = yield from render_program("rgse_warmup", replace(s, warmup_cycles=60), snap)
+    yield from run_checked(prog, s)
+
+
+async def until(predicate, timeout_s: float = 30.0, what: str = "condition") -> None:
+    """Poll ``predicate`` until true, at most ``timeout_s`` (fails the test with ``what`` otherwise)."""
+    deadline = asyncio.get_running_loop().time() + timeout_s
+    while not predicate():  # the simulator's state has no change event to await: poll it
+        if asyncio.get_running_loop().time() > deadline:
+            raise AssertionError(f"{what}: not reached within {timeout_s:g} s")
+        await asyncio.sleep(0.01)
+
+
+def moving(sim: SimulatedKrc4) -> bool:
+    """The program runs and the robot moves (the warm-up cycles have begun)."""
+    return (sim.store.read("$PRO_STATE1") == "#P_ACTIVE" and sim.store.read("$ROB_STOPPED") == "FALSE"
+            and sim.store.read("$TRACE.STATE") == "#TRIGGERED")
+
+
+def robot_still(sim: SimulatedKrc4) -> bool:
+    return sim.store.read("$PRO_STATE1") != "#P_ACTIVE" and sim.store.read("$ROB_STOPPED") == "TRUE"
+
+
+def trace_stopped(sim: SimulatedKrc4) -> bool:
+    return sim.store.read("$TRACE.STATE") == "#T_END"
