@@ -392,11 +392,11 @@ class MqttBridge:
         """
         if not isinstance(snapshot, dict):
             raise MqttError(f"state: a dict expected, got {type(snapshot).__name__}")
-        _dumps(snapshot, "state")  # refuse a bad snapshot here, at its source
+        text = _dumps(snapshot, "state")  # refuse a bad snapshot here, at its source
         if self._state_pending is not None:
             self.counters.dropped_state += 1
         self._state_seq += 1
-        self._state_pending = (self._state_seq, dict(snapshot))
+        self._state_pending = (self._state_seq, json.loads(text))  # a deep copy: the caller may keep mutating
         self._state_wake.set()
 
     def publish_progress(self, run_id: str, progress: dict[str, Any]) -> None:

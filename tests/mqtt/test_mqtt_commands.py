@@ -241,7 +241,9 @@ async def test_commands_in_flight_are_cancelled_on_stop(
     assert handler.cancelled.is_set()  # the leak guard of conftest checks nothing else was left running
 
 
-async def test_username_and_password_are_used(tmp_path: Path, store: Store, handler: RecordingHandler) -> None:
+async def test_username_and_password_are_used(
+    tmp_path: Path, store: Store, handler: RecordingHandler, caplog: pytest.LogCaptureFixture
+) -> None:
     pw = tmp_path / "passwd"
     proc = await asyncio.create_subprocess_exec("mosquitto_passwd", "-b", "-c", str(pw), "rgse", "pa55")
     assert await asyncio.wait_for(proc.wait(), 10) == 0
@@ -253,8 +255,10 @@ async def test_username_and_password_are_used(tmp_path: Path, store: Store, hand
             mqtt_config(*addr, "auth", username="rgse", password="nope"), ROBOT, store, handler, "1", timeout_s=3
         )
         async with wrong:
-            await wait_until(lambda: wrong.counters.connect_failures >= 2, "refused twice, backing off")
+            await wait_until(lambda: wrong.counters.connect_failures >= 3, "refused three times, backing off")
             assert not wrong.connected and wrong.counters.connects == 0
+        refusals = [r for r in caplog.records if r.name == "rgse_daemon.io.mqtt" and "cannot connect" in r.message]
+        assert len(refusals) == 1, "the same error is logged once, not on every attempt"
         right = MqttBridge(
             mqtt_config(*addr, "auth", username="rgse", password="pa55"), ROBOT, store, handler, "1", timeout_s=3
         )
