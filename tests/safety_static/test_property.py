@@ -1,0 +1,252 @@
+"""Property: no program that an independent oracle finds violating passes the static check.
+
+Hypothesis builds random programs (velocity settings, absolute and relative PTPs, writes, FOR loops, IF branches) as a
+small tree, prints them as KRL, and runs them through two judges:
+
+* the static check under test;
+* an oracle that *executes* the tree concretely along every branch combination, samples each joint path densely with
+  the forward kinematics (speeds of the flange and payload points at synchronous PTP joint speeds), and checks ranges,
+  the load diagram and the allow-list with plain comparisons. It shares no code with the check besides kinematics.
+
+The check may refuse more than the oracle (it bounds, the oracle samples), never less.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from rgse_daemon.kinematics import JOINT_LIMITS_DEG, gravity_torques_nm, point_velocity_mm_s
+from rgse_daemon.safety.static import CheckContext, check_program
+from simulators.krc4.motion import MAX_AXIS_SPEED_DEG_S
+
+LIMIT_MM_S = 200.0
+A1_ENVELOPE_DEG = 45.0
+REL_MAX_DEG = 45.0
+MAX_PAYLOAD_KG = 611.0
+MAX_A5_NM = 3330.0
+MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
+ALLOWED_SYSVARS = ("$VEL_AXIS", "$ACC_AXIS", "$OV_PRO", "$APO", "$TRACE")
+
+# --- programs as trees ---------------------------------------------------------------------------------------------------
+axis = st.integers(1, 6)
+angle = st.floats(-20.0, 20.0, allow_nan=False).map(lambda v: round(v, 2))
+vel = st.one_of(st.floats(0.2, 15.0).map(lambda v: round(v, 2)), st.just(None))  # None: a non-constant value
+writes = st.sampled_from(["RGSE_STEP", "RGSE_DONE", "OTHER_FLAG", "$TOOL", "$TRACE.MODE", "$VEL.ORI1"])
+
+
+def ptp_abs() -> st.SearchStrategy[tuple[Any, ...]]:
+    fields = st.dictionaries(axis, st.floats(-1.0, 1.0), min_size=1, max_size=3)
+    # absolute targets near the measurement pose, sometimes beyond the envelope or the axis ranges
+    return fields.map(
+        lambda d: ("ptp", {a: round(MEAS[a - 1] + v * (70.0 if a != 2 else 115.0), 2) for a, v in d.items()})
+    )
+
+
+leaf = st.one_of(
+    st.tuples(st.just("vel"), axis, vel),
+    st.tuples(st.just("ov"), st.integers(0, 130)),
+    ptp_abs(),
+    st.tuples(
+        st.just("rel"), st.dictionaries(axis, st.floats(-50.0, 50.0).map(lambda v: round(v, 2)), min_size=1, max_size=2)
+    ),
+    st.tuples(st.just("write"), writes),
+)
+stmts = st.recursive(
+    st.lists(leaf, min_size=1, max_size=4),
+    lambda inner: st.lists(
+        st.one_of(leaf, st.tuples(st.just("for"), st.integers(1, 3), inner), st.tuples(st.just("if"), inner, inner)),
+        min_size=1,
+        max_size=4,
+    ),
+    max_leaves=7,
+)
+
+
+def krl(tree: list[Any], indent: str = "  ") -> list[str]:
+    lines = []
+    for node in tree:
+        kind = node[0]
+        if kind == "vel":
+            value = "RGSE_V" if node[2] is None else node[2]
+            lines.append(f"{indent}$VEL_AXIS[{node[1]}] = {value}")
+        elif kind == "ov":
+            lines.append(f"{indent}$OV_PRO = {node[1]}")
+        elif kind in ("ptp", "rel"):
+            agg = ", ".join(f"A{a} {v}" for a, v in sorted(node[1].items()))
+            lines.append(f"{indent}{'PTP' if kind == 'ptp' else 'PTP_REL'} {{{agg}}}")
+        elif kind == "write":
+            lines.append(f"{indent}{node[1]} = 1")
+        elif kind == "for":
+            lines += [f"{indent}FOR i = 1 TO {node[1]}", *krl(node[2], indent + "  "), f"{indent}ENDFOR"]
+        else:
+            lines += [
+                f"{indent}IF RGSE_CMD == 1 THEN",
+                *krl(node[1], indent + "  "),
+                f"{indent}ELSE",
+                *krl(node[2], indent + "  "),
+                f"{indent}ENDIF",
+            ]
+    return lines
+
+
+def program_text(tree: list[Any]) -> str:
+    return "&ACCESS RVP\nDEF prop( )\n  DECL INT i\n" + "\n".join(krl(tree)) + "\nEND\n"
+
+
+# --- the oracle ----------------------------------------------------------------------------------------------------------
+@dataclass
+class Run:
+    pose: tuple[float, ...] | None
+    vel_pct: list[float] = field(default_factory=lambda: [100.0] * 6)
+
+
+def sampled_speed_mm_s(q0: np.ndarray, q1: np.ndarray, vel_pct: list[float], points: list[tuple[float, ...]]) -> float:
+    delta = q1 - q0
+    moving = np.abs(delta) > 1e-9
+    if not moving.any():
+        return 0.0
+    vmax = np.array(vel_pct) / 100.0 * np.array(MAX_AXIS_SPEED_DEG_S)  # override: the operator may set 100 %
+    scale = np.min(vmax[moving] / np.abs(delta[moving]))  # synchronous PTP: the slowest axis sets the pace
+    qdot = delta * scale
+    n = max(2, int(np.abs(delta).max() / 0.5) + 1)
+    return max(
+        float(np.linalg.norm(point_velocity_mm_s(q0 + s * delta, qdot, p)))
+        for s in np.linspace(0.0, 1.0, n)
+        for p in points
+    )
+
+
+class Oracle:
+    def __init__(self, points: list[tuple[float, ...]], mass_kg: float, cog: tuple[float, ...]) -> None:
+        self.points = [(0.0, 0.0, 0.0), *points]
+        self.mass_kg = mass_kg
+        self.cog = cog
+        self.reasons: set[str] = set()
+
+    def run(self, tree: list[Any], runs: list[Run]) -> list[Run]:
+        for node in tree:
+            kind = node[0]
+            if kind == "for":
+                for _ in range(node[1]):
+                    runs = self.run(node[2], runs)
+            elif kind == "if":
+                runs = self.run(node[1], [Run(r.pose, list(r.vel_pct)) for r in runs]) + self.run(
+                    node[2], [Run(r.pose, list(r.vel_pct)) for r in runs]
+                )
+                unique = {(r.pose, tuple(r.vel_pct)): r for r in runs}
+                runs = list(unique.values())
+            else:
+                for r in runs:
+                    self.step(node, r)
+        return runs
+
+    def step(self, node: tuple[Any, ...], r: Run) -> None:
+        kind = node[0]
+        if kind == "vel":
+            if node[2] is None:
+                self.reasons.add("non-constant velocity")
+                r.vel_pct[node[1] - 1] = 100.0
+            else:
+                r.vel_pct[node[1] - 1] = node[2]
+        elif kind == "ov":
+            if node[1] > 100:
+                self.reasons.add("override above 100")
+        elif kind == "write":
+            name = node[1]
+            if name.startswith("$"):
+                if not name.startswith(ALLOWED_SYSVARS):
+                    self.reasons.add(f"system variable {name}")
+            elif not name.startswith("RGSE_"):
+                self.reasons.add(f"write {name}")
+        else:
+            if r.pose is None:
+                self.reasons.add("unknown start")
+                return
+            start = np.array(r.pose)
+            target = start.copy()
+            for a, v in node[1].items():
+                if kind == "ptp":
+                    target[a - 1] = v
+                else:
+                    target[a - 1] += v
+                    if abs(v) > REL_MAX_DEG:
+                        self.reasons.add("relative amplitude")
+            if np.any(target < JOINT_LIMITS_DEG[:, 0]) or np.any(target > JOINT_LIMITS_DEG[:, 1]):
+                self.reasons.add("joint limit")
+            elif abs(target[0]) > A1_ENVELOPE_DEG:
+                self.reasons.add("A1 envelope")
+            else:
+                if sampled_speed_mm_s(start, target, r.vel_pct, self.points) > LIMIT_MM_S:
+                    self.reasons.add("speed")
+                tau5 = gravity_torques_nm(target, [(self.mass_kg, self.cog)])[4]
+                if abs(tau5) > MAX_A5_NM:
+                    self.reasons.add("A5 torque")
+            r.pose = tuple(float(v) for v in target)
+
+
+contexts = st.builds(
+    dict,
+    mode=st.sampled_from(["T1", "T1", "T1", "AUT", "T2"]),
+    area=st.booleans(),
+    key=st.booleans(),
+    mass=st.sampled_from([0.0, 100.0, 611.0, 650.0]),
+    cog_z=st.sampled_from([0.0, 0.2, 0.5]),
+    reach=st.sampled_from([0.0, 0.5, 1.0]),
+    known_start=st.sampled_from([True, True, True, False]),
+)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(tree=stmts, c=contexts)
+def test_no_program_the_oracle_refuses_passes_the_check(tree: list[Any], c: dict[str, Any]) -> None:
+    r = c["reach"]
+    points = [(sx * r, sy * r, r) for sx in (-1, 1) for sy in (-1, 1)] if r else []
+    cog = (0.0, 0.0, c["cog_z"])
+    oracle = Oracle(points, c["mass"], cog)
+    start = MEAS if c["known_start"] else None
+    oracle.run(tree, [Run(start)])
+    if c["mode"] == "T2" or (c["mode"] == "AUT" and not (c["area"] and c["key"])):
+        oracle.reasons.add("mode")
+    if c["mass"] > MAX_PAYLOAD_KG:
+        oracle.reasons.add("payload")
+    ctx = CheckContext(
+        mode=c["mode"],
+        area_cleared=c["area"],
+        key_confirmed=c["key"],
+        payload_mass_kg=c["mass"],
+        payload_cog_flange_m=cog,
+        payload_points_flange_m=tuple(points),
+        start_axes_deg=start,
+    )
+    src = program_text(tree)
+    found = check_program(src, None, ctx, "prop.src")
+    if oracle.reasons:
+        assert found, f"oracle refuses ({sorted(oracle.reasons)}) but the check allows:\n{src}"
+
+
+def test_the_oracle_is_not_vacuous() -> None:
+    """The oracle itself finds each kind of problem (so the property above can fail)."""
+    oracle = Oracle([(0.0, 0.0, 1.0)], 650.0, (0.0, 0.0, 0.5))
+    oracle.run(
+        [("vel", 3, 100.0), ("ptp", {3: 110.0}), ("rel", {1: 50.0}), ("write", "OTHER"), ("vel", 1, None)],
+        [Run(MEAS)],
+    )
+    assert {"speed", "A1 envelope", "relative amplitude", "write OTHER", "non-constant velocity", "A5 torque"} <= (
+        oracle.reasons
+    )
+    slow = Oracle([], 0.0, (0.0, 0.0, 0.0))
+    slow.run([*(("vel", a, 2.0) for a in range(1, 7)), ("ptp", {3: 100.0})], [Run(MEAS)])
+    assert slow.reasons == set()
+    assert (
+        check_program(
+            program_text([*(("vel", a, 2.0) for a in range(1, 7)), ("ptp", {3: 100.0})]),
+            None,
+            CheckContext(start_axes_deg=MEAS),
+        )
+        == []
+    )
