@@ -32,9 +32,8 @@ MAX_A5_NM = 3330.0
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
 ALLOWED_SYSVARS = ("$VEL_AXIS", "$ACC_AXIS", "$OV_PRO", "$APO", "$TRACE")
 
-# --- programs as trees ---------------------------------------------------------------------------------------------------
+# --- programs as trees ------------------------------------------------------------------------------------------------
 axis = st.integers(1, 6)
-angle = st.floats(-20.0, 20.0, allow_nan=False).map(lambda v: round(v, 2))
 vel = st.one_of(st.floats(0.2, 15.0).map(lambda v: round(v, 2)), st.just(None))  # None: a non-constant value
 writes = st.sampled_from(["RGSE_STEP", "RGSE_DONE", "OTHER_FLAG", "$TOOL", "$TRACE.MODE", "$VEL.ORI1"])
 
@@ -98,7 +97,7 @@ def program_text(tree: list[Any]) -> str:
     return "&ACCESS RVP\nDEF prop( )\n  DECL INT i\n" + "\n".join(krl(tree)) + "\nEND\n"
 
 
-# --- the oracle ----------------------------------------------------------------------------------------------------------
+# --- the oracle -------------------------------------------------------------------------------------------------------
 @dataclass
 class Run:
     pose: tuple[float, ...] | None
