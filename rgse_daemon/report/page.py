@@ -36,12 +36,13 @@ table{border-collapse:collapse;margin:.4em 0 .8em;font-size:.88em}
 th,td{border:1px solid #d6d8dc;padding:3px 8px;text-align:left;vertical-align:top}
 th{background:#eef0f4;font-weight:600}td.r,th.r{text-align:right}
 .num{font-variant-numeric:tabular-nums;white-space:nowrap}
-code,.mono{font-family:ui-monospace,"SFMono-Regular",Menlo,Consolas,monospace;font-size:.86em;word-break:break-all}
+code{font-family:ui-monospace,"SFMono-Regular",Menlo,Consolas,monospace;font-size:.86em;white-space:nowrap}
+code.hash{white-space:normal;word-break:break-all}td.t{white-space:nowrap}
 pre{background:#f6f7f9;border:1px solid #e1e3e6;padding:8px;overflow-x:auto;font-size:.8em}
 img{display:block;max-width:100%;height:auto;margin:.4em 0 1em}
 .badge{display:inline-block;padding:1px 8px;border-radius:10px;font-size:.8em;font-weight:600}
 .ok{background:#dff3e3;color:#185c27}.bad{background:#fbe0e0;color:#8a1a1a}.info{background:#e3ecf9;color:#1d3f73}
-.key td:first-child{width:280px;color:#444}
+span.t{white-space:nowrap}.key td:first-child{width:280px;color:#444}
 .warn{background:#fff6dd;border-left:4px solid #e0a800;padding:6px 10px;margin:.5em 0}
 footer{margin-top:2em;color:#666;font-size:.8em}
 """
@@ -77,13 +78,15 @@ def num(value: float | int | None, fmt: str, field: str, unit: str = "") -> str:
     return f'<span class="num" data-field="{t(field)}" data-value="{t(repr(value))}">{t(shown)}</span>'
 
 
-def code(text: object, field: str | None = None) -> str:
+def code(text: object, field: str | None = None, wrap: bool = False) -> str:
+    """Monospaced text; ``wrap`` lets long tokens (hashes, JSON) break anywhere."""
     attr = f' data-field="{t(field)}" data-value="{t(text)}"' if field else ""
-    return f'<code{attr}>{t(text)}</code>'
+    cls = ' class="hash"' if wrap else ""
+    return f"<code{cls}{attr}>{t(text)}</code>"
 
 
 def when(ts: datetime | None) -> str:
-    return "–" if ts is None else t(ts.strftime("%Y-%m-%d %H:%M:%S UTC"))
+    return "–" if ts is None else f'<span class="t">{t(ts.strftime("%Y-%m-%d %H:%M:%S"))} UTC</span>'
 
 
 def table(header: Sequence[str], rows: Iterable[Sequence[str]], right: Sequence[int] = (), cls: str = "") -> str:
@@ -123,7 +126,7 @@ def page(title: str, subtitle: str, body: str, meta: ReportMeta) -> str:
 
 def _files_table(files: Sequence[TraceFileRecord], prefix: str) -> str:
     rows = [(code(f.path), "–" if f.loop_index is None else num(f.loop_index + 1, "d", f"{prefix}.loop"),
-             num(f.size_bytes, ",d", f"{prefix}.size_bytes", "B"), code(f.sha256, f"{prefix}.sha256"),
+             num(f.size_bytes, ",d", f"{prefix}.size_bytes", "B"), code(f.sha256, f"{prefix}.sha256", wrap=True),
              when(f.archived_utc)) for f in files]
     return table(("path (relative to the archive)", "loop", "size", "SHA-256", "archived"), rows, right=(1, 2))
 
@@ -159,7 +162,8 @@ def _calibration_summary(calv: CalibrationView) -> str:
         ("mean abs. mass error in sample / LOO", num(fit.get("in_sample_mean_abs_err_pct"), ".4f", "in_sample_pct", "%")
          + " / " + num(fit.get("loo_mean_abs_err_pct"), ".4f", "loo_pct", "%")),
         ("LOO max abs. mass error", num(fit.get("loo_max_abs_err_kg"), ".3f", "loo_max_kg", "kg")),
-        ("pre-processing", code(json.dumps(pre, sort_keys=True)) if pre else "– (not recorded; paper method F)"),
+        ("pre-processing",
+         code(json.dumps(pre, sort_keys=True), wrap=True) if pre else "– (not recorded; paper method F)"),
     ]
     return kv(rows)
 
@@ -217,7 +221,7 @@ def calibration_section(calv: CalibrationView, working: tuple[float, float] | No
 
 def _calibration_provenance(calv: CalibrationView) -> str:
     src = calv.document.get("source_sha256") or {}
-    rows = [(code(name), code(sha, "source_sha256")) for name, sha in sorted(src.items())]
+    rows = [(code(name), code(sha, "source_sha256", wrap=True)) for name, sha in sorted(src.items())]
     out = "<h3>Calibration inputs (CAL.json <code>source_sha256</code>)</h3>"
     out += table(("file", "SHA-256"), rows) if rows else "<p>none recorded</p>"
     if calv.files:
@@ -252,6 +256,8 @@ def _result_summary(view: MeasurementView) -> str:
         ("net mass of the DuT ± U (k = " + t(res.get("k", 2)) + ")",
          f"<strong>{num(m, '.3f', 'mass_kg')} ± {num(big_u, '.3f', 'U_kg', 'kg')}</strong>"),
         ("standard uncertainty u", num(res.get("u_kg"), ".4f", "u_kg", "kg")),
+        *[(f"  u component: {name}", num(v if isinstance(v, int | float) else None, ".4f", f"u_component.{name}", "kg"))
+          for name, v in sorted((res.get("u_components_kg") or {}).items())],
         ("gross mass (DuT and fixture)", num(res.get("gross_mass_kg"), ".3f", "gross_mass_kg", "kg")),
         ("fixture mass", num(res.get("fixture_mass_kg"), ".3f", "fixture_mass_kg", "kg")),
         ("loops", num(res.get("loops"), "d", "loops")),
@@ -309,8 +315,10 @@ def _loops_table(view: MeasurementView) -> str:
         rows.append((num(lp.index + 1, "d", "loop.number"), code(r.trace_name, "loop.trace"), t(r.state.value),
                      num(lp.a3.loop_mean_nm, ".3f", "loop.a3_mean_nm"),
                      num(lp.a5.loop_mean_nm, ".3f", "loop.a5_mean_nm"),
-                     num(lp.a3.n_used, "d", "loop.a3_used") + " / " + num(lp.a3.n_total, "d", "loop.a3_total"),
-                     num(lp.a5.n_used, "d", "loop.a5_used") + " / " + num(lp.a5.n_total, "d", "loop.a5_total"),
+                     '<span class="t">' + num(lp.a3.n_used, "d", "loop.a3_used") + " / "
+                     + num(lp.a3.n_total, "d", "loop.a3_total") + "</span>",
+                     '<span class="t">' + num(lp.a5.n_used, "d", "loop.a5_used") + " / "
+                     + num(lp.a5.n_total, "d", "loop.a5_total") + "</span>",
                      num(lp.gross_mass_kg - fixture if lp.gross_mass_kg is not None else None, ".3f",
                          "loop.net_mass_kg"),
                      when(r.robot_start_utc), when(r.record_end_utc)))
@@ -333,7 +341,8 @@ def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
         "<p>A loop's mass is eq. 21 on that loop's pre-processed means alone; the result uses the double average of "
         "eq. 16 over all loops.</p>",
         "<h2>Torque traces per loop (Fig. 22)</h2>",
-        f"<p>Pre-processing {code(json.dumps(view.calibration.preprocessing.to_dict(), sort_keys=True))}: raw samples, "
+        f"<p>Pre-processing {code(json.dumps(view.calibration.preprocessing.to_dict(), sort_keys=True), wrap=True)}"
+        ": raw samples, "
         "the samples kept after the settle cut and the σ crop, the filtered series and the loop mean.</p>",
     ]
     for lp in view.loops:

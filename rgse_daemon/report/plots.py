@@ -48,9 +48,9 @@ def _axis_trace(ax, a: AxisProcessing, name: str) -> None:
     ax.plot(a.kept_time_s, a.kept_nm, ".", color=_KEPT, ms=1.5, label=f"kept after crop ({a.n_used}/{a.n_total})")
     ax.plot(a.filtered_time_s, a.filtered_nm, color=_FILT, lw=1.4, label="filtered")
     ax.axhline(a.loop_mean_nm, color=_MEAN, ls="--", lw=1.2, label=f"loop mean {a.loop_mean_nm:.2f} Nm")
-    lo, hi = np.percentile(a.raw_nm, [0.5, 99.5])
-    pad = 0.25 * (hi - lo) + 1e-9
-    ax.set_ylim(lo - pad, hi + pad)  # spikes beyond the view are still in the raw line, just clipped
+    lo, hi = float(np.min(a.kept_nm)), float(np.max(a.kept_nm))
+    pad = 0.6 * (hi - lo) + 1e-9
+    ax.set_ylim(lo - pad, hi + pad)  # cropped spikes run off the view: the raw line still shows where they are
     ax.set_ylabel(f"{name} torque (Nm)")
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=7, ncol=2)
@@ -82,6 +82,10 @@ def loop_masses(view: MeasurementView) -> bytes:
     ax.axhspan(m - e, m + e, color="#2ca02c", alpha=0.35, label=f"ECSS-E-10-03C ± 0.05 % (± {e:.3f} kg)")
     ax.axhline(m, color="#1f77b4", lw=1.0)
     ax.plot(x, net, "o-", color="#d62728", ms=5, lw=0.8, label="net mass of each loop alone")
+    lo = min(float(net.min()), m - e)
+    hi = max(float(net.max()), m + e)
+    pad = max(0.4 * (hi - lo), e)
+    ax.set_ylim(lo - pad, hi + pad)  # zoomed on the loops: a U band wider than the view fills it
     ax.set_xticks(x)
     ax.set_xlabel("loop")
     ax.set_ylabel("net mass (kg)")
@@ -96,11 +100,12 @@ def mass_vs_ecss(view: MeasurementView) -> bytes:
     ref = view.references[-1] if view.references else None
     centre = ref.net_mass_kg if ref is not None else m
     e = ECSS_MASS_REL * abs(centre)
-    fig, axes = _new(10, 2.6 if ref is None else 3.2)
+    fig, axes = _new(10, 1.9 if ref is None else 2.8)
     ax = axes[0, 0]
     ax.axvspan(centre - e, centre + e, color="#2ca02c", alpha=0.35,
                label=f"ECSS-E-10-03C ± 0.05 % of {'the scale' if ref else 'the in-line'} mass (± {e:.3f} kg)")
-    ax.errorbar([m], [1], xerr=[[big_u], [big_u]], fmt="o", color="#1f77b4", capsize=6,
+    y_inline = 1 if ref is not None else 0
+    ax.errorbar([m], [y_inline], xerr=[[big_u], [big_u]], fmt="o", color="#1f77b4", capsize=6,
                 label=f"in-line net mass ± U (k = 2): {m:.3f} ± {big_u:.3f} kg")
     labels = ["in-line (robot)"]
     if ref is not None:
@@ -134,7 +139,7 @@ def calibration_curves(calv: CalibrationView) -> bytes:
         sign = 1.0 if float(np.sum(meas)) >= 0 else -1.0
         grid = sign * np.linspace(0, float(np.max(np.abs(meas))) * 1.05, 200)
         ax.plot(np.abs(k_axis.corrected_torque_nm(grid)), np.abs(grid), color="#d62728", lw=1.2,
-                label=f"calibration: M = (K·M)⁻¹ ({cal.method})")
+                label=f"calibration K(M)·M ({cal.method})")
         for kind in sorted(set(kinds)):
             sel = np.array([k == kind for k in kinds])
             color, marker = _KIND_STYLE.get(kind, ("#000000", "x"))
@@ -165,15 +170,23 @@ def k_fits(calv: CalibrationView, working: tuple[float, float] | None = None) ->
                         label=f"± {BAND_K:g}σ from the parameter covariance")
         ax.plot(grid, k, color="#1f77b4", lw=1.4, label=f"K({name}) fitted ({k_axis.kind})")
         ax.axvspan(lo, hi, color="#7f7f7f", alpha=0.08, label="calibrated torque range")
+        inside = (grid >= lo) & (grid <= hi)
+        shown = [k[inside]] if inside.any() else [k]
         if calv.points:
             meas = np.array([getattr(p, f"measured_{name.lower()}_nm") for p in calv.points])
             exp = np.array([getattr(p, f"expected_{name.lower()}_nm") for p in calv.points])
             loaded = np.array([float(p.spec["mass_kg"]) > 0 for p in calv.points]) & (meas != 0)
-            ax.plot(np.abs(meas[loaded]), exp[loaded] / meas[loaded], "o", color="#d62728", ms=5,
+            ratio = exp[loaded] / meas[loaded]
+            shown.append(ratio)
+            ax.plot(np.abs(meas[loaded]), ratio, "o", color="#d62728", ms=5,
                     label="ratio samples K = expected / measured")
         if w is not None:
             kw = float(k_axis.k(np.array([w]))[0])
             ax.plot([abs(w)], [kw], "*", color="#2ca02c", ms=14, label=f"this measurement |M| = {abs(w):.1f} Nm")
+            shown.append(np.array([kw]))
+        vals = np.concatenate(shown)
+        span = float(vals.max() - vals.min()) or 1e-3 * abs(float(vals.mean()))
+        ax.set_ylim(float(vals.min()) - 0.5 * span, float(vals.max()) + 0.5 * span)
         ax.set_xlabel(f"measured torque |M − M₀| {name} (Nm)")
         ax.set_ylabel(f"calibration factor K {name}")
         ax.set_title(name, fontsize=10)

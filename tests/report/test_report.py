@@ -1,0 +1,189 @@
+"""The HTML report of a measurement run and of a calibration, rendered from a real store and opened in headless
+Chromium: every figure must load, and every number shown must be the stored one."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from collections import defaultdict
+from html.parser import HTMLParser
+from pathlib import Path
+
+import pytest
+
+from rgse_daemon.commands import report as report_cmd
+from rgse_daemon.report import ReportConsistencyError, build_report
+from rgse_daemon.store import ArchiveError, Repository, archive_root
+from tests.report.chromium import REPO, dump_dom, screenshot
+from tests.report.conftest import World, write_config
+
+
+class Dom(HTMLParser):
+    """Collects ``<img>`` attributes, ``data-field`` values and the text shown by each numbered element."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(convert_charrefs=True)
+        self.images: list[dict[str, str | None]] = []
+        self.fields: dict[str, list[str]] = defaultdict(list)
+        self.shown: dict[str, list[str]] = defaultdict(list)
+        self.body: dict[str, str | None] = {}
+        self._open: list[str] = []
+        self.feed(text)
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        a = dict(attrs)
+        if tag == "img":
+            self.images.append(a)
+        if tag == "body":
+            self.body = a
+        if "data-field" in a:
+            self.fields[a["data-field"] or ""].append(a.get("data-value") or "")
+            self._open.append(a["data-field"] or "")
+            self.shown[a["data-field"] or ""].append("")
+
+    def handle_data(self, data: str) -> None:
+        for f in self._open:
+            self.shown[f][-1] += data
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag in ("span", "code") and self._open:
+            self._open.pop()
+
+
+def _assert_all_images_loaded(dom: Dom, n_expected: int) -> None:
+    assert len(dom.images) == n_expected
+    assert dom.body.get("data-images-total") == str(n_expected)
+    assert dom.body.get("data-images-loaded") == str(n_expected)
+    for img in dom.images:
+        assert img.get("data-loaded") == "yes", img.get("data-figure")
+        assert int(img.get("data-natural-width") or 0) > 0, img.get("data-figure")
+        assert (img.get("src") or "").startswith("data:image/png;base64,")  # self-contained: nothing fetched
+
+
+def _value(dom: Dom, field: str) -> str:
+    values = set(dom.fields[field])
+    assert len(values) == 1, (field, values)
+    return values.pop()
+
+
+def test_measurement_report_in_chromium(world: World, tmp_path: Path) -> None:
+    with Repository.open(None, world.data_dir) as repo:
+        path = build_report(repo, world.data_dir, tmp_path / "out", run_id=world.filled.run_id)
+        result = repo.results(world.filled.run_id)[-1]
+        files = repo.trace_files(world.filled.run_id)
+        loops = repo.loops(world.filled.run_id)
+        cal = repo.get_calibration(world.filled.calibration_id)
+    text = path.read_text(encoding="utf-8")
+    assert "http://" not in text and "https://" not in text
+    # run config text is escaped, never markup
+    assert "&lt;ReFEx&gt; &amp; fixture" in text and "<ReFEx>" not in text
+
+    dom = Dom(dump_dom(path))
+    # 1 mass vs ECSS, 1 loop masses, one per loop, calibration curves, K fits, calibration results
+    _assert_all_images_loaded(dom, 2 + len(loops) + 3)
+    res = result.result
+    assert res == world.filled.result
+    for key in ("mass_kg", "U_kg", "u_kg", "gross_mass_kg", "fixture_mass_kg"):
+        assert float(_value(dom, key)) == res[key], key
+    assert dom.shown["mass_kg"][0] == f"{res['mass_kg']:.3f}"
+    assert dom.shown["U_kg"][0] == f"{res['U_kg']:.3f} kg"
+    assert float(_value(dom, "headline_mass_kg")) == res["mass_kg"]
+    assert int(_value(dom, "loops")) == res["loops"] == len(loops) == 4
+    assert int(_value(dom, "samples_used")) == res["samples_used"]
+    assert int(_value(dom, "samples_total")) == res["samples_total"]
+    assert _value(dom, "calibration_id") == _value(dom, "result_calibration_id") == cal.id == res["calibration_id"]
+    assert _value(dom, "result_id") == result.id
+    assert _value(dom, "run_id") == world.filled.run_id
+    assert sorted(dom.fields["file.sha256"]) == sorted(f.sha256 for f in files)
+    assert sorted(int(v) for v in dom.fields["file.size_bytes"]) == sorted(f.size_bytes for f in files)
+    assert sorted(dom.fields["source_sha256"]) == sorted(cal.document["source_sha256"].values())
+    assert [d.get("data-figure") for d in dom.images if (d.get("data-figure") or "").startswith("loop_")] == [
+        "loop_masses", *[f"loop_{i + 1}" for i in range(len(loops))]]
+    # loop-by-loop masses are recomputed: their mean sits within the loop spread of the stored result
+    loop_net = [float(v) for v in dom.fields["loop.net_mass_kg"]]
+    assert len(loop_net) == 4
+    assert abs(sum(loop_net) / 4 - res["mass_kg"]) < res["U_kg"]
+    assert float(_value(dom, "bias_a3_nm")) == cal.document["bias_nm"]["A3"]
+    assert "ECSS-E-10-03C" in text
+
+    shot = screenshot(path, tmp_path / "measurement.png")
+    assert shot.stat().st_size > 10_000
+
+
+def test_calibration_report_in_chromium(world: World, tmp_path: Path) -> None:
+    with Repository.open(None, world.data_dir) as repo:
+        path = build_report(repo, world.data_dir, tmp_path, calibration_id=world.filled.calibration_id)
+        cal = repo.get_calibration(world.filled.calibration_id)
+        files = repo.trace_files(world.filled.calibration_run_id)
+        points = repo.points(world.filled.calibration_run_id)
+    dom = Dom(dump_dom(path))
+    _assert_all_images_loaded(dom, 3)
+    doc = cal.document
+    assert _value(dom, "calibration_id") == doc["calibration_id"]
+    assert _value(dom, "calibration_method") == doc["method"]
+    assert float(_value(dom, "bias_a3_nm")) == doc["bias_nm"]["A3"]
+    assert float(_value(dom, "bias_a5_nm")) == doc["bias_nm"]["A5"]
+    assert float(_value(dom, "loo_pct")) == doc["fit"]["loo_mean_abs_err_pct"]
+    stored = [*doc["models"]["A3"]["coef"], *doc["models"]["A5"]["coef"]]
+    shown = [float(v) for k, vals in dom.fields.items() if k.startswith("param_A") for v in vals]
+    assert shown == stored
+    assert [float(v) for v in dom.fields["point.mass_kg"]] == [p.spec["mass_kg"] for p in points]
+    assert sorted(dom.fields["cal_file.sha256"]) == sorted(f.sha256 for f in files)
+    assert sorted(dom.fields["source_sha256"]) == sorted(doc["source_sha256"].values())
+
+
+def test_report_refuses_a_corrupted_raw_file(world: World, tmp_path: Path) -> None:
+    w = world.copy(tmp_path)
+    with Repository.open(None, w.data_dir) as repo:
+        victim = next(f for f in repo.trace_files(w.filled.run_id) if f.path.endswith(".r64"))
+        target = archive_root(w.data_dir) / victim.path
+        target.chmod(0o644)
+        blob = bytearray(target.read_bytes())
+        blob[-1] ^= 0xFF
+        target.write_bytes(bytes(blob))
+        with pytest.raises(ArchiveError, match="sha256"):
+            build_report(repo, w.data_dir, tmp_path / "out", run_id=w.filled.run_id)
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())
+
+
+def test_report_refuses_a_result_the_raw_files_do_not_reproduce(world: World, tmp_path: Path) -> None:
+    w = world.copy(tmp_path)
+    with Repository.open(None, w.data_dir) as repo:
+        hashes = [f.sha256 for f in repo.trace_files(w.filled.run_id)]
+        forged = {**w.filled.result, "mass_kg": w.filled.result["mass_kg"] + 0.01}
+        repo.record_result(w.filled.run_id, forged, hashes)
+        with pytest.raises(ReportConsistencyError, match="mass_kg"):
+            build_report(repo, w.data_dir, tmp_path / "out", run_id=w.filled.run_id)
+
+
+def test_report_command_and_module_entry(world: World, tmp_path: Path, capsys) -> None:
+    cfg = write_config(tmp_path / "rgse.toml", world.data_dir)
+    ns = argparse.Namespace(run_id=world.filled.run_id, calibration=None, out=tmp_path / "a", config=cfg)
+    assert report_cmd.run(ns) == 0
+    printed = Path(capsys.readouterr().out.strip())
+    assert printed == tmp_path / "a" / f"report-{world.filled.run_id}.html" and printed.is_file()
+
+    proc = subprocess.run([sys.executable, "-m", "rgse_daemon.commands.report", "--calibration",
+                           world.filled.calibration_id, "--out", str(tmp_path / "b"), "--config", str(cfg)],
+                          cwd=REPO, capture_output=True, text=True, timeout=60, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert Path(proc.stdout.strip()).is_file()
+
+    bad = subprocess.run([sys.executable, "-m", "rgse_daemon.commands.report", "no-such-run", "--config", str(cfg),
+                          "--out", str(tmp_path / "c")], cwd=REPO, capture_output=True, text=True, timeout=60,
+                         check=False)
+    assert bad.returncode == 2
+    assert "no-such-run" in bad.stderr and "Traceback" not in bad.stderr
+    calib_as_run = subprocess.run([sys.executable, "-m", "rgse_daemon.commands.report", world.filled.calibration_run_id,
+                                   "--config", str(cfg), "--out", str(tmp_path / "c")], cwd=REPO,
+                                  capture_output=True, text=True, timeout=60, check=False)
+    assert calib_as_run.returncode == 2 and "--calibration" in calib_as_run.stderr
+
+
+def test_json_roundtrip_of_numbers_is_exact(world: World) -> None:
+    # the page writes repr(float); the store keeps canonical JSON: both must round-trip to the same float
+    for v in world.filled.result.values():
+        if isinstance(v, float):
+            assert float(repr(v)) == v == json.loads(json.dumps(v))
