@@ -1,9 +1,7 @@
 """``rgse sim``: run the simulated KR C4 as a C3 Bridge / KUKAVARPROXY server until SIGINT or SIGTERM (exit 0).
 
-The simulator is assembled in :func:`build_server` from :class:`SimOptions`: the variable store, the share
-directory, the program host and then whatever models consume the scenario and the time scale (physics, KRL
-interpreter, KUKA Trace). Those models plug into the store's getters/setters and replace the program host
-(see ``simulators/krc4/variables.py``); :func:`attach_models` is the one place to add them.
+The whole simulated controller (:class:`simulators.krc4.sim.SimulatedKrc4`: server, variable store, KRL
+interpreter, physics of the ``--scenario`` and KUKA Trace, in ``--time-scale``) is built by :func:`build_simulator`.
 
 When the server listens, one line goes to stdout: ``rgse sim: listening on HOST:PORT (share DIR)`` (useful with
 ``--port 0``); logs go to stderr.
@@ -22,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from rgse_daemon.errors import ConfigError, LinkError
-from simulators.krc4.server import KrcServer, ServerConfig
+from simulators.krc4.sim import SimulatedKrc4
 
 log = logging.getLogger(__name__)
 
@@ -73,43 +71,32 @@ def options_from_args(args: argparse.Namespace) -> SimOptions:
     return SimOptions(args.host, args.port, share, args.scenario, scenario, args.time_scale)
 
 
-def attach_models(options: SimOptions, server: KrcServer) -> list[str]:
-    """Attach the models that consume the scenario and the time scale; returns their names.
-
-    The physics, KRL interpreter and trace engine are not part of this build yet: the controller then holds
-    its seeded state (robot at rest, programs only change ``$PRO_STATE1``), and this is logged.
-    """
-    attached: list[str] = []
-    if not attached and (options.scenario or options.time_scale != 1.0):
-        log.warning(
-            "physics/KRL models are not attached yet: scenario %s and time scale %g are validated but unused",
-            options.scenario_path,
-            options.time_scale,
-        )
-    return attached
-
-
-def build_server(options: SimOptions) -> KrcServer:
-    """The simulated controller as ``rgse sim`` runs it (not yet listening)."""
-    server = KrcServer(ServerConfig(host=options.host, port=options.port), options.share_dir)
-    attach_models(options, server)
-    return server
+def build_simulator(options: SimOptions) -> SimulatedKrc4:
+    """The whole simulated controller as ``rgse sim`` runs it (not yet listening): server, variable store, KRL
+    interpreter, physics of the scenario and KUKA Trace, in the requested time scale."""
+    return SimulatedKrc4(
+        options.share_dir,
+        options.scenario_path,  # the path: no scenario means scenarios/default.toml, not the model's bare defaults
+        time_scale=options.time_scale,
+        host=options.host,
+        port=options.port,
+    )
 
 
 async def serve(options: SimOptions, stop: asyncio.Event) -> None:
     """Listen until ``stop`` is set, then close every connection."""
-    server = build_server(options)
+    sim = build_simulator(options)
     try:
-        await server.start()
+        await sim.start()
     except OSError as exc:
-        await server.close()
+        await sim.close()
         raise LinkError(f"cannot listen on {options.host}:{options.port}: {exc.strerror or exc}") from exc
     try:
-        print(f"rgse sim: listening on {options.host}:{server.port} (share {server.files.root})", flush=True)
+        print(f"rgse sim: listening on {options.host}:{sim.port} (share {sim.share_dir})", flush=True)
         await stop.wait()
     finally:
-        await server.close()
-    log.info("simulated KR C4 stopped after %d requests", server.counters.requests)
+        await sim.close()
+    log.info("simulated KR C4 stopped after %d requests", sim.server.counters.requests)
 
 
 async def _main(options: SimOptions) -> int:

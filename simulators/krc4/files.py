@@ -205,7 +205,10 @@ class ShareFiles:
         for entry in walker:
             if not fnmatch.fnmatch(entry.name.upper(), mask.upper()):
                 continue
-            props = self._properties(entry)
+            try:
+                props = self._properties(entry)
+            except FileNotFoundError:  # removed or renamed between listing and stat (e.g. a trace being written)
+                continue
             if item_type and not props.item_type & item_type:
                 continue
             items.append(self._display(entry) + ("\\" if entry.is_dir() else ""))

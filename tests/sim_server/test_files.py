@@ -246,3 +246,17 @@ def test_create_delete_copy_move(share: ShareFiles) -> None:
         share.delete("KRC:\\", always=True)
     with pytest.raises(FileOpError):
         share.delete("/R1/NOPE.SRC", always=True)
+
+
+def test_name_list_skips_an_entry_that_vanishes_between_listing_and_stat(tmp_path: Path) -> None:
+    """A trace file renamed away while the directory is listed must not break the listing (nor the connection).
+
+    A dangling symlink stands for the vanished file: iterdir() yields it, stat() raises FileNotFoundError.
+    """
+    trace = tmp_path / "TRACE"
+    trace.mkdir()
+    (trace / "t1_KRCIpo.dat").write_bytes(b"x")
+    (trace / "t1_KRCIpo.r64").symlink_to(trace / "renamed-away.r64")
+    items, infos = ShareFiles(tmp_path).name_list("/TRACE/")
+    assert [i.upper().rsplit("\\", 1)[-1] for i in items] == ["T1_KRCIPO.DAT"]
+    assert len(infos) == 1
