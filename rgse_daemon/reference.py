@@ -149,7 +149,8 @@ def table2_rows(run: RunRecord, cmp: Comparison, reference: ReferenceRecord) -> 
     ]
 
 
-async def _run_and_result(store: Store, run_id: str) -> tuple[RunRecord, ResultRecord]:
+async def run_and_result(store: Store, run_id: str) -> tuple[RunRecord, ResultRecord]:
+    """The run and its newest result; :class:`DataError` if either is missing (nothing to compare with)."""
     try:
         run = await store.get_run(run_id)
     except NotFound as exc:
@@ -177,7 +178,7 @@ async def take_reference(
     """
     if weighed not in ("gross", "net"):
         raise DataError(f"weighed must be 'gross' or 'net', got {weighed!r}")
-    run, result = await _run_and_result(store, run_id)
+    run, result = await run_and_result(store, run_id)
     fixture = float(result.result.get("fixture_mass_kg", 0.0))
     bad_before = scale.counters.bad_frames
     try:

@@ -20,6 +20,7 @@ async def _reference(args: argparse.Namespace) -> dict[str, Any]:
     if cfg.scale is None:
         raise ConfigError(f"{args.config or '<defaults>'}: no [scale] section; the crane scale is not configured")
     async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
+        await ref.run_and_result(store, args.run)  # before the scale is opened: fail fast on a wrong run
         async with CraneScale(cfg.scale) as scale:
             run, rec, cmp = await ref.take_reference(
                 store, scale, args.run, weighed=getattr(args, "weighed", "gross"),
