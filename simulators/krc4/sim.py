@@ -44,6 +44,8 @@ import numpy as np
 
 from rgse_daemon.errors import ConfigError
 from rgse_daemon.kinematics import flange_pose_xyzabc
+from rgse_daemon.krl.ast import Decl
+from rgse_daemon.krl.parser import parse_dat
 from simulators.krc4.krl import KrlInterpreter, MotionEvent, ProgramLoader, share_loader
 from simulators.krc4.physics import CHANNEL_UNITS, CHANNELS, Payload, RobotModel, RobotState, TraceTruth
 from simulators.krc4.scenario import Scenario, load_scenario, scenario_from_mapping
@@ -57,7 +59,7 @@ from simulators.krc4.trace import (
     SimClock,
     TraceEngine,
 )
-from simulators.krc4.variables import INTERPRETER_ROBOT, ProState, VariableStore, module_name
+from simulators.krc4.variables import INTERPRETER_ROBOT, Kind, ProState, VariableStore, module_name
 
 _log = logging.getLogger(__name__)
 
@@ -210,6 +212,24 @@ class SimulatedKrc4:
         await self.close()
 
     # --- the lab and the operator -------------------------------------------------------------------------------
+    def install_globals(self, dat_text: str, file: str = "rgse_globals.dat") -> list[str]:
+        """What installing a DEFDAT with ``DECL GLOBAL`` variables once on the controller does (krl/README.md):
+        its globals exist from then on, so the daemon can read and write them over the link. Returns their names."""
+        data = parse_dat(dat_text, file)
+        kinds = {"INT": Kind.INT, "REAL": Kind.REAL, "BOOL": Kind.BOOL}
+        defaults = {"INT": "0", "REAL": "0.0", "BOOL": "FALSE"}
+        names = []
+        for decl in data.decls:
+            if not (isinstance(decl, Decl) and decl.is_global):
+                continue
+            if decl.type_name not in kinds:
+                raise ConfigError(f"{file}: global {decl.names[0].name} of type {decl.type_name} is not supported")
+            for dn in decl.names:
+                if not self.store.is_declared(dn.name):
+                    self.store.declare_global(dn.name, kinds[decl.type_name], defaults[decl.type_name])
+                names.append(dn.name)
+        return names
+
     def mount(self, payload: Payload) -> None:
         """What is bolted onto the flange from now on (builders in ``simulators.krc4.physics``)."""
         self.payload = payload

@@ -169,3 +169,16 @@ def test_bad_construction_is_a_config_error(tmp_path: Path) -> None:
         SimulatedKrc4(tmp_path / "r2", scenario=tmp_path / "missing.toml")
     with pytest.raises(ConfigError, match="time_scale"):
         SimulatedKrc4(tmp_path / "r3", time_scale=0.0)
+
+
+async def test_installed_globals_are_read_and_written_over_the_link(sim: SimulatedKrc4, krc: Controller) -> None:
+    from rgse_daemon.krl.render import globals_dat_text
+
+    names = sim.install_globals(globals_dat_text())
+    assert "RGSE_CMD" in names and "RGSE_DONE" in names
+    assert sim.install_globals(globals_dat_text()) == names  # installing twice keeps the values
+    await krc.write("RGSE_CMD", 3)
+    assert await krc.read("RGSE_CMD") == 3
+    assert await krc.read("RGSE_DONE") is False
+    with pytest.raises(ConfigError, match="not supported"):
+        sim.install_globals("DEFDAT bad PUBLIC\nDECL GLOBAL E6AXIS RGSE_POSE\nENDDAT\n")
