@@ -20,7 +20,8 @@ SCHEMA = 1
 
 def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, bias_a3_nm: float,
           bias_a5_nm: float, in_sample_pct: float, loo_pct: float, loo_max_kg: float,
-          source_sha256: dict[str, str], extra_fit: dict[str, Any] | None = None) -> dict[str, Any]:
+          source_sha256: dict[str, str], extra_fit: dict[str, Any] | None = None,
+          g_u_m_s2: float = 0.0) -> dict[str, Any]:
     """The CAL.json document of a fitted calibration; ``calibration_id`` is a hash of its content."""
     doc: dict[str, Any] = {
         "schema": SCHEMA,
@@ -33,6 +34,7 @@ def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, 
         "models": cal.models_dict(),
         "lever_difference_m": cal.lever_difference_m,
         "g": cal.g_m_s2,
+        "g_u_m_s2": float(g_u_m_s2),
         "torque_range_nm": {"A3": list(cal.torque_range_a3_nm), "A5": list(cal.torque_range_a5_nm)},
         "fit": {
             "in_sample_mean_abs_err_pct": in_sample_pct,
@@ -40,6 +42,8 @@ def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, 
             "loo_max_abs_err_kg": loo_max_kg,
             "r2": cal.r2,
             "covariance": np.asarray(cal.covariance, float).tolist(),
+            **({} if cal.covariance_reference is None else
+               {"covariance_reference_mass": np.asarray(cal.covariance_reference, float).tolist()}),
             **(extra_fit or {}),
         },
         "source_sha256": source_sha256,
@@ -97,6 +101,11 @@ def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing |
     cov = np.asarray(fit.get("covariance", []), float) if isinstance(fit, dict) else np.empty(0)
     if cov.shape != (n, n) or not np.all(np.isfinite(cov)):
         raise DataError(f"{path}: fit.covariance must be a finite {n}x{n} matrix")
+    cov_ref = None
+    if fit.get("covariance_reference_mass") is not None:
+        cov_ref = np.asarray(fit["covariance_reference_mass"], float)
+        if cov_ref.shape != (n, n) or not np.all(np.isfinite(cov_ref)):
+            raise DataError(f"{path}: fit.covariance_reference_mass must be a finite {n}x{n} matrix")
     for name, p in (("A3", k3.params), ("A5", k5.params)):
         if not np.all(np.isfinite(p)):
             raise DataError(f"{path}: model {name} has non-finite parameters")
@@ -110,7 +119,7 @@ def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing |
     cal = Calibration(str(_need(doc, "method", path)), k3, k5, cov, rng[0], rng[1],
                       _finite(_need(doc, "g", path), "g", path),
                       _finite(_need(doc, "lever_difference_m", path), "lever_difference_m", path),
-                      dict(fit.get("r2") or {}))
+                      dict(fit.get("r2") or {}), cov_ref)
     pre = None
     if doc.get("preprocessing") is not None:
         try:
@@ -120,6 +129,19 @@ def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing |
     if not isinstance(doc.get("robot"), str):
         raise DataError(f"{path}: calibration file lacks the robot it belongs to")
     return doc, cal, pre
+
+
+def alternatives(path: Path | str, doc: dict[str, Any], cal: Calibration) -> list[Calibration]:
+    """The plausible alternative models recorded in ``fit.alternatives`` (optional), as calibrations."""
+    out = []
+    for alt in (doc.get("fit") or {}).get("alternatives") or []:
+        try:
+            k3, k5 = AxisK.from_dict(alt["models"]["A3"]), AxisK.from_dict(alt["models"]["A5"])
+        except (DataError, KeyError, TypeError) as exc:
+            raise DataError(f"{path}: fit.alternatives: malformed entry: {exc}") from exc
+        out.append(Calibration(str(alt.get("method", "?")), k3, k5, np.zeros((0, 0)), cal.torque_range_a3_nm,
+                               cal.torque_range_a5_nm, cal.g_m_s2, cal.lever_difference_m))
+    return out
 
 
 def check_robot(path: Path | str, doc: dict[str, Any], robot: str) -> None:

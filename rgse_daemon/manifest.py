@@ -17,20 +17,34 @@ from typing import Any
 import numpy as np
 
 from rgse_daemon.errors import DataError
-from rgse_daemon.pipeline.calibration import CalibrationPoints
+from rgse_daemon.pipeline.calibration import CalibrationPoints, reference_mass_covariance
 from rgse_daemon.trace.diadem import read_trace_set
 
 MODULE_A3 = "NextGenDrive#3"
 MODULE_A5 = "NextGenDrive#5"
 TORQUE_CHANNEL = "Istmoment"
 KINDS = ("zero", "mass", "torque")
+#: Standard uncertainty of one weighed calibration body, kg, when the manifest states none (optional field).
+DEFAULT_BODY_MASS_U_KG = 0.01
+REFERENCE_CORRELATIONS = ("nested", "independent")
 
 
 @dataclass(frozen=True)
 class Setup:
+    """``[setup]``; the last three are optional manifest fields (defaults in brackets).
+
+    ``body_mass_u_kg`` [0.01]: standard uncertainty of each weighed calibration body. ``reference_correlation``
+    ["nested"]: the loads of the campaign contain each other (the paper's stack: point n holds the bodies of
+    point n−1), so their mass errors are correlated; "independent" for separate loads. ``g_u_m_s2`` [0]: standard
+    uncertainty of ``g`` (local g vs the value used, kuka-facts §7).
+    """
+
     robot: str
     g_m_s2: float
     lever_difference_m: float
+    body_mass_u_kg: float = DEFAULT_BODY_MASS_U_KG
+    reference_correlation: str = "nested"
+    g_u_m_s2: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -40,6 +54,16 @@ class PointSpec:
     lever_a3_m: float
     lever_a5_m: float
     traces: tuple[str, ...]
+    bodies: int | None = None  # optional: weighed bodies in the load (default 1 for a loaded point)
+    mass_u_kg: float | None = None  # optional: standard uncertainty of mass_kg (overrides bodies)
+
+    def mass_var_kg2(self, body_mass_u_kg: float) -> float:
+        """Variance of the reference mass of this point."""
+        if self.mass_kg == 0.0:
+            return 0.0
+        if self.mass_u_kg is not None:
+            return self.mass_u_kg**2
+        return (1 if self.bodies is None else self.bodies) * body_mass_u_kg**2
 
 
 @dataclass(frozen=True)
@@ -74,6 +98,11 @@ def _num(d: dict[str, Any], key: str, where: str, *, minimum: float | None = Non
     return float(v)
 
 
+def _opt_num(d: dict[str, Any], key: str, where: str, default: float | None) -> float | None:
+    """An optional number >= 0."""
+    return _num(d, key, where, minimum=0.0) if key in d else default
+
+
 def _traces(d: dict[str, Any], where: str) -> tuple[str, ...]:
     t = d.get("traces")
     if not isinstance(t, list) or not t or not all(isinstance(x, str) and x for x in t):
@@ -99,8 +128,15 @@ def load_manifest(directory: Path | str) -> Manifest:
     robot = setup.get("robot")
     if not isinstance(robot, str) or not robot:
         raise DataError(f"{path}: [setup] robot must be a non-empty string")
-    man = Manifest(path, Setup(robot, _num(setup, "g", f"{path} [setup]", positive=True),
-                               _num(setup, "lever_difference_m", f"{path} [setup]", positive=True)))
+    where = f"{path} [setup]"
+    corr = setup.get("reference_correlation", "nested")
+    if corr not in REFERENCE_CORRELATIONS:
+        raise DataError(f"{where}: reference_correlation must be one of {', '.join(REFERENCE_CORRELATIONS)}, "
+                        f"got {corr!r}")
+    man = Manifest(path, Setup(robot, _num(setup, "g", where, positive=True),
+                               _num(setup, "lever_difference_m", where, positive=True),
+                               _opt_num(setup, "body_mass_u_kg", where, DEFAULT_BODY_MASS_U_KG), corr,
+                               _opt_num(setup, "g_u_m_s2", where, 0.0)))
     for i, p in enumerate(doc.get("point", [])):
         where = f"{path} [[point]] #{i + 1}"
         if not isinstance(p, dict):
@@ -108,8 +144,12 @@ def load_manifest(directory: Path | str) -> Manifest:
         kind = p.get("kind")
         if kind not in KINDS:
             raise DataError(f"{where}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
+        bodies = p.get("bodies")
+        if bodies is not None and (isinstance(bodies, bool) or not isinstance(bodies, int) or bodies < 0):
+            raise DataError(f"{where}: 'bodies' must be an integer >= 0, got {bodies!r}")
+        mass_u = _opt_num(p, "mass_u_kg", where, None)
         spec = PointSpec(kind, _num(p, "mass_kg", where, minimum=0.0), _num(p, "lever_a3_m", where),
-                         _num(p, "lever_a5_m", where), _traces(p, where))
+                         _num(p, "lever_a5_m", where), _traces(p, where), bodies, mass_u)
         if (kind == "zero") != (spec.mass_kg == 0.0):
             raise DataError(f"{where}: a 'zero' point has mass_kg = 0 and only a 'zero' point has")
         man.points.append(spec)
@@ -189,9 +229,18 @@ def load_points_csv(path: Path | str) -> CalibrationPoints:
             if not math.isfinite(v):
                 raise DataError(f"{path}: data row {lineno - 1}: column {c} is {v}")
             cols[c].append(v)
+    cov = None
+    if "n_cb" in rows[0]:  # Table 1: n_cb bodies, the torque rows on the test adapter (one more weighed body)
+        try:
+            n_cb = np.array([float(r["n_cb"]) for r in rows])
+        except (TypeError, ValueError):
+            raise DataError(f"{path}: column n_cb is not numeric") from None
+        bodies = n_cb + (np.array(cols["calibration_type"]) == "torque")
+        var = np.where(np.array(cols["mass_kg"]) > 0, bodies * DEFAULT_BODY_MASS_U_KG**2, 0.0)
+        cov = reference_mass_covariance(var, nested=True)
     try:
         return CalibrationPoints(np.array(cols["calibration_type"]), np.array(cols["mass_kg"]),
                                  np.array(cols["m_a3_measured_nm"]), np.array(cols["m_a5_measured_nm"]),
-                                 np.array(cols["m_a3_expected_nm"]), np.array(cols["m_a5_expected_nm"]))
+                                 np.array(cols["m_a3_expected_nm"]), np.array(cols["m_a5_expected_nm"]), cov)
     except DataError as exc:
         raise DataError(f"{path}: {exc}") from exc

@@ -15,6 +15,7 @@ from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import Manifest, load_manifest, load_points_csv, read_loops, source_sha256
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import CalibrationPoints
 
 #: Robot named in a calibration fitted from a bare points CSV (the paper's robot type; the CSV names none).
@@ -62,7 +63,9 @@ def points_from_raw(man: Manifest, raw3: np.ndarray, raw5: np.ndarray) -> tuple[
     e5 = g * mass * np.array([p.lever_a5_m for p in man.points])
     # the measured torque carries the sign of the axis direction; K (negative then) absorbs it
     n3, n5 = pp.normalise(raw3, bias3), pp.normalise(raw5, bias5)
-    return CalibrationPoints(kinds, mass, n3, n5, e3, e5), bias3, bias5
+    var = np.array([p.mass_var_kg2(man.setup.body_mass_u_kg) for p in man.points])
+    cov = cal_mod.reference_mass_covariance(var, nested=man.setup.reference_correlation == "nested")
+    return CalibrationPoints(kinds, mass, n3, n5, e3, e5, cov), bias3, bias5
 
 
 def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float):
@@ -75,19 +78,34 @@ def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float
             raise DataError(f"unknown calibration method {method!r}; use auto or one of {', '.join(cal_mod.MODELS)}")
         found = [e for e in evaluations if e.method == method]
         chosen = found[0] if found else cal_mod.evaluate(points, method, g, dr)
-    return cal_mod.fit(points, chosen.method, g, dr), chosen, evaluations
+    cal = cal_mod.fit(points, chosen.method, g, dr)
+    cov_ref = cal_mod.reference_mass_param_covariance(points, chosen.method, g, dr)
+    cal.covariance = cal.covariance + cov_ref
+    cal.covariance_reference = cov_ref
+    return cal, chosen, evaluations
+
+
+def plausible_alternatives(points: CalibrationPoints, chosen: cal_mod.Evaluation,
+                           evaluations: list[cal_mod.Evaluation], g: float, dr: float) -> list[dict]:
+    """The other models whose LOO error is within ``PLAUSIBLE_LOO_FACTOR`` of the chosen one's, fitted on all
+    points (CAL.json ``fit.alternatives``: the model-form term of the uncertainty)."""
+    limit = unc.PLAUSIBLE_LOO_FACTOR * chosen.loo_mean_abs_err_pct
+    return [{"method": e.method, "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct,
+             "models": cal_mod.fit(points, e.method, g, dr).models_dict()}
+            for e in evaluations if e.method != chosen.method and e.loo_mean_abs_err_pct <= limit]
 
 
 def run(args: argparse.Namespace) -> int:
     if args.points is not None:
         points = load_points_csv(args.points)
-        g, dr, robot, pre, bias3, bias5 = 9.81, 1.025, POINTS_ROBOT, None, 0.0, 0.0
+        g, dr, robot, pre, bias3, bias5, g_u = 9.81, 1.025, POINTS_ROBOT, None, 0.0, 0.0, 0.0
         sources = source_sha256([args.points])
     else:
         data = load_campaign(args.campaign)
         pre = pp.PAPER
         points, bias3, bias5 = campaign_points(data, pre)
-        g, dr, robot = data.manifest.setup.g_m_s2, data.manifest.setup.lever_difference_m, data.manifest.setup.robot
+        setup = data.manifest.setup
+        g, dr, robot, g_u = setup.g_m_s2, setup.lever_difference_m, setup.robot, setup.g_u_m_s2
         sources = source_sha256(data.files)
     try:
         cal, chosen, evaluations = fit_and_describe(points, args.method, g, dr)
@@ -96,7 +114,9 @@ def run(args: argparse.Namespace) -> int:
     doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
                         in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
                         loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
-                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": _rel_rms(points, chosen)})
+                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": loo_rms_rel(points, chosen),
+                                   "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr)},
+                        g_u_m_s2=g_u)
     calfile.write(args.out, doc)
     summary = {
         "calibration_id": doc["calibration_id"],
@@ -123,7 +143,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rel_rms(points: CalibrationPoints, ev: cal_mod.Evaluation) -> float:
+def loo_rms_rel(points: CalibrationPoints, ev: cal_mod.Evaluation) -> float:
     """RMS of the relative LOO mass errors over the loaded points (the model term of the uncertainty)."""
     loaded = points.mass_kg > 0
     rel = (ev.loo_mass_kg[loaded] - points.mass_kg[loaded]) / points.mass_kg[loaded]

@@ -54,6 +54,9 @@ class CalibrationPoints:
         Measured, bias-normalised torque (eq. 16 double average minus M_0), Nm.
     expected_a3_nm, expected_a5_nm : ndarray
         Expected torque ``g·m·lever`` (eq. 17/18), Nm; used by the per-axis ``paper``/``ratio-*`` models only.
+    mass_cov_kg2 : ndarray or None
+        Covariance of the reference masses ``mass_kg`` (kg², n × n; see :func:`reference_mass_covariance`);
+        None: the reference masses are taken as exact.
     """
 
     kind: np.ndarray
@@ -62,6 +65,7 @@ class CalibrationPoints:
     torque_a5_nm: np.ndarray
     expected_a3_nm: np.ndarray
     expected_a5_nm: np.ndarray
+    mass_cov_kg2: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.mass_kg)
@@ -74,14 +78,37 @@ class CalibrationPoints:
                 raise CalibrationError(f"calibration points: column {name} holds NaN or infinite values")
         if np.any(self.mass_kg < 0):
             raise CalibrationError("calibration points: negative mass_kg")
+        if self.mass_cov_kg2 is not None and (np.shape(self.mass_cov_kg2) != (n, n)
+                                              or not np.all(np.isfinite(self.mass_cov_kg2))):
+            raise CalibrationError(f"calibration points: mass covariance must be a finite {n}x{n} matrix")
 
     def __len__(self) -> int:
         return len(self.mass_kg)
 
     def subset(self, index: np.ndarray) -> CalibrationPoints:
-        return CalibrationPoints(*(np.asarray(getattr(self, f))[index] for f in
+        idx = np.arange(len(self))[index]
+        cov = None if self.mass_cov_kg2 is None else np.asarray(self.mass_cov_kg2)[np.ix_(idx, idx)]
+        return CalibrationPoints(*(np.asarray(getattr(self, f))[idx] for f in
                                    ("kind", "mass_kg", "torque_a3_nm", "torque_a5_nm", "expected_a3_nm",
-                                    "expected_a5_nm")))
+                                    "expected_a5_nm")), cov)
+
+    def with_masses(self, mass_kg: np.ndarray) -> CalibrationPoints:
+        """The same points with other reference masses (expected torques scaled along)."""
+        m = np.asarray(mass_kg, float)
+        scale = np.divide(m, self.mass_kg, out=np.ones_like(m), where=self.mass_kg > 0)
+        return CalibrationPoints(self.kind, m, self.torque_a3_nm, self.torque_a5_nm, self.expected_a3_nm * scale,
+                                 self.expected_a5_nm * scale, self.mass_cov_kg2)
+
+
+def reference_mass_covariance(mass_var_kg2: np.ndarray, nested: bool = True) -> np.ndarray:
+    """Covariance of the calibration loads' reference masses from each load's variance.
+
+    ``nested``: the loads contain each other (the paper's stack of calibration bodies: a load of n bodies holds
+    the bodies of every lighter load, the torque rows all ten and the test adapter), so with independent body
+    errors ``cov(i, j) = min(var_i, var_j)``. Otherwise the loads are independent (diagonal).
+    """
+    v = np.asarray(mass_var_kg2, float)
+    return np.minimum.outer(v, v) if nested else np.diag(v)
 
 
 def mean_abs_pct(mass_true_kg: np.ndarray, mass_calc_kg: np.ndarray) -> float:
@@ -232,7 +259,8 @@ class GainK(AxisK):
 class Calibration:
     """A fitted calibration: K of A3 and A5, their parameter covariance and the torque range they cover.
 
-    ``covariance`` is over ``concat(k_a3.params, k_a5.params)``.
+    ``covariance`` is over ``concat(k_a3.params, k_a5.params)``: the fit's own (torque noise and lack of fit)
+    plus ``covariance_reference``, the part due to the reference masses' uncertainty (zero if not propagated).
     """
 
     method: str
@@ -244,6 +272,7 @@ class Calibration:
     g_m_s2: float
     lever_difference_m: float
     r2: dict[str, float] = field(default_factory=dict)
+    covariance_reference: np.ndarray | None = None
 
     @property
     def params(self) -> np.ndarray:
@@ -254,7 +283,14 @@ class Calibration:
         n3 = len(self.k_a3.params)
         return Calibration(self.method, _replace_params(self.k_a3, params[:n3]),
                            _replace_params(self.k_a5, params[n3:]), self.covariance, self.torque_range_a3_nm,
-                           self.torque_range_a5_nm, self.g_m_s2, self.lever_difference_m, self.r2)
+                           self.torque_range_a5_nm, self.g_m_s2, self.lever_difference_m, self.r2,
+                           self.covariance_reference)
+
+    @property
+    def covariance_fit(self) -> np.ndarray:
+        """The fit's own part of the parameter covariance (without the reference masses')."""
+        cov = np.asarray(self.covariance, float)
+        return cov if self.covariance_reference is None else cov - self.covariance_reference
 
     def mass_kg(self, torque_a3_nm: np.ndarray, torque_a5_nm: np.ndarray, fixture_mass_kg: float = 0.0) -> np.ndarray:
         """Eq. 21 with this calibration's K functions."""
@@ -347,6 +383,10 @@ def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: i
     def resid(p: np.ndarray) -> np.ndarray:
         return p[0] * np.exp(p[1] * x) + p[2] * np.exp(p[3] * x) - y
 
+    def jac(p: np.ndarray) -> np.ndarray:
+        e1, e2 = np.exp(p[1] * x), np.exp(p[3] * x)
+        return np.stack([e1, p[0] * x * e1, e2, p[2] * x * e2], axis=1)
+
     lower = [-amp_bound, rate_lo * 2, -amp_bound, rate_lo * 2]
     upper = [amp_bound, rate_hi * 2, amp_bound, rate_hi * 2]
     best = None
@@ -355,7 +395,7 @@ def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: i
         if not np.isfinite(cost[i, j]):
             continue
         p0 = np.array([b1[i, j], rates[i], b3[i, j], rates[j]])
-        r = least_squares(resid, np.clip(p0, lower, upper), bounds=(lower, upper), x_scale="jac")
+        r = least_squares(resid, np.clip(p0, lower, upper), jac=jac, bounds=(lower, upper), x_scale="jac")
         if best is None or r.cost < best.cost:
             best = r
     if best is None:
@@ -444,6 +484,25 @@ MODELS: dict[str, tuple[FitFn, str]] = {
     "gain-sqrt-huber": (_gain_model("gain-sqrt-huber", ("lin", "sqrt"), ("lin", "sqrt"), "huber"),
                         "square-root gain terms on both axes, Huber-robust fit to the masses"),
 }
+
+
+def reference_mass_param_covariance(points: CalibrationPoints, method: str, g_m_s2: float,
+                                    lever_difference_m: float, step_kg: float = 0.01) -> np.ndarray:
+    """Covariance of the model parameters caused by the reference masses' uncertainty: ``J·Σ_m·Jᵀ`` with
+    ``J = ∂params/∂mass_kg`` by central differences (exact for the gain models, which are linear in the masses
+    up to their weights)."""
+    base = fit(points, method, g_m_s2, lever_difference_m)
+    n_par = len(base.params)
+    if points.mass_cov_kg2 is None or not np.any(points.mass_cov_kg2):
+        return np.zeros((n_par, n_par))
+    jac = np.zeros((n_par, len(points)))
+    for i in np.flatnonzero(np.diag(points.mass_cov_kg2) > 0):
+        d = np.zeros(len(points))
+        d[i] = step_kg
+        hi = fit(points.with_masses(points.mass_kg + d), method, g_m_s2, lever_difference_m).params
+        lo = fit(points.with_masses(points.mass_kg - d), method, g_m_s2, lever_difference_m).params
+        jac[:, i] = (hi - lo) / (2 * step_kg)
+    return jac @ points.mass_cov_kg2 @ jac.T
 
 
 def fit(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Calibration:

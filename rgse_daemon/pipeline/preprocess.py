@@ -227,6 +227,16 @@ def process_loop(values: np.ndarray, period_s: float, cfg: Preprocessing = PAPER
     return LoopTorque(float(loc[0]), float(sd[0]), int(used[0]), int(np.asarray(values).size))
 
 
+def kept_samples(values: np.ndarray, period_s: float, cfg: Preprocessing = PAPER) -> np.ndarray:
+    """The raw samples the pre-processing keeps (after the settle cut and the crop), unfiltered, in time order:
+    what the within-loop standard error is estimated from (a centred smoothing filter hardly moves the mean but
+    correlates neighbours)."""
+    x = np.asarray(values, float)[round(cfg.settle_s / period_s):]
+    if cfg.order == "backward":
+        return x[np.isfinite(crop_outliers(x, cfg.crop_sigma)[0])]
+    return x[np.isfinite(filtered_rows(values, period_s, cfg, np.array([cfg.window]))[0])]
+
+
 def double_average_nm(loop_torques_nm: np.ndarray) -> float:
     """Eq. 16: the mean over the m loops of the per-loop (inner) averages."""
     a = np.asarray(loop_torques_nm, float)

@@ -1,0 +1,129 @@
+"""Calibration campaigns and DuT measurements on the simulated KR 500 (``simulators.krc4.physics``), known truth.
+
+The paper's procedure per loop (§2.4.2): brake-release move (±35° on A3/A5), settle, one trace, brakes applied for
+the rest of the loop; bodies are changed with the brakes applied. The torque estimate carries the scenario's
+non-linear gains, thermal drift, release transient, hysteresis, settling, noise and spikes.
+
+The *true* calibration bodies are not the nominal ones: each body's mass is drawn around the nominal 20.93 kg with
+``body_mass_u_kg`` (and the test adapter around 19.20 kg), while the manifest states the nominal masses, as a real
+campaign with weighed bodies would. Everything is returned in memory (what ``rgse`` reads from the trace files);
+:func:`write_dirs` writes the same data as real KUKA trace file sets and manifests.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from rgse_daemon import kinematics as kin
+from rgse_daemon.manifest import Loop, Manifest, PointSpec, Setup
+from simulators.krc4 import physics as ph
+from simulators.krc4.tracefiles import write_trace_set
+
+ROBOT = "KR500R2830-SIM"
+G = 9.81
+DR = kin.D4_M
+SETTLE_S = 4.0
+LOOP_S = 150.0
+CHANGE_BODIES_S = 600.0
+#: Torque rows: A5 lever of the 10 bodies on the test adapter (Table 1's three torque rows).
+TORQUE_ROW_LEVERS_A5_M = (0.761, 1.011, 1.261)
+
+
+@dataclass(frozen=True)
+class SimCampaign:
+    manifest: Manifest
+    loops: list[list[Loop]]
+    body_masses_kg: np.ndarray
+
+
+@dataclass(frozen=True)
+class SimMeasurement:
+    loops: list[Loop]
+    true_dut_mass_kg: float
+    fixture_mass_kg: float
+
+
+def _measure(model: ph.RobotModel, payload: ph.Payload, n_loops: int, n_samples: int, period_s: float,
+             prefix: str) -> list[Loop]:
+    q = kin.measurement_pose()
+    model.apply_brakes(CHANGE_BODIES_S)
+    out = []
+    for k in range(n_loops):
+        model.brake_release_move(q)
+        model.hold(SETTLE_S)
+        tr = model.sample_trace(q, payload, n_samples, period_s)
+        out.append(Loop(f"{prefix}_l{k + 1:02d}", tr[3]["Istmoment"], tr[5]["Istmoment"], period_s))
+        model.apply_brakes(max(LOOP_S - SETTLE_S - n_samples * period_s, 0.0))
+    return out
+
+
+def _bodies(masses_kg: np.ndarray, template: tuple[ph.RigidBody, ...]) -> tuple[ph.RigidBody, ...]:
+    return tuple(replace(b, mass_kg=float(m)) for b, m in zip(template, masses_kg, strict=False))
+
+
+def simulate_campaign(seed: int, n_loops: int = 3, n_samples: int = 250, period_s: float = 0.012,
+                      body_mass_u_kg: float = 0.01) -> tuple[SimCampaign, ph.RobotModel]:
+    """A Table-1-like campaign: MPA, MPA + 1..10 bodies, three torque rows (10 bodies on the test adapter)."""
+    model = ph.RobotModel(seed=seed)
+    rng = np.random.default_rng(10_000 + seed)
+    true_cb = ph.CB_MASS_KG + rng.normal(0.0, body_mass_u_kg, ph.N_CB_MAX)
+    true_ta = ph.TA_MASS_KG + rng.normal(0.0, body_mass_u_kg)
+    specs, loops = [], []
+    for n in range(ph.N_CB_MAX + 1):
+        payload = ph.Payload((ph.mpa(), *_bodies(true_cb[:n], ph.calibration_stack(n))))
+        l3, l5 = ph.paper_levers_m(n)
+        name = f"cal{n:02d}"
+        loops.append(_measure(model, payload, n_loops, n_samples, period_s, name))
+        specs.append(PointSpec("zero" if n == 0 else "mass", round(ph.CB_MASS_KG * n, 2), l3, l5,
+                               tuple(lp.trace for lp in loops[-1]), n))
+    nominal_torque_mass = ph.N_CB_MAX * ph.CB_MASS_KG + ph.TA_MASS_KG
+    for j, lever_a5 in enumerate(TORQUE_ROW_LEVERS_A5_M):
+        nominal = ph.torque_calibration_payload(ph.N_CB_MAX, lever_a5)
+        mpa_b, ta, *cbs = nominal.bodies
+        payload = ph.Payload((mpa_b, replace(ta, mass_kg=float(true_ta)), *_bodies(true_cb, tuple(cbs))))
+        # the manifest's lever: the nominal load's torque about A5 over its nominal weight
+        lever = (ph.TA_TORQUE_A5_NM + G * ph.N_CB_MAX * ph.CB_MASS_KG * lever_a5) / (G * nominal_torque_mass)
+        name = f"cal{11 + j:02d}"
+        loops.append(_measure(model, payload, n_loops, n_samples, period_s, name))
+        specs.append(PointSpec("torque", round(nominal_torque_mass, 2), lever + DR, lever,
+                               tuple(lp.trace for lp in loops[-1]), ph.N_CB_MAX + 1))
+    man = Manifest(Path("manifest.toml"), Setup(ROBOT, G, DR, body_mass_u_kg=body_mass_u_kg), specs)
+    return SimCampaign(man, loops, np.r_[true_cb, true_ta]), model
+
+
+def simulate_measurement(model: ph.RobotModel, dut_mass_kg: float, dut_cog_z_m: float = 0.25, n_loops: int = 3,
+                         n_samples: int = 250, period_s: float = 0.012) -> SimMeasurement:
+    """A DuT on the ReFEx fixture on the MPA, measured after the campaign on the same simulated robot."""
+    payload = ph.dut_payload(dut_mass_kg, (0.0, 0.0, dut_cog_z_m))
+    return SimMeasurement(_measure(model, payload, n_loops, n_samples, period_s, "dut"), dut_mass_kg,
+                          ph.FIXTURE_MASS_KG)
+
+
+def _write_loop(directory: Path, lp: Loop) -> None:
+    write_trace_set(directory, lp.trace, lp.period_s, {"NextGenDrive#3": {"Istmoment": (lp.torque_a3_nm, "Nm")},
+                                                       "NextGenDrive#5": {"Istmoment": (lp.torque_a5_nm, "Nm")}})
+
+
+def write_dirs(campaign: SimCampaign, measurement: SimMeasurement, cal_dir: Path, dut_dir: Path) -> None:
+    """The campaign and the measurement as real directories (manifest.toml + KUKA trace file sets)."""
+    setup = campaign.manifest.setup
+    head = ["[setup]", f'robot = "{setup.robot}"', f"g = {setup.g_m_s2!r}",
+            f"lever_difference_m = {setup.lever_difference_m!r}", f"body_mass_u_kg = {setup.body_mass_u_kg!r}", ""]
+    cal_dir.mkdir(parents=True, exist_ok=True)
+    lines = list(head)
+    for spec, loops in zip(campaign.manifest.points, campaign.loops, strict=True):
+        for lp in loops:
+            _write_loop(cal_dir, lp)
+        lines += ["[[point]]", f'kind = "{spec.kind}"', f"mass_kg = {spec.mass_kg!r}",
+                  f"lever_a3_m = {spec.lever_a3_m!r}", f"lever_a5_m = {spec.lever_a5_m!r}", f"bodies = {spec.bodies}",
+                  "traces = [" + ", ".join(f'"{lp.trace}"' for lp in loops) + "]", ""]
+    (cal_dir / "manifest.toml").write_text("\n".join(lines), encoding="utf-8")
+    dut_dir.mkdir(parents=True, exist_ok=True)
+    for lp in measurement.loops:
+        _write_loop(dut_dir, lp)
+    text = [*head, "[measurement]", f"fixture_mass_kg = {measurement.fixture_mass_kg!r}",
+            "traces = [" + ", ".join(f'"{lp.trace}"' for lp in measurement.loops) + "]", ""]
+    (dut_dir / "manifest.toml").write_text("\n".join(text), encoding="utf-8")

@@ -1,0 +1,83 @@
+"""Uncertainty components: batch means under autocorrelation, loop spread, reference masses, g, model form."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rgse_daemon.manifest import load_points_csv
+from rgse_daemon.pipeline import calibration as C
+from rgse_daemon.pipeline import uncertainty as unc
+
+
+def test_batch_means_sees_autocorrelation_the_naive_error_misses():
+    rng = np.random.default_rng(0)
+    n, reps, phi = 2000, 200, 0.95
+    e = rng.normal(size=(reps, n))
+    x = np.empty_like(e)  # AR(1) rows, vectorised over repetitions
+    x[:, 0] = e[:, 0]
+    for k in range(1, n):
+        x[:, k] = phi * x[:, k - 1] + e[:, k]
+    true_se = x.mean(axis=1).std()
+    naive = np.mean(x.std(axis=1) / np.sqrt(n))
+    bm = np.mean([unc.batch_means_se(row) for row in x])
+    assert naive < 0.4 * true_se
+    assert 0.6 * true_se < bm < 1.3 * true_se
+
+
+def test_loop_spread_takes_the_larger_of_between_and_within():
+    assert unc.loop_spread_kg(np.array([10.0, 10.0, 10.0]), np.array([0.3, 0.3, 0.3])) == pytest.approx(
+        np.sqrt(3 * 0.09) / 3)
+    assert unc.loop_spread_kg(np.array([9.0, 10.0, 11.0]), np.array([0.01] * 3)) == pytest.approx(1 / np.sqrt(3))
+    assert unc.loop_spread_kg(np.array([5.0]), np.array([0.2])) == pytest.approx(0.2)
+
+
+def test_nested_reference_covariance():
+    var = np.array([0.0, 1.0, 2.0, 11.0]) * 1e-4
+    cov = C.reference_mass_covariance(var)
+    np.testing.assert_allclose(cov[1:, 1:], np.array([[1, 1, 1], [1, 2, 2], [1, 2, 11]]) * 1e-4)
+    assert not np.any(cov[0])
+    np.testing.assert_allclose(C.reference_mass_covariance(var, nested=False), np.diag(var))
+
+
+def test_reference_mass_propagation_matches_linear_algebra(paper_dir):
+    """gain-linear on exact torques: the masses' error maps into the gains exactly as a linear regression."""
+    pts = load_points_csv(paper_dir / "table1_calibration.csv")
+    assert pts.mass_cov_kg2 is not None and pts.mass_cov_kg2[-1, -1] == pytest.approx(11 * 1e-4)
+    cov = C.reference_mass_param_covariance(pts, "gain-linear", 9.81, 1.025)
+    # Monte Carlo over the reference masses, refitting each time
+    rng = np.random.default_rng(1)
+    draws = rng.multivariate_normal(pts.mass_kg, pts.mass_cov_kg2, size=300, method="eigh")
+    params = np.array([C.fit(pts.with_masses(m), "gain-linear", 9.81, 1.025).params for m in draws])
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)), params.std(axis=0), rtol=0.15)
+    # the 0.01 kg per body is a ~0.005 % gain error: small, but not zero
+    rel = np.sqrt(np.diag(cov)) / np.abs(C.fit(pts, "gain-linear", 9.81, 1.025).params)
+    assert np.all((rel > 1e-5) & (rel < 5e-4))
+
+
+def test_g_cancels_at_the_same_site_only():
+    assert unc.g_kg(100.0, 9.81, 0.0035, 9.81, 0.0035) == 0.0
+    assert unc.g_kg(100.0, 9.81, 0.0, 9.8134, 0.0069) == pytest.approx(100 * 0.0069 / 9.8134)
+
+
+def test_g_cancels_in_the_mass():
+    """Expected torques with a wrong g: the calibrated mass does not move (the reason for the g component)."""
+    rng = np.random.default_rng(2)
+    mass = np.r_[0.0, 20.93 * np.arange(1, 11)]
+    l3 = 1.29 + 0.0075 * np.arange(11)
+    g_true = 9.8134
+    t3 = g_true * mass * l3 / 1.1 + rng.normal(0, 0.5, 11)
+    t5 = g_true * mass * (l3 - 1.025) / 0.85 + rng.normal(0, 0.5, 11)
+    masses = []
+    for g in (9.81, 9.8134):
+        pts = C.CalibrationPoints(np.array(["mass"] * 11), mass, t3, t5, g * mass * l3, g * mass * (l3 - 1.025))
+        masses.append([C.fit(pts, m, g, 1.025).mass_kg(2000.0, 400.0) for m in ("ratio-linear", "gain-linear")])
+    np.testing.assert_allclose(masses[0], masses[1], rtol=1e-9)
+
+
+def test_model_component():
+    assert unc.model_kg(100.0, 0.003, np.array([])) == pytest.approx(0.3)
+    assert unc.model_kg(100.0, 0.0, np.array([100.4, 99.7])) == pytest.approx(np.sqrt((0.16 + 0.09) / 2))
+    u = unc.MassUncertainty(0.1, 0.2, 0.3, 0.4, 0.0)
+    assert u.expanded_kg == pytest.approx(2 * np.sqrt(0.01 + 0.04 + 0.09 + 0.16))
+    assert set(u.components()) == {"loops", "calibration", "model", "reference", "g"}
