@@ -289,7 +289,8 @@ def _reference_section(view: MeasurementView) -> str:
     cmp = ref.compare(view.result.result, latest)
     rows = ref.table2_rows(view.run, cmp, latest)
     out = table(("parameter (Table 2)", "reference crane scale", "in-line robot"),
-                [(t(p), t(a), t(b)) for p, a, b in rows], right=(1, 2))
+                [(t(p), t(a), t(b)) for p, a, b in rows if not p.startswith(("difference", "agreement"))],
+                right=(1, 2))  # difference and agreement follow below with their exact values
     out += kv([
         ("difference in-line − scale", num(cmp.difference_kg, "+.3f", "ref.difference_kg", "kg") + " ("
          + num(cmp.difference_pct, "+.3f", "ref.difference_pct", "%") + ")"),
