@@ -72,6 +72,22 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--points", type=Path, metavar="CSV")
     _add_json(p)
 
+    p = sub.add_parser("report", help="self-contained HTML report of a measurement run or a calibration")
+    p.add_argument("run_id", nargs="?", metavar="RUN_ID", help="a measurement run")
+    p.add_argument("--calibration", metavar="ID", help="report a calibration instead of a run")
+    p.add_argument("--out", type=Path, metavar="DIR", help="directory for the HTML file (default <data_dir>/reports)")
+    p.add_argument("--config", type=Path, metavar="FILE")
+
+    p = sub.add_parser("reference", help="crane-scale reference weighing of a run, compared as in paper Table 2")
+    p.add_argument("--run", required=True, metavar="RUN_ID")
+    p.add_argument("--config", type=Path, metavar="FILE")
+    p.add_argument("--weighed", choices=("gross", "net"), default="gross",
+                   help="gross: DuT and fixture hang on the scale together (the paper's 117.6 kg)")
+    p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for a stable weighing")
+    p.add_argument("--operators", type=int, metavar="N", help="operators of the crane-scale procedure (Table 2)")
+    p.add_argument("--operation-min", type=float, metavar="MIN", help="its total time of operation (Table 2)")
+    _add_json(p)
+
     p = sub.add_parser("krl", help="KRL programs: static check, rendering")
     krl_sub = p.add_subparsers(dest="krl_command", required=True, metavar="ACTION")
     c = krl_sub.add_parser("check", help="the interlock's static check (exit 3 if refused)")
