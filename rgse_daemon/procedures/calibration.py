@@ -26,7 +26,7 @@ from typing import Any
 
 from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
-from rgse_daemon.commands.calibrate import _rel_rms, campaign_points, fit_and_describe, load_campaign
+from rgse_daemon.commands.calibrate import campaign_points, fit_and_describe, load_campaign, loo_rms_rel
 from rgse_daemon.config import Config
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.modbus import SafetyInputs
@@ -140,7 +140,7 @@ def fit_campaign(directory: Path, method: str = "auto") -> tuple[dict[str, Any],
     doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
                         in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
                         loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
-                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": _rel_rms(points, chosen)})
+                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": loo_rms_rel(points, chosen)})
     calfile.write(directory / CALIBRATION_FILE, doc)
     summary = {
         "calibration_id": doc["calibration_id"],

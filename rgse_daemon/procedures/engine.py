@@ -130,6 +130,7 @@ class RunEngine:
         self._confirm_note = ""
         self._current: asyncio.Task[Any] | None = None
         self._interrupt: BaseException | None = None
+        self._delivered = False
         self._trace_armed = False
         self._running = False
 
@@ -216,7 +217,7 @@ class RunEngine:
         reply: Any = None
         error: BaseException | None = None
         cancelled: asyncio.CancelledError | None = None
-        delivered = False
+        self._delivered = False
         while True:
             try:
                 msg = gen.throw(error) if error is not None else gen.send(reply)
@@ -234,7 +235,7 @@ class RunEngine:
                     # this task is cancelled: let the plan's finaliser run, then re-raise
                     cancelled = cancelled or exc
                     error = exc
-                elif self._interrupt is not None and not delivered:
+                elif self._interrupt is not None and not self._delivered:
                     error = self._interrupt
                 else:
                     error = exc
@@ -242,10 +243,10 @@ class RunEngine:
                 error = exc
             finally:
                 self._current = None
-            if error is None and self._interrupt is not None and not delivered:
+            if error is None and self._interrupt is not None and not self._delivered:
                 error = self._interrupt  # a trip/abort between two messages
             if error is self._interrupt and error is not None:
-                delivered = True
+                self._delivered = True
 
     # --- message execution --------------------------------------------------------------------------------------
     async def _execute(self, msg: m.Msg) -> Any:
@@ -254,6 +255,10 @@ class RunEngine:
             if isinstance(msg, m.Start):
                 return time.monotonic()
             return None
+        if self.dry_run and isinstance(msg, m.WaitProgram):
+            return "P_END", 0.0  # nothing was started: nothing to wait for
+        if self.dry_run and isinstance(msg, m.TraceWait):
+            return 0.0
         handler = getattr(self, f"_do_{type(msg).__name__}", None)
         if handler is None:
             raise RgseError(f"the engine does not know message {type(msg).__name__}")
@@ -306,16 +311,17 @@ class RunEngine:
         t0 = time.monotonic()
         deadline = t0 + msg.timeout_s
         while True:
+            self._raise_if_interrupted()
             state = _enum(await self._bounded("read $PRO_STATE1", self.krc.read("$PRO_STATE1")))
             if state in msg.states:
                 if state in ("P_END", "P_FREE", "P_RESET"):
                     self._expect(Expect.IDLE)
                 return state, time.monotonic() - t0
-            if state == "P_STOP" and "P_STOP" not in msg.states:
+            if state in ("P_STOP", "P_FREE") and state not in msg.states:
                 if self.monitor is not None and not self.dry_run:
                     # the monitor names the cause (STOP 2, mode, ...): give it a few polls to trip first
                     await asyncio.sleep(3 * self.monitor.stale_after_s)
-                raise ProgramStopped(f"program stopped (#P_STOP) while waiting for {'/'.join(sorted(msg.states))}")
+                raise ProgramStopped(f"program #{state} while waiting for {'/'.join(sorted(msg.states))}")
             if time.monotonic() >= deadline:
                 raise StepTimeout(f"program did not reach {'/'.join(sorted(msg.states))} within {msg.timeout_s:g} s"
                                   f" (it is #{state})")
@@ -357,6 +363,7 @@ class RunEngine:
         t0 = time.monotonic()
         deadline = t0 + msg.timeout_s
         while True:
+            self._raise_if_interrupted()
             state = _enum(await self._bounded("read $TRACE.STATE", self.krc.read("$TRACE.STATE")))
             if state == "T_END":
                 self._trace_armed = False
@@ -418,6 +425,12 @@ class RunEngine:
             _log.info("dry run: skip %s", msg.describe())
             return None
         return await self._bounded(msg.label, msg.fn(*msg.args, **msg.kwargs), msg.timeout_s)
+
+    def _raise_if_interrupted(self) -> None:
+        """Polling waits check this each round: Python 3.11's ``wait_for`` can swallow a cancellation that arrives
+        just as its inner call completes, so a cancel alone may not end a long wait."""
+        if self._interrupt is not None and not self._delivered and self._current is asyncio.current_task():
+            raise asyncio.CancelledError
 
     def _expect(self, expect: Expect) -> None:
         if self.monitor is not None:

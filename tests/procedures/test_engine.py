@@ -1,0 +1,176 @@
+"""Engine semantics on the simulated KR C4: finaliser on error/cancel/abort, cleanup errors never mask the cause,
+pause/resume at checkpoints, dry run, and a refused program that never reaches the controller."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import replace
+
+import pytest
+
+from rgse_daemon.errors import DataError, InterlockError
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.common import RunSettings, axes_of, program, run_checked
+from rgse_daemon.procedures.engine import PlanAborted, RunEngine
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.measurement import measurement_plan
+from rgse_daemon.procedures.retrieval import TRACE_DIR
+from rgse_daemon.safety.monitor import Monitor
+from rgse_daemon.store import Store, archive_root
+
+from .conftest import make_engine
+from .plans import long_motion, moving, robot_still, trace_stopped, until
+
+
+def _fails_while_moving(s: RunSettings, sim) -> m.Plan:
+    """Start the long motion's trace and program, then fail in the middle of it (a pipeline error, say)."""
+    plan = long_motion(s)
+    msg = next(plan)
+    reply = None
+    while not isinstance(msg, m.WaitProgram):
+        reply = yield msg
+        msg = plan.send(reply)
+    while not moving(sim):
+        yield m.Sleep(0.01)
+
+    def broken() -> None:
+        raise DataError("trace.r64: truncated (the cause)")
+
+    yield m.Process("pipeline", broken)
+
+
+async def test_finaliser_runs_on_error(sim, engine: RunEngine, settings):
+    with pytest.raises(DataError, match="the cause"):
+        await engine.run(_fails_while_moving(settings, sim))
+    await until(lambda: robot_still(sim), 10, "program stopped")
+    await until(lambda: trace_stopped(sim), 10, "trace stopped")
+    assert engine.state == "failed"
+
+
+async def test_cleanup_error_does_not_mask_the_cause(sim, krc, cfg, settings):
+    # a monitor without watchers: this test is about the finaliser, not the interlock
+    engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=Monitor(krc, watchers=()),
+                       share_dir=cfg.controller.share_dir)
+
+    def plan() -> m.Plan:
+        yield from _fails_while_moving(settings, sim)
+
+    gen = plan()
+
+    def breaking() -> m.Plan:
+        # the link drops every request naming $TRACE.STATE from now on: the finaliser's trace step fails
+        try:
+            result = yield from gen
+        except DataError:
+            sim.server.faults.drop_on_variable = "$TRACE.STATE"
+            raise
+        return result
+
+    with pytest.raises(DataError, match="the cause"):
+        await engine.run(breaking())
+    sim.server.faults.drop_on_variable = None
+    await until(lambda: robot_still(sim), 10, "program stopped by the finaliser's next step")
+
+
+async def test_finaliser_runs_on_cancel(sim, engine: RunEngine, settings):
+    task = asyncio.create_task(engine.run(long_motion(settings)))
+    await until(lambda: moving(sim), what="moving")
+    task.cancel()
+    with pytest.raises(asyncio.CancelledError):
+        await task
+    await until(lambda: robot_still(sim), 10, "program stopped")
+    await until(lambda: trace_stopped(sim), 10, "trace stopped")
+
+
+async def test_abort_stops_and_raises(sim, engine: RunEngine, settings):
+    task = asyncio.create_task(engine.run(long_motion(settings)))
+    await until(lambda: moving(sim), what="moving")
+    engine.abort("operator pressed abort")
+    with pytest.raises(PlanAborted, match="operator"):
+        await asyncio.wait_for(task, 30)
+    await until(lambda: robot_still(sim), 10, "program stopped")
+    await until(lambda: trace_stopped(sim), 10, "trace stopped")
+    assert engine.state == "aborted"
+
+
+async def test_pause_and_resume_at_checkpoints(sim, engine: RunEngine):
+    order: list[str] = []
+
+    def plan() -> m.Plan:
+        for i in range(3):
+            yield m.Checkpoint(f"c{i}")
+            order.append(f"step {i}")
+        return "finished"
+
+    def on_event(ev: Event) -> None:
+        if ev.kind == "state":
+            order.append(ev.data["state"])
+            if ev.data["state"] == "paused":
+                asyncio.get_running_loop().call_later(0.05, engine.resume)
+
+    engine.subscribe(on_event)
+    engine.pause()
+    assert await engine.run(plan()) == "finished"
+    assert order == ["running", "paused", "running", "step 0", "step 1", "step 2", "done"]
+
+
+async def test_dry_run_sends_nothing(sim, krc, cfg, store: Store, settings):
+    engine = make_engine(krc, cfg, dry_run=True)
+    axes_before = sim.store.read("$AXIS_ACT")
+    archive = archive_root(cfg.paths.data_dir)
+    pushed: list[str] = []
+    engine.subscribe(lambda ev: pushed.append(ev.message) if ev.kind == "step" else None)
+    result = await engine.run(measurement_plan(store, "dry-run", archive / "dry-run", archive, settings, {}))
+    assert result is None
+    assert "warm-up move, 1 cycles" in pushed and "loop 2/2" in pushed
+    assert not (sim.share_dir / "R1" / "PROGRAM").exists() or not any((sim.share_dir / "R1" / "PROGRAM").iterdir())
+    assert not (sim.share_dir / "TRACE").exists() or not any((sim.share_dir / "TRACE").iterdir())
+    assert sim.store.read("$AXIS_ACT") == axes_before and sim.moves == 0
+    assert await store.list_runs() == []
+
+
+def _bad_speed(s: RunSettings) -> m.Plan:
+    """A template parameter injected past the renderer's safe choice: full axis speed."""
+    snap = yield m.ReadState()
+    prog = program("rgse_brake_release", s, axes_of(snap, s.meas_pose_deg), vel_axis_pct=100.0)
+    yield from run_checked(prog, s)
+
+
+def _lever_too_short(s: RunSettings) -> m.Plan:
+    """A bad config: the renderer believes the payload reaches 0.05 m, the interlock knows it reaches 1.5 m."""
+    snap = yield m.ReadState()
+    yield from run_checked(program("rgse_warmup", replace(s, payload_lever_max_m=0.05), axes_of(snap, s.meas_pose_deg)),
+                           s)
+
+
+@pytest.mark.parametrize("plan", [_bad_speed, _lever_too_short])
+@pytest.mark.parametrize("dry_run", [False, True])
+async def test_refused_program_never_reaches_the_controller(sim, krc, cfg, settings, plan, dry_run):
+    engine = make_engine(krc, cfg, dry_run=dry_run)
+    alarms: list[Event] = []
+    engine.subscribe(lambda ev: alarms.append(ev) if ev.kind == "alarm" else None)
+    with pytest.raises(InterlockError, match="SPEED"):
+        await engine.run(plan(settings))
+    assert [a.data["watcher"] for a in alarms] == ["static_check"]
+    programs = sim.share_dir / "R1" / "PROGRAM"
+    assert not programs.exists() or not any(programs.iterdir())
+    assert sim.moves == 0 and sim.store.read("$PRO_STATE1") == "#P_FREE"
+
+
+async def test_trace_files_left_when_no_delete(sim, krc, cfg, store: Store, settings, tmp_path):
+    """Without a mounted share there is no delete on the link: the copies stay on the controller, and that is said."""
+    engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=Monitor(krc), share_dir=None)
+
+    def plan() -> m.Plan:
+        from rgse_daemon.procedures.common import TRACE_CONFIG_NAME, trace_config_xml
+
+        yield m.PutFile(TRACE_DIR + TRACE_CONFIG_NAME, trace_config_xml(settings).encode())
+        yield m.TraceStart("keep_me", TRACE_CONFIG_NAME)
+        yield m.TraceWait(30)
+        pulled = yield m.Pull("keep_me", tmp_path / "run")
+        return pulled
+
+    pulled = await engine.run(plan())
+    assert pulled.deleted is False and "left on the controller" in pulled.delete_note
+    on_controller = sorted(p.name for p in (sim.share_dir / "TRACE").iterdir() if p.name.startswith("keep_me_"))
+    assert on_controller == sorted(f.path.name for f in pulled.files) and len(on_controller) >= 4
