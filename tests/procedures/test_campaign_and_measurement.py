@@ -19,6 +19,8 @@ from simulators.krc4.sim import SimulatedKrc4
 from .conftest import make_engine
 
 DUT_MASS_KG = 95.0
+#: Accepted error in multiples of the result's U (k = 2): 1.5 U = 3 standard uncertainties.
+TOLERANCE_U = 1.5
 FIXTURE_KG = 10.288
 #: A short campaign: zero, five stacks, two torque points (Table 1 has 10 stacks and three torque points).
 SHORT_POINTS = table1_points(n_bodies=(0, 1, 3, 5, 7, 10), torque_levers_a5_m=(0.761, 1.261))
@@ -69,7 +71,9 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     assert result is not None
     assert sim.truth is not None and sim.truth.payload_mass_kg > DUT_MASS_KG + FIXTURE_KG  # + the MPA
     err_kg = abs(result["mass_kg"] - DUT_MASS_KG)
-    assert err_kg <= result["U_kg"], f"measured {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f}, true {DUT_MASS_KG}"
+    # U is the k = 2 (≈95 %) expanded uncertainty: within U fails 1 run in 20 by design. 1.5·U is k = 3 (≈99.7 %).
+    assert err_kg <= TOLERANCE_U * result["U_kg"], (
+        f"measured {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f}, true {DUT_MASS_KG}")
     assert result["calibration_id"] == cal.id and result["loops"] == 3
 
     # raw files: archived, hashed, indexed, reproducible; controller copies gone
