@@ -1,8 +1,10 @@
 """Benchmark of ``rgse study``'s kernel at the paper's size: 14 points × ~30 kS per point, ≥ 300 combinations.
 
 Synthetic Table-1-like torque traces (levels + noise + thermal drift + spikes) are written as raw float64 files
-and timed twice: ``numpy.fromfile`` of all of them (the I/O floor) and the full pre-processing grid plus one
-calibration fit per combination. Prints one JSON object.
+and timed in the same run: ``numpy.fromfile`` of all of them (the I/O floor), the pre-processing grid as it was
+(``point_torques_before``: every combination filtered on its own, direct Gaussian sums) and as it is (shared crop
+statistics and forward filters, FFT Gaussian), and the whole study (grid plus one calibration fit per
+combination). Both grids must give the same torques. Prints one JSON object.
 
     .venv/bin/python bench/study.py
 """
@@ -15,9 +17,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
+from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline.calibration import CalibrationPoints
-from rgse_daemon.pipeline.study import StudyGrid, point_torques, run_study
+from rgse_daemon.pipeline.study import StudyGrid, filter_windows, point_torques, run_study
 
 G, DR = 9.81, 1.025
 MASS_KG = np.r_[0.0, 20.93 * np.arange(1, 11), 228.51, 228.51, 228.51]
@@ -32,6 +36,43 @@ def synth(rng: np.random.Generator, true_nm: float, gain: float, bias_nm: float)
     spikes = rng.random(SAMPLES) < 0.005
     x[spikes] += 200.0
     return x
+
+
+def point_torques_before(points_loops, grid: StudyGrid) -> dict:
+    """The grid kernel before this optimisation (kept here for the side-by-side timing)."""
+
+    def smooth(x, filt, windows):
+        if filt == "gaussian":
+            return np.stack([ndimage.gaussian_filter1d(x, sigma=max(w / 5.0, 1e-3), mode="nearest") for w in windows])
+        return pp.smooth(x, filt, windows)
+
+    def rows_of(x, crop, filt, order, windows):
+        if order == "backward":
+            kept = pp.crop_outliers(x, crop)[0]
+            return smooth(kept[np.isfinite(kept)], filt, windows)
+        return pp.crop_outliers(smooth(x, filt, windows), crop)
+
+    out = {}
+    for crop in grid.crop_sigmas:
+        for filt in grid.filters:
+            windows = np.asarray(filter_windows(grid, filt), int)
+            for order in grid.orders:
+                shape = (windows.size, len(points_loops))
+                acc = {loc: (np.zeros(shape), np.zeros(shape)) for loc in grid.locations}
+                for j, loops in enumerate(points_loops):
+                    per_loop = {loc: ([], []) for loc in grid.locations}
+                    for a3, a5, _dt in loops:
+                        r3 = rows_of(a3, crop, filt, order, windows)
+                        r5 = rows_of(a5, crop, filt, order, windows)
+                        for loc in grid.locations:
+                            per_loop[loc][0].append(pp.location_rows(r3, loc))
+                            per_loop[loc][1].append(pp.location_rows(r5, loc))
+                    for loc in grid.locations:
+                        acc[loc][0][:, j] = np.mean(per_loop[loc][0], axis=0)
+                        acc[loc][1][:, j] = np.mean(per_loop[loc][1], axis=0)
+                for loc in grid.locations:
+                    out[(crop, filt, order, loc)] = acc[loc]
+    return out
 
 
 def main() -> None:
@@ -59,16 +100,22 @@ def main() -> None:
                                  G * MASS_KG * (LEVER_A3_M - DR))
 
     t0 = time.perf_counter()
-    point_torques(loops, grid)
+    before = point_torques_before(loops, grid)
+    t_before = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    after = point_torques(loops, grid)
     t_pre = time.perf_counter() - t0
+    max_diff = max(float(np.max(np.abs(after[k][i] - before[k][i]))) for k in before for i in (0, 1))
     t0 = time.perf_counter()
     rows = run_study(loops, to_points, grid, "gain-linear", G, DR)
     t_study = time.perf_counter() - t0
     best = rows[0]
     print(json.dumps({
         "points": len(MASS_KG), "samples_per_point": LOOPS * SAMPLES, "combinations": grid.size,
-        "rows": len(rows), "fromfile_s": round(t_read, 4), "preprocess_grid_s": round(t_pre, 3),
-        "study_total_s": round(t_study, 3), "study_over_fromfile": round(t_study / t_read, 1),
+        "rows": len(rows), "fromfile_s": round(t_read, 4), "preprocess_grid_before_s": round(t_before, 3),
+        "preprocess_grid_s": round(t_pre, 3), "speedup": round(t_before / t_pre, 1),
+        "max_abs_torque_diff_nm": max_diff, "study_total_s": round(t_study, 3),
+        "study_over_fromfile": round(t_study / t_read, 1),
         "best": best.to_dict(),
     }))
 

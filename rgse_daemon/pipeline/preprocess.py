@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, signal
 
 from rgse_daemon.errors import DataError
 
@@ -115,6 +115,24 @@ def moving_average(x: np.ndarray, windows: np.ndarray | int) -> np.ndarray:
     return (c[hi] - c[lo]) / (hi - lo)
 
 
+#: Above this kernel radius (samples) the Gaussian is applied by FFT convolution (same result, O(n log n)).
+GAUSSIAN_FFT_RADIUS = 64
+
+
+def gaussian(x: np.ndarray, window: int) -> np.ndarray:
+    """Centred Gaussian smoothing of a 1-D signal, σ = window/5 samples (MATLAB ``smoothdata``), ends ``nearest``.
+
+    Identical to ``scipy.ndimage.gaussian_filter1d(x, σ, mode="nearest")`` (kernel truncated at 4σ); long kernels
+    go through an FFT convolution of the edge-padded signal instead of the direct sum.
+    """
+    sigma = max(window / 5.0, 1e-3)
+    radius = int(4.0 * sigma + 0.5)
+    if radius <= GAUSSIAN_FFT_RADIUS:
+        return ndimage.gaussian_filter1d(x, sigma=sigma, mode="nearest")
+    k = np.exp(-0.5 * (np.arange(-radius, radius + 1) / sigma) ** 2)
+    return signal.fftconvolve(np.pad(x, radius, mode="edge"), k / k.sum(), mode="valid")
+
+
 def smooth(x: np.ndarray, filter_name: str, windows: np.ndarray | int) -> np.ndarray:
     """Apply a centred filter to the 1-D signal ``x`` for each window; returns one row per window."""
     x = np.asarray(x, float)
@@ -124,10 +142,18 @@ def smooth(x: np.ndarray, filter_name: str, windows: np.ndarray | int) -> np.nda
     if filter_name == "moving_average":
         return moving_average(x, windows)
     if filter_name == "gaussian":
-        return np.stack([ndimage.gaussian_filter1d(x, sigma=max(w / 5.0, 1e-3), mode="nearest") for w in windows])
+        return np.stack([gaussian(x, w) for w in windows])
     if filter_name == "median":
         return np.stack([ndimage.median_filter(x, size=int(w), mode="nearest") for w in windows])
     raise PreprocessError(f"pre-processing: unknown filter {filter_name!r}")
+
+
+def _row_median(x: np.ndarray, n_valid: np.ndarray) -> np.ndarray:
+    """Median of each row ignoring NaN (sorted to the end), vectorised over rows (``np.nanmedian`` loops)."""
+    s = np.sort(x, axis=1)
+    lo = np.take_along_axis(s, np.maximum((n_valid - 1) // 2, 0)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(s, np.maximum(n_valid // 2, 0)[:, None], axis=1)[:, 0]
+    return np.where(n_valid > 0, 0.5 * (lo + hi), np.nan)
 
 
 def location_rows(x: np.ndarray, kind: str) -> np.ndarray:
@@ -146,13 +172,15 @@ def location_rows(x: np.ndarray, kind: str) -> np.ndarray:
         keep = (j >= cut[:, None]) & (j < (n - cut)[:, None])
         return np.where(keep, s, 0.0).sum(axis=1) / keep.sum(axis=1)
     if kind == "huber":
-        mu = np.nanmedian(x, axis=1, keepdims=True)
-        scale = 1.4826 * np.nanmedian(np.abs(x - mu), axis=1, keepdims=True)
+        n = valid.sum(axis=1)
+        mu = _row_median(x, n)[:, None]
+        scale = 1.4826 * _row_median(np.abs(x - mu), n)[:, None]
         scale = np.where(scale > 0, scale, np.nanstd(x, axis=1, keepdims=True) + 1e-12)
+        xv = np.where(valid, x, 0.0)
+        cs = HUBER_C * scale
         for _ in range(30):  # iteratively reweighted mean; converges in a handful of steps
-            r = np.abs(x - mu) / (HUBER_C * scale)
-            w = np.where(valid, np.minimum(1.0, 1.0 / np.maximum(r, 1e-12)), 0.0)
-            new = (np.where(valid, x, 0.0) * w).sum(axis=1, keepdims=True) / w.sum(axis=1, keepdims=True)
+            w = np.where(valid, np.minimum(1.0, cs / np.maximum(np.abs(xv - mu), 1e-300)), 0.0)
+            new = (xv * w).sum(axis=1, keepdims=True) / w.sum(axis=1, keepdims=True)
             done = np.allclose(new, mu, rtol=0, atol=1e-9 * (1 + np.abs(mu).max()))
             mu = new
             if done:

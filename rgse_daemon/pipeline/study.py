@@ -63,33 +63,49 @@ def filter_windows(grid: StudyGrid, filt: str) -> tuple[int, ...]:
     return grid.windows
 
 
+def loop_grid_rows(values: np.ndarray, period_s: float, grid: StudyGrid, settle_s: float = 0.0
+                   ) -> dict[tuple, np.ndarray]:
+    """Every (crop σ, filter, order) of the grid on one loop: ``{(crop, filter, order): rows}``, one row per window,
+    NaN marking cropped samples (same as :func:`preprocess.filtered_rows` per combination).
+
+    Shared work: the crop statistics (mean, σ) once per crop σ; the forward order filters the raw loop once per
+    filter and window, whatever the crop σ; the moving average of all windows comes from one cumulative sum.
+    """
+    base = pp.Preprocessing(crop_sigma=None, filter="none", window=1, settle_s=settle_s)
+    x = pp.filtered_rows(values, period_s, base, np.array([1]))[0]  # validation and settle cut
+    out: dict[tuple, np.ndarray] = {}
+    kept = {crop: (x if crop is None else x[np.isfinite(pp.crop_outliers(x, crop)[0])]) for crop in grid.crop_sigmas}
+    for filt in grid.filters:
+        windows = np.asarray(filter_windows(grid, filt), int)
+        forward = pp.smooth(x, filt, windows) if "forward" in grid.orders else None
+        for crop in grid.crop_sigmas:
+            if "backward" in grid.orders:
+                out[(crop, filt, "backward")] = pp.smooth(kept[crop], filt, windows)
+            if forward is not None:
+                out[(crop, filt, "forward")] = pp.crop_outliers(forward, crop)
+    return out
+
+
 def point_torques(points_loops: Sequence[Sequence[LoopData]], grid: StudyGrid
                   ) -> dict[tuple, tuple[np.ndarray, np.ndarray]]:
     """Eq. 16 point torques (raw, not yet bias-normalised) for every combination of the grid.
 
     Returns ``{(crop, filter, order, location): (raw_a3, raw_a5)}`` with arrays of shape (n_windows, n_points).
     """
+    n_points = len(points_loops)
     out: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
     for crop in grid.crop_sigmas:
         for filt in grid.filters:
-            windows = np.asarray(filter_windows(grid, filt), int)
+            shape = (len(filter_windows(grid, filt)), n_points)
             for order in grid.orders:
-                cfg = pp.Preprocessing(crop_sigma=crop, filter=filt, window=1, order=order)
-                shape = (windows.size, len(points_loops))
-                acc = {loc: (np.zeros(shape), np.zeros(shape)) for loc in grid.locations}
-                for j, loops in enumerate(points_loops):
-                    per_loop = {loc: ([], []) for loc in grid.locations}
-                    for a3, a5, dt in loops:
-                        r3 = pp.filtered_rows(a3, dt, cfg, windows)
-                        r5 = pp.filtered_rows(a5, dt, cfg, windows)
-                        for loc in grid.locations:
-                            per_loop[loc][0].append(pp.location_rows(r3, loc))
-                            per_loop[loc][1].append(pp.location_rows(r5, loc))
-                    for loc in grid.locations:
-                        acc[loc][0][:, j] = np.mean(per_loop[loc][0], axis=0)  # eq. 16 outer average
-                        acc[loc][1][:, j] = np.mean(per_loop[loc][1], axis=0)
                 for loc in grid.locations:
-                    out[(crop, filt, order, loc)] = acc[loc]
+                    out[(crop, filt, order, loc)] = (np.zeros(shape), np.zeros(shape))
+    for j, loops in enumerate(points_loops):
+        for a3, a5, dt in loops:
+            for axis, values in ((0, a3), (1, a5)):
+                for (crop, filt, order), rows in loop_grid_rows(values, dt, grid).items():
+                    for loc in grid.locations:  # eq. 16: the outer average over the point's loops
+                        out[(crop, filt, order, loc)][axis][:, j] += pp.location_rows(rows, loc) / len(loops)
     return out
 
 

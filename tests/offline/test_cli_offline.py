@@ -153,3 +153,18 @@ def test_study_points_and_campaign(capsys, paper_dir, dirs):
     assert loo == sorted(loo) and res["rows"][-1]["method"] in {m["method"] for m in res["rows"]}
     assert main(["study", "--points", str(paper_dir / "table1_calibration.csv")]) == 0
     assert "paper" in capsys.readouterr().out
+
+
+def test_study_campaign_end_to_end(capsys, dirs):
+    res = run_json(capsys, ["study", "--campaign", str(dirs / "cal"), "--json"])
+    assert res["kind"] == "preprocessing" and res["method"] == "paper"
+    rows = res["rows"]
+    assert 0 < len(rows) <= res["combinations"]
+    errs = [r["mass_err_pct"] for r in rows]
+    assert errs == sorted(errs) and all(np.isfinite(errs))
+    assert {r["filter"] for r in rows} == {"moving_average", "gaussian", "median"}
+    assert {r["order"] for r in rows} == {"backward", "forward"}
+    # linear drive, 1 % spikes: the best combination recovers the masses well, and the ranking spreads
+    assert errs[0] < 0.5 and errs[0] < errs[-1]
+    assert main(["study", "--campaign", str(dirs / "cal")]) == 0
+    assert "combinations" in capsys.readouterr().out

@@ -48,3 +48,33 @@ def test_study_with_paper_method_reports_r2():
     grid = StudyGrid(crop_sigmas=(1.0,), filters=("moving_average",), windows=(150,), orders=("backward",))
     rows = run_study(make_loops(1), to_points, grid, "paper")
     assert len(rows) == 1 and 0.0 <= rows[0].r2_a3 <= 1.0
+
+
+def test_shared_grid_kernel_equals_each_combination_on_its_own():
+    """The shared crop statistics / forward filters / FFT Gaussian give exactly the per-combination torques."""
+    from rgse_daemon.pipeline import preprocess as pp
+    from rgse_daemon.pipeline.study import filter_windows, point_torques
+
+    loops = make_loops(2)[:3]
+    grid = StudyGrid(crop_sigmas=(None, 1.0, 3.0), filters=("moving_average", "gaussian", "median"),
+                     windows=(5, 400, 2000), orders=("backward", "forward"), locations=("mean", "huber"))
+    got = point_torques(loops, grid)
+    for (crop, filt, order, loc), (raw3, raw5) in got.items():
+        cfg = pp.Preprocessing(crop_sigma=crop, filter=filt, window=1, order=order, location=loc)
+        windows = np.asarray(filter_windows(grid, filt))
+        for j, point in enumerate(loops):
+            want3 = np.mean([pp.location_rows(pp.filtered_rows(a3, dt, cfg, windows), loc) for a3, _, dt in point], 0)
+            want5 = np.mean([pp.location_rows(pp.filtered_rows(a5, dt, cfg, windows), loc) for _, a5, dt in point], 0)
+            np.testing.assert_allclose(raw3[:, j], want3, rtol=0, atol=1e-9)
+            np.testing.assert_allclose(raw5[:, j], want5, rtol=0, atol=1e-9)
+
+
+def test_fft_gaussian_equals_direct_filter():
+    from scipy import ndimage
+
+    from rgse_daemon.pipeline import preprocess as pp
+
+    x = np.random.default_rng(4).normal(size=3000).cumsum()
+    for w in (3, 200, 1500, 9000):
+        np.testing.assert_allclose(pp.gaussian(x, w), ndimage.gaussian_filter1d(x, max(w / 5, 1e-3), mode="nearest"),
+                                   rtol=0, atol=1e-9)
