@@ -40,7 +40,7 @@ from rgse_daemon.procedures.common import RunSettings, static_checker
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import run_measurement
-from rgse_daemon.safety.monitor import Monitor
+from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
 from rgse_daemon.store import RunKind, RunState, Store
 from rgse_daemon.systemd import Notifier
 
@@ -214,7 +214,8 @@ class Daemon:
         engine = RunEngine(
             krc,
             checker=static_checker(self.cfg.limits, self.cfg.measurement.payload_lever_max_m),
-            monitor=Monitor(krc, inputs=inputs),
+            monitor=Monitor(krc, inputs=inputs,
+                            stale_periods=self.cfg.limits.snapshot_stale_s / DEFAULT_POLL_PERIOD_S),
             share_dir=self.cfg.controller.share_dir,
         )
         engine.subscribe(self._event)

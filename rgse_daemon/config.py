@@ -73,6 +73,8 @@ class LimitsConfig(_Section):
     max_payload_kg: float = Field(611.0, gt=0.0, le=611.0)
     max_a5_torque_nm: float = Field(3330.0, gt=0.0, le=3330.0)
     brake_release_max_deg: float = Field(45.0, gt=0.0, le=90.0)
+    snapshot_stale_s: float = Field(0.1, ge=0.05, le=1.0)
+    """The runtime monitor polls at 20 Hz; a snapshot older than this (link lost or slow) trips the interlock."""
 
 
 class StoreConfig(_Section):
