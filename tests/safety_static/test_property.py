@@ -249,3 +249,10 @@ def test_the_oracle_is_not_vacuous() -> None:
         )
         == []
     )
+
+
+def test_a_motion_to_the_current_pose_still_obeys_the_load_diagram() -> None:
+    """Regression (found by the property above): PTP to where the robot already is holds the load there too."""
+    src = program_text([("ptp", {1: 0.0})])
+    ctx = CheckContext(mode="T1", payload_mass_kg=611.0, payload_cog_flange_m=(0.0, 0.0, 0.5), start_axes_deg=MEAS)
+    assert [v.rule for v in check_program(src, None, ctx, "null.src")] == ["A5_TORQUE"]
