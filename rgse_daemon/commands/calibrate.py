@@ -7,6 +7,7 @@ import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -95,29 +96,21 @@ def plausible_alternatives(points: CalibrationPoints, chosen: cal_mod.Evaluation
             for e in evaluations if e.method != chosen.method and e.loo_mean_abs_err_pct <= limit]
 
 
-def run(args: argparse.Namespace) -> int:
-    if args.points is not None:
-        points = load_points_csv(args.points)
-        g, dr, robot, pre, bias3, bias5, g_u = 9.81, 1.025, POINTS_ROBOT, None, 0.0, 0.0, 0.0
-        sources = source_sha256([args.points])
-    else:
-        data = load_campaign(args.campaign)
-        pre = pp.PAPER
-        points, bias3, bias5 = campaign_points(data, pre)
-        setup = data.manifest.setup
-        g, dr, robot, g_u = setup.g_m_s2, setup.lever_difference_m, setup.robot, setup.g_u_m_s2
-        sources = source_sha256(data.files)
+def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, robot: str,
+              pre: pp.Preprocessing | None, bias3: float, bias5: float, g_u: float,
+              sources: dict[str, str], where: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Fit and describe a calibration: (CAL.json document, the ``--json`` summary). One code path for the CLI and
+    the daemon's campaign, so a stored calibration is always reproducible from its campaign directory."""
     try:
-        cal, chosen, evaluations = fit_and_describe(points, args.method, g, dr)
+        cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
     except DataError as exc:
-        raise DataError(f"{args.points or args.campaign}: {exc}") from exc
+        raise DataError(f"{where}: {exc}") from exc
     doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
                         in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
                         loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
                         extra_fit={"n_points": len(points), "loo_residual_rms_rel": loo_rms_rel(points, chosen),
                                    "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr)},
                         g_u_m_s2=g_u)
-    calfile.write(args.out, doc)
     summary = {
         "calibration_id": doc["calibration_id"],
         "method": cal.method,
@@ -130,15 +123,37 @@ def run(args: argparse.Namespace) -> int:
                     "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg,
                     "n_params": e.n_params} for e in evaluations],
     }
+    return doc, summary
+
+
+def fit_campaign(directory: Path, method: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``rgse calibrate --campaign DIR`` without writing: (CAL.json document, summary)."""
+    data = load_campaign(directory)
+    pre = pp.PAPER
+    points, bias3, bias5 = campaign_points(data, pre)
+    setup = data.manifest.setup
+    return calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot, pre=pre,
+                     bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2, sources=source_sha256(data.files),
+                     where=directory)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.points is not None:
+        doc, summary = calibrate(load_points_csv(args.points), args.method, g=9.81, dr=1.025, robot=POINTS_ROBOT,
+                                 pre=None, bias3=0.0, bias5=0.0, g_u=0.0, sources=source_sha256([args.points]),
+                                 where=args.points)
+    else:
+        doc, summary = fit_campaign(args.campaign, args.method)
+    calfile.write(args.out, doc)
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"calibration {doc['calibration_id']} ({cal.method}) written to {args.out}")
+        print(f"calibration {doc['calibration_id']} ({summary['method']}) written to {args.out}")
         print(f"{'method':18s} {'params':>6s} {'in-sample %':>12s} {'LOO %':>8s} {'LOO max kg':>11s}")
-        for e in evaluations:
-            mark = " *" if e.method == cal.method else ""
-            print(f"{e.method:18s} {e.n_params:6d} {e.in_sample_mean_abs_err_pct:12.4f} "
-                  f"{e.loo_mean_abs_err_pct:8.4f} {e.loo_max_abs_err_kg:11.3f}{mark}")
+        for e in summary["models"]:
+            mark = " *" if e["method"] == summary["method"] else ""
+            print(f"{e['method']:18s} {e['n_params']:6d} {e['in_sample_mean_abs_err_pct']:12.4f} "
+                  f"{e['loo_mean_abs_err_pct']:8.4f} {e['loo_max_abs_err_kg']:11.3f}{mark}")
         sys.stdout.flush()
     return 0
 

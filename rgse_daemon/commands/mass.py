@@ -56,21 +56,27 @@ def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: p
                       r.warnings, r.uncertainty.components())
 
 
-def run(args: argparse.Namespace) -> int:
-    directory = Path(args.traces)
+def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None):
+    """The in-line mass of a measurement directory (contracts §2) with a calibration file: what ``rgse mass`` prints,
+    and what the daemon stores — one code path, so a stored result is always reproducible from its raw files."""
     man = load_manifest(directory)
     if not man.measurement_traces:
         raise DataError(f"{man.path}: no [measurement] table (is this a calibration campaign?)")
-    doc, cal, pre = calfile.read(args.calibration)
-    calfile.check_robot(args.calibration, doc, man.setup.robot)
-    fixture = args.fixture_mass if args.fixture_mass is not None else (man.fixture_mass_kg or 0.0)
+    doc, cal, pre = calfile.read(calibration_path)
+    calfile.check_robot(calibration_path, doc, man.setup.robot)
+    fixture = fixture_mass_kg if fixture_mass_kg is not None else (man.fixture_mass_kg or 0.0)
     if not np.isfinite(fixture) or fixture < 0:
-        raise DataError(f"--fixture-mass must be a finite mass >= 0 kg, got {fixture}")
+        raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")
     loops = read_loops(directory, man.measurement_traces)
     result = measure(loops, cal, doc, pre or pp.PAPER, fixture, man.setup.g_m_s2, man.setup.g_u_m_s2 or 0.0,
-                     calfile.alternatives(args.calibration, doc, cal))
+                     calfile.alternatives(calibration_path, doc, cal))
     if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
         result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
+    return result
+
+
+def run(args: argparse.Namespace) -> int:
+    result = compute(Path(args.traces), Path(args.calibration), args.fixture_mass)
     if args.json:
         print(json.dumps(result.to_json()))
     else:

@@ -26,12 +26,9 @@ from typing import Any
 
 from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
-from rgse_daemon.commands.calibrate import campaign_points, fit_and_describe, load_campaign, loo_rms_rel
+from rgse_daemon.commands import calibrate as calibrate_command
 from rgse_daemon.config import Config
-from rgse_daemon.errors import DataError
 from rgse_daemon.io.modbus import SafetyInputs
-from rgse_daemon.manifest import source_sha256
-from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
@@ -126,34 +123,10 @@ def table1_points(n_bodies: Sequence[int] = range(0, 11),
 
 # --- the offline path ---------------------------------------------------------------------------------------------
 def fit_campaign(directory: Path, method: str = "auto") -> tuple[dict[str, Any], dict[str, Any]]:
-    """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --json`` as a function: the same calls in the
-    same order (commands/calibrate.py ``run``, campaign branch). Returns (CAL.json document, the JSON summary)."""
-    data = load_campaign(directory)
-    pre = pp.PAPER
-    points, bias3, bias5 = campaign_points(data, pre)
-    g, dr, robot = data.manifest.setup.g_m_s2, data.manifest.setup.lever_difference_m, data.manifest.setup.robot
-    sources = source_sha256(data.files)
-    try:
-        cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
-    except DataError as exc:
-        raise DataError(f"{directory}: {exc}") from exc
-    doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
-                        in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
-                        loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
-                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": loo_rms_rel(points, chosen)})
+    """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --json`` as a function (the same
+    :func:`commands.calibrate.fit_campaign`); writes CAL.json into the campaign directory."""
+    doc, summary = calibrate_command.fit_campaign(directory, method)
     calfile.write(directory / CALIBRATION_FILE, doc)
-    summary = {
-        "calibration_id": doc["calibration_id"],
-        "method": cal.method,
-        "in_sample_mean_abs_err_pct": chosen.in_sample_mean_abs_err_pct,
-        "loo_mean_abs_err_pct": chosen.loo_mean_abs_err_pct,
-        "loo_max_abs_err_kg": chosen.loo_max_abs_err_kg,
-        "points": len(points),
-        "r2": cal.r2,
-        "models": [{"method": e.method, "in_sample_mean_abs_err_pct": e.in_sample_mean_abs_err_pct,
-                    "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg,
-                    "n_params": e.n_params} for e in evaluations],
-    }
     return doc, summary
 
 

@@ -22,15 +22,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from rgse_daemon import calfile
-from rgse_daemon.commands.mass import measure
+from rgse_daemon.commands import mass as mass_command
 from rgse_daemon.config import Config
-from rgse_daemon.errors import DataError
 from rgse_daemon.io.modbus import SafetyInputs
-from rgse_daemon.manifest import load_manifest, read_loops
-from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
@@ -52,21 +46,9 @@ CALIBRATION_FILE = "CAL.json"
 
 
 def compute_mass(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None) -> dict[str, Any]:
-    """``rgse mass --traces DIR --calibration CAL --json`` as a function: the same calls in the same order
-    (commands/mass.py ``run`` minus argument parsing and printing). Returns the contract-§1 JSON object."""
-    man = load_manifest(directory)
-    if not man.measurement_traces:
-        raise DataError(f"{man.path}: no [measurement] table (is this a calibration campaign?)")
-    doc, cal, pre = calfile.read(calibration_path)
-    calfile.check_robot(calibration_path, doc, man.setup.robot)
-    fixture = fixture_mass_kg if fixture_mass_kg is not None else (man.fixture_mass_kg or 0.0)
-    if not np.isfinite(fixture) or fixture < 0:
-        raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")
-    loops = read_loops(directory, man.measurement_traces)
-    result = measure(loops, cal, doc, pre or pp.PAPER, fixture)
-    if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
-        result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
-    return result.to_json()
+    """``rgse mass --traces DIR --calibration CAL --json`` as a function (the same :func:`commands.mass.compute`).
+    Returns the contract-§1 JSON object."""
+    return mass_command.compute(directory, calibration_path, fixture_mass_kg).to_json()
 
 
 def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> None:
