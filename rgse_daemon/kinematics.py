@@ -68,6 +68,10 @@ JOINT_LIMITS_DEG = np.array(
     [[-185.0, 185.0], [-130.0, 20.0], [-100.0, 144.0], [-350.0, 350.0], [-120.0, 120.0], [-350.0, 350.0]]
 )
 
+#: Maximum axis speeds of the KR 500 R2830 (deg/s), A1..A6, approximately as in KUKA's data sheet: the interlock's
+#: worst-case speed bound and the simulator's motion planner both use this one table.
+MAX_AXIS_SPEED_DEG_S: tuple[float, ...] = (80.0, 75.0, 70.0, 90.0, 80.0, 122.0)
+
 #: The paper's g (eq. 4, 14, 17, 18); local g in Bremen is 9.8134 m/s² (kuka-facts §7).
 G_PAPER_M_S2 = 9.81
 

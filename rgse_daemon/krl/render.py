@@ -6,7 +6,7 @@ that every placeholder of the template is supplied and every supplied value is u
 and parses the result (a syntax error there is a bug in a template, never the user's fault) before returning it.
 
 Speeds: the axis speed (``$VEL_AXIS`` in % of the data-sheet maximum, the *same* table the simulator uses:
-:data:`simulators.krc4.motion.MAX_AXIS_SPEED_DEG_S`) is chosen by :func:`safe_axis_velocity_pct` so that the
+:data:`rgse_daemon.kinematics.MAX_AXIS_SPEED_DEG_S`) is chosen by :func:`safe_axis_velocity_pct` so that the
 worst-case Cartesian speed of every tracked point (elbow, wrist, flange and the payload points) stays below the T1
 limit on every motion the program can make, at 100 % program override. The interlock's static check
 (:mod:`rgse_daemon.safety.static`) re-verifies the rendered text independently before anything is pushed.
@@ -31,9 +31,8 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from rgse_daemon.errors import ConfigError, KrlSyntaxError
-from rgse_daemon.kinematics import JOINT_LIMITS_DEG, max_point_speed_mm_s, measurement_pose
+from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, max_point_speed_mm_s, measurement_pose
 from rgse_daemon.krl.parser import parse_dat, parse_src
-from simulators.krc4.motion import MAX_AXIS_SPEED_DEG_S
 
 #: The templates: ``<name>.src`` (and an optional ``<name>.dat``) in the repository's top-level ``krl/`` directory.
 TEMPLATE_DIR = Path(__file__).resolve().parents[2] / "krl"

@@ -18,7 +18,7 @@ Rules (``Violation.rule``):
 ``MODE``          mode must be T1; AUT only with the hazard area cleared *and* the key switch confirmed; T2/EX never.
 ``SPEED``         worst-case Cartesian speed of the elbow, wrist centre, flange and every payload point over the whole
                   joint path of every PTP (``kinematics.max_point_speed_mm_s(...).bound_mm_s``, axis speeds from the
-                  simulator's table ``MAX_AXIS_SPEED_DEG_S`` × $VEL_AXIS % × override) ≤ ``limits.t1_speed_mm_s``.
+                  ``kinematics.MAX_AXIS_SPEED_DEG_S`` × $VEL_AXIS % × override) ≤ ``limits.t1_speed_mm_s``.
                   The override is the larger of what the program assigns and ``ctx.override_max_pct`` (the operator
                   can raise it on the smartPAD at any time).
 ``JOINT_LIMIT``   every target within the axis ranges; ``A1_ENVELOPE``: |A1| ≤ ``limits.a1_range_deg``.
@@ -50,12 +50,18 @@ import numpy as np
 from rgse_daemon.config import LimitsConfig
 from rgse_daemon.controller import WRITABLE_PREFIX, WRITABLE_VARIABLES
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
-from rgse_daemon.kinematics import D6_M, G_PAPER_M_S2, JOINT_LIMITS_DEG, gravity_torques_nm, max_point_speed_mm_s
+from rgse_daemon.kinematics import (
+    D6_M,
+    G_PAPER_M_S2,
+    JOINT_LIMITS_DEG,
+    MAX_AXIS_SPEED_DEG_S,
+    gravity_torques_nm,
+    max_point_speed_mm_s,
+)
 from rgse_daemon.krl import ast as k
 from rgse_daemon.krl.lexer import Tok, tokenize
 from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.walk import iter_exprs, root_name, stmt_exprs
-from simulators.krc4.motion import MAX_AXIS_SPEED_DEG_S
 
 #: Statement keywords the check refuses outright (the parser does not accept them either).
 FORBIDDEN_KEYWORDS = frozenset({"INTERRUPT", "TRIGGER", "GOTO", "SWITCH", "CONTINUE", "ANIN", "ANOUT", "BRAKE"})

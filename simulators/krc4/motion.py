@@ -30,10 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgse_daemon.errors import RgseError
-from rgse_daemon.kinematics import JOINT_LIMITS_DEG, point_velocity_mm_s
+from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, point_velocity_mm_s
 
-#: Maximum axis speeds of the KR 500 R2830 (deg/s), approximately as in KUKA's data sheet; A1..A6.
-MAX_AXIS_SPEED_DEG_S: tuple[float, ...] = (80.0, 75.0, 70.0, 90.0, 80.0, 122.0)
 #: Time (s) an axis needs to reach its maximum speed at 100 % $ACC_AXIS and 100 % override: an assumption of the
 #: simulator (KUKA publishes no accelerations); it sets MAX_AXIS_ACCEL_DEG_S2.
 RAMP_TIME_AT_100_PCT_S = 0.5

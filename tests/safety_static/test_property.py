@@ -20,9 +20,8 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from rgse_daemon.kinematics import JOINT_LIMITS_DEG, gravity_torques_nm, point_velocity_mm_s
+from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, gravity_torques_nm, point_velocity_mm_s
 from rgse_daemon.safety.static import CheckContext, check_program
-from simulators.krc4.motion import MAX_AXIS_SPEED_DEG_S
 
 LIMIT_MM_S = 200.0
 A1_ENVELOPE_DEG = 45.0
