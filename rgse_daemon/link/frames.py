@@ -13,13 +13,17 @@ Public API
     ``ReadVarAscii(name)`` #0, ``WriteVarAscii(name, value)`` #1, ``ReadVar`` #4, ``WriteVar`` #5,
     ``ReadMulti(names)`` #6, ``WriteMulti(items)`` #7, ``ProgramControl(cmd, interpreter, name, params, force)`` #10
     (``name=None`` → subtype I reset/start/stop/cancel, else subtype II select/run), ``ProxyInfo`` #13,
-    ``ProxyFeatures`` #14, ``Benchmark`` #17, ``NameList`` #21, ``GetProperties`` #26, ``GetFullName`` #27,
+    ``ProxyFeatures`` #14, ``Benchmark`` #17, ``SetAttribute(attributes, mask, name)`` #20, ``NameList`` #21,
+    ``Create(item_type, module_part, always, name, template)`` #22, ``Delete(always, name)`` #23,
+    ``Copy(copy_flags, source, destination)`` #24, ``Move(copy_flags, source, destination)`` #25,
+    ``GetProperties`` #26, ``GetFullName`` #27, ``GetKrcName(path)`` #28,
     ``WriteContentBegin/Data/GetSize/End`` #29, ``ReadContentBegin/Data/GetSize/End`` #30, ``ConfirmAll`` #63.
 ``Reply`` subclasses (every one carries the footer as keyword fields ``code=1, success=True``)
     ``ReadVarAsciiReply(value)``, ``WriteVarAsciiReply(value)``, ``ReadVarReply``, ``WriteVarReply``,
     ``ReadMultiReply(entries)`` / ``WriteMultiReply(entries)`` with ``MultiEntry(code, value)``,
     ``ProgramControlReply(cmd)``, ``ProxyInfoReply``, ``ProxyFeaturesReply(types)``, ``BenchmarkReply``,
-    ``NameListReply(items, infos)``, ``GetPropertiesReply``, ``GetFullNameReply(path)``,
+    ``NameListReply(items, infos)``, ``GetPropertiesReply``, ``GetFullNameReply(path)``, ``GetKrcNameReply(path)``,
+    the footer-only ``SetAttributeReply``, ``CreateReply``, ``DeleteReply``, ``CopyReply``, ``MoveReply``,
     ``WriteContent{Begin,GetSize,Data,End}Reply``, ``ReadContent{Begin,GetSize,Data,End}Reply``, ``ConfirmAllReply``,
     and ``FailureReply(msg_type, payload)`` for a failed reply (success 0) whose payload has no known layout.
 ``encode_request(tag, req) -> bytes`` / ``decode_request(frame) -> (tag, req)``
@@ -70,9 +74,15 @@ class MsgType(IntEnum):
     PROXY_INFO = 13
     PROXY_FEATURES = 14
     BENCHMARK = 17
+    SET_ATTRIBUTE = 20
     NAME_LIST = 21
+    CREATE = 22
+    DELETE = 23
+    COPY = 24
+    MOVE = 25
     GET_PROPERTIES = 26
     GET_FULL_NAME = 27
+    GET_KRC_NAME = 28
     WRITE_CONTENT = 29
     READ_CONTENT = 30
     CONFIRM_ALL = 63
@@ -324,11 +334,56 @@ class Benchmark(Request):
 
 
 @dataclass(frozen=True)
+class SetAttribute(Request):
+    """#20: set the bits of ``attributes`` selected by ``mask`` (both INT32) on ``name``."""
+
+    TYPE: ClassVar[MsgType] = MsgType.SET_ATTRIBUTE
+    attributes: int
+    mask: int
+    name: str
+
+
+@dataclass(frozen=True)
 class NameList(Request):
     TYPE: ClassVar[MsgType] = MsgType.NAME_LIST
     item_type: int
     list_flags: int
     path: str
+
+
+@dataclass(frozen=True)
+class Create(Request):
+    """#22: create ``name``; ``item_type`` is a UINT16 on the wire (unlike #21's INT32), ``module_part`` a UINT8."""
+
+    TYPE: ClassVar[MsgType] = MsgType.CREATE
+    item_type: int
+    module_part: int
+    always: bool
+    name: str
+    template: str = ""
+
+
+@dataclass(frozen=True)
+class Delete(Request):
+    TYPE: ClassVar[MsgType] = MsgType.DELETE
+    always: bool
+    name: str
+
+
+@dataclass(frozen=True)
+class Copy(Request):
+    TYPE: ClassVar[MsgType] = MsgType.COPY
+    copy_flags: int
+    source: str
+    destination: str
+
+
+@dataclass(frozen=True)
+class Move(Request):
+    TYPE: ClassVar[MsgType] = MsgType.MOVE
+    copy_flags: int
+    source: str
+    destination: str
 
 
 @dataclass(frozen=True)
@@ -341,6 +396,12 @@ class GetProperties(Request):
 @dataclass(frozen=True)
 class GetFullName(Request):
     TYPE: ClassVar[MsgType] = MsgType.GET_FULL_NAME
+    path: str
+
+
+@dataclass(frozen=True)
+class GetKrcName(Request):
+    TYPE: ClassVar[MsgType] = MsgType.GET_KRC_NAME
     path: str
 
 
@@ -518,6 +579,47 @@ class GetFullNameReply(Reply):
 
 
 @dataclass(frozen=True)
+class GetKrcNameReply(Reply):
+    TYPE: ClassVar[MsgType] = MsgType.GET_KRC_NAME
+    path: str
+
+
+@dataclass(frozen=True)
+class SetAttributeReply(Reply):
+    """#20: footer only (Message Length 4)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.SET_ATTRIBUTE
+
+
+@dataclass(frozen=True)
+class CreateReply(Reply):
+    """#22: footer only (Message Length 4)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.CREATE
+
+
+@dataclass(frozen=True)
+class DeleteReply(Reply):
+    """#23: footer only (Message Length 4)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.DELETE
+
+
+@dataclass(frozen=True)
+class CopyReply(Reply):
+    """#24: footer only (Message Length 4)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.COPY
+
+
+@dataclass(frozen=True)
+class MoveReply(Reply):
+    """#25: footer only (Message Length 4)."""
+
+    TYPE: ClassVar[MsgType] = MsgType.MOVE
+
+
+@dataclass(frozen=True)
 class WriteContentBeginReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
     buffer_size: int
@@ -623,14 +725,31 @@ def _enc_req_payload(w: _Writer, req: Request) -> None:
                 w.wstr(n, "variable name")
                 if write:
                     w.wstr(values[i], "value")
+        case SetAttribute(attributes=attrs, mask=mask, name=name):
+            w.i32(attrs, "attributes")
+            w.i32(mask, "attribute mask")
+            w.wstr(name, "file name")
         case NameList(item_type=it, list_flags=lf, path=path):
             w.i32(it, "item type")
             w.i32(lf, "list flags")
             w.wstr(path, "path")
+        case Create(item_type=it, module_part=mp, always=always, name=name, template=template):
+            w.u16(it, "item type")
+            w.u8(mp, "module part")
+            w.boolean(always)
+            w.wstr(name, "file name")
+            w.wstr(template, "template name")
+        case Delete(always=always, name=name):
+            w.boolean(always)
+            w.wstr(name, "file name")
+        case Copy(copy_flags=cf, source=src, destination=dst) | Move(copy_flags=cf, source=src, destination=dst):
+            w.i32(cf, "copy flags")
+            w.wstr(src, "source")
+            w.wstr(dst, "destination")
         case GetProperties(flags=flags, name=name):
             w.i32(flags, "property flags")
             w.wstr(name, "file name")
-        case GetFullName(path=path):
+        case GetFullName(path=path) | GetKrcName(path=path):
             w.wstr(path, "path")
         case WriteContentBegin(total_size=size):
             w.u8(FileOp.BEGIN)
@@ -724,8 +843,10 @@ def _enc_rsp_payload(w: _Writer, rsp: Reply) -> None:
                 w.i32(bias, f"{what} bias")
             w.i32(p.edit_mode, "edit mode")
             w.wstr(p.name, "item name")
-        case GetFullNameReply(path=path):
+        case GetFullNameReply(path=path) | GetKrcNameReply(path=path):
             w.wstr(path, "path")
+        case SetAttributeReply() | CreateReply() | DeleteReply() | CopyReply() | MoveReply():
+            pass
         case WriteContentBeginReply(buffer_size=n):
             w.u8(FileOp.BEGIN)
             w.u32(n, "buffer size")
@@ -869,12 +990,26 @@ def _dec_req_payload(r: _Reader, msg_type: int) -> Request:
                 if write:
                     values.append(r.wstr("value"))
             return Benchmark(write, iterations, tuple(names), tuple(values))
+        case MsgType.SET_ATTRIBUTE:
+            return SetAttribute(r.i32("attributes"), r.i32("attribute mask"), r.wstr("file name"))
         case MsgType.NAME_LIST:
             return NameList(r.i32("item type"), r.i32("list flags"), r.wstr("path"))
+        case MsgType.CREATE:
+            return Create(
+                r.u16("item type"), r.u8("module part"), r.boolean("always"), r.wstr("file name"), r.wstr("template")
+            )
+        case MsgType.DELETE:
+            return Delete(r.boolean("always"), r.wstr("file name"))
+        case MsgType.COPY:
+            return Copy(r.i32("copy flags"), r.wstr("source"), r.wstr("destination"))
+        case MsgType.MOVE:
+            return Move(r.i32("copy flags"), r.wstr("source"), r.wstr("destination"))
         case MsgType.GET_PROPERTIES:
             return GetProperties(r.i32("property flags"), r.wstr("file name"))
         case MsgType.GET_FULL_NAME:
             return GetFullName(r.wstr("path"))
+        case MsgType.GET_KRC_NAME:
+            return GetKrcName(r.wstr("path"))
         case MsgType.WRITE_CONTENT | MsgType.READ_CONTENT:
             return _dec_file_req(r, msg_type)
         case MsgType.CONFIRM_ALL:
@@ -965,6 +1100,18 @@ def _dec_rsp_payload(r: _Reader, msg_type: int) -> Reply:
             return _dec_properties(r)
         case MsgType.GET_FULL_NAME:
             return GetFullNameReply(r.wstr("path"))
+        case MsgType.GET_KRC_NAME:
+            return GetKrcNameReply(r.wstr("path"))
+        case MsgType.SET_ATTRIBUTE:
+            return SetAttributeReply()
+        case MsgType.CREATE:
+            return CreateReply()
+        case MsgType.DELETE:
+            return DeleteReply()
+        case MsgType.COPY:
+            return CopyReply()
+        case MsgType.MOVE:
+            return MoveReply()
         case MsgType.WRITE_CONTENT | MsgType.READ_CONTENT:
             return _dec_file_rsp(r, msg_type)
         case MsgType.CONFIRM_ALL:

@@ -133,6 +133,76 @@ def test_encoder_rejects_what_does_not_fit(bad: f.Request) -> None:
         f.encode_request(1, bad)
 
 
+# --- #20 #22 #23 #24 #25 #28: layouts of c3bridge-protocol §3.9, computed by hand ------------------------------
+FILE_OP_REQUEST_LAYOUTS = [
+    # #20: @5 INT32 attributes, @9 INT32 mask, @13 wstr name
+    (1, f.SetAttribute(1, 1, "A"), "00 01 00 0D 14 00 00 00 01 00 00 00 01 00 01 41 00"),
+    (1, f.SetAttribute(-1, 0x10000020, "A"), "00 01 00 0D 14 FF FF FF FF 10 00 00 20 00 01 41 00"),
+    # #22: @5 UINT16 itemType (Module 32), @7 UINT8 modulePart (SRCDAT 6), @8 BOOL always, wstr name, wstr template
+    (2, f.Create(32, 6, False, "AB"), "00 02 00 0D 16 00 20 06 00 00 02 41 00 42 00 00 00"),
+    (2, f.Create(256, 0, True, "A", "T"), "00 02 00 0D 16 01 00 00 01 00 01 41 00 00 01 54 00"),
+    # #23: @5 BOOL always, @6 wstr name
+    (3, f.Delete(True, "AB"), "00 03 00 08 17 01 00 02 41 00 42 00"),
+    (3, f.Delete(False, "\u20ac"), "00 03 00 06 17 00 00 01 AC 20"),  # € is one UTF-16 unit, little-endian
+    (3, f.Delete(False, "\U0001d11e"), "00 03 00 08 17 00 00 02 34 D8 1E DD"),  # a surrogate pair counts 2 units
+    # #24 / #25: @5 INT32 copyFlags, @9 wstr source, wstr destination
+    (4, f.Copy(64, "A", "B"), "00 04 00 0D 18 00 00 00 40 00 01 41 00 00 01 42 00"),
+    (5, f.Move(0, "A", "B"), "00 05 00 0D 19 00 00 00 00 00 01 41 00 00 01 42 00"),
+    # #28: @5 wstr path (the spec's #27 example, reversed)
+    (
+        1,
+        f.GetKrcName("KRC:\\R1\\PROGRAM\\TEST.SRC"),
+        "00 01 00 33 1C 00 18 4B 00 52 00 43 00 3A 00 5C 00 52 00 31 00 5C 00 50 00 52 00 4F 00"
+        " 47 00 52 00 41 00 4D 00 5C 00 54 00 45 00 53 00 54 00 2E 00 53 00 52 00 43 00",
+    ),
+]
+
+FILE_OP_RESPONSE_LAYOUTS = [
+    # footer-only replies: Message Length 4 = type byte + error code + success
+    (1, f.SetAttributeReply(), "00 01 00 04 14 00 01 01"),
+    (2, f.CreateReply(), "00 02 00 04 16 00 01 01"),
+    (3, f.DeleteReply(), "00 03 00 04 17 00 01 01"),
+    (3, f.DeleteReply(code=3, success=False), "00 03 00 04 17 00 03 00"),
+    (4, f.CopyReply(code=2, success=False), "00 04 00 04 18 00 02 00"),
+    (5, f.MoveReply(), "00 05 00 04 19 00 01 01"),
+    (
+        1,
+        f.GetKrcNameReply("/R1/TEST.SRC"),
+        "00 01 00 1E 1C 00 0C 2F 00 52 00 31 00 2F 00 54 00 45 00 53 00 54 00 2E 00 53 00 52 00 43 00 00 01 01",
+    ),
+    (1, f.GetKrcNameReply("", code=3, success=False), "00 01 00 06 1C 00 00 00 03 00"),
+]
+
+
+@pytest.mark.parametrize(("tag", "msg", "hexstr"), FILE_OP_REQUEST_LAYOUTS)
+def test_file_op_request_layouts(tag: int, msg: f.Request, hexstr: str) -> None:
+    assert f.encode_request(tag, msg) == h(hexstr)
+    assert f.decode_request(h(hexstr)) == (tag, msg)
+
+
+@pytest.mark.parametrize(("tag", "msg", "hexstr"), FILE_OP_RESPONSE_LAYOUTS)
+def test_file_op_response_layouts(tag: int, msg: f.Reply, hexstr: str) -> None:
+    assert f.encode_response(tag, msg) == h(hexstr)
+    assert f.decode_response(h(hexstr)) == (tag, msg)
+
+
+def test_create_item_type_is_uint16_on_the_wire() -> None:
+    assert f.encode_request(1, f.Create(0xFFFF, 255, True, ""))[5:10] == h("FF FF FF 01 00")
+    for bad in (f.Create(0x10000, 0, False, "A"), f.Create(-1, 0, False, "A"), f.Create(1, 256, False, "A")):
+        with pytest.raises(ProtocolError):
+            f.encode_request(1, bad)
+    # an #21-style INT32 item type shifts every later field: not a valid #22
+    with pytest.raises(ProtocolError):
+        f.decode_request(h("00 01 00 0F 16 00 00 00 20 06 00 00 02 41 00 42 00 00 00"))
+
+
+def test_footer_only_reply_with_a_payload() -> None:
+    with pytest.raises(ProtocolError):  # success with bytes the layout does not have
+        f.decode_response(h("00 03 00 05 17 07 00 01 01"))
+    tag, rsp = f.decode_response(h("00 03 00 05 17 07 00 03 00"))  # a failure keeps them raw
+    assert (tag, rsp) == (3, f.FailureReply(23, b"\x07", code=3, success=False))
+
+
 def test_largest_write_chunk_fits() -> None:
     frame = f.encode_request(1, f.WriteContentData(0, b"\xaa" * f.MAX_WRITE_CHUNK))
     assert len(frame) == f.MAX_FRAME_SIZE
@@ -162,7 +232,13 @@ requests = st.one_of(
             f.Benchmark, st.just(True), u32, st.just(tuple(k for k, _ in kv)), st.just(tuple(v for _, v in kv))
         )
     ),
+    st.builds(f.SetAttribute, i32, i32, text),
     st.builds(f.NameList, i32, i32, text),
+    st.builds(f.Create, st.integers(0, 0xFFFF), st.integers(0, 255), st.booleans(), text, text),
+    st.builds(f.Delete, st.booleans(), text),
+    st.builds(f.Copy, i32, text, text),
+    st.builds(f.Move, i32, text, text),
+    st.builds(f.GetKrcName, text),
     st.builds(f.GetProperties, i32, text),
     st.builds(f.GetFullName, text),
     st.builds(f.WriteContentBegin, u32),
@@ -201,6 +277,12 @@ replies = st.one_of(
     st.builds(f.NameListReply, st.lists(text, max_size=5).map(tuple), st.lists(text, max_size=5).map(tuple), **footer),
     st.builds(f.GetPropertiesReply, i32, ft, i32, ft, i32, ft, i32, ft, i32, i32, text, **footer),
     st.builds(f.GetFullNameReply, text, **footer),
+    st.builds(f.GetKrcNameReply, text, **footer),
+    st.builds(f.SetAttributeReply, **footer),
+    st.builds(f.CreateReply, **footer),
+    st.builds(f.DeleteReply, **footer),
+    st.builds(f.CopyReply, **footer),
+    st.builds(f.MoveReply, **footer),
     st.builds(f.WriteContentBeginReply, u32, **footer),
     st.builds(f.WriteContentGetSizeReply, u32, **footer),
     st.builds(f.WriteContentDataReply, u32, u32, **footer),
