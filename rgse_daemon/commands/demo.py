@@ -21,9 +21,7 @@ import json
 import logging
 import sys
 import tempfile
-import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -36,7 +34,7 @@ from rgse_daemon.procedures.calibration import table1_points
 from rgse_daemon.procedures.common import RunSettings
 from rgse_daemon.procedures.events import Event
 from simulators.krc4.physics import dut_payload, mass_calibration_payload, torque_calibration_payload
-from simulators.krc4.sim import SimulatedKrc4
+from simulators.krc4.process import SimProcess
 
 log = logging.getLogger(__name__)
 
@@ -56,7 +54,7 @@ MEASUREMENT_LOOPS = 10
 DEADLINE_S = 600.0
 
 
-def demo_config(sim: SimulatedKrc4, data_dir: Path, mqtt_url: str | None) -> Config:
+def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None) -> Config:
     mqtt: dict[str, Any] = {"enabled": False}
     if mqtt_url is not None:
         u = urlsplit(mqtt_url)
@@ -80,61 +78,10 @@ def demo_config(sim: SimulatedKrc4, data_dir: Path, mqtt_url: str | None) -> Con
     )
 
 
-class SimThread:
-    """The simulated KR C4 on its own thread and event loop, as a real controller is a separate machine: its CPU
-    work (KRL interpreter, physics, trace writing) must not stall the daemon's loop and its 20 Hz interlock monitor.
-    """
-
-    def __init__(self, share_dir: Path) -> None:
-        self.share_dir = share_dir
-        self.sim: SimulatedKrc4 | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._stop: asyncio.Event | None = None
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
-        self._thread = threading.Thread(target=self._main, name="rgse-demo-sim", daemon=True)
-
-    def _main(self) -> None:
-        try:
-            asyncio.run(self._serve())
-        except BaseException as exc:  # reported to the starting thread
-            self._error = exc
-            self._ready.set()
-
-    async def _serve(self) -> None:
-        self._loop = asyncio.get_running_loop()
-        self._stop = asyncio.Event()
-        async with SimulatedKrc4(self.share_dir, seed=SEED, time_scale=TIME_SCALE) as sim:
-            sim.install_globals(globals_dat_text())  # installed once on a real controller (krl/README.md)
-            self.sim = sim
-            self._ready.set()
-            await self._stop.wait()
-
-    def start(self) -> SimulatedKrc4:
-        self._thread.start()
-        if not self._ready.wait(30) or self._error is not None or self.sim is None:
-            raise RgseError(f"demo: the simulated KR C4 did not start: {self._error!r}")
-        return self.sim
-
-    async def call(self, fn: Callable[[], Any]) -> Any:
-        """Run ``fn`` on the simulator's loop (e.g. the operator mounting a load) and wait for it."""
-        assert self._loop is not None
-
-        async def in_sim() -> Any:
-            return fn()
-
-        return await asyncio.wait_for(asyncio.wrap_future(asyncio.run_coroutine_threadsafe(in_sim(), self._loop)), 10)
-
-    def stop(self) -> None:
-        if self._loop is not None and self._stop is not None:
-            self._loop.call_soon_threadsafe(self._stop.set)
-        self._thread.join(30)
-
-
 class Operator:
     """The simulated lab operator: mounts the load the daemon asks for, then confirms; prints progress."""
 
-    def __init__(self, sim: SimThread, daemon_ref: list[Daemon], quiet: bool) -> None:
+    def __init__(self, sim: SimProcess, daemon_ref: list[Daemon], quiet: bool) -> None:
         self.sim = sim
         self.daemon_ref = daemon_ref
         self.quiet = quiet
@@ -153,9 +100,7 @@ class Operator:
             payload = torque_calibration_payload(d["n_cb"], d["cb_lever_a5_m"])
         else:
             payload = mass_calibration_payload(d["n_cb"])
-        assert self.sim.sim is not None
-        sim = self.sim.sim
-        await self.sim.call(lambda: sim.mount(payload))
+        await self.sim.mount(payload)
         engine = self.daemon_ref[0].engine
         assert engine is not None
         engine.confirm(f"operator mounted point {d['point_index']}")
@@ -173,12 +118,14 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
     t_start = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="rgse-demo-") as tmp:
         root = Path(tmp)
-        sim_thread = SimThread(root / "share")
-        sim = sim_thread.start()
+        # the simulated controller in its own process, as a real KR C4 is its own machine: its CPU work must not
+        # stall the daemon's event loop and its 20 Hz interlock monitor
+        sim = SimProcess(root / "share", seed=SEED, time_scale=TIME_SCALE, globals_dat=globals_dat_text())
+        await asyncio.to_thread(sim.start)
         try:
             cfg = demo_config(sim, root / "data", mqtt_url)
             ref: list[Daemon] = []
-            daemon = Daemon(cfg, on_event=Operator(sim_thread, ref, quiet))
+            daemon = Daemon(cfg, on_event=Operator(sim, ref, quiet))
             ref.append(daemon)
             stop = asyncio.Event()
             service = asyncio.create_task(daemon.run(stop), name="rgse-demo-daemon")
@@ -195,7 +142,7 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
                 )
                 t_cal = time.monotonic() - t0
                 dut = dut_payload(DUT_MASS_KG, DUT_COG_M, fixture_mass_kg=FIXTURE_MASS_KG)
-                await sim_thread.call(lambda: sim.mount(dut))
+                await sim.mount(dut)
                 if not quiet:
                     print(f"in-line measurement: {MEASUREMENT_LOOPS} loops", file=sys.stderr)
                 t0 = time.monotonic()
@@ -208,7 +155,7 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
                 async with asyncio.timeout(60):
                     await service
         finally:
-            sim_thread.stop()
+            await asyncio.to_thread(sim.stop)
     timing = result["timing"]
     robot_wall_s = float(timing["robot_time_s"])
     overhead_s = float(timing["overhead_s"])
