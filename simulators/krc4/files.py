@@ -20,6 +20,17 @@ Windows (an existing entry that matches case-insensitively is used with its real
 drives, UNC paths and symlinks leading out of ``root`` are refused with code 3: nothing escapes the share.
 
 Read and write buffers (#29/#30) belong to one connection: each connection owns one :class:`FileSession`.
+
+**#20 #22–#25 semantics** (Cross3 ``IKSyncFile`` passes the flags on without documenting them; these follow the
+Win32 calls they resemble). Refusals: a missing name or a missing target directory → code 3, an existing or
+read-only target, a non-empty directory or the share itself → code 2.
+
+* #20 SetAttribute: only ReadOnly (1) has an effect, and only on files (Windows ignores it on folders).
+* #22 Create: an empty file, or a directory for item type Dir; ``always`` is ``CREATE_ALWAYS``: an existing
+  writable file is truncated (without it an existing entry is refused). Module part and template are ignored.
+* #23 Delete: a file or an empty directory; ``always`` also deletes a read-only file.
+* #24 Copy / #25 Move: a file or a directory tree; an existing destination is replaced only with copy flag
+  OverwriteExists (64), a read-only one only with OverwriteRead (4096) too. Nothing is copied or moved into itself.
 """
 
 from __future__ import annotations
@@ -53,6 +64,7 @@ ITEM_TEXT = 16
 ITEM_MODULE = 32
 LIST_RECURSIVE = 1
 COPY_OVERWRITE_EXISTS = 64
+COPY_OVERWRITE_READ = 4096
 EDIT_FULL = 0
 
 #: [src] file-read chunks and name lists are capped at this many bytes.
@@ -245,33 +257,46 @@ class ShareFiles:
 
     # --- #20 #22 #23 #24 #25 -------------------------------------------------------------------------------------
     def set_attribute(self, name: str, attributes: int, mask: int) -> None:
-        """#20: only the ReadOnly bit has an effect on this simulator."""
+        """#20: set the masked bits; only ReadOnly on a file has an effect on this simulator."""
         path = self._existing(name)
-        if mask & ATTR_READONLY:
+        if not mask & ATTR_READONLY or path.is_dir():
+            return
+        try:
             mode = path.stat().st_mode
             path.chmod(mode & ~0o222 if attributes & ATTR_READONLY else mode | stat.S_IWUSR)
+        except OSError as exc:
+            raise FileOpError(name, f"cannot set attributes: {exc.strerror}", CODE_ACCESS) from exc
 
     def create(self, name: str, item_type: int, always: bool) -> None:
-        """#22: an empty directory (item type Dir) or an empty file; ``always`` overwrites an existing file."""
+        """#22: an empty directory (item type Dir) or an empty file; ``always`` truncates an existing file."""
         path = self.resolve(name)
-        if path.exists() and not always:
-            raise FileOpError(name, "already exists", CODE_ACCESS)
-        if item_type & ITEM_DIR:
-            path.mkdir(parents=True, exist_ok=True)
-        else:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_bytes(b"")
+        self._parent_exists(name, path)
+        is_dir = bool(item_type & ITEM_DIR)
+        if path.exists():
+            if not always:
+                raise FileOpError(name, "already exists", CODE_ACCESS)
+            if path.is_dir() != is_dir:
+                raise FileOpError(name, "exists as a " + ("directory" if path.is_dir() else "file"), CODE_ACCESS)
+            if not is_dir and _read_only(path):
+                raise FileOpError(name, "is read-only", CODE_ACCESS)
+        try:
+            if is_dir:
+                path.mkdir(exist_ok=True)
+            else:
+                path.write_bytes(b"")
+        except OSError as exc:
+            raise FileOpError(name, f"cannot create: {exc.strerror}", CODE_ACCESS) from exc
 
     def delete(self, name: str, always: bool) -> None:
         """#23: delete a file or an empty directory; a read-only file only if ``always``."""
         path = self._existing(name)
-        if path == self.root:
+        if path.resolve() == self.root:
             raise FileOpError(name, "refusing to delete the share itself", CODE_ACCESS)
         try:
-            if path.is_dir():
+            if path.is_dir() and not path.is_symlink():
                 path.rmdir()
                 return
-            if not path.stat().st_mode & stat.S_IWUSR:
+            if _read_only(path):
                 if not always:
                     raise FileOpError(name, "is read-only", CODE_ACCESS)
                 path.chmod(path.stat().st_mode | stat.S_IWUSR)
@@ -281,20 +306,41 @@ class ShareFiles:
 
     def copy(self, source: str, destination: str, copy_flags: int, *, move: bool = False) -> None:
         """#24 / #25: copy or move one file (or a directory tree); OverwriteExists (64) allows replacing."""
+        what = "move" if move else "copy"
         src = self._existing(source)
         dst = self.resolve(destination)
-        if dst.exists() and not copy_flags & COPY_OVERWRITE_EXISTS:
-            raise FileOpError(destination, "already exists", CODE_ACCESS)
-        dst.parent.mkdir(parents=True, exist_ok=True)
+        self._parent_exists(destination, dst)
+        src_real, dst_real = src.resolve(), dst.resolve()
+        if src_real == self.root:
+            raise FileOpError(source, f"refusing to {what} the share itself", CODE_ACCESS)
+        if src.is_dir() and (dst_real == src_real or src_real in dst_real.parents):
+            raise FileOpError(destination, f"cannot {what} a directory into itself", CODE_ARGUMENT)
+        if dst.exists():
+            if not copy_flags & COPY_OVERWRITE_EXISTS:
+                raise FileOpError(destination, "already exists (copy flag OverwriteExists not set)", CODE_ACCESS)
+            if dst_real == src_real:
+                raise FileOpError(destination, f"cannot {what} a file onto itself", CODE_ACCESS)
+            if dst.is_dir() != src.is_dir():
+                raise FileOpError(destination, "exists as a " + ("directory" if dst.is_dir() else "file"), CODE_ACCESS)
+            if not dst.is_dir() and _read_only(dst) and not copy_flags & COPY_OVERWRITE_READ:
+                raise FileOpError(destination, "is read-only (copy flag OverwriteRead not set)", CODE_ACCESS)
         try:
             if move:
+                if dst.is_file() and _read_only(dst):
+                    dst.chmod(dst.stat().st_mode | stat.S_IWUSR)
                 os.replace(src, dst)
             elif src.is_dir():
                 shutil.copytree(src, dst, dirs_exist_ok=True)
             else:
+                if dst.exists() and _read_only(dst):
+                    dst.chmod(dst.stat().st_mode | stat.S_IWUSR)
                 shutil.copy2(src, dst)
         except OSError as exc:
-            raise FileOpError(source, f"cannot {'move' if move else 'copy'}: {exc.strerror}", CODE_ACCESS) from exc
+            raise FileOpError(source, f"cannot {what}: {exc.strerror}", CODE_ACCESS) from exc
+
+    def _parent_exists(self, name: str, path: Path) -> None:
+        if path.resolve() != self.root and not path.parent.is_dir():
+            raise FileOpError(name, "no such directory", CODE_ARGUMENT)
 
     def _existing(self, name: str) -> Path:
         path = self.resolve(name)
@@ -327,6 +373,10 @@ class ShareFiles:
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
+
+
+def _read_only(path: Path) -> bool:
+    return not path.stat().st_mode & stat.S_IWUSR
 
 
 class FileSession:

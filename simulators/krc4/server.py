@@ -52,9 +52,8 @@ log = logging.getLogger(__name__)
 PROXY_TYPE = "C3 BRIDGE INTERFACE"
 _BUILD_NAMES = {0: "OPEN SOURCE", 1: "PROPRIETARY", 2: "FREEWARE", 3: "INTERNAL BUILD"}
 #: Message types this server answers; every other type closes the connection (as the real server does for types
-#: it has no handler for). Not yet here: #11/#12 (motion, KCP keys: need the physics) and #20, #22–#25, #28 (file
-#: attributes, create, delete, copy, move, KRC name: ``ShareFiles`` has them, the frame codec does not yet).
-HANDLED_TYPES: frozenset[int] = frozenset({0, 1, 4, 5, 6, 7, 10, 13, 14, 17, 21, 26, 27, 29, 30, 63})
+#: it has no handler for). Not here: #11/#12 (motion, KCP keys: need the physics).
+HANDLED_TYPES: frozenset[int] = frozenset({0, 1, 4, 5, 6, 7, 10, 13, 14, 17, *range(20, 31), 63})
 #: [src] a response payload is at most 65531 bytes; longer multi-variable replies get code 10.
 MAX_REPLY_PAYLOAD = 65531
 #: A deterministic reply that is no frame at all (type 0xFF, length 0), sent by the ``garbage_next`` fault.
@@ -138,6 +137,9 @@ class Faults:
         Answer the next request with a tag that is not the request's.
     extra_latency_s:
         Added to every request's service time.
+    refuse_types:
+        Message type → error code: every well-formed request of such a type is refused with that code (its
+        failure layout, nothing done) until cleared; e.g. ``{23: 2}`` makes every #23 Delete fail with Access.
     """
 
     drop_after_requests: int | None = None
@@ -146,6 +148,7 @@ class Faults:
     garbage_next: bool = False
     wrong_tag_next: bool = False
     extra_latency_s: float = 0.0
+    refuse_types: dict[int, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -446,7 +449,14 @@ class KrcServer:
                     self.counters.faults_fired["drop_on_variable"] += 1
                     conn.close()
                     return
-                reply = self._dispatch(conn, req)
+                refused = self.faults.refuse_types.get(msg_type)
+                if refused is not None:
+                    self.counters.faults_fired["refuse_types"] += 1
+                    reply = _file_failure(req, refused)
+                    if isinstance(reply, fr.FailureReply):  # not a file operation: the generic failure layout
+                        reply = _failure(msg_type, refused)
+                else:
+                    reply = self._dispatch(conn, req)
             self._send(conn, tag, msg_type, reply)
 
     def _send(self, conn: _Connection, tag: int, msg_type: int, reply: fr.Reply) -> None:
@@ -648,6 +658,23 @@ class KrcServer:
                 )  # fmt: skip
             case fr.GetFullName(path=path):
                 return fr.GetFullNameReply(files.full_name(path))
+            case fr.GetKrcName(path=path):
+                return fr.GetKrcNameReply(files.krc_name(path))
+            case fr.SetAttribute(attributes=attributes, mask=mask, name=name):
+                files.set_attribute(name, attributes, mask)
+                return fr.SetAttributeReply()
+            case fr.Create(item_type=item_type, always=always, name=name):
+                files.create(name, item_type, always)
+                return fr.CreateReply()
+            case fr.Delete(always=always, name=name):
+                files.delete(name, always)
+                return fr.DeleteReply()
+            case fr.Copy(copy_flags=flags, source=source, destination=destination):
+                files.copy(source, destination, flags)
+                return fr.CopyReply()
+            case fr.Move(copy_flags=flags, source=source, destination=destination):
+                files.copy(source, destination, flags, move=True)
+                return fr.MoveReply()
             case fr.WriteContentBegin(total_size=size):
                 return fr.WriteContentBeginReply(session.write_begin(size))
             case fr.WriteContentData(offset=offset, data=data):
@@ -694,6 +721,9 @@ def _failure(msg_type: int, code: int) -> fr.Reply:
         fr.MsgType.READ_MULTI: b"\x00",
         fr.MsgType.WRITE_MULTI: b"\x00",
         fr.MsgType.NAME_LIST: b"\x00\x00\x00\x00",
+        fr.MsgType.GET_PROPERTIES: b"\x00" * 58,
+        fr.MsgType.GET_FULL_NAME: b"\x00\x00",
+        fr.MsgType.GET_KRC_NAME: b"\x00\x00",
     }.get(msg_type, b"")
     return fr.FailureReply(msg_type, empty_payload, code=code)
 
@@ -708,6 +738,18 @@ def _file_failure(req: fr.Request, code: int) -> fr.Reply:
             return fr.GetPropertiesReply(0, 0, 0, 0, 0, 0, 0, 0, 0, 0, "", **bad)
         case fr.GetFullName():
             return fr.GetFullNameReply("", **bad)
+        case fr.GetKrcName():
+            return fr.GetKrcNameReply("", **bad)
+        case fr.SetAttribute():
+            return fr.SetAttributeReply(**bad)
+        case fr.Create():
+            return fr.CreateReply(**bad)
+        case fr.Delete():
+            return fr.DeleteReply(**bad)
+        case fr.Copy():
+            return fr.CopyReply(**bad)
+        case fr.Move():
+            return fr.MoveReply(**bad)
         case fr.WriteContentBegin():
             return fr.WriteContentBeginReply(0, **bad)
         case fr.WriteContentData(offset=offset):

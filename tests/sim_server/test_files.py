@@ -13,8 +13,11 @@ from simulators.krc4.files import (
     ATTR_ARCHIVE,
     ATTR_DIRECTORY,
     ATTR_READONLY,
+    CODE_ACCESS,
     CODE_ARGUMENT,
     CODE_LONG_ANSWER,
+    COPY_OVERWRITE_EXISTS,
+    COPY_OVERWRITE_READ,
     ITEM_DIR,
     ITEM_MODULE,
     MAX_CHUNK_BYTES,
@@ -260,3 +263,110 @@ def test_name_list_skips_an_entry_that_vanishes_between_listing_and_stat(tmp_pat
     items, infos = ShareFiles(tmp_path).name_list("/TRACE/")
     assert [i.upper().rsplit("\\", 1)[-1] for i in items] == ["T1_KRCIPO.DAT"]
     assert len(infos) == 1
+
+
+def test_create_always_truncates_a_file_and_refuses_the_rest(share: ShareFiles) -> None:
+    target = share.root / "R1" / "PROGRAM" / "A.SRC"
+    target.write_text("DEF A()\nEND\n")
+    share.create("/R1/A.SRC", ITEM_MODULE, always=True)
+    assert target.read_bytes() == b""
+    for name, item, always, code in [
+        ("/R1/A.SRC", ITEM_MODULE, False, CODE_ACCESS),  # exists
+        ("/R1/A.SRC", ITEM_DIR, True, CODE_ACCESS),  # exists as a file
+        ("KRC:\\R1\\PROGRAM", ITEM_MODULE, True, CODE_ACCESS),  # exists as a directory
+        ("KRC:\\R1\\NOPE\\B.SRC", ITEM_MODULE, True, CODE_ARGUMENT),  # no such directory
+        ("KRC:\\R1\\..\\..\\B.SRC", ITEM_MODULE, True, CODE_ARGUMENT),  # leaves the share
+    ]:
+        with pytest.raises(FileOpError) as err:
+            share.create(name, item, always=always)
+        assert err.value.code == code, name
+    target.chmod(0o444)
+    with pytest.raises(FileOpError) as err:
+        share.create("/R1/A.SRC", ITEM_MODULE, always=True)
+    assert err.value.code == CODE_ACCESS
+    share.create("KRC:\\R1\\PROGRAM", ITEM_DIR, always=True)  # an existing directory, always: nothing to do
+    assert not (share.root.parent / "B.SRC").exists()
+
+
+def test_delete_refuses_a_non_empty_directory_and_a_read_only_file_without_always(share: ShareFiles) -> None:
+    (share.root / "TRACE" / "t_KRCIpo.dat").write_text("x")
+    for name, always in [("C:\\KRC\\ROBOTER\\TRACE", True), ("C:\\KRC\\ROBOTER\\", True)]:
+        with pytest.raises(FileOpError) as err:
+            share.delete(name, always=always)
+        assert err.value.code == CODE_ACCESS
+    share.set_attribute("/TRACE/t_KRCIpo.dat", ATTR_READONLY, ATTR_READONLY)
+    with pytest.raises(FileOpError) as err:
+        share.delete("/TRACE/t_KRCIpo.dat", always=False)
+    assert err.value.code == CODE_ACCESS and (share.root / "TRACE" / "t_KRCIpo.dat").exists()
+    share.set_attribute("/TRACE/t_KRCIpo.dat", 0, ATTR_READONLY)
+    share.delete("/trace/T_KRCIPO.DAT", always=False)  # case-insensitive, as on Windows
+    share.delete("C:\\KRC\\ROBOTER\\TRACE", always=False)  # now empty
+    assert not (share.root / "TRACE").exists()
+    with pytest.raises(FileOpError) as err:
+        share.delete("/TRACE/t_KRCIpo.dat", always=True)
+    assert err.value.code == CODE_ARGUMENT
+
+
+def test_set_attribute_read_only_leaves_directories_writable(share: ShareFiles) -> None:
+    share.set_attribute("KRC:\\R1\\PROGRAM", ATTR_READONLY, ATTR_READONLY)
+    assert not share.properties("KRC:\\R1\\PROGRAM").attributes & ATTR_READONLY
+    (share.root / "R1" / "PROGRAM" / "A.SRC").write_text("x")
+    share.set_attribute("/R1/A.SRC", ATTR_READONLY, 0)  # bit outside the mask: no change
+    assert not share.properties("/R1/A.SRC").attributes & ATTR_READONLY
+    with pytest.raises(FileOpError) as err:
+        share.set_attribute("/R1/NOPE.SRC", ATTR_READONLY, ATTR_READONLY)
+    assert err.value.code == CODE_ARGUMENT
+
+
+def test_copy_overwrites_only_with_its_flags(share: ShareFiles) -> None:
+    prog = share.root / "R1" / "PROGRAM"
+    (prog / "A.SRC").write_text("new")
+    (prog / "B.SRC").write_text("old")
+    with pytest.raises(FileOpError) as err:
+        share.copy("/R1/A.SRC", "/R1/B.SRC", 0)
+    assert err.value.code == CODE_ACCESS and (prog / "B.SRC").read_text() == "old"
+    (prog / "B.SRC").chmod(0o444)
+    with pytest.raises(FileOpError) as err:
+        share.copy("/R1/A.SRC", "/R1/B.SRC", COPY_OVERWRITE_EXISTS)
+    assert err.value.code == CODE_ACCESS and (prog / "B.SRC").read_text() == "old"
+    share.copy("/R1/A.SRC", "/R1/B.SRC", COPY_OVERWRITE_EXISTS | COPY_OVERWRITE_READ)
+    assert (prog / "B.SRC").read_text() == "new" and (prog / "A.SRC").read_text() == "new"
+    with pytest.raises(FileOpError) as err:
+        share.copy("/R1/A.SRC", "/R1/A.SRC", COPY_OVERWRITE_EXISTS)
+    assert err.value.code == CODE_ACCESS
+    with pytest.raises(FileOpError) as err:
+        share.copy("/R1/A.SRC", "KRC:\\R1\\PROGRAM", COPY_OVERWRITE_EXISTS)  # a file onto a directory
+    assert err.value.code == CODE_ACCESS
+
+
+@pytest.mark.parametrize("move", [False, True])
+def test_copy_and_move_refusals(share: ShareFiles, move: bool) -> None:
+    (share.root / "R1" / "PROGRAM" / "A.SRC").write_text("x")
+    for source, destination, code in [
+        ("/R1/NOPE.SRC", "/R1/B.SRC", CODE_ARGUMENT),  # no source
+        ("/R1/A.SRC", "KRC:\\R1\\NOPE\\B.SRC", CODE_ARGUMENT),  # no target directory
+        ("KRC:\\R1", "KRC:\\R1\\PROGRAM\\R1", CODE_ARGUMENT),  # into itself
+        ("KRC:\\", "/TRACE/ALL", CODE_ACCESS),  # the share itself
+        ("/R1/A.SRC", "KRC:\\R1\\..\\..\\A.SRC", CODE_ARGUMENT),  # leaves the share
+        ("C:\\Windows\\win.ini", "/R1/A.INI", CODE_ARGUMENT),
+    ]:
+        with pytest.raises(FileOpError) as err:
+            share.copy(source, destination, COPY_OVERWRITE_EXISTS, move=move)
+        assert err.value.code == code, (source, destination)
+    assert (share.root / "R1" / "PROGRAM" / "A.SRC").read_text() == "x"
+    assert not (share.root.parent / "A.SRC").exists()
+
+
+def test_move_and_copy_of_a_directory_tree(share: ShareFiles) -> None:
+    sub = share.root / "R1" / "PROGRAM" / "SUB"
+    sub.mkdir()
+    (sub / "B.SRC").write_text("b")
+    share.copy("KRC:\\R1\\PROGRAM\\SUB", "KRC:\\R1\\PROGRAM\\SUB2", 0)
+    assert (share.root / "R1" / "PROGRAM" / "SUB2" / "B.SRC").read_text() == "b" and (sub / "B.SRC").exists()
+    share.copy("KRC:\\R1\\PROGRAM\\SUB2", "/TRACE/SUB3", 0, move=True)
+    assert not (share.root / "R1" / "PROGRAM" / "SUB2").exists()
+    assert (share.root / "TRACE" / "SUB3" / "B.SRC").read_text() == "b"
+    (share.root / "TRACE" / "X.SRC").write_text("x")
+    (share.root / "TRACE" / "X.SRC").chmod(0o444)
+    share.copy("/TRACE/X.SRC", "/R1/X.SRC", 0, move=True)  # a read-only file may be moved
+    assert (share.root / "R1" / "PROGRAM" / "X.SRC").read_text() == "x"

@@ -1,4 +1,4 @@
-"""File operations #21/#26/#27/#29/#30 over a real socket against the share directory."""
+"""File operations #20–#30 over a real socket against the share directory."""
 
 from __future__ import annotations
 
@@ -81,3 +81,66 @@ async def test_name_list_and_properties(share: Path, client: RawClient) -> None:
 async def test_read_data_without_begin_fails(client: RawClient) -> None:
     rsp = await client.call(fr.ReadContentData(0))
     assert rsp == fr.ReadContentDataReply(0, b"", code=0, success=False)
+
+
+async def test_delete_create_copy_move_over_the_wire(share: Path, client: RawClient) -> None:
+    prog = share / "R1" / "PROGRAM"
+    assert await client.call(fr.Create(32, 6, False, "KRC:\\R1\\PROGRAM\\NEW.SRC", "")) == fr.CreateReply()
+    assert (prog / "NEW.SRC").read_bytes() == b""
+    assert await client.call(fr.Create(32, 6, False, "/R1/NEW.SRC", "")) == fr.CreateReply(code=2, success=False)
+    (prog / "NEW.SRC").write_text("DEF NEW()\nEND\n")
+    assert await client.call(fr.Copy(0, "/R1/NEW.SRC", "/R1/COPY.SRC")) == fr.CopyReply()
+    assert await client.call(fr.Copy(0, "/R1/NEW.SRC", "/R1/COPY.SRC")) == fr.CopyReply(code=2, success=False)
+    assert await client.call(fr.Copy(64, "/R1/NEW.SRC", "/R1/COPY.SRC")) == fr.CopyReply()
+    assert (prog / "COPY.SRC").read_text() == "DEF NEW()\nEND\n"
+    assert await client.call(fr.Move(0, "/R1/COPY.SRC", "C:\\KRC\\ROBOTER\\TRACE\\MOVED.SRC")) == fr.MoveReply()
+    assert not (prog / "COPY.SRC").exists() and (share / "TRACE" / "MOVED.SRC").exists()
+    assert await client.call(fr.Move(0, "/R1/NEW.SRC", "/TRACE/MOVED.SRC")) == fr.MoveReply(code=2, success=False)
+    assert await client.call(fr.SetAttribute(1, 1, "/TRACE/MOVED.SRC")) == fr.SetAttributeReply()
+    assert await client.call(fr.Delete(False, "/TRACE/MOVED.SRC")) == fr.DeleteReply(code=2, success=False)
+    assert await client.call(fr.Delete(True, "/TRACE/MOVED.SRC")) == fr.DeleteReply()
+    assert not (share / "TRACE" / "MOVED.SRC").exists()
+    assert await client.call(fr.Delete(False, "/TRACE/MOVED.SRC")) == fr.DeleteReply(code=3, success=False)
+
+
+async def test_new_file_operations_refuse_paths_escaping_the_share(share: Path, client: RawClient) -> None:
+    outside = share.parent / "victim.txt"
+    outside.write_text("keep")
+    (share / "TRACE" / "in.txt").write_text("in")
+    for name in ("KRC:\\R1\\..\\..\\victim.txt", "C:\\Windows\\victim.txt", "/TRACE/../../victim.txt"):
+        refused = {"code": 3, "success": False}
+        assert await client.call(fr.Delete(True, name)) == fr.DeleteReply(**refused)
+        assert await client.call(fr.Create(8, 0, True, name, "")) == fr.CreateReply(**refused)
+        assert await client.call(fr.SetAttribute(1, 1, name)) == fr.SetAttributeReply(**refused)
+        assert await client.call(fr.Copy(64, "/TRACE/in.txt", name)) == fr.CopyReply(**refused)
+        assert await client.call(fr.Copy(64, name, "/TRACE/out.txt")) == fr.CopyReply(**refused)
+        assert await client.call(fr.Move(64, "/TRACE/in.txt", name)) == fr.MoveReply(**refused)
+        assert await client.call(fr.GetKrcName(name)) == fr.GetKrcNameReply("", **refused)
+    assert outside.read_text() == "keep" and (share / "TRACE" / "in.txt").read_text() == "in"
+    assert not (share / "TRACE" / "out.txt").exists()
+
+
+async def test_krc_name_and_full_name_are_inverse(share: Path, client: RawClient) -> None:
+    assert await client.call(fr.GetKrcName("KRC:\\R1\\PROGRAM\\TEST.SRC")) == fr.GetKrcNameReply("/R1/TEST.SRC")
+    assert await client.call(fr.GetFullName("/R1/TEST.SRC")) == fr.GetFullNameReply("KRC:\\R1\\PROGRAM\\TEST.SRC")
+    trace = "C:\\KRC\\ROBOTER\\TRACE\\a.dat"
+    assert await client.call(fr.GetKrcName(trace)) == fr.GetKrcNameReply("/TRACE/a.dat")
+    assert await client.call(fr.GetFullName("/TRACE/a.dat")) == fr.GetFullNameReply(trace)
+
+
+async def test_malformed_footer_only_request_is_code_9(client: RawClient) -> None:
+    frame = bytes.fromhex("00 09 00 04 17 01 00 05")  # #23: always, then a name length of 5 and no name
+    assert fr.decode_response(await client.raw(frame)) == (9, fr.DeleteReply(code=9, success=False))
+    frame = bytes.fromhex("00 0A 00 02 1C 00")  # #28 cut inside the length field: an empty name in the reply
+    assert await client.raw(frame) == bytes.fromhex("00 0A 00 06 1C 00 00 00 09 00")
+
+
+async def test_refuse_types_fault(server: KrcServer, share: Path, client: RawClient) -> None:
+    (share / "TRACE" / "t.dat").write_text("x")
+    server.faults.refuse_types = {23: 2, 0: 6}
+    assert await client.call(fr.Delete(False, "/TRACE/t.dat")) == fr.DeleteReply(code=2, success=False)
+    assert await client.call(fr.ReadVarAscii("PING")) == fr.ReadVarAsciiReply("", code=6, success=False)
+    assert (share / "TRACE" / "t.dat").exists() and server.counters.faults_fired["refuse_types"] == 2
+    server.faults.refuse_types.clear()
+    assert await client.call(fr.Delete(False, "/TRACE/t.dat")) == fr.DeleteReply()
+    assert not (share / "TRACE" / "t.dat").exists()
