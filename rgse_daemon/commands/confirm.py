@@ -1,0 +1,68 @@
+"""``rgse confirm --config FILE [--run RUN_ID] [--point N] [--timeout S]``: tell the running daemon that the step
+its run waits for is done (e.g. the calibration load of a campaign point is mounted).
+
+Publishes a ``confirm`` command (contracts §4; schema :class:`~rgse_daemon.io.commands.ConfirmCommand`) on the
+daemon's broker, as configured in FILE, and waits for the daemon's reply to it. Without ``--run`` the run is the
+one the daemon's retained ``state`` names; the daemon itself checks that this run is the one waiting. Prints the
+reply (one JSON line on stdout). Exit 0 when the daemon accepted; 1 when it refused (its reason on stderr) or its
+state names no run; 2 on a bad configuration or command, an unreachable broker, or no reply within ``--timeout``
+(default 10 s). See :mod:`rgse_daemon.commands.status` for the client.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from rgse_daemon.cli import EXIT_FAILED
+from rgse_daemon.commands.status import (
+    Conversation,
+    Unreachable,
+    check_fields,
+    check_timeout,
+    describe_status,
+    endpoint,
+    report_reply,
+    run_operator,
+)
+
+#: How long to wait for the daemon's state when the run is not named (it is retained: normally at once).
+STATE_WAIT_S = 3.0
+
+
+def run(args: argparse.Namespace) -> int:
+    ep = endpoint(args.config)
+    timeout_s = check_timeout(getattr(args, "timeout", None))
+    run_id: str | None = getattr(args, "run", None)
+    point: int | None = getattr(args, "point", None)
+    t = ep.topics
+
+    async def body(conv: Conversation) -> dict[str, Any] | None:
+        await conv.subscribe([t.reply("confirm"), t.status, *([t.state] if run_id is None else [])])
+        target = run_id
+        if target is None:
+            wait_s = min(STATE_WAIT_S, timeout_s / 2)  # leave time for the command; say why if the state is missing
+            await conv.read_retained(wait_s, until=t.state)
+            state = conv.json_of(t.state)
+            if not isinstance(state, dict):
+                raise Unreachable(
+                    f"{ep.broker}: no daemon state on {t.state} within {wait_s:g} s (daemon status: "
+                    f"{describe_status(conv.json_of(t.status))}); name the run with --run RUN_ID"
+                )
+            target = state.get("run_id")
+            if not target:
+                print(
+                    f"rgse confirm: nothing to confirm: the daemon's state (at {state.get('time', '?')}) names no run "
+                    f"in progress (engine {state.get('engine', '?')})",
+                    file=sys.stderr,
+                )
+                return None
+        return await conv.command("confirm", {"run_id": target, "point": point})
+
+    async def main() -> int:
+        check_fields("confirm", {"run_id": run_id or "pending", "point": point})  # before any network I/O
+        reply = await Conversation(ep, "confirm", timeout_s).run(body)
+        return EXIT_FAILED if reply is None else report_reply("confirm", reply)
+
+    return run_operator("confirm", args, main)
