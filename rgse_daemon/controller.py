@@ -2,11 +2,12 @@
 
 It sits on :class:`~rgse_daemon.link.pool.LinkPool` and hides which server runs on the controller:
 
-* **C3 Bridge**: a snapshot is one multi-read (#6); files go through #21/#26/#27/#29/#30 (KUKA's own file
-  interface); programs are selected/started/stopped with #10.
-* **plain KUKAVARPROXY**: a snapshot is concurrent single reads (#0) over the pool; files go through the
-  controller's ``roboter`` share mounted locally (``ControllerConfig.share_dir``); program control is not
-  available (:class:`~rgse_daemon.link.errors.NotSupportedError`).
+* **C3 Bridge**: a snapshot is one multi-read (#6); files go through #20–#30 (KUKA's own file interface: list,
+  read, write, delete, copy, move, create, attributes, names); programs are selected/started/stopped with #10.
+* **plain KUKAVARPROXY**: a snapshot is concurrent single reads (#0) over the pool; files (read, write, list,
+  delete, copy, move) go through the controller's ``roboter`` share mounted locally
+  (``ControllerConfig.share_dir``); program control, create, attributes and name conversion are not available
+  (:class:`~rgse_daemon.link.errors.NotSupportedError`).
 
 Writes are limited to :data:`WRITABLE_VARIABLES` and user globals starting with :data:`WRITABLE_PREFIX`;
 anything else raises :class:`~rgse_daemon.errors.NotAllowedError` before a byte is sent.
@@ -18,6 +19,7 @@ Usage::
         await krc.write("$OV_PRO", 30)          # Python values are formatted as KRL (str → "quoted")
         await krc.put_file("KRC:\\R1\\PROGRAM\\RGSE_MEAS.SRC", data)
         await krc.select_program("KRC:\\R1\\PROGRAM\\RGSE_MEAS.SRC")
+        await krc.delete_file("C:\\KRC\\ROBOTER\\TRACE\\run_01_KRCIpo.dat")
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ import asyncio
 import contextlib
 import os
 import re
+import shutil
 import time
 from collections.abc import AsyncIterator, Mapping
 from dataclasses import dataclass, field
@@ -361,8 +364,8 @@ class Controller:
             raise CommandError("confirm all", "refused by the controller", rsp.code)
 
     # --- files ----------------------------------------------------------------------------------------------------
-    def _use_share(self) -> bool:
-        return not self.pool.supports(fr.MsgType.WRITE_CONTENT)
+    def _use_share(self, msg_type: fr.MsgType = fr.MsgType.WRITE_CONTENT) -> bool:
+        return not self.pool.supports(msg_type)
 
     async def put_file(self, name: str, data: bytes) -> None:
         """Write ``data`` to the controller file ``name`` (overwriting): #29 in chunks ≤ 65525 bytes, or the share."""
@@ -421,6 +424,78 @@ class Controller:
         assert isinstance(rsp, fr.NameListReply)
         infos = list(rsp.infos) + [""] * max(0, len(rsp.items) - len(rsp.infos))
         return [DirEntry(n, i) for n, i in zip(rsp.items, infos, strict=False)]
+
+    async def delete_file(self, name: str, *, always: bool = False) -> None:
+        """Delete controller file (or empty directory) ``name``: #23, or unlink on the share.
+
+        ``always`` is #23's flag (the simulator then deletes a read-only file too). ``CommandError`` if refused
+        (with the controller's code over #23, e.g. 3 for a missing file on the simulator).
+        """
+        if self._use_share(fr.MsgType.DELETE):
+            await asyncio.to_thread(_share_delete, self._share_path(name), name)
+            return
+        await self._file_command(fr.Delete(always, name), fr.DeleteReply, f"delete {name}")
+
+    async def copy_file(self, source: str, destination: str, *, overwrite: bool = False) -> None:
+        """Copy ``source`` to ``destination`` (#24, or on the share); an existing destination only if ``overwrite``
+        (copy flag OverwriteExists)."""
+        if self._use_share(fr.MsgType.COPY):
+            src, dst = self._share_path(source), self._share_path(destination)
+            await asyncio.to_thread(_share_copy, src, dst, overwrite, False, f"copy {source}")
+            return
+        req = fr.Copy(fr.CopyFlag.OVERWRITE_EXISTS if overwrite else 0, source, destination)
+        await self._file_command(req, fr.CopyReply, f"copy {source} to {destination}")
+
+    async def move_file(self, source: str, destination: str, *, overwrite: bool = False) -> None:
+        """Move (rename) ``source`` to ``destination`` (#25, or on the share); ``overwrite`` as in :meth:`copy_file`."""
+        if self._use_share(fr.MsgType.MOVE):
+            src, dst = self._share_path(source), self._share_path(destination)
+            await asyncio.to_thread(_share_copy, src, dst, overwrite, True, f"move {source}")
+            return
+        req = fr.Move(fr.CopyFlag.OVERWRITE_EXISTS if overwrite else 0, source, destination)
+        await self._file_command(req, fr.MoveReply, f"move {source} to {destination}")
+
+    async def create_file(
+        self,
+        name: str,
+        item_type: int = fr.ItemType.MODULE,
+        *,
+        module_part: int = fr.ModulePart.SRCDAT,
+        always: bool = False,
+        template: str = "",
+    ) -> None:
+        """Create ``name`` with #22 (C3 Bridge only): ``item_type`` e.g. ``ItemType.DIR``; ``always`` replaces."""
+        self._require(fr.MsgType.CREATE, f"create {name}")
+        req = fr.Create(item_type, module_part, always, name, template)
+        await self._file_command(req, fr.CreateReply, f"create {name}")
+
+    async def set_attribute(self, name: str, attributes: int, mask: int) -> None:
+        """Set the ``mask`` bits of ``name``'s attributes to those of ``attributes`` (#20, C3 Bridge only)."""
+        self._require(fr.MsgType.SET_ATTRIBUTE, f"set attributes of {name}")
+        await self._file_command(fr.SetAttribute(attributes, mask, name), fr.SetAttributeReply, f"attributes {name}")
+
+    async def get_full_name(self, path: str) -> str:
+        """The controller's full name of ``path`` (#27): ``/R1/TEST.SRC`` → ``KRC:\\R1\\PROGRAM\\TEST.SRC``."""
+        self._require(fr.MsgType.GET_FULL_NAME, f"full name of {path}")
+        rsp = await self._file_command(fr.GetFullName(path), fr.GetFullNameReply, f"full name of {path}")
+        assert isinstance(rsp, fr.GetFullNameReply)
+        return rsp.path
+
+    async def get_krc_name(self, path: str) -> str:
+        """The KRC name of ``path`` (#28): ``KRC:\\R1\\PROGRAM\\TEST.SRC`` → ``/R1/TEST.SRC``."""
+        self._require(fr.MsgType.GET_KRC_NAME, f"KRC name of {path}")
+        rsp = await self._file_command(fr.GetKrcName(path), fr.GetKrcNameReply, f"KRC name of {path}")
+        assert isinstance(rsp, fr.GetKrcNameReply)
+        return rsp.path
+
+    def _require(self, msg_type: fr.MsgType, what: str) -> None:
+        if not self.pool.supports(msg_type):
+            raise NotSupportedError(f"{what}: needs C3 Bridge #{int(msg_type)} (server is {self.protocol.value})")
+
+    async def _file_command(self, req: fr.Request, kind: type[fr.Reply], what: str) -> fr.Reply:
+        rsp = await self.pool.request(req)
+        _expect(rsp, kind, what)
+        return rsp
 
     def _share_path(self, name: str) -> Path:
         if self.cfg.share_dir is None:
@@ -483,6 +558,34 @@ def _share_read(path: Path) -> bytes:
         return path.read_bytes()
     except OSError as exc:
         raise CommandError(f"get {path}", exc.strerror or "cannot read") from exc
+
+
+def _share_delete(path: Path, shown: str) -> None:
+    try:
+        if path.is_dir() and not path.is_symlink():
+            path.rmdir()
+        else:
+            path.unlink()
+    except OSError as exc:
+        raise CommandError(f"delete {shown}", exc.strerror or "cannot delete") from exc
+
+
+def _share_copy(src: Path, dst: Path, overwrite: bool, move: bool, what: str) -> None:
+    if not src.exists():
+        raise CommandError(what, "no such file or directory")
+    if dst.exists() and not overwrite:
+        raise CommandError(what, f"{dst.name} already exists (overwrite not requested)")
+    if src.is_dir() and src.resolve() in (dst.resolve(), *dst.resolve().parents):
+        raise CommandError(what, "cannot copy or move a directory into itself")
+    try:
+        if move:
+            os.replace(src, dst)
+        elif src.is_dir():
+            shutil.copytree(src, dst, dirs_exist_ok=True)
+        else:
+            shutil.copy2(src, dst)
+    except OSError as exc:
+        raise CommandError(what, exc.strerror or str(exc)) from exc
 
 
 def _share_list(path: Path, shown: str) -> list[DirEntry]:

@@ -9,6 +9,8 @@ Public API
 ----------
 ``MsgType``, ``ErrorCode``, ``ProgCmd``, ``FileOp``
     Enumerations of message types, footer error codes, #10 commands and #29/#30 operations.
+``ItemType``, ``ModulePart``, ``Attribute``, ``CopyFlag``
+    The file-operation constants of §3.9 (item types, module parts, attributes, copy flags).
 ``Request`` subclasses (payload only, the tag travels separately)
     ``ReadVarAscii(name)`` #0, ``WriteVarAscii(name, value)`` #1, ``ReadVar`` #4, ``WriteVar`` #5,
     ``ReadMulti(names)`` #6, ``WriteMulti(items)`` #7, ``ProgramControl(cmd, interpreter, name, params, force)`` #10
@@ -46,7 +48,7 @@ import asyncio
 import dataclasses
 import struct
 from dataclasses import dataclass, field
-from enum import IntEnum
+from enum import IntEnum, IntFlag
 from typing import ClassVar
 
 from rgse_daemon.errors import LinkClosed, ProtocolError
@@ -123,6 +125,67 @@ class FileOp(IntEnum):
     DATA = 2
     GET_SIZE = 3
     END = 4
+
+
+class ItemType(IntFlag):
+    """#21 / #22 / #26 item types."""
+
+    UNKNOWN = 0
+    DIR = 1
+    VIRTUAL_DIR = 2
+    ARCHIVE = 4
+    BINARY = 8
+    TEXT = 16
+    MODULE = 32
+    RAW = 64
+    MOTION = 128
+    PROTECTED_FILE_CONTAINER = 256
+
+
+class ModulePart(IntEnum):
+    """#22 module parts."""
+
+    UNKNOWN = 0
+    SUB = 1
+    SRC = 2
+    DAT = 4
+    SUBDAT = 5
+    SRCDAT = 6
+    TEMPLATE = 8
+    MOTION = 16
+
+
+class Attribute(IntFlag):
+    """#20 / #26 attributes."""
+
+    NONE = 0
+    READ_ONLY = 1
+    HIDDEN = 2
+    SYSTEM = 4
+    DIRECTORY = 16
+    ARCHIVE = 32
+    ENCRYPTED = 16384
+    SIGNED = 268435456
+
+
+class CopyFlag(IntFlag):
+    """#24 / #25 / #29 End / #30 Begin copy flags (MODIFY and UPDATE are combinations, as in the spec)."""
+
+    NONE = 0
+    ARCHIVE = 1
+    MODIFY = 3
+    CONTINUE = 4
+    RECURSIVE = 8
+    REFRESH = 16
+    UPDATE = 48
+    OVERWRITE_EXISTS = 64
+    NO_DIR_ENTRIES = 128
+    JUNK_DIR = 256
+    FORCE_BINARY = 512
+    FORCE_TEXT = 1024
+    NO_VERSION_CHECK = 2048
+    OVERWRITE_READ = 4096
+    NO_KRL_ANALYSIS = 8192
 
 
 # --- primitive writer / reader ----------------------------------------------------------------------------------

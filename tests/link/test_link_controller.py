@@ -11,7 +11,8 @@ import pytest
 
 from rgse_daemon.config import ControllerConfig, Protocol
 from rgse_daemon.controller import SNAPSHOT_VARIABLES, Controller, LoadData, share_path, writable
-from rgse_daemon.errors import LinkClosed, LinkTimeout, NotAllowedError, ProtocolError, VariableError
+from rgse_daemon.errors import ConfigError, LinkClosed, LinkTimeout, NotAllowedError, ProtocolError, VariableError
+from rgse_daemon.link import frames as fr
 from rgse_daemon.link.errors import CommandError, NotSupportedError
 from rgse_daemon.link.krlvalue import KrlEnum
 from simulators.krc4.server import KrcServer, ServerConfig
@@ -129,6 +130,112 @@ async def test_files_over_kvp_use_the_mounted_share(sim: KrcServer) -> None:
         with pytest.raises(NotSupportedError):
             await krc.select_program("KRC:\\R1\\PROGRAM\\RGSE_MEAS.SRC")
     assert share_path(Path("/s"), "C:\\KRC\\ROBOTER\\TRACE\\a.dat") == Path("/s/TRACE/a.dat")
+
+
+async def test_delete_copy_move_create_attributes_over_c3(sim: KrcServer) -> None:
+    root = sim.files.root
+    trace = "C:\\KRC\\ROBOTER\\TRACE\\"
+    async with Controller.connect(cfg_for(sim)) as krc:
+        await krc.put_file(trace + "t1_KRCIpo.dat", b"samples")
+        before = sim.counters.by_type[23]
+        await krc.delete_file(trace + "t1_KRCIpo.dat")
+        assert not (root / "TRACE" / "t1_KRCIpo.dat").exists() and sim.counters.by_type[23] - before == 1
+        with pytest.raises(CommandError) as missing:
+            await krc.delete_file(trace + "t1_KRCIpo.dat")
+        assert missing.value.code == fr.ErrorCode.ARGUMENT
+
+        await krc.put_file("KRC:\\R1\\PROGRAM\\A.SRC", b"DEF A()\r\nEND\r\n")
+        await krc.copy_file("/R1/A.SRC", "/R1/B.SRC")
+        assert (root / "R1" / "PROGRAM" / "B.SRC").read_bytes() == b"DEF A()\r\nEND\r\n"
+        await krc.put_file("/R1/A.SRC", b"DEF A()\r\n;v2\r\nEND\r\n")
+        with pytest.raises(CommandError) as exists:
+            await krc.copy_file("/R1/A.SRC", "/R1/B.SRC")
+        assert exists.value.code == fr.ErrorCode.ACCESS
+        assert (root / "R1" / "PROGRAM" / "B.SRC").read_bytes() == b"DEF A()\r\nEND\r\n"
+        await krc.copy_file("/R1/A.SRC", "/R1/B.SRC", overwrite=True)
+        assert await krc.get_file("/R1/B.SRC") == b"DEF A()\r\n;v2\r\nEND\r\n"
+
+        await krc.move_file("/R1/B.SRC", trace + "B.SRC")
+        assert not (root / "R1" / "PROGRAM" / "B.SRC").exists() and (root / "TRACE" / "B.SRC").exists()
+        with pytest.raises(CommandError) as exists:
+            await krc.move_file("/R1/A.SRC", trace + "B.SRC")
+        assert exists.value.code == fr.ErrorCode.ACCESS and (root / "R1" / "PROGRAM" / "A.SRC").exists()
+        await krc.move_file("/R1/A.SRC", trace + "B.SRC", overwrite=True)
+        assert not (root / "R1" / "PROGRAM" / "A.SRC").exists()
+
+        await krc.create_file("KRC:\\R1\\PROGRAM\\NEW.SRC")
+        await krc.create_file("KRC:\\R1\\PROGRAM\\SUB", fr.ItemType.DIR)
+        assert (root / "R1" / "PROGRAM" / "NEW.SRC").read_bytes() == b"" and (root / "R1" / "PROGRAM" / "SUB").is_dir()
+        with pytest.raises(CommandError):
+            await krc.create_file("KRC:\\R1\\PROGRAM\\NEW.SRC")
+        await krc.set_attribute("/R1/NEW.SRC", fr.Attribute.READ_ONLY, fr.Attribute.READ_ONLY)
+        with pytest.raises(CommandError) as read_only:
+            await krc.delete_file("/R1/NEW.SRC")
+        assert read_only.value.code == fr.ErrorCode.ACCESS
+        await krc.delete_file("/R1/NEW.SRC", always=True)
+        await krc.delete_file("KRC:\\R1\\PROGRAM\\SUB")
+        assert sorted(p.name for p in (root / "R1" / "PROGRAM").iterdir()) == []
+
+
+async def test_file_commands_refuse_paths_leaving_the_share(sim: KrcServer) -> None:
+    victim = sim.files.root.parent / "victim.txt"
+    victim.write_text("keep")
+    escapes = ("KRC:\\R1\\..\\..\\victim.txt", "/TRACE/../../victim.txt", "C:\\Windows\\victim.txt")
+    async with Controller.connect(cfg_for(sim)) as krc:
+        await krc.put_file("/TRACE/in.txt", b"in")
+        for name in escapes:
+            for call in (
+                lambda name=name: krc.delete_file(name, always=True),
+                lambda name=name: krc.copy_file("/TRACE/in.txt", name, overwrite=True),
+                lambda name=name: krc.move_file(name, "/TRACE/out.txt", overwrite=True),
+                lambda name=name: krc.create_file(name, fr.ItemType.TEXT, always=True),
+                lambda name=name: krc.get_krc_name(name),
+            ):
+                with pytest.raises(CommandError) as refused:
+                    await call()
+                assert refused.value.code == fr.ErrorCode.ARGUMENT
+    assert victim.read_text() == "keep" and not (sim.files.root / "TRACE" / "out.txt").exists()
+
+
+async def test_krc_name_and_full_name_round_trip(sim: KrcServer) -> None:
+    async with Controller.connect(cfg_for(sim)) as krc:
+        full = await krc.get_full_name("/R1/TEST.SRC")
+        assert full == "KRC:\\R1\\PROGRAM\\TEST.SRC"
+        assert await krc.get_krc_name(full) == "/R1/TEST.SRC"
+        trace = "C:\\KRC\\ROBOTER\\TRACE\\t1_KRCIpo.r64"
+        assert await krc.get_full_name(await krc.get_krc_name(trace)) == trace
+
+
+async def test_delete_copy_move_over_kvp_use_the_mounted_share(sim: KrcServer) -> None:
+    root = sim.files.root
+    (root / "TRACE").mkdir()
+    (root / "TRACE" / "t1_KRCIpo.dat").write_bytes(b"samples")
+    async with Controller.connect(cfg_for(sim, protocol="kvp", share_dir=root)) as krc:
+        before = sim.counters.requests
+        await krc.copy_file("C:\\KRC\\ROBOTER\\TRACE\\t1_KRCIpo.dat", "/TRACE/copy.dat")
+        with pytest.raises(CommandError):
+            await krc.copy_file("/TRACE/t1_KRCIpo.dat", "/TRACE/copy.dat")
+        await krc.move_file("/TRACE/copy.dat", "/TRACE/moved.dat")
+        assert (root / "TRACE" / "moved.dat").read_bytes() == b"samples" and not (root / "TRACE" / "copy.dat").exists()
+        await krc.delete_file("C:\\KRC\\ROBOTER\\TRACE\\t1_KRCIpo.dat")
+        await krc.delete_file("/TRACE/moved.dat")
+        assert list((root / "TRACE").iterdir()) == []
+        with pytest.raises(CommandError):
+            await krc.delete_file("/TRACE/moved.dat")
+        with pytest.raises(NotAllowedError):
+            await krc.delete_file("KRC:\\R1\\..\\..\\etc\\passwd")
+        for call in (
+            lambda: krc.create_file("/R1/NEW.SRC"),
+            lambda: krc.set_attribute("/R1/NEW.SRC", fr.Attribute.READ_ONLY, fr.Attribute.READ_ONLY),
+            lambda: krc.get_krc_name("KRC:\\R1\\PROGRAM\\TEST.SRC"),
+            lambda: krc.get_full_name("/R1/TEST.SRC"),
+        ):
+            with pytest.raises(NotSupportedError):
+                await call()
+        assert sim.counters.requests == before  # nothing of this went over the link
+    async with Controller.connect(cfg_for(sim, protocol="kvp")) as krc:
+        with pytest.raises(ConfigError, match="share_dir"):
+            await krc.delete_file("/TRACE/x.dat")
 
 
 async def test_program_control(sim: KrcServer) -> None:
