@@ -7,9 +7,10 @@ Raw data is the one thing that cannot be made again, so a trace is pulled like t
 2. read each file over the link; its size must equal the size the listing reported (when the server reports one);
 3. write it to a staging file, then :func:`~rgse_daemon.store.archive.archive_file` it into ``dest_dir`` with the
    size and SHA-256 of *what was read* as expectations: a short or corrupted local copy is an error, never archived;
-4. only after every file is durable, delete the controller copies. The link (C3 Bridge #23 Delete) has no delete in
-   this daemon yet; where the controller's share is mounted (``controller.share_dir``) the copy is deleted there,
-   else it is left on the controller and :attr:`PulledTrace.deleted` is False (recorded with the loop).
+4. only after every file is durable and verified, delete the controller copies: on the controller's share where
+   it is mounted (``controller.share_dir``), else over the link (:meth:`Controller.delete_file`: C3 Bridge #23).
+   A delete that fails never fails the pull: the files stay on the controller, :attr:`PulledTrace.deleted` is
+   False and :attr:`PulledTrace.delete_note` says why (recorded with the loop as ``trace_left_on_controller``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from pathlib import Path
 
 from rgse_daemon.controller import Controller, share_path
 from rgse_daemon.errors import DataError, RgseError
+from rgse_daemon.link.errors import CommandError
 from rgse_daemon.manifest import MODULE_A3, MODULE_A5
 from rgse_daemon.store.archive import ArchivedFile, archive_file_async
 
@@ -110,14 +112,17 @@ async def pull_trace(
         pass  # not empty (another pull in flight) or already gone
     if len(archived) != len(names):
         raise DataError(f"{trace}: archived {len(archived)} of {len(names)} files")
-    deleted, note = await _delete_controller_copies(trace_dir, list(names), share_dir)
+    deleted, note = await _delete_controller_copies(krc, trace_dir, sorted(names), share_dir)
     return PulledTrace(trace, tuple(archived), deleted, note, asyncio.get_running_loop().time() - t0)
 
 
-async def _delete_controller_copies(trace_dir: str, names: list[str], share_dir: Path | None) -> tuple[bool, str]:
-    """Delete the controller's copies (called only once all are archived); returns (deleted, note)."""
+async def _delete_controller_copies(
+    krc: Controller, trace_dir: str, names: list[str], share_dir: Path | None
+) -> tuple[bool, str]:
+    """Delete the controller's copies (called only once all are archived); returns (deleted, note). Never raises
+    for a failed delete: a file the controller refuses to delete is named in the note, a link failure stops."""
     if share_dir is None:
-        return False, "left on the controller: no delete over the link and no share mounted"
+        return await _delete_over_link(krc, trace_dir, names)
     try:
         paths = [share_path(share_dir, trace_dir + n) for n in names]
         await asyncio.to_thread(lambda: [p.unlink(missing_ok=True) for p in paths])
@@ -125,3 +130,20 @@ async def _delete_controller_copies(trace_dir: str, names: list[str], share_dir:
         _log.warning("could not delete trace files on the controller share: %r", exc)
         return False, f"delete on the share failed: {exc}"
     return True, "deleted on the controller share"
+
+
+async def _delete_over_link(krc: Controller, trace_dir: str, names: list[str]) -> tuple[bool, str]:
+    refused: list[str] = []
+    for i, name in enumerate(names):
+        try:
+            await krc.delete_file(trace_dir + name)
+        except CommandError as exc:  # this file refused (read-only, in use): try the others
+            refused.append(str(exc))
+        except RgseError as exc:  # link down, no delete on this server: the rest would fail alike
+            _log.warning("could not delete trace files over the link: %r", exc)
+            left = len(names) - i + len(refused)
+            return False, f"left on the controller ({left} of {len(names)} files): delete over the link failed: {exc}"
+    if refused:
+        _log.warning("controller refused to delete trace files: %s", "; ".join(refused))
+        return False, f"left on the controller ({len(refused)} of {len(names)} files): {'; '.join(refused)}"
+    return True, "deleted over the link"
