@@ -102,7 +102,18 @@ class MeasurementConfig(_Section):
     brake_release_deg: float = Field(35.0, gt=0.0, le=90.0)
     """φ': the equal angle A3 and A5 rotate by in the brake-release move (paper §2.4.4)."""
     warmup_cycles: int = Field(3, ge=0, le=100)
+    """Cycles of one warm-up program run (paper §2.4.4 A); 0 skips the warm-up."""
     warmup_amplitude_deg: float = Field(20.0, gt=0.0, le=90.0)
+    warmup_until_steady: bool = True
+    """Repeat the warm-up run until the A3 and A5 motor temperatures ($MOT_TEMP) are steady: the torque estimate
+    drifts with motor temperature, so the zero point, every calibration point and the DuT must be measured in the
+    same thermal state. False: one warm-up run."""
+    warmup_steady_k: float = Field(1.0, gt=0.0, le=10.0)
+    """Steady: neither motor temperature changed by more than this over the last ``warmup_steady_window_s``."""
+    warmup_steady_window_s: float = Field(300.0, ge=0.0, le=3600.0)
+    """Warm-up motion time over which the temperatures must stay within ``warmup_steady_k``."""
+    warmup_max_s: float = Field(2400.0, gt=0.0, le=14_400.0)
+    """Give up waiting for a steady state after this much warm-up motion; the run goes on with a warning."""
     fixture_mass_kg: float = Field(0.0, ge=0.0, le=611.0)
     """m_f: mass of the DuT fixture, subtracted from the gross mass (eq. 21)."""
     payload_lever_max_m: float = Field(1.5, gt=0.0, le=3.0)

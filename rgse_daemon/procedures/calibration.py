@@ -35,6 +35,7 @@ from rgse_daemon.procedures.common import (
     RunSettings,
     close_run,
     loop,
+    motor_temps_k,
     prepare,
     render_program,
     run_checked,
@@ -42,6 +43,7 @@ from rgse_daemon.procedures.common import (
     setup_toml,
     traces_toml,
     verify_start,
+    warm_up,
     write_text_durably,
 )
 from rgse_daemon.procedures.engine import RunEngine
@@ -164,6 +166,8 @@ def campaign_plan(
     next_index = 1 + max((lp.index for lp in loops_before), default=0)
     session = secrets.token_hex(2)  # new trace names on every (re)start: raw files are never replaced
     prepared = False
+    warnings: list[str] = []
+    warm_temps: tuple[float, ...] | None = None
     n = len(records)
     for rec in records:
         point = CampaignPoint.from_spec(rec.spec)
@@ -179,10 +183,15 @@ def campaign_plan(
                 yield m.Call("supersede loop", store.update_loop, (run_id, lp.index), {"state": LoopState.FAILED})
         yield m.Call("point measuring", store.set_point_state, (run_id, rec.index, PointState.MEASURING))
         if not prepared:
-            yield from prepare(s, inputs)
+            warnings += yield from prepare(s, inputs)
             prepared = True
-        else:  # a new load was mounted: verify again and return to the measurement pose
+        else:  # a new load was mounted: verify again, warm up again if the motors cooled, back to the pose
             snap = yield from verify_start(inputs)
+            temps = motor_temps_k(snap)
+            if (s.warmup_cycles > 0 and s.warmup_until_steady and temps is not None and warm_temps is not None
+                    and max(w - t for w, t in zip(warm_temps, temps, strict=True)) > s.warmup_steady_k):
+                snap, more = yield from warm_up(s, snap)
+                warnings += more
             yield from run_checked((yield from render_program("rgse_meas_pose", s, snap)), s)
         outcomes: list[LoopOutcome] = []
         for j in range(1, s.loops + 1):
@@ -195,6 +204,7 @@ def campaign_plan(
                                loop_index=j, loop_count=s.loops, data={"point_index": rec.index,
                                                                        **out.timing.to_json()}))
         yield m.Call("point done", store.set_point_state, (run_id, rec.index, PointState.DONE))
+        warm_temps = motor_temps_k((yield m.ReadState()))  # the thermal state the point was measured in
     # every point done: the campaign directory from the stored loops (this session's and earlier ones)
     records = yield m.Call("campaign points", store.points, (run_id,), dry_run_safe=True)
     loops_all = yield m.Call("campaign loops", store.loops, (run_id,), dry_run_safe=True)
@@ -214,7 +224,7 @@ def campaign_plan(
     used_idx = {lp.index for lp in used}
     shas = sorted({f.sha256 for f in files if f.loop_index in used_idx})
     yield m.Call("store calibration", store.add_calibration, (doc,), {"run_id": run_id, "activate": True})
-    summary = {**summary, "run_id": run_id, "robot": s.robot, "trace_sha256": shas,
+    summary = {**summary, "run_id": run_id, "robot": s.robot, "trace_sha256": shas, "warnings": warnings,
                "compute_s": time.monotonic() - t0}
     publish = OutboxMessage(result_topic) if result_topic else None
     yield m.Call("record result", store.record_result, (run_id, summary, shas), {"publish": publish})

@@ -87,7 +87,7 @@ def measurement_plan(
     result_topic: str | None = None,
 ) -> m.Plan:
     """The measurement run as a plan (see the module docstring); returns the stored result (or None in a dry run)."""
-    yield from prepare(s, inputs)
+    warnings = yield from prepare(s, inputs)
     tag = run_id.rsplit("-", 1)[-1][:8].lower()
     outcomes: list[LoopOutcome] = []
     for i in range(1, s.loops + 1):
@@ -110,6 +110,7 @@ def measurement_plan(
         "run_id": run_id,
         "robot": s.robot,
         "trace_sha256": shas,
+        "warnings": [*result.get("warnings", []), *(warnings or [])],
         "controller_copies_deleted": all(o.deleted for o in outcomes),
         "timing": timing_summary(outcomes, compute_s),
     }

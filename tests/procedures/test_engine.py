@@ -122,7 +122,7 @@ async def test_dry_run_sends_nothing(sim, krc, cfg, store: Store, settings):
     engine.subscribe(lambda ev: pushed.append(ev.message) if ev.kind == "step" else None)
     result = await engine.run(measurement_plan(store, "dry-run", archive / "dry-run", archive, settings, {}))
     assert result is None
-    assert "warm-up move, 1 cycles" in pushed and "loop 2/2" in pushed
+    assert "warm-up move, run 1 (1 cycles)" in pushed and "loop 2/2" in pushed
     assert not (sim.share_dir / "R1" / "PROGRAM").exists() or not any((sim.share_dir / "R1" / "PROGRAM").iterdir())
     assert not (sim.share_dir / "TRACE").exists() or not any((sim.share_dir / "TRACE").iterdir())
     assert sim.store.read("$AXIS_ACT") == axes_before and sim.moves == 0
@@ -157,8 +157,8 @@ async def test_refused_program_never_reaches_the_controller(sim, krc, cfg, setti
     assert sim.moves == 0 and sim.store.read("$PRO_STATE1") == "#P_FREE"
 
 
-async def test_trace_files_left_when_no_delete(sim, krc, cfg, store: Store, settings, tmp_path):
-    """Without a mounted share there is no delete on the link: the copies stay on the controller, and that is said."""
+async def test_trace_files_deleted_over_the_link_without_a_share(sim, krc, cfg, store: Store, settings, tmp_path):
+    """Without a mounted share the engine deletes the controller's copies with #23, after archiving them."""
     engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=Monitor(krc), share_dir=None)
 
     def plan() -> m.Plan:
@@ -171,6 +171,6 @@ async def test_trace_files_left_when_no_delete(sim, krc, cfg, store: Store, sett
         return pulled
 
     pulled = await engine.run(plan())
-    assert pulled.deleted is False and "left on the controller" in pulled.delete_note
-    on_controller = sorted(p.name for p in (sim.share_dir / "TRACE").iterdir() if p.name.startswith("keep_me_"))
-    assert on_controller == sorted(f.path.name for f in pulled.files) and len(on_controller) >= 4
+    assert pulled.deleted is True and pulled.delete_note == "deleted over the link"
+    assert not [p for p in (sim.share_dir / "TRACE").iterdir() if p.name.startswith("keep_me_")]
+    assert len(pulled.files) >= 4 and all(f.path.is_file() for f in pulled.files)
