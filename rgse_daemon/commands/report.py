@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from rgse_daemon.config import load_config
+from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import ConfigError, DataError, RgseError
 from rgse_daemon.report import build_report
 from rgse_daemon.store import Repository
@@ -25,15 +25,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", type=Path, metavar="FILE")
 
 
-def run(args: argparse.Namespace) -> int:
-    if (args.run_id is None) == (args.calibration is None):
+def write(cfg: Config, *, run_id: str | None = None, calibration_id: str | None = None,
+          out_dir: Path | None = None) -> Path:
+    """Write the report of ``run_id`` or ``calibration_id`` from ``cfg``'s store; returns the HTML file's path."""
+    if (run_id is None) == (calibration_id is None):
         raise DataError("give either RUN_ID or --calibration ID")
-    cfg = load_config(args.config)
     data_dir = cfg.paths.data_dir
-    out_dir = args.out if args.out is not None else data_dir / "reports"
     with Repository.open(cfg.store.url, data_dir) as repo:
-        path = build_report(repo, data_dir, out_dir, run_id=args.run_id, calibration_id=args.calibration)
-    print(path)
+        return build_report(repo, data_dir, out_dir if out_dir is not None else data_dir / "reports",
+                            run_id=run_id, calibration_id=calibration_id)
+
+
+def run(args: argparse.Namespace) -> int:
+    print(write(load_config(args.config), run_id=args.run_id, calibration_id=args.calibration, out_dir=args.out))
     return 0
 
 
