@@ -175,6 +175,11 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
         "robot_time_s": robot_wall_s * TIME_SCALE,
         "overhead_s": overhead_s,
         "overhead_pct_of_robot_time": 100.0 * overhead_s / (robot_wall_s * TIME_SCALE),
+        # per loop: robot time as the real robot would need it (simulated time), daemon overhead in wall time (pull,
+        # archive, store), plus the run's one-off computation of the mass
+        "per_loop": [{"robot_s": float(lp["robot_s"]) * TIME_SCALE, "overhead_s": float(lp["overhead_s"]),
+                      "pull_s": float(lp["pull_s"]), "store_s": float(lp["store_s"])} for lp in timing["per_loop"]],
+        "compute_s": float(timing["compute_s"]),
         "time_scale": TIME_SCALE,
         "run_id": result["run_id"],
         "calibration": {
