@@ -23,6 +23,7 @@ from rgse_daemon.trace.diadem import read_trace_set
 MODULE_A3 = "NextGenDrive#3"
 MODULE_A5 = "NextGenDrive#5"
 TORQUE_CHANNEL = "Istmoment"
+TEMPERATURE_CHANNEL = "Motortemperatur"
 KINDS = ("zero", "mass", "torque")
 #: Standard uncertainty of one weighed calibration body, kg, when the manifest states none (optional field).
 DEFAULT_BODY_MASS_U_KG = 0.01
@@ -74,6 +75,9 @@ class Loop:
     torque_a3_nm: np.ndarray
     torque_a5_nm: np.ndarray
     period_s: float
+    motor_temp_a3_k: float | None = None
+    """Mean ``Motortemperatur`` of A3 over the trace (K); None when the trace did not record it."""
+    motor_temp_a5_k: float | None = None
 
 
 @dataclass
@@ -176,7 +180,29 @@ def read_loop(directory: Path | str, trace: str) -> Loop:
             raise DataError(f"{tf.dat_path}: torque channel {TORQUE_CHANNEL!r} holds NaN or infinite values")
     if f3.period_s != f5.period_s or a3.size != a5.size:
         raise DataError(f"{f5.dat_path}: sample period or length differs from {f3.dat_path.name}")
-    return Loop(trace, a3, a5, float(f3.period_s))
+    return Loop(trace, a3, a5, float(f3.period_s), _mean_temperature_k(f3), _mean_temperature_k(f5))
+
+
+def _mean_temperature_k(tf: Any) -> float | None:
+    """Mean of the drive's ``Motortemperatur`` channel (K), None if absent; implausible values are a DataError."""
+    ch = tf.channels.get(TEMPERATURE_CHANNEL)
+    if ch is None:
+        return None
+    values = np.asarray(ch.values, float)
+    if values.size == 0 or not np.all(np.isfinite(values)) or values.min() < 200.0 or values.max() > 450.0:
+        raise DataError(f"{tf.dat_path}: channel {TEMPERATURE_CHANNEL!r} is not a motor temperature in K "
+                        f"(expected finite values within 200..450 K)")
+    return float(values.mean())
+
+
+def thermal_state_k(loops: list[Loop]) -> dict[str, float] | None:
+    """Mean A3 and A5 motor temperature over ``loops`` (K): the thermal state the torques were measured in; None
+    when any loop lacks the channel."""
+    t3 = [lp.motor_temp_a3_k for lp in loops]
+    t5 = [lp.motor_temp_a5_k for lp in loops]
+    if not loops or any(t is None for t in t3 + t5):
+        return None
+    return {"A3": float(np.mean(t3)), "A5": float(np.mean(t5))}
 
 
 def read_loops(directory: Path | str, traces: tuple[str, ...]) -> list[Loop]:

@@ -12,11 +12,14 @@ import numpy as np
 
 from rgse_daemon import calfile
 from rgse_daemon.errors import DataError
-from rgse_daemon.manifest import Loop, load_manifest, read_loops
+from rgse_daemon.manifest import Loop, load_manifest, read_loops, thermal_state_k
 from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import Calibration
+
+#: Largest accepted difference between the measurement's and the calibration's mean A3/A5 motor temperature (K).
+THERMAL_MISMATCH_K = 3.0
 
 
 @dataclass
@@ -33,13 +36,15 @@ class MassResult:
     method: str
     warnings: list[str] = field(default_factory=list)
     u_components_kg: dict[str, float] = field(default_factory=dict)
+    motor_temp_k: dict[str, float] | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {"mass_kg": self.mass_kg, "u_kg": self.u_kg, "U_kg": self.U_kg, "k": int(unc.COVERAGE_K),
                 "gross_mass_kg": self.gross_mass_kg, "fixture_mass_kg": self.fixture_mass_kg, "loops": self.loops,
                 "samples_used": self.samples_used, "samples_total": self.samples_total,
                 "calibration_id": self.calibration_id, "method": self.method, "cog_m": None,
-                "warnings": self.warnings, "u_components_kg": self.u_components_kg}
+                "warnings": self.warnings, "u_components_kg": self.u_components_kg,
+                "motor_temp_k": self.motor_temp_k}
 
 
 def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: pp.Preprocessing,
@@ -72,7 +77,25 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
                      calfile.alternatives(calibration_path, doc, cal))
     if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
         result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
+    result.motor_temp_k = thermal_state_k(loops)
+    mismatch = thermal_mismatch(result.motor_temp_k, doc.get("thermal_state_k"))
+    if mismatch is not None:
+        result.warnings.append(mismatch)
     return result
+
+
+def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any) -> str | None:
+    """A warning when the A3/A5 motor temperatures of the measurement differ from the calibration campaign's by more
+    than :data:`THERMAL_MISMATCH_K` (the torque estimate drifts with motor temperature; U does not model it)."""
+    if measured_k is None or not isinstance(calibration_k, dict):
+        return None
+    diffs = {ax: measured_k[ax] - float(calibration_k[ax]) for ax in ("A3", "A5") if ax in calibration_k}
+    off = {ax: d for ax, d in diffs.items() if abs(d) > THERMAL_MISMATCH_K}
+    if not off:
+        return None
+    text = ", ".join(f"{ax} {d:+.1f} K" for ax, d in off.items())
+    return (f"motor temperatures differ from the calibration campaign's ({text}; limit {THERMAL_MISMATCH_K:g} K): "
+            f"warm up until steady, or re-calibrate")
 
 
 def run(args: argparse.Namespace) -> int:
