@@ -17,6 +17,9 @@ from pathlib import Path
 
 from rgse_daemon import __version__
 from rgse_daemon.errors import ConfigError, DataError, KrlSyntaxError, RgseError
+from rgse_daemon.logs import ENV_VAR as LOG_FORMAT_ENV
+from rgse_daemon.logs import FORMATS as LOG_FORMATS
+from rgse_daemon.logs import choose_format, setup_logging
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -35,6 +38,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"rgse {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks and debug logs")
     parser.add_argument("-v", "--verbose", action="store_true", help="info logs on stderr")
+    parser.add_argument(
+        "--log-format", choices=LOG_FORMATS, default=None,
+        help=f"log lines on stderr: text, journal (systemd priority prefixes), json (one object a line); auto "
+        f"(default) is journal when stderr is the journal, else text; overrides ${LOG_FORMAT_ENV}",
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("demo", help="calibration campaign + in-line measurement on the built-in simulator")
@@ -119,11 +127,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.debug else logging.INFO if args.verbose else logging.WARNING,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-        stream=sys.stderr,
-    )
+    try:
+        log_format = choose_format(args.log_format)
+    except ValueError as exc:
+        print(f"rgse: error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    setup_logging(logging.DEBUG if args.debug else logging.INFO if args.verbose else logging.WARNING, log_format)
     module = importlib.import_module(f"rgse_daemon.commands.{args.command}")
     try:
         return int(module.run(args))
