@@ -301,7 +301,7 @@ class Monitor:
                 watcher, detail = found
                 trip = InterlockTrip(watcher.name, watcher.message, detail)
                 self.trip = trip
-                _log.error("%s", trip)
+                _log.error("%s", trip, extra={"watcher": watcher.name, "detail": detail})
                 await self.make_safe(snap)
                 self.stats.trip_latency_s = time.monotonic() - t0
                 on_trip(trip)
@@ -316,11 +316,13 @@ class Monitor:
                 await asyncio.wait_for(self.krc.stop_program(), self.stop_timeout_s)
             except (TimeoutError, RgseError) as exc:
                 self.stats.stop_errors.append(f"stop program: {exc!r}")
-                _log.error("interlock: could not stop the program: %r", exc)
+                _log.error("interlock: could not stop the program: %r", exc,
+                           extra={"watcher": self.trip.watcher if self.trip else None})
         trace_state = snap.trace_state if snap is not None else None
         if trace_state is None or trace_state in TRACE_ACTIVE_STATES:
             try:
                 await asyncio.wait_for(self.krc.write_raw("$TRACE.MODE", "#T_STOP"), self.stop_timeout_s)
             except (TimeoutError, RgseError) as exc:
                 self.stats.stop_errors.append(f"stop trace: {exc!r}")
-                _log.error("interlock: could not stop the trace: %r", exc)
+                _log.error("interlock: could not stop the trace: %r", exc,
+                           extra={"watcher": self.trip.watcher if self.trip else None})
