@@ -11,6 +11,9 @@ operations, archive, pipeline, store, outbox) then
 
 It prints true vs measured mass, the expanded uncertainty U (k = 2), and timings: robot time (what the robot needs:
 motion, settling, recording — converted to real time) and daemon overhead (pulling, archiving, computing).
+
+Progress goes to stderr: on a terminal as two bars (the campaign's points × loops, the measurement's loops with their
+estimated time left) under the operator prompts, alarms and results; elsewhere as one plain line per event.
 """
 
 from __future__ import annotations
@@ -22,8 +25,10 @@ import logging
 import sys
 import tempfile
 import time
+from datetime import timedelta
 from pathlib import Path
-from typing import Any
+from types import TracebackType
+from typing import TYPE_CHECKING, Any, Protocol
 from urllib.parse import urlsplit
 
 from rgse_daemon.app import Daemon
@@ -33,8 +38,13 @@ from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.procedures.calibration import table1_points
 from rgse_daemon.procedures.common import RunSettings
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.progress import new_progress, running, terminal_console
 from simulators.krc4.physics import dut_payload, mass_calibration_payload, torque_calibration_payload
 from simulators.krc4.process import SimProcess
+
+if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.progress import Progress
 
 log = logging.getLogger(__name__)
 
@@ -83,13 +93,107 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None) -> Config
     )
 
 
-class Operator:
-    """The simulated lab operator: mounts the load the daemon asks for, then confirms; prints progress."""
+#: Events shown as a line of their own (on a terminal, loop events move the bars instead).
+MESSAGE_KINDS = ("confirm", "alarm", "result")
 
-    def __init__(self, sim: SimProcess, daemon_ref: list[Daemon], quiet: bool) -> None:
+
+class View(Protocol):
+    """Where the demo's progress goes (stderr): a context manager taking notes and engine events."""
+
+    def __enter__(self) -> View: ...
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None: ...
+
+    def note(self, text: str) -> None: ...
+
+    def event(self, ev: Event) -> None: ...
+
+
+class SilentView:
+    """Quiet (``--json``, the bench) off a terminal: nothing on stderr."""
+
+    def __enter__(self) -> SilentView:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        return None
+
+    def note(self, text: str) -> None:
+        return None
+
+    def event(self, ev: Event) -> None:
+        return None
+
+
+class PlainView(SilentView):
+    """Off a terminal: one plain line per note and per message or loop event (tests and CI logs read them)."""
+
+    def note(self, text: str) -> None:
+        print(text, file=sys.stderr, flush=True)
+
+    def event(self, ev: Event) -> None:
+        if ev.kind in (*MESSAGE_KINDS, "loop"):
+            self.note(f"  [{ev.kind}] {ev.message}")
+
+
+class BarsView:
+    """On a terminal: a bar for the calibration campaign (points × loops) and one for the measurement's loops (with
+    the time left the loop events estimate); notes and confirm/alarm/result messages are printed above the bars."""
+
+    def __init__(self, console: Console, campaign_loops: int, measurement_loops: int) -> None:
+        from rich.progress import TextColumn
+
+        self.progress: Progress = new_progress(console, TextColumn("{task.fields[eta]}"))
+        self.campaign = self.progress.add_task("calibration campaign", total=campaign_loops, eta="")
+        self.measurement = self.progress.add_task("in-line measurement", total=measurement_loops, eta="",
+                                                  start=False)
+        self._running = running(self.progress)
+
+    def __enter__(self) -> BarsView:
+        self._running.__enter__()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self._running.__exit__(exc_type, exc, tb)
+
+    def note(self, text: str, style: str | None = None) -> None:
+        self.progress.console.print(text, style=style, markup=False, highlight=False)
+
+    def event(self, ev: Event) -> None:
+        if ev.kind in MESSAGE_KINDS:
+            self.note(f"  [{ev.kind}] {ev.message}", style="bold red" if ev.kind == "alarm" else None)
+        if ev.kind not in ("step", "loop") or ev.loop_index is None or ev.loop_count is None:
+            return
+        if "point_index" in ev.data:  # a campaign loop: point i's loop j is loop i·n + j of the campaign
+            if ev.kind == "loop":
+                self.progress.update(self.campaign, completed=ev.data["point_index"] * ev.loop_count + ev.loop_index,
+                                     refresh=True)
+            return
+        self.progress.start_task(self.measurement)  # its first loop began (a no-op after that)
+        if ev.kind == "loop":
+            eta = "" if ev.eta_s is None else f"eta {timedelta(seconds=round(ev.eta_s))}"
+            self.progress.update(self.measurement, completed=ev.loop_index, total=ev.loop_count, eta=eta,
+                                 refresh=True)
+
+
+def demo_view(*, quiet: bool, bars: bool) -> View:
+    """Bars if ``bars`` and stderr is an interactive terminal; else plain lines, or nothing if ``quiet``."""
+    console = terminal_console() if bars else None
+    if console is not None:
+        return BarsView(console, len(CAMPAIGN) * CAMPAIGN_LOOPS, MEASUREMENT_LOOPS)
+    return SilentView() if quiet else PlainView()
+
+
+class Operator:
+    """The simulated lab operator: mounts the load the daemon asks for, then confirms; shows progress on ``view``."""
+
+    def __init__(self, sim: SimProcess, daemon_ref: list[Daemon], view: View) -> None:
         self.sim = sim
         self.daemon_ref = daemon_ref
-        self.quiet = quiet
+        self.view = view
         self._tasks: set[asyncio.Task[None]] = set()
 
     def __call__(self, ev: Event) -> None:
@@ -97,8 +201,7 @@ class Operator:
             task = asyncio.get_running_loop().create_task(self._mount_and_confirm(dict(ev.data)))
             self._tasks.add(task)
             task.add_done_callback(self._tasks.discard)
-        if not self.quiet and ev.kind in ("confirm", "loop", "alarm", "result"):
-            print(f"  [{ev.kind}] {ev.message}", file=sys.stderr, flush=True)
+        self.view.event(ev)
 
     async def _mount_and_confirm(self, d: dict[str, Any]) -> None:
         if d.get("kind") == "torque":
@@ -119,9 +222,11 @@ async def _wait(task: asyncio.Task[Any], what: str) -> Any:
         raise RgseError(f"demo: {what} did not finish within {DEADLINE_S:.0f} s") from exc
 
 
-async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None) -> dict[str, Any]:
+async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None, bars: bool = False
+                   ) -> dict[str, Any]:
+    """The demo; progress on stderr: bars on a terminal if ``bars``, else plain lines unless ``quiet``."""
     t_start = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="rgse-demo-") as tmp:
+    with demo_view(quiet=quiet, bars=bars) as view, tempfile.TemporaryDirectory(prefix="rgse-demo-") as tmp:
         root = Path(tmp)
         # the simulated controller in its own process, as a real KR C4 is its own machine: its CPU work must not
         # stall the daemon's event loop and its 20 Hz interlock monitor
@@ -130,15 +235,14 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
         try:
             cfg = demo_config(sim, root / "data", mqtt_url)
             ref: list[Daemon] = []
-            daemon = Daemon(cfg, on_event=Operator(sim, ref, quiet))
+            daemon = Daemon(cfg, on_event=Operator(sim, ref, view))
             ref.append(daemon)
             stop = asyncio.Event()
             service = asyncio.create_task(daemon.run(stop), name="rgse-demo-daemon")
             try:
                 async with asyncio.timeout(30):
                     await daemon.connected.wait()
-                if not quiet:
-                    print(f"calibration campaign: {len(CAMPAIGN)} points x {CAMPAIGN_LOOPS} loops", file=sys.stderr)
+                view.note(f"calibration campaign: {len(CAMPAIGN)} points x {CAMPAIGN_LOOPS} loops")
                 t0 = time.monotonic()
                 cal_settings = RunSettings.from_config(cfg, loops=CAMPAIGN_LOOPS, warmup_cycles=1)
                 calibration = await _wait(
@@ -148,8 +252,7 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
                 t_cal = time.monotonic() - t0
                 dut = dut_payload(DUT_MASS_KG, DUT_COG_M, fixture_mass_kg=FIXTURE_MASS_KG)
                 await sim.mount(dut)
-                if not quiet:
-                    print(f"in-line measurement: {MEASUREMENT_LOOPS} loops", file=sys.stderr)
+                view.note(f"in-line measurement: {MEASUREMENT_LOOPS} loops")
                 t0 = time.monotonic()
                 result = await _wait(await daemon.start_measurement(), "the measurement run")
                 t_meas = time.monotonic() - t0
@@ -202,7 +305,7 @@ async def _write_report(cfg: Config, run_id: str, out: Path) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    summary = asyncio.run(run_demo(quiet=args.json, report_dir=args.report, mqtt_url=args.mqtt))
+    summary = asyncio.run(run_demo(quiet=args.json, report_dir=args.report, mqtt_url=args.mqtt, bars=True))
     if args.json:
         print(json.dumps(summary))
         return 0

@@ -3,6 +3,8 @@
 With ``--campaign`` the whole grid crop σ × filter × window × order is run on the campaign's traces and each
 combination is ranked by the mass error of the paper's calibration method. With ``--points`` (pre-averaged
 torques, nothing left to pre-process) the calibration models are ranked by their leave-one-out error.
+
+On a terminal, progress bars on stderr follow the loops, combinations or models; stdout carries only the result.
 """
 
 from __future__ import annotations
@@ -12,8 +14,8 @@ import json
 
 from rgse_daemon.commands.calibrate import load_campaign, points_from_raw
 from rgse_daemon.manifest import load_points_csv
-from rgse_daemon.pipeline import calibration as cal_mod
-from rgse_daemon.pipeline.study import StudyGrid, run_study
+from rgse_daemon.pipeline.study import StudyGrid, rank_models, run_study
+from rgse_daemon.progress import stage_progress
 
 TOP_ROWS = 20
 
@@ -21,7 +23,8 @@ TOP_ROWS = 20
 def run(args: argparse.Namespace) -> int:
     if args.points is not None:
         points = load_points_csv(args.points)
-        evs = sorted(cal_mod.evaluate_all(points, 9.81, 1.025), key=lambda e: e.loo_mean_abs_err_pct)
+        with stage_progress() as progress:
+            evs = rank_models(points, 9.81, 1.025, progress)
         rows = [{"method": e.method, "n_params": e.n_params, "in_sample_mean_abs_err_pct": e.in_sample_mean_abs_err_pct,
                  "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg}
                 for e in evs]
@@ -36,8 +39,9 @@ def run(args: argparse.Namespace) -> int:
     data = load_campaign(args.campaign)
     setup = data.manifest.setup
     grid = StudyGrid()
-    result = run_study(data.loops, lambda r3, r5: points_from_raw(data.manifest, r3, r5)[0], grid,
-                       "paper", setup.g_m_s2, setup.lever_difference_m)
+    with stage_progress() as progress:
+        result = run_study(data.loops, lambda r3, r5: points_from_raw(data.manifest, r3, r5)[0], grid,
+                           "paper", setup.g_m_s2, setup.lever_difference_m, progress)
     if args.json:
         print(json.dumps({"kind": "preprocessing", "method": "paper", "combinations": grid.size,
                           "rows": [r.to_dict() for r in result]}))

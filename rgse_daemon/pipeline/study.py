@@ -2,7 +2,9 @@
 (× location), each combination ranked by the mass error of the calibration it leads to.
 
 Per loop and per (crop, filter, order) all windows are processed at once (:func:`preprocess.filtered_rows`);
-the calibration is then fitted once per combination.
+the calibration is then fitted once per combination. With pre-averaged points (nothing left to pre-process) the
+calibration models are ranked instead (:func:`rank_models`). An optional ``progress(stage, done, total)`` hears of
+every loop, combination or model finished.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import numpy as np
 
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.progress import ProgressFn
 
 #: Largest running-median window the study tries: its cost grows with the window (the paper's study found the
 #: moving average best; the median is a robust comparison, not worth seconds per loop at 5000 samples).
@@ -21,6 +24,11 @@ MEDIAN_MAX_WINDOW = 501
 
 #: One loop: (A3 torque samples, A5 torque samples, sample period in s).
 LoopData = tuple[np.ndarray, np.ndarray, float]
+
+#: Progress stages (the bars' descriptions).
+STAGE_LOOPS = "pre-processing loops"
+STAGE_COMBINATIONS = "fitting combinations"
+STAGE_MODELS = "fitting models (LOO)"
 
 
 @dataclass(frozen=True)
@@ -86,13 +94,14 @@ def loop_grid_rows(values: np.ndarray, period_s: float, grid: StudyGrid, settle_
     return out
 
 
-def point_torques(points_loops: Sequence[Sequence[LoopData]], grid: StudyGrid
+def point_torques(points_loops: Sequence[Sequence[LoopData]], grid: StudyGrid, progress: ProgressFn | None = None
                   ) -> dict[tuple, tuple[np.ndarray, np.ndarray]]:
     """Eq. 16 point torques (raw, not yet bias-normalised) for every combination of the grid.
 
     Returns ``{(crop, filter, order, location): (raw_a3, raw_a5)}`` with arrays of shape (n_windows, n_points).
     """
     n_points = len(points_loops)
+    n_loops, done = sum(len(loops) for loops in points_loops), 0
     out: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
     for crop in grid.crop_sigmas:
         for filt in grid.filters:
@@ -106,27 +115,52 @@ def point_torques(points_loops: Sequence[Sequence[LoopData]], grid: StudyGrid
                 for (crop, filt, order), rows in loop_grid_rows(values, dt, grid).items():
                     for loc in grid.locations:  # eq. 16: the outer average over the point's loops
                         out[(crop, filt, order, loc)][axis][:, j] += pp.location_rows(rows, loc) / len(loops)
+            done += 1
+            if progress is not None:
+                progress(STAGE_LOOPS, done, n_loops)
     return out
 
 
 def run_study(points_loops: Sequence[Sequence[LoopData]],
               to_points: Callable[[np.ndarray, np.ndarray], cal_mod.CalibrationPoints],
               grid: StudyGrid = StudyGrid(), method: str = "paper", g_m_s2: float = 9.81,
-              lever_difference_m: float = 1.025) -> list[StudyRow]:
+              lever_difference_m: float = 1.025, progress: ProgressFn | None = None) -> list[StudyRow]:
     """Every grid combination, ranked by the in-sample mean absolute mass error of ``method`` (as Table A2).
 
     ``to_points(raw_a3, raw_a5)`` turns eq. 16 point torques into bias-normalised calibration points.
     """
     rows = []
-    for (crop, filt, order, loc), (raw3, raw5) in point_torques(points_loops, grid).items():
+    done = 0
+    for (crop, filt, order, loc), (raw3, raw5) in point_torques(points_loops, grid, progress).items():
         for i, window in enumerate(filter_windows(grid, filt)):
             points = to_points(raw3[i], raw5[i])
             try:
                 cal = cal_mod.fit(points, method, g_m_s2, lever_difference_m)
             except cal_mod.CalibrationError:
-                continue
-            err = cal_mod.mean_abs_pct(points.mass_kg, cal.mass_kg(points.torque_a3_nm, points.torque_a5_nm))
-            rows.append(StudyRow(crop, filt, int(window), order, loc, err, cal.r2.get("A3", float("nan")),
-                                 cal.r2.get("A5", float("nan"))))
+                cal = None  # not fittable with this pre-processing: not ranked
+            if cal is not None:
+                err = cal_mod.mean_abs_pct(points.mass_kg, cal.mass_kg(points.torque_a3_nm, points.torque_a5_nm))
+                rows.append(StudyRow(crop, filt, int(window), order, loc, err, cal.r2.get("A3", float("nan")),
+                                     cal.r2.get("A5", float("nan"))))
+            done += 1
+            if progress is not None:
+                progress(STAGE_COMBINATIONS, done, grid.size)
     rows.sort(key=lambda r: r.mass_err_pct)
     return rows
+
+
+def rank_models(points: cal_mod.CalibrationPoints, g_m_s2: float = 9.81, lever_difference_m: float = 1.025,
+                progress: ProgressFn | None = None) -> list[cal_mod.Evaluation]:
+    """Every model of the catalogue that can be fitted to ``points`` (as :func:`calibration.evaluate_all`), ranked
+    by its leave-one-out mean absolute mass error."""
+    evaluations = []
+    for done, name in enumerate(cal_mod.MODELS, 1):
+        try:
+            evaluations.append(cal_mod.evaluate(points, name, g_m_s2, lever_difference_m))
+        except cal_mod.CalibrationError:
+            pass
+        if progress is not None:
+            progress(STAGE_MODELS, done, len(cal_mod.MODELS))
+    if not evaluations:
+        raise cal_mod.CalibrationError("no calibration model can be fitted to these points (too few loaded points)")
+    return sorted(evaluations, key=lambda e: e.loo_mean_abs_err_pct)
