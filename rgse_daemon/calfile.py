@@ -21,8 +21,9 @@ SCHEMA = 1
 def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, bias_a3_nm: float,
           bias_a5_nm: float, in_sample_pct: float, loo_pct: float, loo_max_kg: float,
           source_sha256: dict[str, str], extra_fit: dict[str, Any] | None = None,
-          g_u_m_s2: float = 0.0) -> dict[str, Any]:
-    """The CAL.json document of a fitted calibration; ``calibration_id`` is a hash of its content."""
+          g_u_m_s2: float = 0.0, thermal_state_k: dict[str, float] | None = None) -> dict[str, Any]:
+    """The CAL.json document of a fitted calibration; ``calibration_id`` is a hash of its content.
+    ``thermal_state_k``: mean A3/A5 motor temperature of the campaign's traces (K), if they recorded it."""
     doc: dict[str, Any] = {
         "schema": SCHEMA,
         "calibration_id": "",
@@ -48,6 +49,8 @@ def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, 
         },
         "source_sha256": source_sha256,
     }
+    if thermal_state_k is not None:
+        doc["thermal_state_k"] = {k: float(v) for k, v in thermal_state_k.items()}
     body = json.dumps({k: v for k, v in doc.items() if k not in ("calibration_id", "created_utc")}, sort_keys=True)
     doc["calibration_id"] = hashlib.sha256(body.encode()).hexdigest()[:16]
     return doc

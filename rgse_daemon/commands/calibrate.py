@@ -13,7 +13,7 @@ import numpy as np
 
 from rgse_daemon import calfile
 from rgse_daemon.errors import DataError
-from rgse_daemon.manifest import Manifest, load_manifest, load_points_csv, read_loops, source_sha256
+from rgse_daemon.manifest import Manifest, load_manifest, load_points_csv, read_loops, source_sha256, thermal_state_k
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
@@ -30,6 +30,8 @@ class CampaignData:
     manifest: Manifest
     loops: list[list[tuple[np.ndarray, np.ndarray, float]]]
     files: list[Path]
+    thermal_state_k: dict[str, float] | None = None
+    """Mean A3/A5 motor temperature over every loop (K), when the traces recorded it."""
 
 
 def load_campaign(directory: Path) -> CampaignData:
@@ -39,10 +41,13 @@ def load_campaign(directory: Path) -> CampaignData:
     if not any(p.kind == "zero" for p in man.points):
         raise DataError(f"{man.path}: a calibration campaign needs a 'zero' point (the M_0 bias)")
     loops = []
+    every_loop = []
     for spec in man.points:
-        loops.append([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in read_loops(directory, spec.traces)])
+        point_loops = read_loops(directory, spec.traces)
+        every_loop += point_loops
+        loops.append([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point_loops])
     files = [man.path, *sorted(p for p in Path(directory).iterdir() if p.suffix in (".dat", ".r64"))]
-    return CampaignData(man, loops, files)
+    return CampaignData(man, loops, files, thermal_state_k(every_loop))
 
 
 def campaign_points(data: CampaignData, cfg: pp.Preprocessing) -> tuple[CalibrationPoints, float, float]:
@@ -98,7 +103,8 @@ def plausible_alternatives(points: CalibrationPoints, chosen: cal_mod.Evaluation
 
 def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, robot: str,
               pre: pp.Preprocessing | None, bias3: float, bias5: float, g_u: float,
-              sources: dict[str, str], where: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+              sources: dict[str, str], where: Path,
+              thermal: dict[str, float] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit and describe a calibration: (CAL.json document, the ``--json`` summary). One code path for the CLI and
     the daemon's campaign, so a stored calibration is always reproducible from its campaign directory."""
     try:
@@ -110,7 +116,7 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
                         loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
                         extra_fit={"n_points": len(points), "loo_residual_rms_rel": loo_rms_rel(points, chosen),
                                    "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr)},
-                        g_u_m_s2=g_u)
+                        g_u_m_s2=g_u, thermal_state_k=thermal)
     summary = {
         "calibration_id": doc["calibration_id"],
         "method": cal.method,
@@ -134,7 +140,7 @@ def fit_campaign(directory: Path, method: str) -> tuple[dict[str, Any], dict[str
     setup = data.manifest.setup
     return calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot, pre=pre,
                      bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2, sources=source_sha256(data.files),
-                     where=directory)
+                     where=directory, thermal=data.thermal_state_k)
 
 
 def run(args: argparse.Namespace) -> int:

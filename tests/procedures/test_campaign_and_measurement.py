@@ -78,7 +78,10 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     err_kg = abs(result["mass_kg"] - DUT_MASS_KG)
     assert err_kg <= result["U_kg"], f"measured {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f}, true {DUT_MASS_KG}"
     assert summary["warnings"] == [], summary["warnings"]
-    assert not [w for w in result["warnings"] if w.startswith("warm-up")], result["warnings"]
+    assert not [w for w in result["warnings"] if w.startswith(("warm-up", "motor temperatures"))], result["warnings"]
+    # the thermal state of calibration and measurement, from the traces' Motortemperatur: the same within 3 K
+    assert cal.document["thermal_state_k"]["A3"] > 300.0
+    assert abs(result["motor_temp_k"]["A3"] - cal.document["thermal_state_k"]["A3"]) <= 3.0
     assert result["calibration_id"] == cal.id and result["loops"] == 3
 
     # raw files: archived, hashed, indexed, reproducible; controller copies gone
@@ -104,6 +107,12 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     assert [(e.loop_index, e.loop_count) for e in loops] == [(1, 3), (2, 3), (3, 3)]
     assert loops[-1].eta_s == 0.0 and all(e.data["robot_s"] > 0 and e.data["overhead_s"] > 0 for e in loops)
     assert next(e for e in events if e.kind == "result").data["mass_kg"] == result["mass_kg"]
+    # the same DuT after an hour with the brakes applied, measured without a warm-up: the result says so
+    sim.model.apply_brakes(3600.0)
+    cold = await run_measurement(engine, store, cfg, settings=short(cfg, loops=1, trace_samples=300, warmup_cycles=0))
+    assert cold is not None
+    assert any(w.startswith("motor temperatures differ from the calibration campaign's (A3 -") for w in
+               cold["warnings"]), cold["warnings"]
     timing = result["timing"]
     print(f"\nper loop: robot {timing['robot_time_s'] / 3:.3f} s, overhead {timing['overhead_s'] / 3:.3f} s (wall);"
           f" mass {result['mass_kg']:.3f} ± {result['U_kg']:.3f} kg, true {DUT_MASS_KG}")
