@@ -172,14 +172,16 @@ class Events:
 
     async def wait_for(self, predicate: Callable[[Event], bool], what: str, timeout_s: float = WAIT_S) -> Event:
         """The first event (seen so far or coming) for which ``predicate`` holds."""
-        async with asyncio.timeout(timeout_s):
-            while True:
-                for ev in self.events:
-                    if predicate(ev):
-                        return ev
-                self._changed.clear()
-                await self._changed.wait()
-        raise AssertionError(what)  # pragma: no cover - the timeout raises first
+        try:
+            async with asyncio.timeout(timeout_s):
+                while True:
+                    for ev in self.events:
+                        if predicate(ev):
+                            return ev
+                    self._changed.clear()
+                    await self._changed.wait()
+        except TimeoutError:
+            raise AssertionError(f"{what}: not within {timeout_s:g} s") from None
 
 
 async def command(peer: Collector, verb: str, body: dict[str, Any], timeout_s: float = WAIT_S) -> dict[str, Any]:
@@ -226,7 +228,7 @@ class StayingSubscriber:
 
     async def __aenter__(self) -> Self:
         self._task = asyncio.create_task(self._run(), name="staying-subscriber")
-        await self._wait(lambda: self._client is not None, "the staying subscriber connected", WAIT_S)
+        await self.wait_until(lambda: self._client is not None, "the staying subscriber connected")
         return self
 
     async def __aexit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
@@ -258,7 +260,8 @@ class StayingSubscriber:
                 self._client = None
             await asyncio.sleep(0.05)  # reconnect backoff while the broker is away
 
-    async def _wait(self, predicate: Callable[[], bool], what: str, timeout_s: float) -> None:
+    async def wait_until(self, predicate: Callable[[], bool], what: str, timeout_s: float = WAIT_S) -> None:
+        """Until ``predicate`` holds (checked whenever a message arrived or the connection changed)."""
         try:
             async with asyncio.timeout(timeout_s):
                 while not predicate():
@@ -272,7 +275,7 @@ class StayingSubscriber:
         token = uuid.uuid4().hex
         async with asyncio.timeout(timeout_s):
             while True:
-                await self._wait(lambda: self._client is not None, "the staying subscriber connected", timeout_s)
+                await self.wait_until(lambda: self._client is not None, "the staying subscriber connected", timeout_s)
                 client = self._client
                 assert client is not None
                 try:
@@ -280,7 +283,7 @@ class StayingSubscriber:
                     break
                 except aiomqtt.MqttError:
                     continue  # the connection went away under us: publish again on the next one
-        await self._wait(lambda: token in self._seen, "the sentinel came back", timeout_s)
+        await self.wait_until(lambda: token in self._seen, "the sentinel came back", timeout_s)
 
     def on(self, topic: str) -> list[Received]:
         return [m for m in self.messages if m.topic == topic]

@@ -27,7 +27,7 @@ from daemon_helpers import (
     seed_calibration,
 )
 
-from rgse_daemon.app import STOP_TIMEOUT_S, NotConnected, campaign_point
+from rgse_daemon.app import STOP_TIMEOUT_S, Daemon, NotConnected, campaign_point
 from rgse_daemon.errors import InterlockError
 from rgse_daemon.io.commands import CalibrationPoint
 from rgse_daemon.krl.render import globals_dat_text
@@ -176,6 +176,39 @@ async def test_stop_during_a_run_stops_the_program_first_and_marks_the_run(
         assert modbus_sim.light == "off" and not modbus_sim.running
 
 
+async def test_an_interrupted_campaign_continues_after_a_restart(sim: SimulatedKrc4, tmp_path: Path) -> None:
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir, loops=1)
+    points = table1_points(n_bodies=(0, 3), torque_levers_a5_m=(1.011,))
+    first, ref = Events(), []
+    waiting_at_1 = asyncio.Event()
+
+    def operator(ev: Event) -> None:  # mounts and confirms point 0; leaves point 1 waiting
+        if ev.kind == "confirm" and ev.data["point_index"] == 0:
+            sim.mount(mass_calibration_payload(0))
+            asyncio.get_running_loop().call_soon(ref[0].daemon.engine.confirm, "mounted")
+        elif ev.kind == "confirm":
+            waiting_at_1.set()
+
+    first.hooks.append(operator)
+    async with running_daemon(cfg, on_event=first) as rd:
+        ref.append(rd)
+        await rd.daemon.start_calibration(points=points)
+        await first_of(waiting_at_1.wait(), rd.task, "the campaign waits for point 1")
+        run_id = rd.daemon.engine.run_id if rd.daemon.engine else None
+        assert run_id is not None
+    async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
+        assert (await store.get_run(run_id)).state == RunState.INTERRUPTED
+        assert [p.state.value for p in await store.points(run_id)] == ["done", "pending", "pending"]
+
+    # a new daemon on the same store continues the campaign at its first incomplete point
+    second = Events()
+    async with running_daemon(cfg, on_event=second) as rd2:
+        prompt = await second.wait_for(lambda e: e.kind == "confirm", "the continued campaign's first prompt")
+        assert prompt.run_id == run_id and prompt.data["point_index"] == 1 and prompt.data["n_cb"] == 3
+        assert rd2.daemon.run_kind == "calibration" and rd2.daemon.run_active
+    assert (await stored_run(cfg, run_id)).state == RunState.INTERRUPTED  # stopped again, still resumable
+
+
 # --- one run at a time --------------------------------------------------------------------------------------------
 async def test_second_measure_is_refused_busy_with_the_reason_in_the_reply(
         sim: SimulatedKrc4, private_broker: MosquittoProcess, calibration_doc: dict[str, Any],
@@ -266,6 +299,14 @@ async def test_link_loss_then_recovery_reconnects_with_backoff(
 
 
 # --- commands -------------------------------------------------------------------------------------------------------
+def test_controller_backoff_is_exponential_jittered_and_capped(tmp_path: Path) -> None:
+    cfg = daemon_config(tmp_path, controller_port=7000)  # reconnect 0.05 s .. 0.4 s
+    d = Daemon(cfg)
+    for attempt, base in enumerate((0.05, 0.1, 0.2, 0.4, 0.4, 0.4)):
+        delays = [d._backoff_s(attempt) for _ in range(50)]
+        assert all(0.5 * base <= x <= base for x in delays) and len(set(delays)) > 1, attempt
+
+
 def test_calibrate_command_points_map_back_to_what_the_operator_mounts() -> None:
     for p in table1_points():
         got = campaign_point(CalibrationPoint(kind=p.kind, mass_kg=p.mass_kg, lever_a3_m=p.lever_a3_m,  # type: ignore

@@ -124,7 +124,7 @@ async def test_inline_measurement_through_the_daemon_across_a_broker_restart(
             await wait_until(lambda: modbus_sim.light == "green" and not modbus_sim.running, "stack light green after")
 
             # the result reaches the broker once the bridge is back; then the outbox is drained
-            await staying._wait(lambda: bool(staying.on(topic)), "the result at the staying subscriber", 60.0)
+            await staying.wait_until(lambda: bool(staying.on(topic)), "the result at the staying subscriber")
             assert d.store is not None
             deadline = time.monotonic() + 60.0
             while await d.store.pending_outbox():
@@ -166,9 +166,7 @@ async def test_inline_measurement_through_the_daemon_across_a_broker_restart(
             assert abs(out["reference"]["mass_kg"] - (DUT_KG + FIXTURE_KG)) <= SCALE_D_KG
             assert out["comparison"]["inline_net_kg"] == stored.result["mass_kg"]
 
-        # stopped: retained offline, stack light dark
-        (status,) = await retained(host, port, f"{PREFIX}/status")
-        assert json.loads(status.payload)["state"] == "offline"  # type: ignore[arg-type]
+        # stopped: the stack light is dark and "measurement running" off
         assert modbus_sim.light == "off" and not modbus_sim.running
     finally:
         await asyncio.to_thread(sim.stop)
