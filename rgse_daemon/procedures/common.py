@@ -185,6 +185,9 @@ def check_preconditions(snap: Snapshot, inputs: SafetyInputs | None) -> str:
             problems.append(f"AUT needs the area cleared, the AUT key and E-stop OK ({why})")
     elif mode != "T1":
         problems.append(f"$MODE_OP is #{mode}: the RGSE runs in T1 (or AUT with the area cleared)")
+    elif inputs is not None and not (inputs.valid and inputs.estop_ok):
+        problems.append("E-stop chain not OK on the safety I/O module" if inputs.valid else
+                        f"E-stop state unknown: safety inputs invalid ({inputs.reason})")
     if snap.load is None:
         problems.append("$LOAD unreadable")
     elif snap.load.mass_kg != UNKNOWN_PAYLOAD_KG:

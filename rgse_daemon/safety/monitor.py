@@ -152,6 +152,17 @@ def _aut_inputs(obs: Observation, ctx: WatchContext) -> str | None:
     return f"safety inputs not OK in AUT: {', '.join(bad)}" if bad else None
 
 
+def _estop(obs: Observation, ctx: WatchContext) -> str | None:
+    """In every mode, when the safety I/O module is configured: its E-stop chain must read OK, and an unknown state
+    (module unreachable, stale read) is a doubt that stops the run. In T1 the operator works in the cell, so "area
+    cleared" and the AUT key are not required there (``_aut_inputs`` covers AUT)."""
+    if obs.inputs is None:
+        return None
+    if not obs.inputs.valid:
+        return f"E-stop state unknown: safety inputs invalid ({obs.inputs.reason})"
+    return None if obs.inputs.estop_ok else "the safety I/O module reports the E-stop chain open"
+
+
 def _stop2(obs: Observation, ctx: WatchContext) -> str | None:
     assert obs.snapshot is not None
     return "$STOPMESS is TRUE (enabling switch released, STOP 2 or another stop message)" if obs.snapshot.stopmess \
@@ -193,6 +204,7 @@ DEFAULT_WATCHERS: tuple[Watcher, ...] = (
     Watcher("link", "controller link lost or snapshot stale", _link),
     Watcher("mode", "operating mode changed from the allowed one", _mode, ("mode_op",)),
     Watcher("aut_inputs", "automatic mode without E-stop OK, area cleared and key", _aut_inputs, ("mode_op",)),
+    Watcher("estop", "E-stop not OK or unknown on the safety I/O module", _estop),
     Watcher("stop2", "enabling switch released / STOP 2 / stop message", _stop2, ("stopmess",)),
     Watcher("program_state", "unexpected program state", _program_state, ("pro_state1",)),
     Watcher("drives", "drives not ready while the program runs", _drives, ("pro_state1", "peri_rdy")),

@@ -49,6 +49,7 @@ async def private_broker(tmp_path: Path) -> AsyncIterator[MosquittoProcess]:
 @pytest.fixture
 async def modbus_sim() -> AsyncIterator[ModbusIoSim]:
     sim = ModbusIoSim()
+    sim.set_input("estop_ok", True)  # the lab at rest: E-stop chain closed, area not cleared, no AUT key
     await sim.start()
     try:
         yield sim

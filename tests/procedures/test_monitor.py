@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import replace
+from datetime import UTC, datetime
 
 import pytest
 
 from rgse_daemon.controller import LoadData, Snapshot
+from rgse_daemon.io.modbus import SafetyInputs
+from rgse_daemon.procedures.common import PreconditionError, check_preconditions
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.safety.monitor import DEFAULT_WATCHERS, Expect, InterlockTrip, Monitor, Observation, WatchContext
@@ -71,11 +74,44 @@ def _snap(**kw: object) -> Snapshot:
     return Snapshot(**{**base, **kw})  # type: ignore[arg-type]
 
 
-def _first_trip(snap: Snapshot | None, ctx: WatchContext, error: str | None = None) -> str | None:
+def _first_trip(snap: Snapshot | None, ctx: WatchContext, error: str | None = None,
+                inputs: SafetyInputs | None = None) -> str | None:
     mon = Monitor.__new__(Monitor)
     mon.watchers = DEFAULT_WATCHERS
-    found = mon.check_once(Observation(snap, error, 0.0, 0.1, None), ctx)
+    found = mon.check_once(Observation(snap, error, 0.0, 0.1, inputs), ctx)
     return None if found is None else found[0].name
+
+
+def _inputs(area: bool = True, key: bool = True, estop: bool = True, valid: bool = True) -> SafetyInputs:
+    return SafetyInputs(area, key, estop, valid, datetime.now(UTC), "" if valid else "module unreachable")
+
+
+@pytest.mark.parametrize(
+    ("inputs", "watcher"),
+    [
+        (None, None),  # no safety I/O module configured: T1 relies on the controller's own E-stop chain
+        (_inputs(), None),
+        (_inputs(area=False, key=False), None),  # T1: the operator is in the cell with the enabling switch
+        (_inputs(estop=False), "estop"),
+        (_inputs(area=False, key=False, estop=False, valid=False), "estop"),  # module unreachable = doubt
+    ],
+)
+def test_estop_watcher_in_t1(inputs: SafetyInputs | None, watcher: str | None) -> None:
+    assert _first_trip(_snap(), RUNNING, inputs=inputs) == watcher
+
+
+@pytest.mark.parametrize(
+    ("inputs", "refused"),
+    [(None, None), (_inputs(area=False, key=False), None), (_inputs(estop=False), "E-stop chain not OK"),
+     (_inputs(valid=False, estop=False), "E-stop state unknown")],
+)
+def test_t1_start_needs_estop_ok_when_the_module_is_configured(inputs, refused) -> None:
+    snap = _snap(pro_state1="P_END")
+    if refused is None:
+        assert check_preconditions(snap, inputs) == "T1"
+    else:
+        with pytest.raises(PreconditionError, match=refused):
+            check_preconditions(snap, inputs)
 
 
 RUNNING = WatchContext(expect=Expect.RUNNING)
