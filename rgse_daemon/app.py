@@ -668,5 +668,6 @@ class Daemon:
         waiting = self._confirm_data.get("point_index")
         if cmd.point is not None and waiting is not None and cmd.point != waiting:
             raise RgseError(f"run {cmd.run_id} waits for point {waiting}, not point {cmd.point}: nothing confirmed")
-        engine.confirm(f"point {cmd.point}" if cmd.point is not None else "confirmed")
+        note = cmd.message or (f"point {cmd.point}" if cmd.point is not None else "confirmed")
+        engine.confirm(note)
         return {"confirmed": cmd.run_id}

@@ -110,6 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, required=True, metavar="FILE")
     p.add_argument("--run", metavar="RUN_ID", help="the run waiting (default: the run of the daemon's state)")
     p.add_argument("--point", type=int, metavar="N", help="index of the campaign point whose load is mounted")
+    p.add_argument("--message", metavar="TEXT", help="the operator's note, recorded with the confirmation")
     p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the reply (default 10)")
 
     p = sub.add_parser("abort", help="stop the running daemon's run now")

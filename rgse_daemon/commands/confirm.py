@@ -1,5 +1,6 @@
-"""``rgse confirm --config FILE [--run RUN_ID] [--point N] [--timeout S]``: tell the running daemon that the step
-its run waits for is done (e.g. the calibration load of a campaign point is mounted).
+"""``rgse confirm --config FILE [--run RUN_ID] [--point N] [--message TEXT] [--timeout S]``: tell the running
+daemon that the step its run waits for is done (e.g. the calibration load of a campaign point is mounted); the
+message is recorded with the confirmation in the run's events.
 
 Publishes a ``confirm`` command (contracts §4; schema :class:`~rgse_daemon.io.commands.ConfirmCommand`) on the
 daemon's broker, as configured in FILE, and waits for the daemon's reply to it. Without ``--run`` the run is the
@@ -36,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
     timeout_s = check_timeout(getattr(args, "timeout", None))
     run_id: str | None = getattr(args, "run", None)
     point: int | None = getattr(args, "point", None)
+    message: str | None = getattr(args, "message", None)
     t = ep.topics
 
     async def body(conv: Conversation) -> dict[str, Any] | None:
@@ -58,10 +60,11 @@ def run(args: argparse.Namespace) -> int:
                     file=sys.stderr,
                 )
                 return None
-        return await conv.command("confirm", {"run_id": target, "point": point})
+        return await conv.command("confirm", {"run_id": target, "point": point, "message": message})
 
     async def main() -> int:
-        check_fields("confirm", {"run_id": run_id or "pending", "point": point})  # before any network I/O
+        # validated before any network I/O
+        check_fields("confirm", {"run_id": run_id or "pending", "point": point, "message": message})
         reply = await Conversation(ep, "confirm", timeout_s).run(body)
         return EXIT_FAILED if reply is None else report_reply("confirm", reply)
 

@@ -105,6 +105,8 @@ class ConfirmCommand(_Command):
     run_id: RunId
     point: int | None = Field(None, ge=0, le=1000)
     """Index of the campaign point whose load is mounted; ``None``: the step the run waits for now."""
+    message: str | None = Field(None, min_length=1, max_length=500)
+    """The operator's note, recorded with the confirmation (e.g. 'bodies 1-3 mounted, bolts torqued')."""
 
 
 Command = MeasureCommand | CalibrateCommand | AbortCommand | ConfirmCommand

@@ -176,8 +176,11 @@ def campaign_plan(
         yield m.Checkpoint(f"point {rec.index}")
         yield m.Emit(Event("step", f"point {rec.index + 1}/{n}: {point.label}", step="point",
                            data={"point_index": rec.index, **point.spec()}))
-        yield m.Confirm(f"mount {point.label} (point {rec.index + 1}/{n}) and confirm",
-                        data={"point_index": rec.index, **point.spec()})
+        note = yield m.Confirm(f"mount {point.label} (point {rec.index + 1}/{n}) and confirm",
+                               data={"point_index": rec.index, **point.spec()})
+        said = f"point {rec.index + 1}/{n} ({point.label}): {note or 'confirmed'}"
+        yield m.Call("record confirmation", store.add_event, ("info", "operator_confirmed", said),
+                     {"run_id": run_id, "data": {"point_index": rec.index, "note": note}})
         for lp in loops_before:  # an earlier attempt at this point (daemon stopped): superseded
             if lp.point_index == rec.index and lp.state != LoopState.FAILED:
                 yield m.Call("supersede loop", store.update_loop, (run_id, lp.index), {"state": LoopState.FAILED})

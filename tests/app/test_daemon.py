@@ -348,7 +348,8 @@ async def test_calibrate_and_confirm_over_mqtt(sim: SimulatedKrc4, private_broke
         stack = await prompt(1)
         assert (stack["kind"], stack["n_cb"]) == ("mass", 3)
         sim.mount(mass_calibration_payload(3))
-        assert (await command(op, "confirm", {"run_id": run_id, "point": 1}))["ok"] is True
+        assert (await command(op, "confirm", {"run_id": run_id, "point": 1,
+                                              "message": "3 bodies on the MPA, bolts torqued"}))["ok"] is True
         torque = await prompt(2)
         # what the operator mounts for a torque point: 10 bodies on the test adapter, 1.011 m from A5
         assert (torque["kind"], torque["n_cb"]) == ("torque", 10)
@@ -360,6 +361,10 @@ async def test_calibrate_and_confirm_over_mqtt(sim: SimulatedKrc4, private_broke
             await run_end(rd)
     run = await stored_run(cfg, run_id)
     assert run.state == RunState.ABORTED
+    async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
+        said = [e.message for e in await store.events(run_id=run_id) if e.kind == "operator_confirmed"]
+    assert said == ["point 1/3 (empty MPA): point 0",
+                    "point 2/3 (3 calibration bodies on the MPA): 3 bodies on the MPA, bolts torqued"]
 
 
 # --- the safety I/O in the interlock --------------------------------------------------------------------------------

@@ -111,11 +111,12 @@ async def test_confirm_reaches_the_daemon_once_and_exits_0(
     system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler, config: Path
 ) -> None:
     async with daemon(system_broker, prefix, store, handler):
-        ran = await rgse("confirm", "--config", config, "--run", "run-7", "--point", "2")
+        ran = await rgse("confirm", "--config", config, "--run", "run-7", "--point", "2", "--message", "3 CBs on")
     assert ran.rc == 0 and ran.err == "", ran
     reply = ran.reply()
     assert reply["ok"] is True and reply["accepted"] is True and reply["request_id"].startswith("cli-")
-    assert handler.calls == [("confirm", ConfirmCommand(request_id=reply["request_id"], run_id="run-7", point=2))]
+    assert handler.calls == [("confirm", ConfirmCommand(request_id=reply["request_id"], run_id="run-7", point=2,
+                                                        message="3 CBs on"))]
 
 
 async def test_confirm_takes_the_run_from_the_daemons_retained_state(
