@@ -84,6 +84,9 @@ MAX_COMMANDS_IN_FLIGHT = 8
 _FORBIDDEN_IN_LEVEL = ("/", "+", "#", "\x00")
 
 
+#: Deadline of the retained "offline" publish when stopping (s).
+STOP_PUBLISH_TIMEOUT_S = 3.0
+
 class MqttError(RgseError):
     """The MQTT bridge was misused (e.g. started twice) or given an unpublishable message."""
 
@@ -357,19 +360,24 @@ class MqttBridge:
         """Publish retained offline, disconnect, end the loop and the command tasks; bounded. Idempotent."""
         task, self._task = self._task, None
         self._stopping.set()
+        connecting = task is not None and self._state is ConnectionState.CONNECTING
+        if connecting:
+            # no session to close cleanly: a connect in flight (a broker that does not answer) would hold the stop
+            # for a whole connect timeout; the broker has no session of ours to keep, or sends our will for it
+            task.cancel()
         commands = list(self._command_tasks)
         for t in commands:
             t.cancel()
         try:
             if commands:
                 await asyncio.gather(*commands, return_exceptions=True)
-            if task is not None:
+            if task is not None and not connecting:
                 try:
                     await asyncio.wait_for(asyncio.shield(task), self._stop_timeout_s)
                 except TimeoutError:
                     log.warning("mqtt %s: no clean stop within %g s; cancelling", self.prefix, self._stop_timeout_s)
         finally:
-            if task is not None and not task.done():
+            if task is not None and (connecting or not task.done()):
                 task.cancel()
                 await asyncio.gather(task, return_exceptions=True)
             self._state = ConnectionState.STOPPED
@@ -521,13 +529,16 @@ class MqttBridge:
         for t in workers:
             if t in done:
                 t.result()  # the connection ended: raises why (aiomqtt.MqttError)
-        # A clean stop: the will is discarded on DISCONNECT, so say offline ourselves first.
+        # A clean stop: the will is discarded on DISCONNECT, so say offline ourselves first (briefly: a broker that
+        # does not acknowledge within STOP_PUBLISH_TIMEOUT_S will not be helped by waiting longer)
         offline = {"state": "offline", "version": self._version, "since": _now()}
-        await self._publish(client, _Out(self.topics.status, _dumps(offline, "status"), qos=1, retain=True))
+        await self._publish(client, _Out(self.topics.status, _dumps(offline, "status"), qos=1, retain=True),
+                            timeout_s=min(self._timeout_s, STOP_PUBLISH_TIMEOUT_S))
 
-    async def _publish(self, client: aiomqtt.Client, out: _Out) -> None:
+    async def _publish(self, client: aiomqtt.Client, out: _Out, timeout_s: float | None = None) -> None:
         try:
-            await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain, timeout=self._timeout_s)
+            await client.publish(out.topic, out.payload, qos=out.qos, retain=out.retain,
+                                 timeout=self._timeout_s if timeout_s is None else timeout_s)
         except aiomqtt.MqttError:
             self.counters.publish_errors += 1
             raise

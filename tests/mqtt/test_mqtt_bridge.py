@@ -272,3 +272,32 @@ def test_bad_settings_are_config_errors_before_any_io(tmp_path: Path) -> None:
         make(MqttConfig(tls_ca_file=tmp_path / "ca.pem"))
     with pytest.raises(ConfigError, match="timeout_s"):
         MqttBridge(MqttConfig(), ROBOT, None, RecordingHandler(), "1", timeout_s=0)  # type: ignore[arg-type]
+
+
+async def test_stop_during_a_connect_that_gets_no_answer_is_prompt(store: Store) -> None:
+    """A broker that accepts TCP but never answers CONNECT (hung, or a firewall's half-open port): stop does not
+    wait out the connect timeout (30 s here) — there is no session to close cleanly."""
+    accepted = asyncio.Event()
+    held: list[asyncio.StreamWriter] = []
+
+    async def silent(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        held.append(writer)
+        accepted.set()
+
+    server = await asyncio.start_server(silent, "127.0.0.1", 0)
+    port = server.sockets[0].getsockname()[1]
+    try:
+        bridge = MqttBridge(mqtt_config("127.0.0.1", port, "rgse/silent"), ROBOT, store, RecordingHandler(), "1",
+                            timeout_s=30)
+        await bridge.start()
+        async with asyncio.timeout(10):
+            await accepted.wait()
+        assert not bridge.connected
+        async with asyncio.timeout(5):  # well inside the 30 s connect timeout
+            await bridge.stop()
+        assert bridge.connection_state is ConnectionState.STOPPED
+    finally:
+        for w in held:
+            w.close()
+        server.close()
+        await server.wait_closed()
