@@ -147,6 +147,13 @@ async def test_inline_measurement_through_the_daemon_across_a_broker_restart(
             # plausible (the calibration comes from an offline campaign, not this robot's: accuracy is tested in
             # tests/procedures with a campaign on the same simulated robot)
             assert abs(shown["mass_kg"] - DUT_KG) <= 0.1 * DUT_KG
+            # that offline campaign followed the paper's loop (brakes applied between loops): its robot ran cool, this
+            # one is warm (about 25 K). The error this causes (3-4 kg) is outside U, which has no thermal term: the
+            # result must say so
+            cal_k, meas_k = calibration_doc["thermal_state_k"], shown["motor_temp_k"]
+            assert meas_k["A3"] - cal_k["A3"] > 3.0 and meas_k["A5"] - cal_k["A5"] > 3.0
+            assert any(w.startswith("motor temperatures differ from the calibration campaign's (A3 +")
+                       for w in shown["warnings"]), shown["warnings"]
 
             # the subscriber that stayed: one live delivery, every copy byte-identical
             await staying.sync()

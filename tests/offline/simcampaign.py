@@ -55,7 +55,8 @@ def _measure(model: ph.RobotModel, payload: ph.Payload, n_loops: int, n_samples:
         model.brake_release_move(q)
         model.hold(SETTLE_S)
         tr = model.sample_trace(q, payload, n_samples, period_s)
-        out.append(Loop(f"{prefix}_l{k + 1:02d}", tr[3]["Istmoment"], tr[5]["Istmoment"], period_s))
+        out.append(Loop(f"{prefix}_l{k + 1:02d}", tr[3]["Istmoment"], tr[5]["Istmoment"], period_s,
+                        float(np.mean(tr[3]["Motortemperatur"])), float(np.mean(tr[5]["Motortemperatur"]))))
         model.apply_brakes(max(LOOP_S - SETTLE_S - n_samples * period_s, 0.0))
     return out
 
@@ -103,8 +104,13 @@ def simulate_measurement(model: ph.RobotModel, dut_mass_kg: float, dut_cog_z_m: 
 
 
 def _write_loop(directory: Path, lp: Loop) -> None:
-    write_trace_set(directory, lp.trace, lp.period_s, {"NextGenDrive#3": {"Istmoment": (lp.torque_a3_nm, "Nm")},
-                                                       "NextGenDrive#5": {"Istmoment": (lp.torque_a5_nm, "Nm")}})
+    modules: dict[str, dict[str, tuple[np.ndarray, str]]] = {}
+    for module, torque, temp in (("NextGenDrive#3", lp.torque_a3_nm, lp.motor_temp_a3_k),
+                                 ("NextGenDrive#5", lp.torque_a5_nm, lp.motor_temp_a5_k)):
+        modules[module] = {"Istmoment": (torque, "Nm")}
+        if temp is not None:  # the loop's mean motor temperature as the channel (the drive records it per sample)
+            modules[module]["Motortemperatur"] = (np.full(torque.size, temp), "K")
+    write_trace_set(directory, lp.trace, lp.period_s, modules)
 
 
 def write_dirs(campaign: SimCampaign, measurement: SimMeasurement, cal_dir: Path, dut_dir: Path) -> None:
