@@ -83,13 +83,22 @@ def _aggregate(exprs: st.SearchStrategy[Expr]) -> st.SearchStrategy[Aggregate]:
 
 def _extend(exprs: st.SearchStrategy[Expr]) -> st.SearchStrategy[Expr]:
     calls = st.builds(Call, names, st.lists(exprs, max_size=3).map(tuple))
+    # what Index and Member may apply to (a name, a call, an index or member of those), built directly rather than
+    # filtered out of all expressions: a filter rejects most draws and trips Hypothesis' filter_too_much check
+    # (their own subscripts and arguments are leaves, keeping the expressions small)
+    small = st.lists(leaves, max_size=2).map(tuple)
+    chains = st.recursive(
+        st.builds(Name, names) | st.builds(Call, names, small),
+        lambda c: st.builds(Index, c, small) | st.builds(Member, c, fields),
+        max_leaves=2,
+    )
     return st.one_of(
         st.builds(Unary, st.sampled_from(["-", "+", "NOT", "B_NOT"]), exprs),
         st.builds(Binary, binary_ops, exprs, exprs),
         _aggregate(exprs),
         calls,
-        st.builds(Index, exprs.filter(_is_chain), st.lists(exprs, max_size=3).map(tuple)),
-        st.builds(Member, exprs.filter(_is_chain), fields),
+        st.builds(Index, chains, st.lists(exprs, max_size=3).map(tuple)),
+        st.builds(Member, chains, fields),
     )
 
 
