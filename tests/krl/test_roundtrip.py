@@ -72,10 +72,6 @@ leaves = st.one_of(
 )
 
 
-def _is_chain(expr: Expr) -> bool:
-    return isinstance(expr, Name | Index | Member | Call)
-
-
 def _aggregate(exprs: st.SearchStrategy[Expr]) -> st.SearchStrategy[Aggregate]:
     items = st.lists(st.tuples(fields, exprs), min_size=1, max_size=4, unique_by=lambda t: t[0])
     return st.builds(Aggregate, st.none() | names, items.map(lambda its: tuple(AggItem(n, v) for n, v in its)))
