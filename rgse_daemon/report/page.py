@@ -247,6 +247,21 @@ def render_calibration(calv: CalibrationView, meta: ReportMeta) -> str:
     return page(f"Calibration {rec.id}", subtitle, "".join(body), meta)
 
 
+def _thermal_rows(measured: object, calibration: object) -> list[tuple[str, str]]:
+    """Mean A3/A5 motor temperature of the run's traces against the calibration campaign's (the torque estimate
+    drifts with it; a difference beyond 3 K is also a warning of the result)."""
+    if not isinstance(measured, dict):
+        return []
+    cal = calibration if isinstance(calibration, dict) else {}
+    rows = []
+    for ax in ("A3", "A5"):
+        text = num(measured.get(ax), ".1f", f"motor_temp_k.{ax}", "K")
+        if ax in cal:
+            text += " (calibration " + num(cal[ax], ".1f", f"cal_thermal_state_k.{ax}", "K") + ")"
+        rows.append((f"{ax} motor temperature, mean", text))
+    return rows
+
+
 def _result_summary(view: MeasurementView) -> str:
     res = view.result.result
     m, big_u = float(res["mass_kg"]), float(res["U_kg"])
@@ -265,6 +280,7 @@ def _result_summary(view: MeasurementView) -> str:
          + num(res.get("samples_total"), "d", "samples_total")),
         ("calibration", code(res.get("calibration_id"), "result_calibration_id") + " "
          + code(res.get("method"), "result_method")),
+        *_thermal_rows(res.get("motor_temp_k"), view.calibration.document.get("thermal_state_k")),
         ("ECSS-E-10-03C mass accuracy ± 0.05 %",
          f"{badge(ecss_ok, 'met', 'not met')} U / m = {num(100 * rel, '.3f', 'U_rel_pct', '%')} "
          f"(requirement {num(100 * ECSS_MASS_REL, '.2f', 'ecss_pct', '%')} = "

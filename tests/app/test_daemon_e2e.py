@@ -190,6 +190,11 @@ async def test_inline_measurement_through_the_daemon_across_a_broker_restart(
     assert dom.body.get("data-images-loaded") == dom.body.get("data-images-total") == str(len(dom.images))
     assert [float(v) for v in dom.fields["mass_kg"]][:1] == [stored.result["mass_kg"]]
     assert dom.fields["run_id"][:1] == [run_id]
+    # the thermal state against the calibration's, and the warning about it
+    for ax in ("A3", "A5"):
+        assert [float(v) for v in dom.fields[f"motor_temp_k.{ax}"]] == [stored.result["motor_temp_k"][ax]]
+        assert [float(v) for v in dom.fields[f"cal_thermal_state_k.{ax}"]] == [calibration_doc["thermal_state_k"][ax]]
+    assert "motor temperatures differ from the calibration campaign" in await asyncio.to_thread(page.read_text, "utf-8")
     assert [float(v) for v in dom.fields["ref.mass_kg"]] == [weighing.mass_kg]
     print(f"\ne2e: mass {stored.result['mass_kg']:.3f} ± {stored.result['U_kg']:.3f} kg (true {DUT_KG}), "
           f"reference {weighing.mass_kg} kg gross; {time.monotonic() - t0:.1f} s")
