@@ -507,9 +507,10 @@ class MqttBridge:
         self.counters.connects += 1
         if self.counters.connects > 1:
             self.counters.reconnects += 1
+        # subscribed before saying online: "online" means commands are heard
+        await client.subscribe(self.topics.commands, qos=1, timeout=self._timeout_s)
         online = {"state": "online", "version": self._version, "since": _now()}
         await self._publish(client, _Out(self.topics.status, _dumps(online, "status"), qos=1, retain=True))
-        await client.subscribe(self.topics.commands, qos=1, timeout=self._timeout_s)
         self._connected = True
         self._state = ConnectionState.CONNECTED
         workers = [

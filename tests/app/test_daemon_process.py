@@ -75,14 +75,18 @@ async def test_rgse_daemon_process_ready_serves_commands_and_stops_cleanly_on_si
             async with aiomqtt.Client("127.0.0.1", private_broker.port, identifier=f"t-{uuid.uuid4().hex[:8]}",
                                       timeout=10) as client:
                 await client.subscribe(f"{prefix}/#", qos=1)
-                # a measurement without an active calibration: refused with the reason, nothing started
-                await client.publish(f"{prefix}/cmd/measure", json.dumps({"request_id": "p-1"}), qos=1)
                 seen: dict[str, dict] = {}
+                published = False
                 async with asyncio.timeout(WAIT_S):
                     async for msg in client.messages:
                         seen[msg.topic.value] = json.loads(msg.payload)  # type: ignore[arg-type]
+                        if not published and seen.get(f"{prefix}/status", {}).get("state") == "online":
+                            # the daemon is on the broker (READY does not wait for it): a measurement without an
+                            # active calibration is refused with the reason, nothing started
+                            await client.publish(f"{prefix}/cmd/measure", json.dumps({"request_id": "p-1"}), qos=1)
+                            published = True
                         reply = seen.get(f"{prefix}/cmd/measure/reply")
-                        if reply is not None and seen.get(f"{prefix}/status", {}).get("state") == "online":
+                        if reply is not None:
                             break
             assert reply["request_id"] == "p-1" and reply["ok"] is False
             assert "no active calibration" in reply["error"], reply
