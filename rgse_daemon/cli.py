@@ -66,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--campaign", type=Path, metavar="DIR")
     p.add_argument("--out", type=Path, required=True, metavar="CAL.json")
     p.add_argument("--method", default="paper", metavar="paper|auto|NAME")
+    p.add_argument("--preprocessing", metavar="paper|KEY=VALUE,...",
+                   help="campaign pre-processing: paper (method F, default) or e.g. a row of rgse study "
+                        "(crop_sigma=2,filter=gaussian,window=100,order=forward,location=huber)")
     _add_json(p)
 
     p = sub.add_parser("mass", help="offline in-line mass from a measurement directory")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from dataclasses import dataclass
@@ -132,10 +133,43 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
     return doc, summary
 
 
-def fit_campaign(directory: Path, method: str) -> tuple[dict[str, Any], dict[str, Any]]:
-    """``rgse calibrate --campaign DIR`` without writing: (CAL.json document, summary)."""
+def parse_preprocessing(spec: str | None) -> pp.Preprocessing:
+    """``--preprocessing``: ``paper`` (method F, the default) or ``key=value,...`` over the fields of
+    :class:`~rgse_daemon.pipeline.preprocess.Preprocessing` (e.g. a row of ``rgse study --campaign``:
+    ``crop_sigma=2,filter=gaussian,window=100,order=forward,location=huber``); unnamed fields keep method F's value.
+    ``crop_sigma=none`` keeps every sample."""
+    if spec is None or spec.strip().lower() == "paper":
+        return pp.PAPER
+    fields = {f.name: f.type for f in dataclasses.fields(pp.Preprocessing)}
+    values: dict[str, Any] = {}
+    for item in spec.split(","):
+        key, sep, text = (part.strip() for part in item.partition("="))
+        if not sep or key not in fields:
+            raise DataError(f"--preprocessing {spec!r}: {item.strip()!r} is not KEY=VALUE with KEY one of "
+                            f"{', '.join(fields)}")
+        if key in values:
+            raise DataError(f"--preprocessing {spec!r}: {key} given twice")
+        try:
+            if key == "crop_sigma":
+                values[key] = None if text.lower() == "none" else float(text)
+            elif key == "window":
+                values[key] = int(text)
+            elif key == "settle_s":
+                values[key] = float(text)
+            else:
+                values[key] = text
+        except ValueError:
+            raise DataError(f"--preprocessing {spec!r}: {key}={text!r} is not a number") from None
+    try:
+        return dataclasses.replace(pp.PAPER, **values)
+    except pp.PreprocessError as exc:
+        raise DataError(f"--preprocessing {spec!r}: {exc}") from None
+
+
+def fit_campaign(directory: Path, method: str,
+                 pre: pp.Preprocessing = pp.PAPER) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``rgse calibrate --campaign DIR [--preprocessing SPEC]`` without writing: (CAL.json document, summary)."""
     data = load_campaign(directory)
-    pre = pp.PAPER
     points, bias3, bias5 = campaign_points(data, pre)
     setup = data.manifest.setup
     return calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot, pre=pre,
@@ -145,11 +179,13 @@ def fit_campaign(directory: Path, method: str) -> tuple[dict[str, Any], dict[str
 
 def run(args: argparse.Namespace) -> int:
     if args.points is not None:
+        if args.preprocessing is not None:
+            raise DataError("--preprocessing applies to --campaign (the points of a CSV are already averaged)")
         doc, summary = calibrate(load_points_csv(args.points), args.method, g=9.81, dr=1.025, robot=POINTS_ROBOT,
                                  pre=None, bias3=0.0, bias5=0.0, g_u=0.0, sources=source_sha256([args.points]),
                                  where=args.points)
     else:
-        doc, summary = fit_campaign(args.campaign, args.method)
+        doc, summary = fit_campaign(args.campaign, args.method, parse_preprocessing(args.preprocessing))
     calfile.write(args.out, doc)
     if args.json:
         print(json.dumps(summary))

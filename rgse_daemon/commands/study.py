@@ -53,4 +53,7 @@ def run(args: argparse.Namespace) -> int:
             crop = "none" if r.crop_sigma is None else f"{r.crop_sigma:g}σ"
             print(f"{i:4d} {crop:>5s} {r.filter:15s} {r.window:6d} {r.order:9s} {r.mass_err_pct:10.4f} "
                   f"{r.r2_a3:7.4f} {r.r2_a5:7.4f}")
+        if result:
+            # ranked on the campaign's own points: in-sample, so optimistic (check with the LOO of rgse calibrate)
+            print(f"use the best: rgse calibrate --campaign {args.campaign} --preprocessing {result[0].spec} ...")
     return 0

@@ -58,8 +58,16 @@ class StudyRow:
     r2_a5: float
 
     def to_dict(self) -> dict:
-        """JSON-ready (NaN, e.g. R² of a model fitted to masses, becomes None)."""
-        return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in self.__dict__.items()}
+        """JSON-ready (NaN, e.g. R² of a model fitted to masses, becomes None), with its ``preprocessing`` spec."""
+        d = {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in self.__dict__.items()}
+        return {**d, "preprocessing": self.spec}
+
+    @property
+    def spec(self) -> str:
+        """This row as ``rgse calibrate --campaign DIR --preprocessing SPEC``."""
+        crop = "none" if self.crop_sigma is None else f"{self.crop_sigma:g}"
+        return (f"crop_sigma={crop},filter={self.filter},window={self.window},order={self.order},"
+                f"location={self.location}")
 
 
 def filter_windows(grid: StudyGrid, filt: str) -> tuple[int, ...]:

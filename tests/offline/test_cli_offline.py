@@ -168,3 +168,35 @@ def test_study_campaign_end_to_end(capsys, dirs):
     assert errs[0] < 0.5 and errs[0] < errs[-1]
     assert main(["study", "--campaign", str(dirs / "cal")]) == 0
     assert "combinations" in capsys.readouterr().out
+
+
+def test_study_best_row_feeds_calibrate_and_mass(tmp_path, capsys, dirs):
+    """The study's best row as ``--preprocessing``: recorded in CAL.json, and ``rgse mass`` pre-processes with it."""
+    rows = run_json(capsys, ["study", "--campaign", str(dirs / "cal"), "--json"])["rows"]
+    best = rows[0]
+    spec = best["preprocessing"]
+    cal = run_json(capsys, ["calibrate", "--campaign", str(dirs / "cal"), "--out", str(tmp_path / "CAL.json"),
+                            "--method", "paper", "--preprocessing", spec, "--json"])
+    doc = json.loads((tmp_path / "CAL.json").read_text(encoding="utf-8"))
+    assert doc["preprocessing"] == {"crop_sigma": best["crop_sigma"], "filter": best["filter"],
+                                    "window": best["window"], "order": best["order"], "location": best["location"],
+                                    "settle_s": 0.0}
+    paper = run_json(capsys, ["calibrate", "--campaign", str(dirs / "cal"), "--out", str(tmp_path / "F.json"),
+                              "--method", "paper", "--json"])
+    assert cal["calibration_id"] != paper["calibration_id"]  # another pre-processing, another calibration
+    mass = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(tmp_path / "CAL.json"),
+                             "--json"])
+    assert mass["calibration_id"] == cal["calibration_id"] and np.isfinite(mass["mass_kg"])
+
+
+@pytest.mark.parametrize(("spec", "needle"), [
+    ("window=abc", "not a number"),
+    ("filter=kalman", "unknown filter"),
+    ("colour=red", "KEY one of crop_sigma"),
+    ("window=5,window=7", "window given twice"),
+    ("crop_sigma=-1", "crop_sigma must be > 0"),
+])
+def test_calibrate_refuses_a_bad_preprocessing_spec(tmp_path, capsys, dirs, spec, needle):
+    expect_error(capsys, ["calibrate", "--campaign", str(dirs / "cal"), "--out", str(tmp_path / "o.json"),
+                          "--preprocessing", spec], needle)
+    assert not (tmp_path / "o.json").exists()
