@@ -179,13 +179,14 @@ def fit_campaign(directory: Path, method: str,
 
 def run(args: argparse.Namespace) -> int:
     if args.points is not None:
-        if args.preprocessing is not None:
+        if getattr(args, "preprocessing", None) is not None:
             raise DataError("--preprocessing applies to --campaign (the points of a CSV are already averaged)")
         doc, summary = calibrate(load_points_csv(args.points), args.method, g=9.81, dr=1.025, robot=POINTS_ROBOT,
                                  pre=None, bias3=0.0, bias5=0.0, g_u=0.0, sources=source_sha256([args.points]),
                                  where=args.points)
     else:
-        doc, summary = fit_campaign(args.campaign, args.method, parse_preprocessing(args.preprocessing))
+        pre = parse_preprocessing(getattr(args, "preprocessing", None))
+        doc, summary = fit_campaign(args.campaign, args.method, pre)
     calfile.write(args.out, doc)
     if args.json:
         print(json.dumps(summary))
