@@ -27,7 +27,6 @@ Behaviour (see ``rgse_daemon.io.scale`` for the line format it speaks):
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
 import os
 import random
@@ -205,8 +204,7 @@ class ScaleSim:
         ticker, self._ticker = self._ticker, None
         if ticker is not None:
             ticker.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await ticker
+            await asyncio.wait({ticker})
         if self._master_fd is not None:
             asyncio.get_running_loop().remove_reader(self._master_fd)
             os.close(self._master_fd)
@@ -221,9 +219,8 @@ class ScaleSim:
         for task, writer in clients.items():
             writer.close()
             task.cancel()
-        for task in clients:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        if clients:
+            await asyncio.wait(list(clients))
         if server is not None:
             async with asyncio.timeout(5.0):
                 await server.wait_closed()

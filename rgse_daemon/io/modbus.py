@@ -269,9 +269,11 @@ class SafetyIo:
         tasks, self._tasks = self._tasks, []
         for task in tasks:
             task.cancel()
-        for task in tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+        if tasks:
+            await asyncio.wait(tasks)  # their CancelledError stays theirs; a cancel of stop() itself propagates
+            for task in tasks:
+                if not task.cancelled() and task.exception() is not None:
+                    log.warning("safety I/O: task %s had failed: %r", task.get_name(), task.exception())
         self._close_client()
         self.state = ConnectionState.STOPPED
         self._latest = SafetyInputs.unsafe("stopped")

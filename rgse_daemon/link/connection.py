@@ -181,8 +181,9 @@ class Connection:
         task, self._maintainer = self._maintainer, None
         if task is not None:
             task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
+            await asyncio.wait({task})  # not `await task`: a cancel of close() itself must still propagate
+            if not task.cancelled() and task.exception() is not None:
+                log.warning("%s: keep-alive task had failed: %r", self.name, task.exception())
         self._drop_socket()
 
     async def __aenter__(self) -> Connection:
