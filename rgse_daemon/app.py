@@ -47,6 +47,7 @@ from typing import Any
 
 from rgse_daemon import __version__
 from rgse_daemon import kinematics as kin
+from rgse_daemon.aio import within
 from rgse_daemon.config import Config
 from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import LinkError, RgseError, VariableError
@@ -323,7 +324,7 @@ class Daemon:
             if stop.is_set():
                 return
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), self._backoff_s(attempt))
+                await within(stop.wait(), self._backoff_s(attempt))
             attempt += 1
 
     def _backoff_s(self, attempt: int) -> float:
@@ -336,7 +337,7 @@ class Daemon:
         c = self.cfg.controller
         while True:
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), LINK_PROBE_S)
+                await within(stop.wait(), LINK_PROBE_S)
                 return None
             if self.run_active:
                 continue  # the interlock monitor reads the controller at 20 Hz and trips on link loss

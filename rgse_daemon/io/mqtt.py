@@ -64,6 +64,7 @@ from typing import Any, Protocol, Self
 
 import aiomqtt
 
+from rgse_daemon.aio import within
 from rgse_daemon.config import MqttConfig
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.io.commands import (
@@ -373,7 +374,7 @@ class MqttBridge:
                 await asyncio.gather(*commands, return_exceptions=True)
             if task is not None and not connecting:
                 try:
-                    await asyncio.wait_for(asyncio.shield(task), self._stop_timeout_s)
+                    await within(asyncio.shield(task), self._stop_timeout_s)
                 except TimeoutError:
                     log.warning("mqtt %s: no clean stop within %g s; cancelling", self.prefix, self._stop_timeout_s)
         finally:
@@ -497,7 +498,7 @@ class MqttBridge:
             delay = self._backoff_s(attempt)
             attempt += 1
             try:
-                await asyncio.wait_for(self._stopping.wait(), delay)
+                await within(self._stopping.wait(), delay)
             except TimeoutError:
                 pass
         self._state = ConnectionState.STOPPED
@@ -585,7 +586,7 @@ class MqttBridge:
             except StoreError as exc:
                 self._log.problem("outbox", f"mqtt {self.prefix}: outbox: {exc}")
             try:
-                await asyncio.wait_for(self._outbox_wake.wait(), self._outbox_sweep_s)
+                await within(self._outbox_wake.wait(), self._outbox_sweep_s)
             except TimeoutError:
                 pass
 

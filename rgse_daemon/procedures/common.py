@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon.aio import within
 from rgse_daemon.config import Config, LimitsConfig
 from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError, KrlSyntaxError, RgseError
@@ -454,6 +455,6 @@ async def close_run(store: Store, run_id: str, exc: BaseException | None) -> Non
     else:
         state, detail = RunState.FAILED, f"{type(exc).__name__}: {exc}"
     try:
-        await asyncio.shield(asyncio.wait_for(store.set_run_state(run_id, state, detail), 10.0))
+        await asyncio.shield(within(store.set_run_state(run_id, state, detail), 10.0))
     except (TimeoutError, RgseError) as err:
         _log.error("run %s: could not record state %s: %r", run_id, state, err)

@@ -34,6 +34,7 @@ from collections.abc import Callable, Generator
 from pathlib import Path
 from typing import Any
 
+from rgse_daemon.aio import within
 from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import InterlockError, LinkError, RgseError
 from rgse_daemon.procedures import messages as m
@@ -267,13 +268,13 @@ class RunEngine:
 
     async def _snapshot(self) -> Snapshot:
         try:
-            return await asyncio.wait_for(self.krc.snapshot(), REQUEST_TIMEOUT_S)
+            return await within(self.krc.snapshot(), REQUEST_TIMEOUT_S)
         except TimeoutError as exc:
             raise LinkError(f"no snapshot within {REQUEST_TIMEOUT_S:g} s") from exc
 
     async def _bounded(self, what: str, aw: Any, timeout_s: float = REQUEST_TIMEOUT_S) -> Any:
         try:
-            return await asyncio.wait_for(aw, timeout_s)
+            return await within(aw, timeout_s)
         except TimeoutError as exc:
             raise StepTimeout(f"{what}: no answer within {timeout_s:g} s") from exc
 

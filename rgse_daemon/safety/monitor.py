@@ -26,6 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
+from rgse_daemon.aio import within
 from rgse_daemon.config import LimitsConfig
 from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import InterlockError, LinkError, RgseError
@@ -291,7 +292,7 @@ class Monitor:
             snap: Snapshot | None = None
             error: str | None = None
             try:
-                snap = await asyncio.wait_for(self.krc.snapshot(), self.stale_after_s)
+                snap = await within(self.krc.snapshot(), self.stale_after_s)
             except TimeoutError:
                 error = f"no snapshot within {self.stale_after_s * 1e3:.0f} ms"
             except (LinkError, RgseError) as exc:
@@ -325,7 +326,7 @@ class Monitor:
         cause that must reach the plan)."""
         if snap is None or snap.pro_state1 in (None, "P_ACTIVE"):
             try:
-                await asyncio.wait_for(self.krc.stop_program(), self.stop_timeout_s)
+                await within(self.krc.stop_program(), self.stop_timeout_s)
             except (TimeoutError, RgseError) as exc:
                 self.stats.stop_errors.append(f"stop program: {exc!r}")
                 _log.error("interlock: could not stop the program: %r", exc,
@@ -333,7 +334,7 @@ class Monitor:
         trace_state = snap.trace_state if snap is not None else None
         if trace_state is None or trace_state in TRACE_ACTIVE_STATES:
             try:
-                await asyncio.wait_for(self.krc.write_raw("$TRACE.MODE", "#T_STOP"), self.stop_timeout_s)
+                await within(self.krc.write_raw("$TRACE.MODE", "#T_STOP"), self.stop_timeout_s)
             except (TimeoutError, RgseError) as exc:
                 self.stats.stop_errors.append(f"stop trace: {exc!r}")
                 _log.error("interlock: could not stop the trace: %r", exc,

@@ -21,6 +21,7 @@ import tempfile
 from pathlib import Path
 from typing import NamedTuple
 
+from rgse_daemon.aio import within
 from rgse_daemon.store.errors import ArchiveConflict, ArchiveError
 
 ARCHIVE_DIRNAME = "archive"
@@ -140,7 +141,7 @@ async def archive_file_async(
     identical file already archived is success).
     """
     try:
-        return await asyncio.wait_for(
+        return await within(
             asyncio.to_thread(archive_file, src, run_dir, expected_size, expected_sha256), timeout_s
         )
     except TimeoutError as exc:

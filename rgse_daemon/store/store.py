@@ -19,6 +19,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Concatenate, ParamSpec, Self, TypeVar
 
+from rgse_daemon.aio import within
 from rgse_daemon.store.errors import StoreError, StoreTimeout
 from rgse_daemon.store.repository import Clock, Repository, utc_now
 
@@ -72,7 +73,7 @@ class Store:
         )
         try:
             # Opening may migrate a large database: allow a few operation deadlines.
-            repo = await asyncio.wait_for(asyncio.wrap_future(opening), 3 * timeout_s)
+            repo = await within(asyncio.wrap_future(opening), 3 * timeout_s)
         except BaseException as exc:
             # Runs after the open on the same thread: closes a connection that arrived too late for us.
             executor.submit(_close_if_opened, opening)
@@ -87,7 +88,7 @@ class Store:
             raise StoreError(f"store {name}: the store is closed")
         fut = asyncio.get_running_loop().run_in_executor(self._executor, fn)
         try:
-            return await asyncio.wait_for(fut, self._timeout_s)
+            return await within(fut, self._timeout_s)
         except TimeoutError as exc:
             raise StoreTimeout(f"store {name}: no answer within {self._timeout_s:g} s; outcome unknown") from exc
 
