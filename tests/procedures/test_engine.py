@@ -19,7 +19,7 @@ from rgse_daemon.procedures.retrieval import TRACE_DIR
 from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import Store, archive_root
 
-from .conftest import make_engine
+from .conftest import STALE_PERIODS, make_engine
 from .plans import long_motion, moving, robot_still, trace_stopped, until
 
 
@@ -165,7 +165,8 @@ async def test_refused_program_never_reaches_the_controller(sim, krc, cfg, setti
 
 async def test_trace_files_deleted_over_the_link_without_a_share(sim, krc, cfg, store: Store, settings, tmp_path):
     """Without a mounted share the engine deletes the controller's copies with #23, after archiving them."""
-    engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=Monitor(krc), share_dir=None)
+    engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=Monitor(krc, stale_periods=STALE_PERIODS),
+                       share_dir=None)
 
     def plan() -> m.Plan:
         from rgse_daemon.procedures.common import TRACE_CONFIG_NAME, trace_config_xml

@@ -23,7 +23,7 @@ from rgse_daemon.store.archive import ArchiveConflict
 from simulators.krc4.physics import mass_calibration_payload, torque_calibration_payload
 from simulators.krc4.sim import SimulatedKrc4
 
-from .conftest import make_engine
+from .conftest import STALE_PERIODS, make_engine
 
 DELETE = 23
 ACCESS = 2
@@ -118,7 +118,8 @@ def _operator(sim: SimulatedKrc4, engine: RunEngine):
 @pytest.mark.parametrize("refuse", [False, True])
 async def test_campaign_without_share(sim, krc, cfg, store: Store, tmp_path: Path, refuse: bool) -> None:
     """A whole run with ``share_dir = None``: the copies go over #23; a refused delete is an event, not a failure."""
-    engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=Monitor(krc), share_dir=None)
+    engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=Monitor(krc, stale_periods=STALE_PERIODS),
+                       share_dir=None)
     engine.subscribe(_operator(sim, engine))
     if refuse:
         sim.server.faults.refuse_types = {DELETE: ACCESS}
