@@ -249,7 +249,7 @@ class ScaleSim:
             while data := await reader.read(256):
                 self._on_command_bytes(data)
         except (ConnectionError, OSError):
-            pass
+            pass  # the client went away: its task ends
         finally:
             self._clients.pop(task, None)
             writer.close()

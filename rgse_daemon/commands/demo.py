@@ -39,7 +39,7 @@ from rgse_daemon.procedures.calibration import table1_points
 from rgse_daemon.procedures.common import RunSettings
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.progress import new_progress, running, terminal_console
-from simulators.krc4.physics import dut_payload, mass_calibration_payload, torque_calibration_payload
+from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.process import SimProcess
 
 if TYPE_CHECKING:
@@ -204,11 +204,7 @@ class Operator:
         self.view.event(ev)
 
     async def _mount_and_confirm(self, d: dict[str, Any]) -> None:
-        if d.get("kind") == "torque":
-            payload = torque_calibration_payload(d["n_cb"], d["cb_lever_a5_m"])
-        else:
-            payload = mass_calibration_payload(d["n_cb"])
-        await self.sim.mount(payload)
+        await self.sim.mount(campaign_point_payload(d))
         engine = self.daemon_ref[0].engine
         assert engine is not None
         engine.confirm(f"operator mounted point {d['point_index']}")

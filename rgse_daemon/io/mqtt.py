@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import json
 import logging
 import math
@@ -497,10 +498,8 @@ class MqttBridge:
             self._state = ConnectionState.BACKOFF
             delay = self._backoff_s(attempt)
             attempt += 1
-            try:
+            with contextlib.suppress(TimeoutError):  # the backoff elapsed: try again
                 await within(self._stopping.wait(), delay)
-            except TimeoutError:
-                pass
         self._state = ConnectionState.STOPPED
 
     async def _session(self, client: aiomqtt.Client) -> None:
@@ -585,10 +584,8 @@ class MqttBridge:
                 self._log.resolved("outbox", f"mqtt {self.prefix}: outbox drained again")
             except StoreError as exc:
                 self._log.problem("outbox", f"mqtt {self.prefix}: outbox: {exc}")
-            try:
+            with contextlib.suppress(TimeoutError):  # sweep anyway: a row may have been added by another process
                 await within(self._outbox_wake.wait(), self._outbox_sweep_s)
-            except TimeoutError:
-                pass
 
     async def _publish_pending(self, client: aiomqtt.Client) -> None:
         while True:

@@ -775,7 +775,7 @@ def _enc_req_payload(w: _Writer, req: Request) -> None:
                 w.wstr(params, "program parameters")
                 w.boolean(force)
         case ProxyInfo() | ProxyFeatures() | ConfirmAll():
-            pass
+            pass  # no payload after the type byte
         case Benchmark(write=write, iterations=iterations, names=names, values=values):
             if write and len(values) != len(names):
                 raise ProtocolError(f"benchmark write needs one value per name ({len(names)} names, {len(values)})")
@@ -909,7 +909,7 @@ def _enc_rsp_payload(w: _Writer, rsp: Reply) -> None:
         case GetFullNameReply(path=path) | GetKrcNameReply(path=path):
             w.wstr(path, "path")
         case SetAttributeReply() | CreateReply() | DeleteReply() | CopyReply() | MoveReply():
-            pass
+            pass  # footer only (Message Length 4)
         case WriteContentBeginReply(buffer_size=n):
             w.u8(FileOp.BEGIN)
             w.u32(n, "buffer size")
@@ -934,7 +934,7 @@ def _enc_rsp_payload(w: _Writer, rsp: Reply) -> None:
             w.u32(len(data), "chunk size")
             w.raw(data)
         case ConfirmAllReply():
-            pass
+            pass  # footer only
         case FailureReply(payload=payload):
             w.raw(payload)
         case _:

@@ -545,14 +545,18 @@ def evaluate(points: CalibrationPoints, method: str, g_m_s2: float, lever_differ
                       float(np.max(np.abs(loo - points.mass_kg))), len(cal.params))
 
 
-def evaluate_all(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float) -> list[Evaluation]:
-    """Every model of the catalogue that can be fitted to these points, in catalogue order."""
+def evaluate_all(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float,
+                 progress: Callable[[int, int], None] | None = None) -> list[Evaluation]:
+    """Every model of the catalogue that can be fitted to these points, in catalogue order; ``progress(done,
+    total)`` after each model (the leave-one-out fits take seconds)."""
     out = []
-    for name in MODELS:
+    for done, name in enumerate(MODELS, 1):
         try:
             out.append(evaluate(points, name, g_m_s2, lever_difference_m))
         except CalibrationError:
-            continue
+            pass  # this model needs more points than there are: the others are still ranked
+        if progress is not None:
+            progress(done, len(MODELS))
     if not out:
         raise CalibrationError("no calibration model can be fitted to these points (too few loaded points)")
     return out

@@ -159,16 +159,7 @@ def run_study(points_loops: Sequence[Sequence[LoopData]],
 
 def rank_models(points: cal_mod.CalibrationPoints, g_m_s2: float = 9.81, lever_difference_m: float = 1.025,
                 progress: ProgressFn | None = None) -> list[cal_mod.Evaluation]:
-    """Every model of the catalogue that can be fitted to ``points`` (as :func:`calibration.evaluate_all`), ranked
-    by its leave-one-out mean absolute mass error."""
-    evaluations = []
-    for done, name in enumerate(cal_mod.MODELS, 1):
-        try:
-            evaluations.append(cal_mod.evaluate(points, name, g_m_s2, lever_difference_m))
-        except cal_mod.CalibrationError:
-            pass
-        if progress is not None:
-            progress(STAGE_MODELS, done, len(cal_mod.MODELS))
-    if not evaluations:
-        raise cal_mod.CalibrationError("no calibration model can be fitted to these points (too few loaded points)")
+    """:func:`calibration.evaluate_all`, ranked by the leave-one-out mean absolute mass error."""
+    report = None if progress is None else (lambda done, total: progress(STAGE_MODELS, done, total))
+    evaluations = cal_mod.evaluate_all(points, g_m_s2, lever_difference_m, report)
     return sorted(evaluations, key=lambda e: e.loo_mean_abs_err_pct)

@@ -234,7 +234,7 @@ class _Outcome:
 
 
 class _TooComplex(Exception):
-    pass
+    """The program's control flow is beyond what the checker follows: refused."""
 
 
 class _Checker:

@@ -211,7 +211,7 @@ _BUILTINS: dict[str, Callable[..., float]] = {
 
 
 class _ExitLoop(Exception):
-    pass
+    """KRL ``EXIT``: leaves the innermost loop."""
 
 
 class _Return(Exception):

@@ -52,8 +52,9 @@ three torque rows reproduce Table 1's expected A5 torques exactly and A3 within 
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -186,6 +187,14 @@ def torque_calibration_payload(n_cb: int, cb_lever_a5_m: float) -> Payload:
     z = cb_lever_a5_m - kin.D6_M
     bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z), (0.34, 0.34, 0.68)) for k in range(1, n_cb + 1))
     return Payload((mpa(), test_adapter(), *bodies))
+
+
+def campaign_point_payload(point: Mapping[str, Any]) -> Payload:
+    """What the operator mounts for a campaign point, from the daemon's confirm prompt (``kind``, ``n_cb`` and, for a
+    torque point, ``cb_lever_a5_m``; :class:`rgse_daemon.procedures.calibration.CampaignPoint`)."""
+    if point["kind"] == "torque":
+        return torque_calibration_payload(int(point["n_cb"]), float(point["cb_lever_a5_m"]))
+    return mass_calibration_payload(int(point["n_cb"]))
 
 
 def dut_payload(

@@ -136,7 +136,7 @@ class SimProcess:
                 with self._lock:
                     self._conn.send(("stop",))
             except (BrokenPipeError, OSError):
-                pass
+                pass  # the child is already gone: join/terminate below
             self._proc.join(STOP_TIMEOUT_S)
         self._kill()
         self._conn.close()

@@ -13,7 +13,7 @@ from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import compute_mass, run_measurement
 from rgse_daemon.store import LoopState, PointState, RunState, Store, archive_root, verify_file
-from simulators.krc4.physics import dut_payload, mass_calibration_payload, torque_calibration_payload
+from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.sim import SimulatedKrc4
 
 from .conftest import TIME_SCALE, make_engine
@@ -32,10 +32,7 @@ def mount_on_confirm(sim: SimulatedKrc4, engine: RunEngine, seen: list[int]):
             return
         d = ev.data
         seen.append(d["point_index"])
-        if d["kind"] == "torque":
-            sim.mount(torque_calibration_payload(d["n_cb"], d["cb_lever_a5_m"]))
-        else:
-            sim.mount(mass_calibration_payload(d["n_cb"]))
+        sim.mount(campaign_point_payload(d))
         asyncio.get_running_loop().call_soon(engine.confirm, f"mounted point {d['point_index']}")
 
     return on_event

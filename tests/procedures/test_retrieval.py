@@ -20,7 +20,7 @@ from rgse_daemon.procedures.retrieval import pull_trace
 from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import LoopState, RunState, Store, archive_root, verify_file
 from rgse_daemon.store.archive import ArchiveConflict
-from simulators.krc4.physics import mass_calibration_payload, torque_calibration_payload
+from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.sim import SimulatedKrc4
 
 from .conftest import STALE_PERIODS, make_engine
@@ -106,10 +106,7 @@ def _operator(sim: SimulatedKrc4, engine: RunEngine):
         if ev.kind != "confirm":
             return
         d = ev.data
-        if d["kind"] == "torque":
-            sim.mount(torque_calibration_payload(d["n_cb"], d["cb_lever_a5_m"]))
-        else:
-            sim.mount(mass_calibration_payload(d["n_cb"]))
+        sim.mount(campaign_point_payload(d))
         asyncio.get_running_loop().call_soon(engine.confirm, f"mounted point {d['point_index']}")
 
     return on_event
