@@ -393,14 +393,16 @@ def loop(
                      {"loop_index": index})
         outcome.files.append(rel)
     yield m.Call("loop archived", store.update_loop, (run_id, index), {"state": LoopState.ARCHIVED})
-    if not pulled.deleted:
+    # only now, with every file indexed, may the controller's copies go
+    deleted, delete_note = yield m.Call("delete trace on the controller", pulled.delete_copies)
+    if not deleted:
         yield m.Call("note trace left", store.add_event, ("warning", "trace_left_on_controller",
-                                                          f"{trace}: {pulled.delete_note}"),
+                                                          f"{trace}: {delete_note}"),
                      {"run_id": run_id, "data": {"trace": trace}})
     timing.store_s = time.monotonic() - t0
     outcome.sha256s = pulled.sha256s
-    outcome.deleted = pulled.deleted
-    outcome.delete_note = pulled.delete_note
+    outcome.deleted = deleted
+    outcome.delete_note = delete_note
     return outcome
 
 
