@@ -58,6 +58,8 @@ from rgse_daemon.procedures.common import PreconditionError, RunSettings, static
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import run_measurement
+from rgse_daemon.recovery import Recovery
+from rgse_daemon.safety.latch import SafetyLatch
 from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
 from rgse_daemon.store import RunKind, RunState, Store
 from rgse_daemon.systemd import Notifier
@@ -180,6 +182,8 @@ class Daemon:
         self._resumed = False
         self._light_wanted: str | None = None
         self._light_wake = asyncio.Event()
+        self.latch = SafetyLatch(cfg.paths.data_dir)
+        self.recovery: Recovery | None = None
 
     # --- lifecycle -----------------------------------------------------------------------------------------------
     async def run(self, stop: asyncio.Event) -> None:
@@ -190,6 +194,9 @@ class Daemon:
             recovered = await self.store.recover_interrupted(self.robot)
             if recovered:
                 log.warning("runs left running by a previous daemon marked interrupted: %s", [r.id for r in recovered])
+            self.recovery = Recovery(self.cfg, self.store, self.latch, self._publish_alarm,
+                                     lambda run_id, p: self.mqtt.publish_progress(run_id, p) if self.mqtt else None,
+                                     lambda: self.mqtt.notify_outbox() if self.mqtt else None)
 
             if self.cfg.modbus is not None:
                 from rgse_daemon.io.modbus import SafetyIo
@@ -293,6 +300,8 @@ class Daemon:
                     attempt = 0
                     self.krc = krc
                     self.engine = self._make_engine(krc)
+                    assert self.recovery is not None
+                    await self.recovery.on_connect(krc)  # before any run: stop what was left, finish interrupted runs
                     self.counters.controller_connects += 1
                     self.link_error = None
                     self.connected.set()
@@ -378,7 +387,8 @@ class Daemon:
             krc,
             checker=static_checker(self.cfg.limits, self.cfg.measurement.payload_lever_max_m, inputs),
             monitor=Monitor(krc, inputs=inputs,
-                            stale_periods=self.cfg.limits.snapshot_stale_s / DEFAULT_POLL_PERIOD_S),
+                            stale_periods=self.cfg.limits.snapshot_stale_s / DEFAULT_POLL_PERIOD_S,
+                            on_unsafe=self.recovery.on_unsafe if self.recovery is not None else None),
             share_dir=self.cfg.controller.share_dir,
         )
         engine.subscribe(self._event)
@@ -443,6 +453,11 @@ class Daemon:
             except (TimeoutError, RgseError) as exc:
                 log.warning("%s %s not written: %s", what, color, exc)
 
+    def _publish_alarm(self, alarm: dict[str, Any]) -> None:
+        if self.mqtt is not None:
+            self.mqtt.publish_alarm(alarm)
+        self._want_light("red")
+
     def _alarm(self, kind: str, message: str) -> None:
         """Publish a daemon-level alarm once per kind until it clears (log each distinct error once)."""
         if kind in self._alarms_active:
@@ -469,6 +484,7 @@ class Daemon:
                                      "run_id": self.engine.run_id if self.engine and self.run_active else None,
                                      "run_kind": self.run_kind if self.run_active else None,
                                      "connected": self.connected.is_set(),
+                                     "safety_latch": (latch := self.latch.current()) and latch.to_json(),
                                      "daemon": self.counters.as_dict()}
             krc = self.krc
             if krc is not None:
@@ -522,6 +538,11 @@ class Daemon:
             run_id = started.result() if started is not None and started.done() else None
             raise Busy(f"busy: a {self.run_kind} run{f' ({run_id})' if run_id else ''} is in progress; "
                        "abort it first or wait")
+        try:
+            self.latch.check()
+        except RgseError:
+            self.counters.runs_refused += 1
+            raise
         if self.engine is None or self.krc is None or not self.connected.is_set():
             self.counters.runs_refused += 1
             c = self.cfg.controller

@@ -69,7 +69,7 @@ class PulledTrace:
         return tuple(f.sha256 for f in self.files)
 
 
-def _base_name(full: str) -> str:
+def base_name(full: str) -> str:
     return re.split(r"[\\/]", full.rstrip("\\/"))[-1]
 
 
@@ -105,8 +105,8 @@ async def pull_trace(
     t0 = asyncio.get_running_loop().time()
     prefix = f"{trace}_".upper()
     listing = await krc.list_dir(trace_dir)
-    entries = [e for e in listing if not e.is_dir and _base_name(e.name).upper().startswith(prefix)]
-    names = {_base_name(e.name): e for e in entries}
+    entries = [e for e in listing if not e.is_dir and base_name(e.name).upper().startswith(prefix)]
+    names = {base_name(e.name): e for e in entries}
     missing = [trace + s for s in REQUIRED_SUFFIXES if not any(n.upper() == (trace + s).upper() for n in names)]
     if missing and require_complete:
         raise DataError(f"{trace_dir}{trace}: trace incomplete on the controller, missing {', '.join(missing)}")

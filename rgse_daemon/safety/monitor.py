@@ -27,7 +27,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
@@ -230,7 +230,7 @@ class MonitorStats:
 
 
 TripHandler = Callable[[InterlockTrip], None]
-UnsafeHandler = Callable[[InterlockTrip, StopReport], None]
+UnsafeHandler = Callable[[InterlockTrip, StopReport], Awaitable[None]]
 
 
 class Monitor:
@@ -350,7 +350,7 @@ class Monitor:
             return
         _log.critical("interlock: stop NOT confirmed: %s", report.describe(), extra={"watcher": trip.watcher})
         if self.on_unsafe is not None:
-            self.on_unsafe(trip, report)
+            await self.on_unsafe(trip, report)
 
     async def make_safe(self, snap: Snapshot | None) -> None:
         """Stop the program, then the trace; each step bounded, errors recorded (never raised: the trip is the
