@@ -18,10 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from rgse_daemon import kinematics as kin
-from rgse_daemon.aio import within
 from rgse_daemon.config import Config, LimitsConfig
 from rgse_daemon.controller import Snapshot
-from rgse_daemon.errors import InterlockError, KrlSyntaxError, RgseError
+from rgse_daemon.errors import InterlockError, KrlSyntaxError
 from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.krl.render import RenderedProgram, TemplateDefaults, cube_corners, default_params, render
 from rgse_daemon.procedures import messages as m
@@ -30,6 +29,7 @@ from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.retrieval import TRACE_DIR, PulledTrace
 from rgse_daemon.safety.static import CheckContext, ensure_allowed
 from rgse_daemon.store import LoopState, RunState, Store, archive_root, relative_path
+from rgse_daemon.store.final import record_final_state
 from rgse_daemon.trace.config import TraceConfig, TraceModule, TraceTrigger, render_trace_config
 
 _log = logging.getLogger(__name__)
@@ -456,7 +456,4 @@ async def close_run(store: Store, run_id: str, exc: BaseException | None) -> Non
         state, detail = RunState.ABORTED, str(exc)
     else:
         state, detail = RunState.FAILED, f"{type(exc).__name__}: {exc}"
-    try:
-        await asyncio.shield(within(store.set_run_state(run_id, state, detail), 10.0))
-    except (TimeoutError, RgseError) as err:
-        _log.error("run %s: could not record state %s: %r", run_id, state, err)
+    await record_final_state(store, run_id, state, detail)

@@ -14,10 +14,9 @@ for p in (str(_HERE.parents[1]), str(_HERE.parent / "app"), str(_HERE)):
     if p not in sys.path:
         sys.path.insert(0, p)
 
-from tests.app.conftest import calibration_doc, private_broker  # noqa: E402, F401  (fixtures)
-
 from rgse_daemon.krl.render import globals_dat_text  # noqa: E402
 from simulators.krc4.process import SimProcess  # noqa: E402
+from tests.app.conftest import calibration_doc, private_broker  # noqa: E402, F401  (fixtures)
 
 
 @pytest.fixture

@@ -11,11 +11,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from rgse_daemon.app import Daemon  # noqa: E402
-from rgse_daemon.config import config_from_mapping  # noqa: E402
-from rgse_daemon.procedures.calibration import table1_points  # noqa: E402
-from rgse_daemon.procedures.events import Event  # noqa: E402
-from rgse_daemon.systemd import Notifier  # noqa: E402
+from rgse_daemon.app import Daemon
+from rgse_daemon.config import config_from_mapping
+from rgse_daemon.procedures.calibration import table1_points
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.systemd import Notifier
 
 CAMPAIGN = table1_points(n_bodies=(0, 3), torque_levers_a5_m=())
 

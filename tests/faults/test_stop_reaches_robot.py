@@ -42,7 +42,6 @@ async def _events(cfg, kind: str) -> list[Any]:
 
 PHASES = [
     ("measurement", "RGSE_WARMUP"),
-    ("measurement", "RGSE_MEAS_POSE"),
     ("measurement", "RGSE_BRAKE_RELEASE"),
     ("measurement", "recording"),
     ("calibration", "confirm"),
