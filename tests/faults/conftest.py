@@ -16,7 +16,8 @@ for p in (str(_HERE.parents[1]), str(_HERE.parent / "app"), str(_HERE)):
 
 from rgse_daemon.krl.render import globals_dat_text  # noqa: E402
 from simulators.krc4.process import SimProcess  # noqa: E402
-from tests.app.conftest import calibration_doc, private_broker  # noqa: E402, F401  (fixtures)
+from tests.app.conftest import calibration_doc, private_broker, sim  # noqa: E402, F401  (fixtures)
+from tests.store.conftest import pg_schemas, pg_url  # noqa: E402, F401  (fixtures)
 
 
 @pytest.fixture
@@ -26,9 +27,9 @@ async def sim_proc(tmp_path: Path, request: pytest.FixtureRequest) -> AsyncItera
     import asyncio
 
     scale = getattr(request, "param", 5.0)
-    sim = SimProcess(tmp_path / "share", seed=11, time_scale=scale, latency_s=0.0, globals_dat=globals_dat_text())
-    await asyncio.to_thread(sim.start)
+    proc = SimProcess(tmp_path / "share", seed=11, time_scale=scale, latency_s=0.0, globals_dat=globals_dat_text())
+    await asyncio.to_thread(proc.start)
     try:
-        yield sim
+        yield proc
     finally:
-        await asyncio.to_thread(sim.stop)
+        await asyncio.to_thread(proc.stop)
