@@ -19,11 +19,14 @@ event.
 
 from __future__ import annotations
 
+import asyncio
 import logging
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from rgse_daemon.aio import within
 from rgse_daemon.config import Config
 from rgse_daemon.controller import Controller
 from rgse_daemon.errors import RgseError
@@ -31,7 +34,7 @@ from rgse_daemon.procedures.common import run_directory
 from rgse_daemon.procedures.measurement import result_topic
 from rgse_daemon.procedures.retrieval import REQUIRED_SUFFIXES, TRACE_DIR, archived_not_indexed, base_name, pull_trace
 from rgse_daemon.safety.latch import CLEAR_HINT, SafetyLatch
-from rgse_daemon.safety.makesafe import StopReport, sweep
+from rgse_daemon.safety.makesafe import STEP_TIMEOUT_S, StopReport, sweep
 from rgse_daemon.safety.monitor import InterlockTrip
 from rgse_daemon.store import LoopState, RunKind, RunRecord, RunState, Store, relative_path
 from rgse_daemon.store.archive import ArchivedFile
@@ -41,6 +44,9 @@ log = logging.getLogger(__name__)
 
 #: Event kind that marks an interruption as recovered (its ``data.ended_utc`` names which interruption).
 RECOVERED = "run_recovered"
+
+#: How long recovery waits for a stopped trace to be written (s).
+TRACE_WRITTEN_S = 30.0
 
 Alarm = Callable[[dict[str, Any]], None]
 
@@ -83,9 +89,22 @@ class Recovery:
             await self._latch(f"stop at connect not confirmed: {report.describe()}", report)
             return
         try:
+            await self._trace_written(krc)
             await self.recover_runs(krc)
         except RgseError as exc:  # the link or the store failed: the next connect tries again
             log.error("recovery of interrupted runs incomplete: %s", exc)
+
+    async def _trace_written(self, krc: Controller) -> None:
+        """A trace stopped by the sweep is still being written (``#T_WRITING``): wait for its files (bounded)."""
+        deadline = time.monotonic() + TRACE_WRITTEN_S
+        while True:
+            state = str(await within(krc.read_raw("$TRACE.STATE"), STEP_TIMEOUT_S)).strip().lstrip("#").upper()
+            if state != "T_WRITING":
+                return
+            if time.monotonic() > deadline:
+                raise RgseError(f"trace still #T_WRITING after {TRACE_WRITTEN_S:g} s; recovery waits for the next "
+                                "connect")
+            await asyncio.sleep(0.1)
 
     async def on_unsafe(self, trip: InterlockTrip, report: StopReport) -> None:
         """The interlock's stop was not confirmed by its deadline: latch."""
