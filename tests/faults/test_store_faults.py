@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import psycopg
+import pytest
 from daemon_helpers import daemon_config, running_daemon, seed_calibration
 
 from rgse_daemon.errors import RgseError
@@ -68,15 +69,27 @@ def _sha(p: Path) -> str:
     return hashlib.sha256(p.read_bytes()).hexdigest()
 
 
+@pytest.mark.parametrize("full", ["archive and store", "store only"])
 async def test_disk_full_during_a_measurement_keeps_archive_store_and_controller_consistent(
-        sim: SimulatedKrc4, calibration_doc: dict[str, Any], tmp_path: Path) -> None:
+        sim: SimulatedKrc4, calibration_doc: dict[str, Any], tmp_path: Path, full: str) -> None:
     with tmpfs(tmp_path / "small", "3m") as small:
-        cfg = daemon_config(small / "data", controller_port=sim.port, share_dir=sim.share_dir, loops=3)
+        if full == "archive and store":
+            cfg = daemon_config(small / "data", controller_port=sim.port, share_dir=sim.share_dir, loops=3)
+        else:  # the archive has room, the store's disk is full: the pull archives, the index fails
+            cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir, loops=3)
+            cfg = cfg.model_copy(update={"store": cfg.store.model_copy(
+                update={"url": f"sqlite:///{small / 'rgse.sqlite3'}"})})
         await seed_calibration(cfg, calibration_doc)
         async with running_daemon(cfg) as rd:
             task = await rd.daemon.start_measurement()
             while sim.store.read("$TRACE.STATE").strip().upper() not in ("#TRIGGERED", "#T_WRITING"):  # noqa: ASYNC110
                 await asyncio.sleep(0.005)
+            if full == "store only":  # fill the store's disk in the middle of the pull: archived, not indexed
+                sim.server.faults.extra_latency_s = 0.2
+                runs = cfg.paths.data_dir / "archive" / "runs"
+                while not [p for p in runs.glob("*/dut_*") if not p.name.startswith(".")]:  # noqa: ASYNC110
+                    await asyncio.sleep(0.005)
+                sim.server.faults.extra_latency_s = 0.0
             filler = _fill(small)  # the disk is full while the trace is written and pulled
             try:
                 while not task.done() and not (rd.daemon.engine and rd.daemon.engine.state == "failed"):  # noqa: ASYNC110
@@ -99,6 +112,8 @@ async def test_disk_full_during_a_measurement_keeps_archive_store_and_controller
         root = archive_root(cfg.paths.data_dir)
         on_controller = {p.name for p in (sim.share_dir / "TRACE").iterdir()}
         archived = {p.name: p for p in (root / run.directory).glob("*") if p.is_file() and not p.name.startswith(".")}
+        if full == "store only":  # the case of the finding: files archived, then the index failed
+            assert archived and len(indexed) < len(archived), (sorted(archived), sorted(indexed))
         for f in indexed.values():  # everything indexed is archived, intact
             assert _sha(root / f.path) == f.sha256
         for lp in loops:
