@@ -79,6 +79,9 @@ async def _child(conn: Connection, share_dir: str, seed: int | None, time_scale:
                     conn.send(("ok", sim.truth))
                 elif verb == "peek":  # the controller's own variables, as its smartPAD shows them
                     conn.send(("ok", {name: sim.store.read(name) for name in msg[1]}))
+                elif verb == "update":  # a variable changed on the controller's side (e.g. the mode selector)
+                    sim.store.update(msg[1], msg[2])
+                    conn.send(("ok", None))
                 elif verb == "fault":  # set one of the server's fault injections (server.Faults)
                     setattr(sim.server.faults, msg[1], msg[2])
                     conn.send(("ok", None))
@@ -191,6 +194,10 @@ class SimProcess:
     async def fault(self, name: str, value: Any) -> None:
         """Set ``server.faults.<name>`` in the child (see :class:`simulators.krc4.server.Faults`)."""
         await asyncio.to_thread(self._request_blocking, ("fault", name, value))
+
+    async def update(self, name: str, value: str) -> None:
+        """Set ``name`` to the value text ``value`` in the controller's variable store (no client involved)."""
+        await asyncio.to_thread(self._request_blocking, ("update", name, value))
 
     @property
     def pid(self) -> int | None:
