@@ -91,7 +91,7 @@ class Recovery:
         try:
             await self._trace_written(krc)
             await self.recover_runs(krc)
-        except RgseError as exc:  # the link or the store failed: the next connect tries again
+        except (RgseError, TimeoutError) as exc:  # the link or the store failed: the next connect tries again
             log.error("recovery of interrupted runs incomplete: %s", exc)
 
     async def _trace_written(self, krc: Controller) -> None:
