@@ -54,6 +54,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import operator
 import struct
 from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
@@ -237,7 +238,11 @@ class _Int:
         self.lo, self.hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if fmt.islower() else (0, (1 << bits) - 1)
 
     def put(self, out: bytearray, value: Any, what: str) -> None:
-        if not isinstance(value, int) or not self.lo <= value <= self.hi:
+        try:
+            fits = self.lo <= operator.index(value) <= self.hi
+        except TypeError:
+            fits = False
+        if not fits:
             raise ProtocolError(f"{what}={value!r} does not fit the wire field (an integer {self.lo}..{self.hi})")
         out += self.struct.pack(value)
 
@@ -349,11 +354,10 @@ class _List:
 
     def put(self, out: bytearray, value: Any, what: str) -> None:
         self.count.put(out, len(value), f"number of {what}")
-        for i, v in enumerate(value):
-            self.item.put(out, v, f"{what}[{i}]")
+        _Array(self.item, len(value)).put(out, value, what)
 
     def get(self, r: _Reader, what: str) -> tuple[Any, ...]:
-        return tuple(self.item.get(r, f"{what}[{i}]") for i in range(self.count.get(r, f"number of {what}")))
+        return _Array(self.item, self.count.get(r, f"number of {what}")).get(r, what)
 
 
 class _Pair:
