@@ -988,7 +988,7 @@ def encode_response(tag: int, rsp: Reply) -> bytes:
     else:
         _REPLIES.put(out, rsp)
         msg_type = rsp.TYPE
-    U16.put(out, int(rsp.code), "error code")
+    U16.put(out, rsp.code, "error code")
     BOOL.put(out, rsp.success, "success")
     return _frame(tag, msg_type, out)
 
