@@ -16,7 +16,6 @@ import argparse
 import sys
 from typing import Any
 
-from rgse_daemon.cli import EXIT_FAILED
 from rgse_daemon.commands.status import (
     Conversation,
     Unreachable,
@@ -27,6 +26,7 @@ from rgse_daemon.commands.status import (
     report_reply,
     run_operator,
 )
+from rgse_daemon.errors import EXIT_FAILED
 
 #: How long to wait for the daemon's state when the run is not named (it is retained: normally at once).
 STATE_WAIT_S = 3.0

@@ -31,9 +31,8 @@ from typing import Any, TypeVar
 
 import aiomqtt
 
-from rgse_daemon.cli import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from rgse_daemon.config import load_config
-from rgse_daemon.errors import ConfigError, RgseError
+from rgse_daemon.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, ConfigError, RgseError
 from rgse_daemon.io.commands import CommandRefused, parse_command
 from rgse_daemon.io.mqtt import Topics, _tls_context
 

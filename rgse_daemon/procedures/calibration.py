@@ -26,9 +26,8 @@ from typing import Any
 
 from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
-from rgse_daemon.commands import calibrate as calibrate_command
+from rgse_daemon.analysis import calibration as campaign_analysis
 from rgse_daemon.config import Config
-from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
@@ -49,6 +48,7 @@ from rgse_daemon.procedures.common import (
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import result_topic
+from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import LoopState, OutboxMessage, PointState, RunKind, RunState, Store
 from rgse_daemon.store.errors import StoreConflict
 
@@ -126,8 +126,8 @@ def table1_points(n_bodies: Sequence[int] = range(0, 11),
 # --- the offline path ---------------------------------------------------------------------------------------------
 def fit_campaign(directory: Path, method: str = "auto") -> tuple[dict[str, Any], dict[str, Any]]:
     """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --json`` as a function (the same
-    :func:`commands.calibrate.fit_campaign`); writes CAL.json into the campaign directory."""
-    doc, summary = calibrate_command.fit_campaign(directory, method)
+    :func:`analysis.calibration.fit_campaign`); writes CAL.json into the campaign directory."""
+    doc, summary = campaign_analysis.fit_campaign(directory, method)
     calfile.write(directory / CALIBRATION_FILE, doc)
     return doc, summary
 

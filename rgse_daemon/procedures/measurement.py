@@ -22,9 +22,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from rgse_daemon.commands import mass as mass_command
+from rgse_daemon.analysis import mass as mass_analysis
 from rgse_daemon.config import Config
-from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
@@ -40,15 +39,16 @@ from rgse_daemon.procedures.common import (
 )
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import OutboxMessage, RunKind, RunState, Store
 
 CALIBRATION_FILE = "CAL.json"
 
 
 def compute_mass(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None) -> dict[str, Any]:
-    """``rgse mass --traces DIR --calibration CAL --json`` as a function (the same :func:`commands.mass.compute`).
+    """``rgse mass --traces DIR --calibration CAL --json`` as a function (the same :func:`analysis.mass.compute`).
     Returns the contract-§1 JSON object."""
-    return mass_command.compute(directory, calibration_path, fixture_mass_kg).to_json()
+    return mass_analysis.compute(directory, calibration_path, fixture_mass_kg).to_json()
 
 
 def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> None:
