@@ -35,6 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rgse_daemon.config import ControllerConfig, Protocol
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import ConfigError, LinkError, NotAllowedError, ProtocolError, VariableError
 from rgse_daemon.link import frames as fr
 from rgse_daemon.link.connection import ConnectionState
@@ -536,10 +537,7 @@ def share_path(root: Path, name: str) -> Path:
 
 
 def _share_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.rgse-tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    write_atomic(path, data)
 
 
 def _share_read(path: Path) -> bytes:

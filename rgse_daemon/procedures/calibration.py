@@ -28,6 +28,7 @@ from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import calibration as campaign_analysis
 from rgse_daemon.config import Config
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
@@ -43,7 +44,6 @@ from rgse_daemon.procedures.common import (
     traces_toml,
     verify_start,
     warm_up,
-    write_text_durably,
 )
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
@@ -138,7 +138,7 @@ def write_campaign_manifest(run_dir: Path, s: RunSettings, points: list[tuple[Ca
         lines += ["[[point]]", f'kind = "{p.kind}"', f"mass_kg = {p.mass_kg!r}", f"lever_a3_m = {p.lever_a3_m!r}",
                   f"lever_a5_m = {p.lever_a5_m!r}", traces_toml(traces), ""]
     run_dir.mkdir(parents=True, exist_ok=True)
-    write_text_durably(run_dir / "manifest.toml", "\n".join(lines))
+    write_atomic(run_dir / "manifest.toml", "\n".join(lines))
 
 
 def _finish(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, list[str]]],

@@ -422,18 +422,6 @@ def traces_toml(traces: Sequence[str]) -> str:
     return "traces = [" + ", ".join(_toml_str(t) for t in traces) + "]"
 
 
-def write_text_durably(path: Path, text: str) -> None:
-    """Write ``path`` via a temporary file, fsync and rename (a manifest is never half written)."""
-    import os
-
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 # --- run lifecycle ----------------------------------------------------------------------------------------------
 def run_directory(cfg_data_dir: Path, directory: str) -> tuple[Path, Path]:
     """(archive root, run directory) of a run."""

@@ -24,6 +24,7 @@ from typing import Any
 
 from rgse_daemon.analysis import mass as mass_analysis
 from rgse_daemon.config import Config
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
@@ -35,7 +36,6 @@ from rgse_daemon.procedures.common import (
     run_directory,
     setup_toml,
     traces_toml,
-    write_text_durably,
 )
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
@@ -55,8 +55,8 @@ def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_
     """manifest.toml (contract §2, ``[measurement]``) and the calibration used, as ``CAL.json``."""
     run_dir.mkdir(parents=True, exist_ok=True)
     lines = [*setup_toml(s), "[measurement]", f"fixture_mass_kg = {float(s.fixture_mass_kg)!r}", traces_toml(traces)]
-    write_text_durably(run_dir / "manifest.toml", "\n".join(lines) + "\n")
-    write_text_durably(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
+    write_atomic(run_dir / "manifest.toml", "\n".join(lines) + "\n")
+    write_atomic(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
 
 
 def _finish(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> dict[str, Any]:
