@@ -36,9 +36,9 @@ from daemon_helpers import (
 )
 
 from rgse_daemon import cli
+from rgse_daemon.analysis.reference import references
 from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.procedures.events import Event
-from rgse_daemon.reference import references
 from rgse_daemon.store import Repository, RunState
 from simulators.krc4.physics import dut_payload
 from simulators.krc4.process import SimProcess

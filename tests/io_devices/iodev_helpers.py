@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import pytest
 
-from rgse_daemon.io.modbus import ModbusConfig
+from rgse_daemon.config import ModbusConfig
 
 
 async def wait_until(condition: Callable[[], bool], timeout_s: float = 10.0, what: str = "condition") -> None:

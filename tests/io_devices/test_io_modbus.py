@@ -11,15 +11,10 @@ from hypothesis import strategies as st
 from iodev_helpers import fast_cfg, wait_until
 from pydantic import ValidationError
 
+from rgse_daemon.config import ModbusConfig
 from rgse_daemon.io import IoDeviceRefused, IoLinkError
-from rgse_daemon.io.modbus import (
-    ConnectionState,
-    LightColor,
-    ModbusConfig,
-    SafetyInputs,
-    SafetyIo,
-    backoff_s,
-)
+from rgse_daemon.io.modbus import ConnectionState, LightColor, SafetyIo, backoff_s
+from rgse_daemon.safety.inputs import SafetyInputs
 from simulators.modbus_io import ModbusIoSim
 
 

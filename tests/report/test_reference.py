@@ -11,11 +11,12 @@ from pathlib import Path
 
 import pytest
 
+from rgse_daemon.analysis.reference import EVENT_KIND, FAILED_KIND, references
 from rgse_daemon.commands import reference as reference_cmd
+from rgse_daemon.config import ScaleConfig
 from rgse_daemon.errors import ConfigError, DataError
 from rgse_daemon.io import IoFrameError, IoTimeout
-from rgse_daemon.io.scale import ScaleConfig, parse_line
-from rgse_daemon.reference import EVENT_KIND, FAILED_KIND, references
+from rgse_daemon.io.scale import parse_line
 from rgse_daemon.report import build_report
 from rgse_daemon.store import Repository
 from simulators.scale import ScaleSim, ScaleSimConfig
