@@ -24,7 +24,7 @@ from rgse_daemon.analysis.calibration import (
 from rgse_daemon.cli import main
 from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import preprocess as pp
-from tests.offline.simcampaign import G, simulate_campaign, simulate_measurement, write_dirs
+from tests.support.simcampaign import G, simulate_campaign, simulate_measurement, write_dirs
 
 N_SEEDS = 40
 

@@ -21,7 +21,7 @@ from rgse_daemon.report import build_report
 from rgse_daemon.store import Repository
 from simulators.scale import ScaleSim, ScaleSimConfig
 from tests.report.conftest import FIXTURE_KG, World, write_config
-from tests.report.test_report import Dom
+from tests.support.chromium import Dom
 
 D_KG = 0.1
 

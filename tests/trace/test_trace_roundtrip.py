@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tracehelpers import DRIVE_UNITS, drive_channels, edit_channel, write_small_set
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.trace import read_trace_file, read_trace_set
 from rgse_daemon.trace.channels import ISTMOMENT, drive_module
 from simulators.krc4.tracefiles import write_trace_set
+from tests.support.tracehelpers import DRIVE_UNITS, drive_channels, edit_channel, write_small_set
 
 
 @pytest.mark.parametrize("storage", ["BLOCK", "CHANNEL"])

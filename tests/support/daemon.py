@@ -1,4 +1,4 @@
-"""Helpers of the daemon tests (imported by name: this directory is on sys.path under pytest).
+"""Helpers of the daemon tests.
 
 * :func:`daemon_config`: a configuration for short runs against the simulators and a private broker.
 * :func:`running_daemon`: ``Daemon(cfg).run(stop)`` as a task, connected, stopped (bounded) on exit.
@@ -29,8 +29,8 @@ from rgse_daemon.config import Config, MeasurementConfig, config_from_mapping
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.store import Store
 from rgse_daemon.systemd import Notifier
-from tests.mqtt.mqtt_helpers import Collector
-from tests.offline.simcampaign import ROBOT, simulate_campaign, simulate_measurement, write_dirs
+from tests.support.mqtt import Collector
+from tests.support.simcampaign import ROBOT, simulate_campaign, simulate_measurement, write_dirs
 
 __all__ = ["ROBOT"]
 
