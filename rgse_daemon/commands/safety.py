@@ -12,8 +12,8 @@ import json
 import sys
 from datetime import UTC, datetime
 
-from rgse_daemon.cli import EXIT_FAILED, EXIT_OK
 from rgse_daemon.config import load_config
+from rgse_daemon.errors import EXIT_FAILED, EXIT_OK
 from rgse_daemon.safety.latch import CLEAR_HINT, clear_latch, read_latch
 
 

@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import InterlockError
 
 _log = logging.getLogger(__name__)
@@ -69,17 +69,7 @@ def write_latch(data_dir: Path, latch: Latch) -> None:
     """Write the latch durably (temporary file, fsync, rename, fsync of the directory). Raises OSError."""
     path = latch_path(data_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(json.dumps(latch.to_json(), indent=2, sort_keys=True) + "\n")
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-    dir_fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
+    write_atomic(path, json.dumps(latch.to_json(), indent=2, sort_keys=True) + "\n")
 
 
 def clear_latch(data_dir: Path) -> Latch | None:

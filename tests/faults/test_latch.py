@@ -8,8 +8,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from daemon_helpers import daemon_config, running_daemon, seed_calibration
-from faults_helpers import ours_active, until_truth
 
 from rgse_daemon import cli
 from rgse_daemon.errors import RgseError
@@ -17,6 +15,8 @@ from rgse_daemon.link.frames import MsgType
 from rgse_daemon.safety.latch import SafetyLatched
 from rgse_daemon.store import Store
 from simulators.krc4.process import SimProcess
+from tests.support.daemon import daemon_config, running_daemon, seed_calibration
+from tests.support.faults import ours_active, swept, until_truth
 
 ACCESS = 2
 
@@ -29,6 +29,7 @@ async def test_an_unconfirmed_stop_latches_until_the_operator_clears_it(
     cfg_file.write_text(f'[paths]\ndata_dir = "{data}"\n', encoding="utf-8")
     await seed_calibration(cfg, calibration_doc)
     async with running_daemon(cfg) as rd:
+        await swept(rd.daemon)
         task = await rd.daemon.start_measurement()
         await until_truth(sim_proc, lambda v: ours_active(v, "RGSE_WARMUP"), "the warm-up moving")
         assert rd.daemon.engine is not None and rd.daemon.engine.monitor is not None
@@ -46,6 +47,7 @@ async def test_an_unconfirmed_stop_latches_until_the_operator_clears_it(
         await sim_proc.update("$MODE_OP", "#T1")
     # a restart does not clear it
     async with running_daemon(cfg) as rd:
+        await swept(rd.daemon)
         with pytest.raises(SafetyLatched):
             await rd.daemon.start_measurement()
         assert await asyncio.to_thread(cli.main, ["safety", "status", "--config", str(cfg_file)]) == 1

@@ -22,12 +22,12 @@ from pathlib import Path
 from typing import Any
 
 import aiomqtt
-from daemon_helpers import PREFIX, daemon_config, running_daemon, seed_calibration
-from faults_helpers import DaemonProcess, stopped, truth, until_truth
 
 from rgse_daemon.store import LoopState, RunKind, RunState, Store, archive_root
 from simulators.krc4.process import SimProcess
-from tests.mqtt.mqtt_helpers import MosquittoProcess
+from tests.support.daemon import PREFIX, daemon_config, running_daemon, seed_calibration
+from tests.support.faults import DaemonProcess, stopped, swept, truth, until_truth
+from tests.support.mqtt import MosquittoProcess
 
 
 def _sha(p: Path) -> str:
@@ -71,7 +71,8 @@ async def test_killed_while_recording_the_trace_is_pulled_indexed_and_the_result
     run, loops, files, _ = await _the_run(cfg)
     assert run.state == RunState.RUNNING and loops[0].state == LoopState.RECORDING and not files
     trace = loops[0].trace_name
-    async with running_daemon(cfg):
+    async with running_daemon(cfg) as rd:
+        await swept(rd.daemon)
         assert stopped(await truth(sim_proc))
         run, loops, files, events = await _the_run(cfg)
         result = await _retained(private_broker.port, f"{PREFIX}/run/{run.id}/result")
@@ -110,7 +111,8 @@ async def test_killed_during_a_pull_the_archived_files_are_indexed_and_the_loop_
     originals = _on_controller(sim_proc, trace)
     archived = [p for p in (runs / run.id).glob(f"{trace}_*")]
     assert loops[0].state == LoopState.RECORDED and archived and len(files) < len(originals)
-    async with running_daemon(cfg):
+    async with running_daemon(cfg) as rd:
+        await swept(rd.daemon)
         run, loops, files, events = await _the_run(cfg)
     assert loops[0].state == LoopState.ARCHIVED
     indexed = {Path(f.path).name: f.sha256 for f in files.values() if f.loop_index == loops[0].index}

@@ -20,12 +20,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from daemon_helpers import daemon_config, running_daemon, seed_calibration
-from faults_helpers import DaemonProcess, ours_active, stopped, truth, until_truth
 
 from rgse_daemon.errors import RgseError
 from rgse_daemon.store import Store
 from simulators.krc4.process import SimProcess
+from tests.support.daemon import daemon_config, running_daemon, seed_calibration
+from tests.support.faults import DaemonProcess, ours_active, stopped, swept, truth, until_truth
 
 #: How long a stall or a link fault lasts (s): longer than the interlock's staleness (1 s) and one stop attempt.
 FAULT_S = 5.0
@@ -74,6 +74,7 @@ async def test_daemon_killed_in_each_phase_then_restarted_leaves_the_robot_stopp
     if left_moving:  # the dead daemon left something running: the restart must stop it
         assert not stopped(before), before
     async with running_daemon(cfg) as rd:
+        await swept(rd.daemon)
         # connected means: the sweep ran; nothing of ours moves or records any more
         after = await truth(sim_proc)
         assert stopped(after), after
@@ -89,6 +90,7 @@ async def test_controller_stall_during_a_move_stops_the_program_once_it_is_back(
     cfg = _config(tmp_path, sim_proc)
     await seed_calibration(cfg, calibration_doc)
     async with running_daemon(cfg) as rd:
+        await swept(rd.daemon)
         task = await rd.daemon.start_measurement()
         await until_truth(sim_proc, lambda v: ours_active(v, "RGSE_WARMUP"), "the warm-up moving")
         assert sim_proc.pid is not None
@@ -122,6 +124,7 @@ async def test_link_fault_during_a_move_the_stop_is_retried_until_confirmed(
     cfg = _config(tmp_path, sim_proc)
     await seed_calibration(cfg, calibration_doc)
     async with running_daemon(cfg) as rd:
+        await swept(rd.daemon)
         task = await rd.daemon.start_measurement()
         await until_truth(sim_proc, lambda v: ours_active(v, "RGSE_WARMUP"), "the warm-up moving")
         if fault == "delayed reply":

@@ -20,12 +20,12 @@ from typing import Any
 
 import psycopg
 import pytest
-from daemon_helpers import daemon_config, running_daemon, seed_calibration
 
 from rgse_daemon.errors import RgseError
 from rgse_daemon.store import RunState, Store, archive_root
 from simulators.krc4.sim import SimulatedKrc4
-from tests.store.conftest import PG_URL
+from tests.support.daemon import daemon_config, running_daemon, seed_calibration
+from tests.support.faults import PG_URL
 
 
 async def test_one_dropped_postgresql_connection_is_retried(pg_url: str, tmp_path: Path) -> None:

@@ -1,4 +1,5 @@
-"""Helpers of the fault suite: the simulator's ground truth, and the daemon as a separate process to SIGKILL."""
+"""Helpers of the fault suite (tests/faults): the simulator's ground truth, the daemon as a separate process to
+SIGKILL (``daemon_child.py``), and "the daemon's connect-time sweep and recovery are done"."""
 
 from __future__ import annotations
 
@@ -14,7 +15,9 @@ from typing import Any
 
 from rgse_daemon.config import Config
 from simulators.krc4.process import SimProcess
+from tests.support.polling import wait_until
 
+PG_URL = os.environ.get("RGSE_TEST_PG_URL", "postgresql://postgres@127.0.0.1:5432/test")
 PROGRAM_VARS = ("$PRO_STATE1", "$PRO_NAME1[]", "$TRACE.STATE")
 TRACE_ACTIVE = ("#T_WAIT", "#TRIGGERED", "#T_START")
 WAIT_S = 90.0
@@ -48,6 +51,12 @@ async def until_truth(sim: SimProcess, predicate: Callable[[dict[str, str]], boo
         if time.monotonic() > deadline:
             raise AssertionError(f"{what}: not within {timeout_s:g} s; the simulator shows {v}")
         await asyncio.sleep(period_s)
+
+
+async def swept(daemon: Any, timeout_s: float = WAIT_S) -> None:
+    """Wait until ``daemon`` (a connected :class:`~rgse_daemon.app.Daemon`) finished its connect-time sweep and
+    recovery: it makes its run engine only then."""
+    await wait_until(lambda: daemon.engine is not None, "the connect-time sweep and recovery done", timeout_s)
 
 
 class DaemonProcess:
