@@ -245,7 +245,7 @@ class Daemon:
         task, self._controller_task = self._controller_task, None
         if task is None:
             return
-        if not self.connected.is_set():
+        if self.link.connecting:  # not while the link closes: a cancel there would leave its connections open
             task.cancel()
         done, _ = await asyncio.wait({task}, timeout=STOP_TIMEOUT_S)
         if not done:

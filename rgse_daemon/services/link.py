@@ -61,6 +61,8 @@ class ControllerLink:
         self.connected = asyncio.Event()
         self.krc: Controller | None = None
         self.error: str | None = None
+        self.connecting = False
+        """True while a connect attempt is in flight (the only phase a shutdown may cancel)."""
 
     @property
     def where(self) -> str:
@@ -78,8 +80,10 @@ class ControllerLink:
         be lost: back off and connect anew."""
         attempt = 0
         while not stop.is_set():
+            self.connecting = True
             try:
                 async with Controller.connect(self.cfg) as krc:
+                    self.connecting = False
                     attempt = 0
                     if prepare is not None:
                         await prepare(krc)
@@ -106,6 +110,7 @@ class ControllerLink:
                 self.error = f"{type(exc).__name__}: {exc}"
                 self.alarms.raise_("link", f"{self.where}: unexpected error: {self.error}")
             finally:
+                self.connecting = False
                 self.connected.clear()
                 self.krc = None
             if stop.is_set():
