@@ -95,12 +95,14 @@ async def stop_until_confirmed(
     *,
     deadline_s: float = STOP_DEADLINE_S,
     any_program: bool = True,
+    deselect: bool = True,
     step_timeout_s: float = STEP_TIMEOUT_S,
 ) -> StopReport:
     """Stop program and trace until a read-back confirms both (see the module docstring), at most ``deadline_s``.
 
     ``any_program``: stop an active program whatever its name (the interlock: doubt = stop); False stops only
-    ``RGSE_*`` programs (the sweep at connect). Never raises but for cancellation: the report says how it went.
+    ``RGSE_*`` programs (the sweep at connect). ``deselect`` False leaves a stopped program selected (step 3).
+    Never raises but for cancellation: the report says how it went.
     """
     t0 = time.monotonic()
     deadline = t0 + deadline_s
@@ -121,7 +123,7 @@ async def stop_until_confirmed(
                 todo = True
                 actions.append("stop program")
                 await within(krc.stop_program(), step_timeout_s)
-            elif state in DESELECT_STATES and ours(name):
+            elif deselect and state in DESELECT_STATES and ours(name):
                 todo = True
                 actions.append("cancel program")
                 await within(krc.cancel_program(), step_timeout_s)

@@ -17,6 +17,10 @@ loss. On a trip it, in this order and each step bounded by ``stop_timeout_s``:
    ``on_unsafe(report)`` (the daemon latches: :mod:`rgse_daemon.safety.latch`). The plan's block does not end before
    this step has, so no new run starts while the stop is still unconfirmed.
 
+A plan that ends without a trip gets the same check once its block ends (:meth:`Monitor.running`): a program still
+active or a trace still recording (the plan's own finaliser failed, e.g. its stop was refused) is stopped until
+confirmed, or latched. A plan that ended normally costs one read of three variables.
+
 The plan tells the monitor what to expect through :attr:`Monitor.context` (allowed modes, program expected
 running or idle, safety inputs): the engine updates it as it starts and ends programs.
 """
@@ -301,6 +305,8 @@ class Monitor:
                 finally:
                     task.cancel()
                     await asyncio.wait({task})  # a cancel of *this* task still propagates from here
+                if not self._confirming:
+                    await self._confirm_idle()
 
     async def _poll(self, on_trip: TripHandler) -> None:
         last_good = time.monotonic()
@@ -351,6 +357,19 @@ class Monitor:
         _log.critical("interlock: stop NOT confirmed: %s", report.describe(), extra={"watcher": trip.watcher})
         if self.on_unsafe is not None:
             await self.on_unsafe(trip, report)
+
+    async def _confirm_idle(self) -> None:
+        """The block ended without a trip: nothing may still move or record (see the module docstring)."""
+        report = await stop_until_confirmed(self.krc, deadline_s=self.make_safe_deadline_s, deselect=False)
+        self.stats.stop_report = report
+        if report.acted:
+            _log.error("interlock: the plan ended with something still running: %s", report.describe())
+        if not report.confirmed:
+            _log.critical("interlock: stop at the end of the plan NOT confirmed: %s", report.describe())
+            if self.on_unsafe is not None:
+                trip = InterlockTrip("plan_end", "the plan ended with program or trace not confirmed stopped",
+                                     report.describe())
+                await self.on_unsafe(trip, report)
 
     async def make_safe(self, snap: Snapshot | None) -> None:
         """Stop the program, then the trace; each step bounded, errors recorded (never raised: the trip is the

@@ -56,8 +56,9 @@ async def test_finaliser_runs_on_error(sim, engine: RunEngine, settings):
 
 async def test_cleanup_error_does_not_mask_the_cause(sim, krc, cfg, settings):
     # a monitor without watchers: this test is about the finaliser, not the interlock
-    engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=Monitor(krc, watchers=()),
-                       share_dir=cfg.controller.share_dir)
+    # (and a short stop deadline: the plan-end check cannot read $TRACE.STATE either, and says so after 2 s)
+    monitor = Monitor(krc, watchers=(), make_safe_deadline_s=2.0)
+    engine = RunEngine(krc, checker=make_engine(krc, cfg).checker, monitor=monitor, share_dir=cfg.controller.share_dir)
 
     def plan() -> m.Plan:
         yield from _fails_while_moving(settings, sim)
