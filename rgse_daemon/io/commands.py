@@ -26,12 +26,23 @@ import json
 from collections.abc import Sequence
 from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from rgse_daemon.errors import RgseError
+from rgse_daemon.trace.names import name_problem
+
+
+def _plain(value: str) -> str:
+    """A run id names a run directory: a plain name, never ``.`` or ``..``."""
+    problem = name_problem(value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
+
 
 RequestId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\-]+$")]
-RunId = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9_.\-]+$")]
+RunId = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9_.\-]+$"),
+                  AfterValidator(_plain)]
 Token = Annotated[str | None, Field(default=None, max_length=256, repr=False)]
 
 #: The largest command payload accepted, in bytes; anything longer is refused unread.

@@ -45,6 +45,7 @@ import numpy as np
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.trace.channels import ZEIT
+from rgse_daemon.trace.names import inside, plain_name
 
 __all__ = ["Channel", "TraceFile", "TraceSet", "parse_header", "read_trace_file", "read_trace_set"]
 
@@ -428,6 +429,7 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
             raise DataError(f"{source}: data file (code 211) names the header itself")
         if not dat_path.with_name(file_name).is_file():
             raise DataError(f"{source}: data file {file_name!r} (code 211) not found beside the header")
+        inside(dat_path.parent, dat_path.with_name(file_name))
     for file_name, group in by_file.items():
         data_path = dat_path.with_name(file_name)
         raw, digest = _read_raw(data_path, source, with_sha256)
@@ -506,6 +508,7 @@ def read_trace_set(
     hashing release the GIL, so the two cores overlap. ``with_sha256`` as for :func:`read_trace_file`.
     """
     directory = Path(directory)
+    plain_name(name, f"{directory}: trace name")
     if not directory.is_dir():
         raise DataError(f"{directory}: trace directory not found")
     wanted = _modules_present(directory, name) if modules is None else list(modules)
@@ -515,6 +518,8 @@ def read_trace_set(
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         raise DataError(f"{', '.join(missing)}: trace file(s) of requested module(s) not found")
+    for p in paths:
+        inside(directory, p)
 
     def read_one(path: Path, module: str) -> TraceFile:
         return read_trace_file(path, module, with_sha256=with_sha256)
