@@ -68,7 +68,7 @@ MAX_BITS_PER_READ = 2000  # Modbus application protocol limit for FC 1 / FC 2
 
 # --- configuration -------------------------------------------------------------------------------------------
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class InputMap(_Strict):

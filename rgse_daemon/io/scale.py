@@ -66,7 +66,7 @@ _REQUIRED_GROUPS = {"value", "unit"}
 class ScaleConfig(BaseModel):
     """How to reach the crane scale and how to read its lines."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     port: str = Field("/dev/ttyUSB0", min_length=1)
     """A device path or a pyserial URL such as ``socket://10.0.0.8:4001``."""
