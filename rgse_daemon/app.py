@@ -61,6 +61,7 @@ from rgse_daemon.procedures.measurement import run_measurement
 from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
 from rgse_daemon.store import RunKind, RunState, Store
 from rgse_daemon.systemd import Notifier
+from rgse_daemon.utc import iso_utc
 
 log = logging.getLogger(__name__)
 
@@ -483,7 +484,7 @@ class Daemon:
                 state["controller_error"] = self.link_error
             if self.safety_io is not None:
                 inputs = self.safety_io.inputs
-                state["safety_io"] = {**dataclasses.asdict(inputs), "time_utc": inputs.time_utc.isoformat()}
+                state["safety_io"] = {**dataclasses.asdict(inputs), "time_utc": iso_utc(inputs.time_utc)}
             try:
                 self.mqtt.publish_state(state)
             except RgseError as exc:  # a state this loop cannot publish must not end the loop

@@ -142,17 +142,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run", metavar="RUN_ID", help="the run waiting (default: the run of the daemon's state)")
     p.add_argument("--point", type=int, metavar="N", help="index of the campaign point whose load is mounted")
     p.add_argument("--message", metavar="TEXT", help="the operator's note, recorded with the confirmation")
-    p.add_argument("--timeout", type=positive, metavar="S", help="wait at most S s for the reply (default 10)")
+    p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the reply (default 10)")
 
     p = sub.add_parser("abort", help="stop the running daemon's run now")
     p.add_argument("--config", type=Path, required=True, metavar="FILE")
     p.add_argument("--reason", metavar="TEXT", help="why (recorded with the run)")
     p.add_argument("--run", metavar="RUN_ID", help="abort only this run (default: the run in progress)")
-    p.add_argument("--timeout", type=positive, metavar="S", help="wait at most S s for the reply (default 10)")
+    p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the reply (default 10)")
 
     p = sub.add_parser("status", help="the running daemon's retained status, state and results")
     p.add_argument("--config", type=Path, required=True, metavar="FILE")
-    p.add_argument("--timeout", type=positive, metavar="S", help="wait at most S s for the broker (default 10)")
+    p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the broker (default 10)")
     _add_json(p)
     return parser
 

@@ -58,7 +58,7 @@ import random
 import secrets
 import ssl
 from dataclasses import asdict, dataclass
-from datetime import UTC, datetime
+from datetime import datetime
 from enum import StrEnum
 from types import TracebackType
 from typing import Any, Protocol, Self
@@ -77,9 +77,15 @@ from rgse_daemon.io.commands import (
     MeasureCommand,
     parse_command,
 )
+from rgse_daemon.logs import RepeatThrottle
 from rgse_daemon.store import OutboxMessage, Store, StoreError
+from rgse_daemon.utc import iso_utc, now_utc
 
 log = logging.getLogger(__name__)
+#: The MQTT client library's logger: a flood of its "Message queue is full" is written once, then counted.
+_client_log = log.getChild("client")
+_client_throttle = RepeatThrottle()
+_client_log.addFilter(_client_throttle)
 
 #: Command handler calls in flight at once; more are refused ("busy") rather than queued without bound.
 MAX_COMMANDS_IN_FLIGHT = 8
@@ -198,19 +204,22 @@ def _level(value: str, what: str) -> str:
     return value
 
 
+def _json_default(value: object) -> str:
+    """Datetimes in a payload are written as :func:`~rgse_daemon.utc.iso_utc` (one time format)."""
+    if isinstance(value, datetime):
+        return iso_utc(value)
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
+
+
 def _dumps(value: Any, what: str) -> str:
     try:
-        return json.dumps(value, separators=(",", ":"), allow_nan=False, ensure_ascii=False)
+        return json.dumps(value, separators=(",", ":"), allow_nan=False, ensure_ascii=False, default=_json_default)
     except (TypeError, ValueError) as exc:
         raise MqttError(f"{what}: not JSON-serialisable: {exc}") from exc
 
 
-def _iso(ts: datetime) -> str:
-    return ts.astimezone(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-
-
 def _now() -> str:
-    return _iso(datetime.now(UTC))
+    return now_utc()
 
 
 class _LogOnce:
@@ -384,6 +393,8 @@ class MqttBridge:
                 await asyncio.gather(task, return_exceptions=True)
             self._state = ConnectionState.STOPPED
             self._connected = False
+            for record in _client_throttle.pending():  # the counts of a flood not yet written
+                _client_log.handle(record)
 
     async def __aenter__(self) -> Self:
         await self.start()
@@ -453,7 +464,7 @@ class MqttBridge:
             username=self._cfg.username,
             password=self._cfg.password,
             identifier=self._client_id,
-            logger=log.getChild("client"),
+            logger=_client_log,
             will=will,
             clean_session=True,
             keepalive=self._cfg.keepalive_s,
