@@ -142,6 +142,26 @@ class MqttConfig(_Section):
     """Maximum rate of the retained ``state`` topic; high-rate state beyond the queue is dropped and counted."""
     command_tokens: tuple[str, ...] = ()
     """If not empty, a command must carry one of these in its ``token`` field (authorisation)."""
+    command_auth: Literal["token", "broker_acl", "open_lab_bench"] = "token"
+    """Who may send commands that move the robot (docs/security.md). ``token`` (default): only a client that knows
+    one of ``command_tokens`` (which must then be set). ``broker_acl``: the broker authenticates every client and its
+    ACL lets only operators publish to ``<prefix>/cmd/#`` (deploy/mosquitto.acl); the daemon must log in
+    (``username``). ``open_lab_bench``: anyone who reaches the broker — only on an isolated lab bench."""
+
+    @model_validator(mode="after")
+    def _commands_authenticated(self) -> MqttConfig:
+        if not self.enabled:
+            return self
+        if self.command_auth == "token" and not self.command_tokens:
+            raise ValueError(
+                "command_tokens is empty, so any client that reaches the broker could move the robot: set "
+                "command_tokens, or command_auth = \"broker_acl\" (broker login + ACL, see docs/security.md), or "
+                "command_auth = \"open_lab_bench\" on an isolated lab bench"
+            )
+        if self.command_auth == "broker_acl" and not self.username:
+            raise ValueError("command_auth = \"broker_acl\" needs username (and password): the broker's ACL "
+                             "can only tell clients apart when they log in")
+        return self
 
     @field_validator("command_tokens")
     @classmethod

@@ -365,6 +365,9 @@ class MqttBridge:
         if self._task is not None:
             raise MqttError("mqtt bridge: already started")
         self._stopping.clear()
+        if self._cfg.command_auth == "open_lab_bench" and not self._cfg.command_tokens:
+            log.warning("mqtt %s: command_auth = open_lab_bench: any client that reaches %s:%d can move the robot "
+                        "(lab bench only; docs/security.md)", self.prefix, self._cfg.host, self._cfg.port)
         self._task = asyncio.create_task(self._run(), name=f"mqtt-bridge {self.prefix}")
 
     async def stop(self) -> None:
