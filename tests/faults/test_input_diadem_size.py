@@ -17,8 +17,8 @@ import pytest
 from rgse_daemon.cli import main
 from rgse_daemon.errors import DataError
 from rgse_daemon.trace.diadem import MAX_DATA_BYTES, read_trace_file, read_trace_set
-from tests.offline.campaign import write_campaign, write_measurement
-from tests.trace.tracehelpers import edit_channel, write_small_set
+from tests.support.campaign import write_campaign, write_measurement
+from tests.support.tracehelpers import edit_channel, write_small_set
 
 TWO_GB = 2 * 1024**3
 WIDTH = 7  # channels of a drive module in write_small_set

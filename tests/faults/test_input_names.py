@@ -22,7 +22,7 @@ from rgse_daemon.procedures.retrieval import TRACE_DIR, pull_trace
 from rgse_daemon.trace.diadem import read_trace_set
 from rgse_daemon.trace.names import plain_name
 from simulators.krc4.sim import SimulatedKrc4
-from tests.offline.campaign import write_campaign, write_measurement
+from tests.support.campaign import write_campaign, write_measurement
 
 
 @pytest.fixture(scope="module")

@@ -21,7 +21,8 @@ from rgse_daemon.io.mqtt import MqttBridge
 from rgse_daemon.logs import RepeatThrottle, setup_logging
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.store import Store
-from tests.mqtt.mqtt_helpers import ROBOT, Collector, RecordingHandler, mqtt_config, wait_until
+from tests.support.mqtt import ROBOT, Collector, RecordingHandler, mqtt_config
+from tests.support.polling import wait_until
 
 BROKER = ("127.0.0.1", 1883)
 ISO_UTC = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$")

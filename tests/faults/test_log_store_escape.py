@@ -16,7 +16,7 @@ from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.store import RunState, Store
 from simulators.krc4.physics import dut_payload
 from simulators.krc4.sim import SimulatedKrc4
-from tests.app.daemon_helpers import (
+from tests.support.daemon import (
     Events,
     command,
     daemon_config,
@@ -26,7 +26,8 @@ from tests.app.daemon_helpers import (
     running_daemon,
     seed_calibration,
 )
-from tests.mqtt.mqtt_helpers import Collector, MosquittoProcess, wait_until
+from tests.support.mqtt import Collector, MosquittoProcess
+from tests.support.polling import wait_until
 
 REASON = "door\x00open\x1b[2J\x07 by QA"
 ESCAPED = "door\\x00open\\x1b[2J\\x07 by QA"

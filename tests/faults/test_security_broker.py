@@ -25,7 +25,8 @@ from rgse_daemon.config import MqttConfig, config_from_mapping
 from rgse_daemon.errors import ConfigError
 from rgse_daemon.io.mqtt import MqttBridge
 from rgse_daemon.store import Store
-from tests.mqtt.mqtt_helpers import MosquittoProcess, RecordingHandler, clear_retained, mqtt_config, wait_until
+from tests.support.mqtt import MosquittoProcess, RecordingHandler, clear_retained, mqtt_config
+from tests.support.polling import wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 ACL = ROOT / "deploy" / "mosquitto.acl"
