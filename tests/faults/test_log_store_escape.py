@@ -26,7 +26,7 @@ from tests.support.daemon import (
     running_daemon,
     seed_calibration,
 )
-from tests.support.mqtt import Collector, MosquittoProcess
+from tests.support.mqtt import Collector
 from tests.support.polling import wait_until
 
 REASON = "door\x00open\x1b[2J\x07 by QA"
@@ -40,17 +40,9 @@ async def sim(tmp_path: Path) -> AsyncIterator[SimulatedKrc4]:
         yield s
 
 
-@pytest.fixture
-async def broker(tmp_path: Path) -> AsyncIterator[MosquittoProcess]:
-    b = MosquittoProcess(tmp_path / "mosquitto")
-    await b.start()
-    try:
-        yield b
-    finally:
-        await b.stop()
-
-
-async def test_abort_reason_with_control_characters_is_stored_and_logged_escaped(sim, broker, tmp_path, caplog):
+async def test_abort_reason_with_control_characters_is_stored_and_logged_escaped(sim, private_broker, tmp_path,
+                                                                                caplog):
+    broker = private_broker
     caplog.set_level(logging.INFO)
     cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
                         broker_port=broker.port)
