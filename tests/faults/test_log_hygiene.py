@@ -10,6 +10,7 @@ import logging
 import re
 import shutil
 import uuid
+from collections.abc import AsyncIterator
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -21,12 +22,20 @@ from rgse_daemon.io.mqtt import MqttBridge
 from rgse_daemon.logs import RepeatThrottle, setup_logging
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.store import Store
-from tests.support.mqtt import ROBOT, Collector, RecordingHandler, mqtt_config
+from tests.support.mqtt import ROBOT, Collector, RecordingHandler, clear_retained, mqtt_config
 from tests.support.polling import wait_until
 
 BROKER = ("127.0.0.1", 1883)
 ISO_UTC = re.compile(r"^\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z$")
 FLOOD = 20_000
+
+
+@pytest.fixture
+async def prefix() -> AsyncIterator[str]:
+    """A topic prefix of this test alone on the machine's broker; its retained messages are cleared afterwards."""
+    p = f"rgse-test/{uuid.uuid4().hex[:12]}"
+    yield p
+    await clear_retained(*BROKER, p)
 
 
 @pytest.fixture
@@ -38,13 +47,12 @@ async def store(tmp_path: Path):
         await s.close()
 
 
-async def test_command_flood_writes_queue_full_once_then_the_count(store, caplog):
+async def test_command_flood_writes_queue_full_once_then_the_count(store, prefix, caplog):
     """20 000 commands from another process (mosquitto_pub) overflow the MQTT client's incoming queue; its
     "Message queue is full" is written once, and the copies are counted and written when the bridge stops."""
     mosquitto_pub = shutil.which("mosquitto_pub")
     assert mosquitto_pub, "the flood needs mosquitto_pub (package mosquitto-clients)"
     caplog.set_level(logging.WARNING)
-    prefix = f"rgse-test/{uuid.uuid4().hex[:12]}"
     bridge = MqttBridge(mqtt_config(*BROKER, prefix), ROBOT, store, RecordingHandler(), "1", timeout_s=5)
     payload = json.dumps({"request_id": "flood", "reason": "flood"}).encode()
     async with bridge:
@@ -117,10 +125,9 @@ def test_daemon_log_handler_throttles_and_escapes():
     assert "stop\\x00now\\x1b[2J\\x7f" in text and "\x00" not in text and "\x1b" not in text
 
 
-async def test_nul_in_an_abort_reason_reaches_neither_log_nor_store_raw(store, caplog):
+async def test_nul_in_an_abort_reason_reaches_neither_log_nor_store_raw(store, prefix, caplog):
     """An abort with NUL and an escape sequence in its reason, over the real broker: the daemon's side gets the
     reason escaped (nothing dropped), and the store keeps it as such."""
-    prefix = f"rgse-test/{uuid.uuid4().hex[:12]}"
     handler = RecordingHandler()
     bridge = MqttBridge(mqtt_config(*BROKER, prefix), ROBOT, store, handler, "1", timeout_s=5)
     raw_reason = "door\x00open\x1b[31m red\nline2"
@@ -146,10 +153,9 @@ def test_event_times_are_iso_utc():
     assert ev.to_json()["time"] == "2023-11-14T22:13:20.250Z"
 
 
-async def test_every_alarm_and_progress_payload_has_one_time_format(store):
+async def test_every_alarm_and_progress_payload_has_one_time_format(store, prefix):
     """Interlock alarms (engine events: were epoch seconds), daemon alarms, refusals and progress over the real
     broker: every ``time``/``since``/``*_utc`` field is an ISO 8601 UTC string."""
-    prefix = f"rgse-test/{uuid.uuid4().hex[:12]}"
     bridge = MqttBridge(mqtt_config(*BROKER, prefix), ROBOT, store, RecordingHandler(), "1", timeout_s=5)
     async with Collector(*BROKER, f"{prefix}/#") as c, bridge:
         await wait_until(lambda: bridge.connected, "bridge connected")
