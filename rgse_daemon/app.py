@@ -54,10 +54,12 @@ from rgse_daemon.errors import LinkError, RgseError, VariableError
 from rgse_daemon.io.commands import AbortCommand, CalibrateCommand, CalibrationPoint, ConfirmCommand, MeasureCommand
 from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.procedures.calibration import CB_MASS_KG, TA_MASS_KG, TA_TORQUE_A5_NM, CampaignPoint, run_calibration
-from rgse_daemon.procedures.common import PreconditionError, RunSettings, static_checker
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import run_measurement
+from rgse_daemon.procedures.preconditions import PreconditionError
+from rgse_daemon.procedures.programs import static_checker
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
 from rgse_daemon.store import RunKind, RunState, Store
 from rgse_daemon.systemd import Notifier

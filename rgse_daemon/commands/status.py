@@ -35,7 +35,8 @@ from rgse_daemon.cli import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.io.commands import CommandRefused, parse_command
-from rgse_daemon.io.mqtt import Topics, _tls_context
+from rgse_daemon.io.mqtt import _tls_context
+from rgse_daemon.io.topics import Topics
 
 log = logging.getLogger(__name__)
 
@@ -81,13 +82,10 @@ def endpoint(path: Path) -> Endpoint:
         raise ConfigError(f"{path}: mqtt.enabled is false: the daemon of this configuration is not on a broker")
     if m.password is not None and m.username is None:
         raise ConfigError(f"{path}: mqtt.password is set without mqtt.username")
-    prefix = (m.prefix or f"rgse/{cfg.robot.name}").rstrip("/")  # as the daemon's bridge derives it
-    if not prefix:
-        raise ConfigError(f"{path}: mqtt.prefix: empty")
     return Endpoint(
         host=m.host,
         port=m.port,
-        topics=Topics(prefix),
+        topics=Topics.of(m, cfg.robot.name),  # as the daemon's bridge derives them
         username=m.username,
         password=m.password,
         tls=_tls_context(m),
@@ -289,7 +287,7 @@ async def read_status(ep: Endpoint, timeout_s: float) -> dict[str, Any]:
     t = ep.topics
 
     async def body(conv: Conversation) -> dict[str, Any]:
-        await conv.subscribe((t.status, t.state, f"{t.prefix}/run/+/result"))
+        await conv.subscribe((t.status, t.state, t.results))
         await conv.read_retained()
         results = {}
         head, tail = f"{t.prefix}/run/", "/result"

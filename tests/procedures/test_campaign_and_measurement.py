@@ -8,10 +8,10 @@ from pathlib import Path
 
 from rgse_daemon.controller import Controller
 from rgse_daemon.procedures.calibration import fit_campaign, run_calibration, table1_points
-from rgse_daemon.procedures.common import RunSettings
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import compute_mass, run_measurement
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.store import LoopState, PointState, RunState, Store, archive_root, verify_file
 from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.sim import SimulatedKrc4
