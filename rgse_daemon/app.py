@@ -54,6 +54,7 @@ from rgse_daemon.errors import LinkError, RgseError, VariableError
 from rgse_daemon.io.commands import AbortCommand, CalibrateCommand, CalibrationPoint, ConfirmCommand, MeasureCommand
 from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.procedures.calibration import CB_MASS_KG, TA_MASS_KG, TA_TORQUE_A5_NM, CampaignPoint, run_calibration
+from rgse_daemon.procedures.documents import Document, Result
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import run_measurement
@@ -384,6 +385,7 @@ class Daemon:
             share_dir=self.cfg.controller.share_dir,
         )
         engine.subscribe(self._event)
+        engine.subscribe_documents(self._document)
         return engine
 
     # --- events out ----------------------------------------------------------------------------------------------
@@ -399,14 +401,16 @@ class Daemon:
         if self.mqtt is not None:
             if ev.kind == "alarm":
                 self.mqtt.publish_alarm(ev.to_json())
-            elif ev.kind == "result":
-                self.mqtt.notify_outbox()  # the result is in the store's outbox already
-            elif ev.run_id is not None:
+            elif ev.run_id is not None and ev.kind != "result":  # a result goes out from the outbox: _document
                 self.mqtt.publish_progress(ev.run_id, ev.to_json())
         if ev.kind in ("alarm", "state"):
             color = "red" if ev.kind == "alarm" else self._light_for(ev.data.get("state"))
             if color is not None:
                 self._want_light(color)
+
+    def _document(self, doc: Document) -> None:
+        if isinstance(doc, Result) and self.mqtt is not None:
+            self.mqtt.notify_outbox()  # the recorder stored the result with its outbox row: publish it now
 
     @staticmethod
     def _light_for(state: str | None) -> str | None:
@@ -620,6 +624,7 @@ class Daemon:
     def _dry(self, engine: RunEngine) -> RunEngine:
         dry = RunEngine(engine.krc, checker=engine.checker, monitor=None, dry_run=True, share_dir=engine.share_dir)
         dry.subscribe(self._event)
+        dry.subscribe_documents(self._document)
         return dry
 
     async def start_calibration(self, *, points: list[CampaignPoint] | None = None, method: str = "auto",
