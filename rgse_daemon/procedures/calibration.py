@@ -26,13 +26,13 @@ from typing import Any
 
 from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
-from rgse_daemon.commands import calibrate as calibrate_command
+from rgse_daemon.analysis import calibration as campaign_analysis
 from rgse_daemon.config import Config
-from rgse_daemon.io.modbus import SafetyInputs
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.io.topics import Topics
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
-from rgse_daemon.procedures.directory import setup_toml, traces_toml, write_text_durably
+from rgse_daemon.procedures.directory import setup_toml, traces_toml
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.loop import LoopOutcome, loop
@@ -41,6 +41,7 @@ from rgse_daemon.procedures.programs import render_program, run_checked
 from rgse_daemon.procedures.recorder import StoreRecorder
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import motor_temps_k, prepare, warm_up
+from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import LoopState, PointState, RunKind, Store
 
 CALIBRATION_FILE = "CAL.json"
@@ -117,8 +118,8 @@ def table1_points(n_bodies: Sequence[int] = range(0, 11),
 # --- the offline path ---------------------------------------------------------------------------------------------
 def fit_campaign(directory: Path, method: str = "auto") -> tuple[dict[str, Any], dict[str, Any]]:
     """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --json`` as a function (the same
-    :func:`commands.calibrate.fit_campaign`); writes CAL.json into the campaign directory."""
-    doc, summary = calibrate_command.fit_campaign(directory, method)
+    :func:`analysis.calibration.fit_campaign`); writes CAL.json into the campaign directory."""
+    doc, summary = campaign_analysis.fit_campaign(directory, method)
     calfile.write(directory / CALIBRATION_FILE, doc)
     return doc, summary
 
@@ -129,7 +130,7 @@ def write_campaign_manifest(run_dir: Path, s: RunSettings, points: list[tuple[Ca
         lines += ["[[point]]", f'kind = "{p.kind}"', f"mass_kg = {p.mass_kg!r}", f"lever_a3_m = {p.lever_a3_m!r}",
                   f"lever_a5_m = {p.lever_a5_m!r}", traces_toml(traces), ""]
     run_dir.mkdir(parents=True, exist_ok=True)
-    write_text_durably(run_dir / "manifest.toml", "\n".join(lines))
+    write_atomic(run_dir / "manifest.toml", "\n".join(lines))
 
 
 def _finish(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, list[str]]],

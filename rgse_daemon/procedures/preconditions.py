@@ -7,9 +7,9 @@ from typing import Any
 
 from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError
-from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.safety.inputs import SafetyInputs
 
 #: $LOAD.M of KUKA's "unknown payload" mode, which the paper's method requires (the controller then does not
 #: compensate the payload, so the torques carry it).

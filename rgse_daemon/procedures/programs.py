@@ -12,11 +12,11 @@ from typing import Any
 from rgse_daemon.config import LimitsConfig
 from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
-from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.krl.render import RenderedProgram, TemplateDefaults, cube_corners, default_params, render
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.engine import ProgramChecker
 from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.static import CheckContext, ensure_allowed
 from rgse_daemon.trace.config import TraceConfig, TraceModule, TraceTrigger, render_trace_config
 

@@ -8,13 +8,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from rgse_daemon.controller import Snapshot
-from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.preconditions import verify_start
 from rgse_daemon.procedures.programs import TRACE_CONFIG_NAME, render_program, run_checked, trace_config_xml
 from rgse_daemon.procedures.retrieval import TRACE_DIR
 from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.safety.inputs import SafetyInputs
 
 _log = logging.getLogger(__name__)
 

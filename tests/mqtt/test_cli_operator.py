@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mqtt_helpers import ROBOT, RecordingHandler, free_port, mqtt_config, stored_result, wait_until
 
 from rgse_daemon.commands.abort import DEFAULT_REASON
 from rgse_daemon.config import load_config
@@ -30,6 +29,8 @@ from rgse_daemon.io.topics import Topics
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures.recorder import StoreRecorder
 from rgse_daemon.store import RunKind, Store, archive_file_async
+from tests.support.mqtt import ROBOT, RecordingHandler, free_port, mqtt_config, stored_result
+from tests.support.polling import wait_until
 
 VERSION = "9.8.7"
 

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mqtt_helpers import ROBOT, Collector, MosquittoProcess, RecordingHandler, mqtt_config, retained, wait_until
 
 from rgse_daemon.io.commands import (
     AbortCommand,
@@ -23,6 +22,8 @@ from rgse_daemon.io.commands import (
 )
 from rgse_daemon.io.mqtt import MqttBridge
 from rgse_daemon.store import Store, StoreError
+from tests.support.mqtt import ROBOT, Collector, MosquittoProcess, RecordingHandler, mqtt_config, retained
+from tests.support.polling import wait_until
 
 TOKENS = ("s3cret-1", "s3cret-2")
 
