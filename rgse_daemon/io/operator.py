@@ -256,7 +256,7 @@ async def read_status(ep: Endpoint, timeout_s: float) -> dict[str, Any]:
     t = ep.topics
 
     async def body(conv: Conversation) -> dict[str, Any]:
-        await conv.subscribe((t.status, t.state, f"{t.prefix}/run/+/result"))
+        await conv.subscribe((t.status, t.state, t.results))
         await conv.read_retained()
         results = {}
         head, tail = f"{t.prefix}/run/", "/result"

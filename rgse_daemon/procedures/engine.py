@@ -35,7 +35,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from enum import StrEnum
 from pathlib import Path
 from typing import Any
@@ -503,11 +503,16 @@ class RunEngine:
     async def _do_Document(self, doc: d.Document) -> Any:
         return await self._record(doc, self.run_id)
 
-    async def _record(self, doc: d.Document, run_id: str | None, timeout_s: float = RECORD_TIMEOUT_S) -> Any:
-        """The recorder makes ``doc`` durable (its error fails the plan), then the subscribers see it."""
+    def _record(self, doc: d.Document, run_id: str | None,
+                timeout_s: float = RECORD_TIMEOUT_S) -> Coroutine[Any, Any, Any]:
+        """The recorder makes ``doc`` durable (its error fails the plan), then the subscribers see it. The recorder
+        is taken now, so a shielded recording finishes even if the run ends meanwhile."""
         if self._recorder is None:
             raise RgseError(f"{doc.describe()}: this run has no recorder (run it with RunEngine.execute)")
-        reply = await self._bounded(f"record {doc.describe()}", self._recorder.record(run_id, doc), timeout_s)
+        return self._recorded(doc, self._recorder.record(run_id, doc), timeout_s)
+
+    async def _recorded(self, doc: d.Document, recording: Coroutine[Any, Any, Any], timeout_s: float) -> Any:
+        reply = await self._bounded(f"record {doc.describe()}", recording, timeout_s)
         for sub in list(self._document_subscribers):
             try:
                 sub(doc)
