@@ -268,6 +268,7 @@ async def test_bad_configuration_or_command_exits_2_before_any_network_io(tmp_pa
     good = write_config(tmp_path / "good.toml", "127.0.0.1", port, "rgse-test/nobody")
     disabled = tmp_path / "disabled.toml"
     disabled.write_text("[mqtt]\nenabled = false\n")
+    slash_only = write_config(tmp_path / "slash.toml", "127.0.0.1", port, "/")
     runs = await asyncio.gather(
         rgse("status", "--config", tmp_path / "missing.toml"),
         rgse("abort", "--config", disabled),
@@ -275,6 +276,7 @@ async def test_bad_configuration_or_command_exits_2_before_any_network_io(tmp_pa
         rgse("abort", "--config", good, "--reason", ""),
         rgse("confirm", "--config", good, "--run", "../etc"),
         rgse("status", "--config", good, "--timeout", "0"),
+        rgse("status", "--config", slash_only),
     )
     expected = [
         "cannot read config file",
@@ -283,6 +285,7 @@ async def test_bad_configuration_or_command_exits_2_before_any_network_io(tmp_pa
         "cmd/abort: schema: reason",
         "cmd/confirm: schema: run_id",
         "--timeout 0.0: must be a finite number",
+        "empty once the trailing '/' is dropped",
     ]
     for ran, fragment in zip(runs, expected, strict=True):
         ran.one_line_error(fragment)
