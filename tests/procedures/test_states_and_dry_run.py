@@ -1,4 +1,5 @@
-"""The engine's states change only along EngineState's transitions; a dry run executes only inert message types."""
+"""The engine's states change only along EngineState's transitions; a dry run executes only inert message types;
+a document the recorder refuses fails the run."""
 
 from __future__ import annotations
 
@@ -9,10 +10,13 @@ from dataclasses import dataclass
 import pytest
 
 from rgse_daemon.errors import RgseError
+from rgse_daemon.io.topics import Topics
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.engine import TRANSITIONS, EngineState, EngineStateError, PlanAborted, RunEngine
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.recorder import StoreRecorder
+from rgse_daemon.store import RunKind, RunState, StoreConflict
 
 from .conftest import make_engine
 
@@ -81,3 +85,21 @@ def test_the_inert_message_types_are_reads_progress_and_pure_computation():
              if issubclass(obj, m.Msg) and obj.__module__ == mod.__name__}
     assert {t for t in types if t.inert} == {m.ReadState, m.ReadVar, m.Checkpoint, m.Emit, m.Compute, m.ReadCampaign}
     assert not any(t.inert for t in types if issubclass(t, d.Document))
+
+
+async def test_a_document_the_store_refuses_fails_the_run_and_publishes_nothing(sim, engine: RunEngine, cfg, store):
+    """The recorder's error reaches the plan (a lost record must fail the run); CloseRun still records why."""
+    recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+    seen: list[d.Document] = []
+    engine.subscribe_documents(seen.append)
+
+    def plan(run: d.RunContext) -> m.Plan:
+        yield d.Result({"mass_kg": 95.0}, ["ab" * 32])  # names a raw file this run never archived
+
+    with pytest.raises(StoreConflict, match="not archived trace files of this run"):
+        await engine.execute(d.OpenRun(RunKind.MEASUREMENT, cfg.robot.name, {}), plan, recorder)
+    (run,) = await store.list_runs()
+    assert run.state == RunState.FAILED and "StoreConflict" in (run.detail or "")
+    assert await store.pending_outbox() == [] and await store.results(run.id) == []
+    assert [type(doc).__name__ for doc in seen] == ["OpenRun", "CloseRun"]  # subscribers see only what was recorded
+    assert engine.state == EngineState.FAILED
