@@ -160,6 +160,28 @@ async def test_bad_commands_are_refused_without_effect(
     assert session.bridge.counters.refused_commands == 1 and session.bridge.counters.commands == 0
 
 
+async def test_a_retained_command_is_not_replayed_to_a_new_session(
+    system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler
+) -> None:
+    """A command left retained on the broker is delivered to every new subscription, e.g. the daemon's after a
+    reconnect or a restart: it is refused there; the same command sent live is carried out."""
+    topic = f"{prefix}/cmd/measure"
+    async with Collector(*system_broker, f"{prefix}/nothing") as sender:
+        await sender._client.publish(topic, json.dumps({"request_id": "r-1", "loops": 3}), qos=1, retain=True)
+    try:
+        async with _session(system_broker, prefix, store, handler) as session:
+            ((_, reply),) = await session.replies(1)
+            assert reply == {"request_id": "r-1", "ok": False,
+                             "error": "retained command ignored: publish commands with retain=false"}
+            assert handler.calls == []
+            await session.send("measure", {"request_id": "r-2", "loops": 3})
+            await wait_until(lambda: len(handler.calls) == 1, "the live command reached the handler")
+            assert handler.calls[0][1].request_id == "r-2"
+    finally:
+        async with Collector(*system_broker, f"{prefix}/nothing") as sender:
+            await sender._client.publish(topic, b"", qos=1, retain=True)  # clear it from the shared broker
+
+
 async def test_without_the_right_token_nothing_happens(guarded: Session, handler: RecordingHandler) -> None:
     await guarded.send("measure", {"request_id": "t-1", "loops": 3})
     await guarded.send("measure", {"request_id": "t-2", "loops": 3, "token": "guess"})
