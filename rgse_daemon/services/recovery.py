@@ -30,13 +30,12 @@ from rgse_daemon.aio import within
 from rgse_daemon.config import Config
 from rgse_daemon.controller import Controller
 from rgse_daemon.errors import RgseError
-from rgse_daemon.procedures.common import run_directory
-from rgse_daemon.procedures.measurement import result_topic
+from rgse_daemon.io.topics import Topics
 from rgse_daemon.procedures.retrieval import REQUIRED_SUFFIXES, TRACE_DIR, archived_not_indexed, base_name, pull_trace
 from rgse_daemon.safety.latch import CLEAR_HINT, SafetyLatch
 from rgse_daemon.safety.makesafe import STEP_TIMEOUT_S, StopReport, sweep
 from rgse_daemon.safety.monitor import InterlockTrip
-from rgse_daemon.store import LoopState, RunKind, RunRecord, RunState, Store, relative_path
+from rgse_daemon.store import LoopState, RunKind, RunRecord, RunState, Store, archive_root, relative_path
 from rgse_daemon.store.archive import ArchivedFile
 from rgse_daemon.store.errors import ArchiveError
 
@@ -131,7 +130,8 @@ class Recovery:
         return done
 
     async def recover_run(self, krc: Controller, run: RunRecord) -> dict[str, Any]:
-        archive, run_dir = run_directory(self.cfg.paths.data_dir, run.directory)
+        archive = archive_root(self.cfg.paths.data_dir)
+        run_dir = archive / run.directory
         share_dir = self.cfg.controller.share_dir
         listing = {base_name(e.name).upper() for e in await krc.list_dir(TRACE_DIR) if not e.is_dir}
         indexed = {(archive / f.path).resolve(): f for f in await self.store.trace_files(run.id)}
@@ -189,7 +189,8 @@ class Recovery:
             if self.cfg.mqtt.enabled:
                 final = {"run_id": run.id, "robot": run.robot, "state": RunState.INTERRUPTED.value,
                          "detail": run.detail, "ended_utc": summary["ended_utc"], "recovery": summary}
-                await self.store.enqueue(result_topic(self.cfg, run.id), final, retained=True, qos=1)
+                topic = Topics.of(self.cfg.mqtt, self.cfg.robot.name).result(run.id)
+                await self.store.enqueue(topic, final, retained=True, qos=1)
                 if self.outbox_added is not None:
                     self.outbox_added()
             self.alarm({"kind": "run_interrupted", "run_id": run.id, "run_kind": run.kind.value,
