@@ -187,7 +187,7 @@ async def test_trace_files_deleted_over_the_link_without_a_share(sim, krc, cfg, 
         return pulled
 
     pulled = await engine.run(plan())
-    assert pulled.deleted is False  # the plan deletes once the store indexed the files (common.loop)
+    assert pulled.deleted is False  # the plan deletes once the store indexed the files (procedures/loop.py)
     assert await pulled.delete_copies() == (True, "deleted over the link")
     assert not [p for p in (sim.share_dir / "TRACE").iterdir() if p.name.startswith("keep_me_")]
     assert len(pulled.files) >= 4 and all(f.path.is_file() for f in pulled.files)

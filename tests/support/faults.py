@@ -41,6 +41,11 @@ def stopped(v: dict[str, str]) -> bool:
             and v["$TRACE.STATE"] not in TRACE_ACTIVE)
 
 
+def halted(v: dict[str, str]) -> bool:
+    """No program active, no trace recording (a stopped program may still be selected)."""
+    return v["$PRO_STATE1"] != "#P_ACTIVE" and v["$TRACE.STATE"] not in TRACE_ACTIVE
+
+
 async def until_truth(sim: SimProcess, predicate: Callable[[dict[str, str]], bool], what: str,
                       timeout_s: float = WAIT_S, period_s: float = 0.02) -> dict[str, str]:
     deadline = time.monotonic() + timeout_s
