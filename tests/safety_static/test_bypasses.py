@@ -83,7 +83,10 @@ BYPASSES: dict[str, str] = {
             f"  P = {{E6AXIS: A1 100.0, {REST}}}\n  P = {{E6AXIS: A2 -90.0}}\n  PTP P\n",
         )
     ),
-    "5_partial_aggregate_uninitialised": (program("  DECL E6AXIS P\n", "  P = {A2 -90.0}\n  PTP P\n")),
+    "5_partial_aggregate_copy": program(
+        "  DECL E6AXIS P\n  DECL E6AXIS Q\n",
+        f"  P = {{A1 100.0, {REST}}}\n  Q = P\n  Q = {{A3 90.0}}\n  PTP Q\n",
+    ),
     "5_partial_aggregate_e6pos": (
         program(
             "  DECL E6POS P\n",
