@@ -485,7 +485,7 @@ class AbstractInterpreter:
             if target.member not in STRUCT_FIELDS[type_name]:
                 self.report("RUNTIME", pos, f"{type_name} has no field {target.member}")
                 return st.with_var(name, UNKNOWN)
-            value = self.sink(value_expr, st, field_type(type_name, target.member), pos)
+            value = self.sink(value_expr, st, field_type(target.member), pos)
             if value is UNKNOWN or not isinstance(old, KrlStruct):
                 return st.with_var(name, UNKNOWN)
             return st.with_var(name, convert(type_name, KrlStruct(type_name, ((target.member, value),)), old, pos))

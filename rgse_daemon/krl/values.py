@@ -180,7 +180,8 @@ def _short(n: float) -> str:
 
 
 # --- assignment ---
-def field_type(type_name: str, name: str) -> str:
+def field_type(name: str) -> str:
+    """The type of a predefined structure's field: S and T are INT, the rest REAL."""
     return "INT" if name in INT_FIELDS else "REAL"
 
 
@@ -217,24 +218,30 @@ def convert(type_name: str | None, value: Value, old: Value = UNKNOWN, pos: Pos 
     return _narrow(value, pos)
 
 
-def merge(type_name: str, old: KrlStruct | None, new: KrlStruct, pos: Pos = NOPOS, strict: bool = True) -> KrlStruct:
+def merge(
+    type_name: str | None, old: KrlStruct | None, new: KrlStruct, pos: Pos = NOPOS, strict: bool = True
+) -> KrlStruct:
     """Assigning ``new`` to a ``type_name`` variable holding ``old``: the named fields change, the others stay
-    (uninitialised ones stay uninitialised, i.e. absent)."""
-    fields = STRUCT_FIELDS[type_name]
-    if new.type_name is not None and new.type_name != type_name:
+    (uninitialised ones stay uninitialised, i.e. absent). A type this module does not know (a system structure such as
+    $TOOL, ``None``): the fields of ``old`` in their order, then new ones, without conversion."""
+    known = STRUCT_FIELDS.get(type_name or "")
+    if known is not None and new.type_name is not None and new.type_name != type_name:
         raise EvalError(f"cannot assign a {new.type_name} aggregate to a {type_name}", pos)
-    unknown = [n for n in new if n not in fields]
+    before = dict(old.fields) if old is not None else {}
+    order = known if known is not None else (*before, *(n for n in new if n not in before))
+    unknown = [n for n in new if n not in order]
     if unknown:
         raise EvalError(f"{type_name} has no field {', '.join(unknown)}", pos)
     given = dict(new.fields)
-    before = dict(old.fields) if old is not None else {}
     out = []
-    for name in fields:
+    for name in order:
         if name in given:
-            out.append((name, convert(field_type(type_name, name), given[name], UNKNOWN, pos, strict)))
+            v = given[name]
+            out.append((name, convert(field_type(name), v, UNKNOWN, pos, strict) if known is not None else v))
         elif name in before:
             out.append((name, before[name]))
-    return KrlStruct(type_name, tuple(out))
+    result_type = type_name if known is not None else (old.type_name if old is not None else None) or new.type_name
+    return KrlStruct(result_type, tuple(out))  # type: ignore[arg-type]
 
 
 def _narrow(value: Value, pos: Pos) -> Value:

@@ -97,7 +97,8 @@ BYPASSES: dict[str, str] = {
     "6_nested_for_same_counter": (
         program(
             "  DECL INT I\n",
-            "  FOR I = 1 TO 3\n    FOR I = 1 TO 2\n      PTP_REL {A1 1.0}\n    ENDFOR\n    PTP_REL {A1 10.0}\n  ENDFOR\n",
+            "  FOR I = 1 TO 3\n    FOR I = 1 TO 2\n      PTP_REL {A1 1.0}\n    ENDFOR\n"
+            "    PTP_REL {A1 10.0}\n  ENDFOR\n",
         )
     ),
     "6_for_counter_assigned": (
