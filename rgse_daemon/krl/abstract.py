@@ -56,7 +56,7 @@ MAX_FIXPOINT_ITERATIONS = 12
 #: More possible poses than this at one point of the program → unknown (refused at the next motion).
 MAX_POSES = 64
 #: Statements interpreted before the program is refused as too complex to verify.
-MAX_STEPS = 200_000
+MAX_STEPS = 50_000
 CARTESIAN_TYPES = frozenset({"POS", "E6POS", "FRAME"})
 #: Types whose values the interpreter tracks; a variable of any other type is UNKNOWN.
 TRACKED_TYPES = frozenset({"INT", "REAL", "BOOL"}) | frozenset(STRUCT_FIELDS)
@@ -134,7 +134,11 @@ class Outcome:
 
 
 class TooComplex(Exception):
-    """The program is beyond the interpreter's budget: refused."""
+    """The program is beyond the interpreter's budget: refused (``pos``: the statement where it ran out)."""
+
+    def __init__(self, reason: str, pos: k.Pos = k.NOPOS) -> None:
+        super().__init__(reason)
+        self.pos = pos
 
 
 def all_stmts(body: Sequence[k.Stmt]) -> Iterable[k.Stmt]:
@@ -288,12 +292,12 @@ class AbstractInterpreter:
         return v
 
     # --- statements ---
-    def step(self) -> None:
+    def step(self, pos: k.Pos) -> None:
         self.steps += 1
         if self.steps > self.max_steps:
-            raise TooComplex(f"more than {self.max_steps} statements to interpret")
-        if self.steps % 256 == 0 and time.monotonic() > self.deadline:
-            raise TooComplex(f"not verified within {self.time_budget_s:g} s")
+            raise TooComplex(f"more than {self.max_steps} statements to interpret", pos)
+        if self.steps % 64 == 0 and time.monotonic() > self.deadline:
+            raise TooComplex(f"not verified within {self.time_budget_s:g} s", pos)
 
     def block(self, body: Sequence[k.Stmt], st: State) -> Outcome:
         out = Outcome(st)
@@ -307,7 +311,7 @@ class AbstractInterpreter:
         return out
 
     def stmt(self, stmt: k.Stmt, st: State) -> Outcome:
-        self.step()
+        self.step(stmt.pos)
         match stmt:
             case k.Decl():
                 return Outcome(self.declare(stmt, st))

@@ -116,6 +116,7 @@ class CheckContext:
     writable_variables: frozenset[str] = WRITABLE_VARIABLES
     writable_prefix: str = WRITABLE_PREFIX
     override_max_pct: float = 100.0
+    #: Well below the 60 s the daemon's push waits for the check (procedures/engine.py): the check always ends first.
     time_budget_s: float = 20.0
 
     def link_writable(self, name: str) -> bool:
@@ -242,7 +243,7 @@ class _Checker(AbstractInterpreter):
     def check_path(self, start: Pose, target: Pose, st: State, pos: k.Pos) -> None:
         self.motion_checks += 1
         if self.motion_checks > MAX_MOTION_CHECKS:
-            raise TooComplex(f"more than {MAX_MOTION_CHECKS} motion checks")
+            raise TooComplex(f"more than {MAX_MOTION_CHECKS} motion checks", pos)
         if start != target:
             self.check_speed(start, target, st, pos)
         # The load diagram applies to holding a pose as much as to moving: a motion to where the robot already is
@@ -429,7 +430,8 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
         state = replace(state, poses=checker.start_poses)
         checker.block(main.body, state)
     except TooComplex as exc:
-        violations.append(Violation(main.pos.line, main.pos.column, "COMPLEXITY", f"{exc}: too complex to verify"))
+        where = exc.pos if exc.pos.line else main.pos
+        violations.append(Violation(where.line, where.column, "COMPLEXITY", f"{exc}: too complex to verify"))
     except Exception as exc:  # any failure of the check is a refusal, never a crash or an allow
         violations.append(
             Violation(main.pos.line, main.pos.column, "INTERNAL", f"the check failed ({type(exc).__name__}: {exc})")

@@ -8,6 +8,7 @@ by ``rgse krl check`` (exit 3, a reason naming a line of the program) and by the
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +18,9 @@ from rgse_daemon import cli
 from rgse_daemon.config import Config
 from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError
+from rgse_daemon.krl.abstract import AbstractInterpreter
 from rgse_daemon.procedures.common import static_checker
+from rgse_daemon.safety.static import CheckContext, Violation, check_program
 
 SLOW = "".join(f"  $VEL_AXIS[{i}] = 1.0\n" for i in range(1, 7))
 #: The rest of a measurement-pose target, so that a motion changes A1 only.
@@ -197,3 +200,38 @@ def test_the_slow_base_program_is_allowed(tmp_path: Path, capsys: pytest.Capture
     static_checker(cfg.limits, cfg.measurement.payload_lever_max_m)(
         _Program("base", path.read_text(encoding="latin-1")), _snapshot()
     )
+
+
+# --- robust failure ---------------------------------------------------------------------------------------------------
+SLOW_TO_CHECK = program(
+    "  DECL INT I\n  DECL INT J\n  DECL INT N\n",
+    "  N = 0\n  FOR I = 1 TO 1000\n    FOR J = 1 TO 1000\n      N = N + 1\n    ENDFOR\n  ENDFOR\n  PTP {A1 10.0}\n",
+)
+
+
+def test_a_check_over_its_time_budget_ends_by_itself_and_refuses() -> None:
+    """The daemon runs the check in a worker thread: the check must end by itself (a thread cannot be killed)."""
+    found: list[list[Violation]] = []
+    ctx = CheckContext(start_axes_deg=(0.0, -90.0, 90.0, 0.0, 0.0, 0.0), time_budget_s=0.3)
+    worker = threading.Thread(target=lambda: found.append(check_program(SLOW_TO_CHECK, None, ctx, "slow.src")))
+    worker.start()
+    worker.join(timeout=30.0)
+    assert not worker.is_alive()
+    assert [v.rule for v in found[0]] == ["COMPLEXITY"]
+    assert found[0][0].line >= 14 and "0.3 s" in found[0][0].message
+
+
+def test_an_internal_failure_of_the_check_is_a_refusal(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Fault injection: whatever goes wrong inside the check refuses the program (exit 3), it never crashes or
+    allows."""
+
+    def broken(*args: object) -> None:
+        raise ValueError("injected fault")
+
+    monkeypatch.setattr(AbstractInterpreter, "motion", broken)
+    path = tmp_path / "any.src"
+    path.write_text(program("", "  PTP {A1 10.0}\n"), encoding="latin-1")
+    assert cli.main(["krl", "check", str(path)]) == 3
+    assert "INTERNAL" in capsys.readouterr().out
