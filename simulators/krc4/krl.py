@@ -837,7 +837,7 @@ class KrlInterpreter:
         values, types = (frame.values, frame.types) if where == "frame" else (self._module_data, self._module_types)
         type_name = types.get(key, "")
         if not ops:
-            values[key] = coerce(type_name, value)
+            values[key] = coerce(type_name, value, values.get(key, kv.UNKNOWN))
         else:
             old = values[key]
             elem_type = old.type_name if isinstance(old, KrlArray) else ""
