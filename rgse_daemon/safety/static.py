@@ -45,7 +45,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from rgse_daemon.config import LimitsConfig
-from rgse_daemon.controller import WRITABLE_PREFIX, WRITABLE_VARIABLES
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
 from rgse_daemon.kinematics import (
     D6_M,
@@ -61,6 +60,7 @@ from rgse_daemon.krl.lexer import Tok, tokenize
 from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.values import UNKNOWN, Value, describe, is_number
 from rgse_daemon.krl.walk import root_name
+from rgse_daemon.safety.allowlist import WRITABLE_PREFIX, WRITABLE_VARIABLES
 
 #: Statement keywords the check refuses outright (the parser does not accept them either).
 FORBIDDEN_KEYWORDS = frozenset({"INTERRUPT", "TRIGGER", "GOTO", "SWITCH", "CONTINUE", "ANIN", "ANOUT", "BRAKE"})
