@@ -32,6 +32,8 @@ from rgse_daemon.krl.values import (
     AXIS_FIELDS,
     CARTESIAN_FIELDS,
     EXT_FIELDS,
+    INT_MAX,
+    INT_MIN,
     STRUCT_FIELDS,
     UNKNOWN,
     EvalError,
@@ -391,7 +393,10 @@ class AbstractInterpreter:
             certain = False
         if certain and all(is_int(v) for v in (start, stop, step)):
             count = max(0, (stop - start) // step + 1)  # type: ignore[operator]
-            if count <= MAX_UNROLL:
+            if not INT_MIN <= start + count * step <= INT_MAX:  # type: ignore[operator]
+                # the counter's last increment leaves the INT range: wrap-around (an endless loop) or an error?
+                self.report("UNSURE", stmt.pos, f"the counter {stmt.var} overflows after the last pass: refused")
+            elif count <= MAX_UNROLL:
                 out = Outcome(st)
                 exits: list[State] = []
                 returns: list[State] = []

@@ -127,6 +127,15 @@ BYPASSES: dict[str, str] = {
     "8_huge_int": (program("  DECL INT N\n", "  N = " + "9" * 320 + "\n  PTP {A1 10.0}\n")),
     "8_huge_int_in_target": (program("", "  PTP {A1 " + "1" + "0" * 320 + "}\n")),
     "8_int_overflow": (program("  DECL INT N\n", "  N = 2147483647\n  N = N + 1\n  PTP {A1 N / 100000000 + 10}\n")),
+    "8_for_counter_overflow": program(
+        "  DECL INT I\n", "  FOR I = 2147483647 TO 2147483647\n    PTP_REL {A1 5.0}\n  ENDFOR\n"
+    ),
+    # more of the same kind: intermediates, ties, built-ins whose last bit is not documented
+    "1_intermediate_precision": program("", "  PTP {A1 ((16777216.0 + 1.0) - 16777216.0) * 40.0}\n"),
+    "2_real_to_int_tie": program("  DECL INT N\n", "  N = 0.5\n  $VEL_AXIS[1] = 1.0 + N * 99.0\n  PTP {A1 10.0}\n"),
+    "7_abs_of_int": program("", "  PTP {A1 ABS(-7) / 2 * 20.0}\n"),
+    "7_sin_last_bit": program("", "  PTP {A1 (SIN(30.0) - 0.5) * 1.0E9}\n"),
+    "8_uninitialised_element": program("  DECL REAL A[2]\n", "  $VEL_AXIS[1] = A[2]\n  PTP {A1 10.0}\n"),
     "8_long_chain": (program("", "  $VEL_AXIS[1] = 1.0" + " + 0.0" * 3000 + "\n  PTP {A1 10.0}\n")),
 }
 
