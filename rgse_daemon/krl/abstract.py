@@ -298,7 +298,11 @@ class AbstractInterpreter:
         self.steps += 1
         if self.steps > self.max_steps:
             raise TooComplex(f"more than {self.max_steps} statements to interpret", pos)
-        if self.steps % 64 == 0 and time.monotonic() > self.deadline:
+        self.check_time(pos)
+
+    def check_time(self, pos: k.Pos) -> None:
+        """Raise TooComplex past the wall-clock budget (called per statement and per motion check)."""
+        if time.monotonic() > self.deadline:
             raise TooComplex(f"not verified within {self.time_budget_s:g} s", pos)
 
     def block(self, body: Sequence[k.Stmt], st: State) -> Outcome:
@@ -564,8 +568,8 @@ class AbstractInterpreter:
             self.start_unknown(stmt)
             if not stmt.relative and all(a in fields for a in AXIS_FIELDS):
                 target = pose_key(fields[a] for a in AXIS_FIELDS)
-                self.check_target(target, stmt.pos)
-                return replace(st, poses=frozenset({target}))
+                if self.check_target(target, stmt.pos):
+                    return replace(st, poses=frozenset({target}))
             return st
         targets = set()
         for start in sorted(st.poses):
@@ -577,7 +581,9 @@ class AbstractInterpreter:
                 target = pose_key(fields.get(a, s) for a, s in zip(AXIS_FIELDS, start, strict=True))
             if self.check_target(target, stmt.pos):
                 self.check_path(start, target, st, stmt.pos)
-            targets.add(target)
+                targets.add(target)
+        if not targets:
+            return st  # every target refused: the check goes on from the poses before (the program is refused anyway)
         if len(targets) > MAX_POSES:
             return replace(st, poses=None)
         return replace(st, poses=frozenset(targets))

@@ -241,6 +241,7 @@ class _Checker(AbstractInterpreter):
         return ok
 
     def check_path(self, start: Pose, target: Pose, st: State, pos: k.Pos) -> None:
+        self.check_time(pos)
         self.motion_checks += 1
         if self.motion_checks > MAX_MOTION_CHECKS:
             raise TooComplex(f"more than {MAX_MOTION_CHECKS} motion checks", pos)
@@ -451,8 +452,9 @@ def _start_pose(
     if len(q) != 6 or not all(math.isfinite(v) for v in q):
         violations.append(Violation(0, 0, "START_UNKNOWN", "start pose is not six finite axis angles"))
         return {}
-    checker.start_poses = frozenset({q})
     checker.check_target(q, k.Pos(0, 0))  # nothing was reported before: these are the start's
+    if all(lo <= v <= hi for v, (lo, hi) in zip(q, JOINT_LIMITS_DEG, strict=True)):
+        checker.start_poses = frozenset({q})  # (outside the axis ranges: no path from there is checked)
     found = {key: replace(v, message="start pose: " + v.message) for key, v in checker.found.items()}
     checker.found.clear()
     return found

@@ -82,6 +82,6 @@ def test_what_stays_refused_when_not_certain() -> None:
         f"  PTS[1] = {{A1 10.0, {POSE}}}\n  PTS[RGSE_ARG] = {{A1 80.0, {POSE}}}\n  PTP PTS[1]\n",
     )
     # a WHILE whose counter the daemon controls
-    assert "LOOP" in rules("", "  WHILE RGSE_ARG < 3\n    PTP_REL {A1 5.0}\n  ENDWHILE\n")
+    assert rules("", "  WHILE RGSE_ARG < 3\n    PTP_REL {A1 5.0}\n  ENDWHILE\n") & {"LOOP", "A1_ENVELOPE"}
     # an element read before it was written
     assert "UNSURE" in rules("  DECL REAL A[3]\n", "  PTP {A1 A[2]}\n")
