@@ -3,7 +3,7 @@
 Every program starts with ``$VEL_AXIS[1..6] = 1.0`` (slow enough for T1 on every motion below) and then uses one
 way in which the checker's arithmetic or reading of the program differed from the controller's. Each must be refused
 by ``rgse krl check`` (exit 3, a reason naming a line of the program) and by the daemon's push check
-(:func:`~rgse_daemon.procedures.common.static_checker`, which raises an InterlockError).
+(:func:`~rgse_daemon.procedures.programs.static_checker`, which raises an InterlockError).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from rgse_daemon.config import Config
 from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError
 from rgse_daemon.krl.abstract import AbstractInterpreter
-from rgse_daemon.procedures.common import static_checker
+from rgse_daemon.procedures.programs import static_checker
 from rgse_daemon.safety.static import CheckContext, Violation, check_program
 
 SLOW = "".join(f"  $VEL_AXIS[{i}] = 1.0\n" for i in range(1, 7))
