@@ -156,8 +156,15 @@ def _aut_inputs(obs: Observation, ctx: WatchContext) -> str | None:
         return "AUT without safety inputs (no Modbus I/O configured)"
     if not obs.inputs.valid:
         return f"safety inputs invalid: {obs.inputs.reason}"
-    bad = [n for n, ok in (("E-stop", obs.inputs.estop_ok), ("area cleared", obs.inputs.area_cleared),
-                           ("AUT key", obs.inputs.aut_permitted)) if not ok]
+    bad = [
+        n
+        for n, ok in (
+            ("E-stop", obs.inputs.estop_ok),
+            ("area cleared", obs.inputs.area_cleared),
+            ("AUT key", obs.inputs.aut_permitted),
+        )
+        if not ok
+    ]
     return f"safety inputs not OK in AUT: {', '.join(bad)}" if bad else None
 
 
@@ -174,8 +181,11 @@ def _estop(obs: Observation, ctx: WatchContext) -> str | None:
 
 def _stop2(obs: Observation, ctx: WatchContext) -> str | None:
     assert obs.snapshot is not None
-    return "$STOPMESS is TRUE (enabling switch released, STOP 2 or another stop message)" if obs.snapshot.stopmess \
+    return (
+        "$STOPMESS is TRUE (enabling switch released, STOP 2 or another stop message)"
+        if obs.snapshot.stopmess
         else None
+    )
 
 
 def _program_state(obs: Observation, ctx: WatchContext) -> str | None:
@@ -331,8 +341,9 @@ class Monitor:
                 # the plan changed its expectation while this snapshot was in flight: judge the program state
                 # by neither (the next poll, < one period away, sees the new state)
                 ctx = replace(ctx, expect=Expect.ANY)
-            obs = Observation(snap, error, now - last_good, self.stale_after_s,
-                              self.inputs() if self.inputs is not None else None)
+            obs = Observation(
+                snap, error, now - last_good, self.stale_after_s, self.inputs() if self.inputs is not None else None
+            )
             found = self.check_once(obs, ctx)
             if found is not None:
                 watcher, detail = found
@@ -379,13 +390,19 @@ class Monitor:
                 await within(self.krc.stop_program(), self.stop_timeout_s)
             except (TimeoutError, RgseError) as exc:
                 self.stats.stop_errors.append(f"stop program: {exc!r}")
-                _log.error("interlock: could not stop the program: %r", exc,
-                           extra={"watcher": self.trip.watcher if self.trip else None})
+                _log.error(
+                    "interlock: could not stop the program: %r",
+                    exc,
+                    extra={"watcher": self.trip.watcher if self.trip else None},
+                )
         trace_state = snap.trace_state if snap is not None else None
         if trace_state is None or trace_state in TRACE_ACTIVE_STATES:
             try:
                 await within(self.krc.write_raw("$TRACE.MODE", "#T_STOP"), self.stop_timeout_s)
             except (TimeoutError, RgseError) as exc:
                 self.stats.stop_errors.append(f"stop trace: {exc!r}")
-                _log.error("interlock: could not stop the trace: %r", exc,
-                           extra={"watcher": self.trip.watcher if self.trip else None})
+                _log.error(
+                    "interlock: could not stop the trace: %r",
+                    exc,
+                    extra={"watcher": self.trip.watcher if self.trip else None},
+                )
