@@ -132,6 +132,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, required=True, metavar="FILE")
     p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the broker (default 10)")
     _add_json(p)
+
+    from rgse_daemon.commands import run as run_command  # its arguments live with it
+
+    run_command.add_arguments(sub)
     return parser
 
 

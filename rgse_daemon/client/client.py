@@ -300,11 +300,12 @@ class Run:
     async def abort(self, reason: str = DEFAULT_ABORT_REASON) -> None:
         await self.client.abort(self._id(), reason)
 
-    async def wait(self, timeout_s: float, on_prompt: PromptHandler | None = None) -> Result:
+    async def wait(self, timeout_s: float, on_prompt: PromptHandler | None = None, *, confirm: bool = True) -> Result:
         """Wait for the run's end under one deadline and return its result. Each prompt is handed to
         ``on_prompt`` (which mounts the load, or asks a person to) and then confirmed with the note it returns;
-        without ``on_prompt`` a prompt raises :class:`WaitTimeout` (nobody to answer it). :class:`RunFailed` when
-        the run fails or is aborted."""
+        without ``on_prompt`` a prompt raises :class:`WaitTimeout` (nobody to answer it). With ``confirm=False``
+        prompts are only shown to ``on_prompt`` and answered elsewhere (``rgse confirm``, the console).
+        :class:`RunFailed` when the run fails or is aborted."""
         run_id = self._id()
         loop = asyncio.get_running_loop()
         deadline = loop.time() + timeout_s
@@ -328,5 +329,6 @@ class Run:
             note = on_prompt(got)
             if inspect.isawaitable(note):
                 note = await note
-            await self.confirm(got, note)
+            if confirm:
+                await self.confirm(got, note)
         return await self.client.result(run_id, self.kind, max(deadline - loop.time(), 0.001))

@@ -264,12 +264,20 @@ class Session:
         self.timeout_s = check_timeout(timeout_s)
         self._filters = list(filters)
         self._on_message = on_message
-        self._client = new_client(ep, purpose, self.timeout_s)
+        self._purpose = purpose
+        self._mqtt: aiomqtt.Client | None = None  # made on entering: an aiomqtt client belongs to the running loop
         self._replies: dict[str, asyncio.Future[dict[str, Any]]] = {}
         self._reader: asyncio.Task[None] | None = None
         self.failure: BaseException | None = None
 
+    @property
+    def _client(self) -> aiomqtt.Client:
+        if self._mqtt is None:
+            raise RuntimeError("Session: use it as `async with`")
+        return self._mqtt
+
     async def __aenter__(self) -> Session:
+        self._mqtt = new_client(self.ep, self._purpose, self.timeout_s)
         try:
             async with asyncio.timeout(self.timeout_s):
                 await self._client.__aenter__()
