@@ -137,6 +137,14 @@ class RgseClient:
         """The daemon's latest state (retained: at once when the daemon is online)."""
         return await self.until(lambda: self._state, "the daemon's state", timeout_s or self.timeout_s)
 
+    async def ready(self, timeout_s: float | None = None) -> DaemonState:
+        """The daemon's state once it is connected to its controller and runs nothing (a run may be started)."""
+        def idle() -> DaemonState | None:
+            s = self._state
+            return s if s is not None and s.connected and s.engine in ("idle", *TERMINAL) else None
+
+        return await self.until(idle, "the daemon ready (controller connected, no run)", timeout_s or self.timeout_s)
+
     def events_of(self, run_id: str) -> list[ProgressEvent]:
         """The progress events of ``run_id`` received so far, in order."""
         return list(self._progress.get(run_id, ()))

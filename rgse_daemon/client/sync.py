@@ -83,6 +83,9 @@ class SyncClient:
     def state(self) -> DaemonState:
         return self.call(self.client.state())
 
+    def ready(self, timeout_s: float | None = None) -> DaemonState:
+        return self.call(self.client.ready(timeout_s), timeout_s)
+
     def measure(self, *, loops: int | None = None, fixture_mass_kg: float | None = None,
                 dry_run: bool = False) -> SyncRun:
         return SyncRun(self, self.call(self.client.measure(loops=loops, fixture_mass_kg=fixture_mass_kg,

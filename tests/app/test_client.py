@@ -109,7 +109,7 @@ async def test_a_measurement_its_typed_result_and_report(
     sim.mount(DUT)
     async with running_daemon(cfg) as rd, RgseClient.of(cfg) as rgse:
         await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
-        assert (await rgse.state()).engine == "idle"
+        assert (await rgse.ready(10)).engine == "idle"
         run = await rgse.measure(loops=2)
         with pytest.raises(Refused, match="busy"):  # one run at a time: the daemon's own words
             await rgse.measure()
@@ -154,7 +154,7 @@ async def test_the_blocking_client_from_a_plain_thread(
 
     def script() -> MeasurementResult:  # what a notebook cell does
         with SyncClient.of(cfg) as rgse:
-            assert rgse.state().connected
+            assert rgse.ready(10).connected
             result = rgse.measure(loops=1).wait(60)
             assert isinstance(result, MeasurementResult)
             return result
