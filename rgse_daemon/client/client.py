@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import inspect
+import sys
 from collections.abc import AsyncIterator, Awaitable, Callable, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
@@ -293,6 +294,16 @@ class Run:
             return RunFailed(exc.run_id, exc.state, reason)
         return exc
 
+    async def _ended_meanwhile(self) -> Exception:
+        """Why a confirmation was refused: the run ended meanwhile (its :class:`RunFailed`), else the refusal."""
+        refusal = sys.exc_info()[1]
+        assert isinstance(refusal, Refused)
+        try:
+            end = await self.client.until(self.end_state, "the run's end", REASON_WAIT_S)
+        except WaitTimeout:
+            return refusal
+        return await self._with_reason(self._ended(end)) if end != "done" else refusal
+
     async def next_prompt(self, timeout_s: float) -> Prompt:
         """The next operator prompt of the run; :class:`RunFailed` if it ends failed or aborted first."""
         got = await self.client.until(self._next_prompt, f"a prompt of run {self.run_id}", timeout_s)
@@ -338,5 +349,8 @@ class Run:
             if inspect.isawaitable(note):
                 note = await note
             if confirm:
-                await self.confirm(got, note)
+                try:
+                    await self.confirm(got, note)
+                except Refused:
+                    raise await self._ended_meanwhile() from None
         return await self.client.result(run_id, self.kind, max(deadline - loop.time(), 0.001))

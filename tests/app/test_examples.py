@@ -56,6 +56,7 @@ async def test_scripted_campaign_retries_after_an_interlock_trip(
         result = await ex.campaign(rgse, points, mount, attempts=3, run_timeout_s=120, on_retry=on_retry)
     assert isinstance(result, CalibrationResult) and result.points == 5
     assert len(retries) == 1 and retries[0][0] == 2, retries
+    assert retries[0][1].startswith(f"run {mounted[0][0]} failed: ") and "AUT" in retries[0][1], retries
     first, second = dict.fromkeys(run for run, _ in mounted)
     assert [i for run, i in mounted if run == first] == [0, 1, 2]
     assert [i for run, i in mounted if run == second] == [0, 1, 2, 3, 4] and second == result.run_id
