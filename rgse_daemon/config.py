@@ -256,6 +256,16 @@ class MqttConfig(_Section):
     """If not empty, a command must carry one of these in its ``token`` field (authorisation)."""
 
 
+class ConsoleConfig(_Section):
+    """The operator's web console served by the daemon (off by default)."""
+
+    enabled: bool = False
+    host: str = Field("127.0.0.1", min_length=1)
+    """Address to listen on; the default serves only this machine (put a reverse proxy with TLS in front)."""
+    port: int = Field(8080, ge=0, le=65535)
+    """TCP port; 0 picks a free one (tests)."""
+
+
 class Config(BaseSettings):
     """The whole configuration file."""
 
@@ -270,6 +280,7 @@ class Config(BaseSettings):
     store: StoreConfig = StoreConfig()
     measurement: MeasurementConfig = MeasurementConfig()
     mqtt: MqttConfig = MqttConfig()
+    console: ConsoleConfig = ConsoleConfig()
     modbus: ModbusConfig | None = None
     """The Modbus TCP safety I/O module; absent: no area-cleared input, so AUT is never allowed."""
     scale: ScaleConfig | None = None
