@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/rgse demo
+	$(BIN)/rgse demo $(if $(CONSOLE),--console $(CONSOLE))
 
 test: $(STAMP)
 	$(BIN)/ruff check rgse_daemon simulators tests bench

@@ -64,7 +64,7 @@ MEASUREMENT_LOOPS = 10
 DEADLINE_S = 600.0
 
 
-def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None) -> Config:
+def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_port: int | None = None) -> Config:
     mqtt: dict[str, Any] = {"enabled": False}
     if mqtt_url is not None:
         u = urlsplit(mqtt_url)
@@ -88,6 +88,7 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None) -> Config
                             "payload_lever_max_m": 1.0, "warmup_until_steady": True,
                             "warmup_steady_window_s": 300.0 / TIME_SCALE, "warmup_max_s": 2400.0 / TIME_SCALE},
             "mqtt": mqtt,
+            "console": {"enabled": console_port is not None, "port": console_port or 8080},
         },
         "<demo>",
     )
@@ -218,8 +219,8 @@ async def _wait(task: asyncio.Task[Any], what: str) -> Any:
         raise RgseError(f"demo: {what} did not finish within {DEADLINE_S:.0f} s") from exc
 
 
-async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None, bars: bool = False
-                   ) -> dict[str, Any]:
+async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None, bars: bool = False,
+                   console_port: int | None = None) -> dict[str, Any]:
     """The demo; progress on stderr: bars on a terminal if ``bars``, else plain lines unless ``quiet``."""
     t_start = time.monotonic()
     with demo_view(quiet=quiet, bars=bars) as view, tempfile.TemporaryDirectory(prefix="rgse-demo-") as tmp:
@@ -229,7 +230,7 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
         sim = SimProcess(root / "share", seed=SEED, time_scale=TIME_SCALE, globals_dat=globals_dat_text())
         await asyncio.to_thread(sim.start)
         try:
-            cfg = demo_config(sim, root / "data", mqtt_url)
+            cfg = demo_config(sim, root / "data", mqtt_url, console_port)
             ref: list[Daemon] = []
             daemon = Daemon(cfg, on_event=Operator(sim, ref, view))
             ref.append(daemon)
@@ -238,6 +239,8 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
             try:
                 async with asyncio.timeout(30):
                     await daemon.connected.wait()
+                view.note(f"console: {daemon.console.url}" if daemon.console is not None else
+                          "console: off (rgse demo --console PORT, or make demo CONSOLE=PORT, serves it)")
                 view.note(f"calibration campaign: {len(CAMPAIGN)} points x {CAMPAIGN_LOOPS} loops")
                 t0 = time.monotonic()
                 cal_settings = RunSettings.from_config(cfg, loops=CAMPAIGN_LOOPS, warmup_cycles=1)
@@ -301,7 +304,8 @@ async def _write_report(cfg: Config, run_id: str, out: Path) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    summary = asyncio.run(run_demo(quiet=args.json, report_dir=args.report, mqtt_url=args.mqtt, bars=True))
+    summary = asyncio.run(run_demo(quiet=args.json, report_dir=args.report, mqtt_url=args.mqtt, bars=True,
+                                   console_port=getattr(args, "console", None)))
     if args.json:
         print(json.dumps(summary))
         return 0
