@@ -88,7 +88,7 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
                             "payload_lever_max_m": 1.0, "warmup_until_steady": True,
                             "warmup_steady_window_s": 300.0 / TIME_SCALE, "warmup_max_s": 2400.0 / TIME_SCALE},
             "mqtt": mqtt,
-            "console": {"enabled": console_port is not None, "port": console_port or 8080},
+            "console": {"enabled": console_port is not None, "port": 8080 if console_port is None else console_port},
         },
         "<demo>",
     )
