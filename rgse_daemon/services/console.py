@@ -25,6 +25,8 @@ import json
 import logging
 import math
 import secrets
+import time
+from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
 from importlib import resources
 from pathlib import Path
@@ -49,6 +51,8 @@ CLIENT_QUEUE = 1000
 #: Runs listed in the history.
 HISTORY_RUNS = 30
 TERMINAL = ("done", "failed", "aborted")
+#: Torque history the page's plot shows (s).
+TORQUE_WINDOW_S = 60.0
 
 Handler = Any  # rgse_daemon.io.mqtt.CommandHandler: measure, calibrate, abort, confirm
 
@@ -73,6 +77,8 @@ class Console:
         self.port: int | None = None
         self.run: dict[str, Any] | None = None  # {run_id, kind?, events, prompt, state}
         self.last_state: dict[str, Any] | None = None
+        self.torque: deque[tuple[float, float, float]] = deque(maxlen=int(TORQUE_WINDOW_S * rate_hz) + 1)
+        """(Unix time s, A3 N·m, A5 N·m) of the live state, for the plot of a page that (re)connects."""
         self._clients: set[asyncio.Queue[tuple[str, Any] | None]] = set()
         self._runner: web.AppRunner | None = None
         self._task: asyncio.Task[None] | None = None
@@ -154,7 +160,14 @@ class Console:
             except RgseError as exc:
                 log.warning("console: state not read: %s", exc)
                 continue
+            self._keep_torque(self.last_state)
             self._send("state", self.last_state)
+
+    def _keep_torque(self, state: dict[str, Any]) -> None:
+        ctl = state.get("controller") or {}
+        tq = ctl.get("torques_nm") if isinstance(ctl, dict) else None
+        if isinstance(tq, list) and len(tq) >= 5 and all(isinstance(tq[i], int | float) for i in (2, 4)):
+            self.torque.append((time.time(), float(tq[2]), float(tq[4])))
 
     # --- routes --------------------------------------------------------------------------------------------------
     async def _page(self, request: web.Request) -> web.Response:
@@ -166,7 +179,7 @@ class Console:
         await resp.prepare(request)
         q: asyncio.Queue[tuple[str, Any] | None] = asyncio.Queue(CLIENT_QUEUE)
         hello = {"robot": self.robot, "token_required": bool(self._tokens), "run": self.run,
-                 "state": self._view(await self._state())}
+                 "state": self._view(await self._state()), "torque": list(self.torque)}
         self._clients.add(q)
         try:
             await resp.write(_sse("hello", hello))

@@ -67,12 +67,14 @@ async def test_a_campaign_confirmed_by_clicking_with_a_reload_mid_run(sim: Simul
         task = await rd.daemon.start_calibration(points=POINTS, method="auto")
         for index in range(len(POINTS)):
             await wait_prompt(page, index)
-            if index == 2:  # the page is reloaded mid-run: it finds the run, its events and the prompt again
+            if index == 2:  # the page is reloaded mid-run: it finds the run, its events, plot and prompt again
                 await page.reload()
                 await wait_prompt(page, index)
                 run_id = await text(page, "run-id")
                 assert run_id == rd.daemon.engine.run_id
                 assert "loop" in await text(page, "events")
+                assert await page.evaluate("plot.length > 10")
+            if index == 3:
                 shot = await page.screenshot(tmp_path / "console.png")
                 if target := os.environ.get("RGSE_CONSOLE_SCREENSHOT"):
                     shutil.copyfile(shot, target)
@@ -84,6 +86,9 @@ async def test_a_campaign_confirmed_by_clicking_with_a_reload_mid_run(sim: Simul
             await page.wait_for("document.getElementById('prompt').hidden", "the prompt answered")
         await page.wait_for("document.getElementById('run-state').textContent === 'done'", "the campaign done",
                             timeout_s=120)
+        # the live torque plot was fed from the state all along (A3, A5 N·m)
+        assert await page.evaluate("plot.length > 20 && plot.every(p => p.length === 3)")
+        assert await page.evaluate("document.getElementById('run-progress').value === 5")
         async with asyncio.timeout(30):
             summary = await asyncio.shield(task)
         link = await page.wait_for(
