@@ -134,6 +134,11 @@ class RgseClient:
             return f"none received (daemon status: {describe_status(self.status)})"
         return f"engine {s.engine}" + (f", run {s.run_id}" if s.run_id else "") + f" at {s.time or '?'}"
 
+    @property
+    def latest_state(self) -> DaemonState | None:
+        """The daemon's state as last received (``None`` before any)."""
+        return self._state
+
     async def state(self, timeout_s: float | None = None) -> DaemonState:
         """The daemon's latest state (retained: at once when the daemon is online)."""
         return await self.until(lambda: self._state, "the daemon's state", timeout_s or self.timeout_s)

@@ -189,3 +189,21 @@ def test_a_points_file_names_the_bad_point(tmp_path: Path) -> None:
         with pytest.raises(DataError, match=r"bad\.toml") as err:
             load_points(bad)
         assert fragment in str(err.value), (fragment, str(err.value))
+
+
+async def test_a_lost_broker_ends_the_wait_at_once_not_at_its_deadline(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, tmp_path: Path) -> None:
+    cfg = cfg_for(tmp_path, sim, private_broker, loops=1)
+    points = load_points(write_points(tmp_path / "campaign.toml"))
+    async with running_daemon(cfg) as rd, RgseClient.of(cfg) as rgse:
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        run = await rgse.calibrate(points)
+        await run.next_prompt(60)
+        await private_broker.stop()
+        t0 = asyncio.get_running_loop().time()
+        with pytest.raises(Unreachable, match="connection lost"):
+            await run.next_prompt(300)
+        assert asyncio.get_running_loop().time() - t0 < 60  # a hang guard: the deadline was 300 s
+        with pytest.raises(Unreachable, match="connection lost"):
+            await rgse.confirm(run.run_id or "")
+        rd.daemon.engine.abort("test over")

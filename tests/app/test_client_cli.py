@@ -137,3 +137,26 @@ async def test_refusals_exit_1_bad_input_exits_2(sim: SimulatedKrc4, private_bro
     assert no_cal.rc == 1, no_cal.err
     assert bad_points.rc == 2 and "bad.toml [[point]] #1: lever_a3_m" in bad_points.err, bad_points.err
     assert bad_timeout.rc == 2 and "--timeout" in bad_timeout.err, bad_timeout.err
+
+
+async def test_run_calibrate_follows_prompts_answered_elsewhere(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, tmp_path: Path) -> None:
+    """``--on-prompt wait``: the command only follows; the operator confirms with another tool (here the client)."""
+    from rgse_daemon.client import RgseClient
+
+    cfg, config = setup(tmp_path, sim, private_broker, loops=1)
+    loads = loads_of()
+    async with running_daemon(cfg) as rd, RgseClient.of(cfg) as op:
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        follower = asyncio.create_task(rgse_run("calibrate", "--config", config, "--points",
+                                                write_points(tmp_path / "pts.toml"), "--on-prompt", "wait"))
+        for index in range(len(loads)):
+            state = await op.until(lambda: s if (s := op.latest_state) and s.engine == "confirm" else None,
+                                   "a prompt", 60)
+            sim.mount(campaign_point_payload(loads[index]))
+            await op.confirm(state.run_id or "", point=index, message="from the other tool")
+            await op.until(lambda: (s := op.latest_state) is not None and s.engine != "confirm", "answered", 60)
+        ran = await follower
+    assert ran.rc == 0, ran.err
+    assert ran.out.startswith("run ") and "calibration" in ran.out, ran.out
+    assert ran.err.count("waiting for the operator's confirmation") == len(loads), ran.err
