@@ -5,7 +5,6 @@ report, an abort, refusals with the daemon's reason, deadlines, and the blocking
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -25,10 +24,10 @@ from rgse_daemon.client import (
 from rgse_daemon.config import config_from_mapping
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.operator import Unreachable
-from rgse_daemon.procedures.calibration import table1_points
 from rgse_daemon.store import RunState, Store
-from simulators.krc4.physics import campaign_point_payload, dut_payload
+from simulators.krc4.physics import dut_payload
 from simulators.krc4.sim import SimulatedKrc4
+from tests.support.client import operator_at, write_points
 from tests.support.daemon import daemon_config, running_daemon, seed_calibration
 from tests.support.mqtt import MosquittoProcess, free_port
 from tests.support.polling import wait_until
@@ -42,27 +41,6 @@ mass_kg = 0.0
 lever_a3_m = 1.3
 lever_a5_m = 0.3
 """
-
-
-def write_points(path: Path) -> Path:
-    """A points file of a short campaign: zero, 2, 5 and 10 bodies, one torque point."""
-    lines = []
-    for p in table1_points(n_bodies=(0, 2, 5, 10), torque_levers_a5_m=(1.011,)):
-        lines += ["[[point]]", f'kind = "{p.kind}"', f"mass_kg = {p.mass_kg!r}", f"lever_a3_m = {p.lever_a3_m!r}",
-                  f"lever_a5_m = {p.lever_a5_m!r}", ""]
-    path.write_text("\n".join(lines))
-    return path
-
-
-def operator_at(sim: SimulatedKrc4, seen: list[Prompt]):
-    """The person at the robot: mounts what the prompt asks for on the simulated flange, says so."""
-
-    def on_prompt(prompt: Prompt) -> str:
-        seen.append(prompt)
-        sim.mount(campaign_point_payload(dataclasses.asdict(prompt)))
-        return f"mounted point {prompt.point_index}"
-
-    return on_prompt
 
 
 def cfg_for(tmp_path: Path, sim: SimulatedKrc4, broker: MosquittoProcess, **measurement: Any):

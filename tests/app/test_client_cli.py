@@ -11,16 +11,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rgse_daemon.procedures.calibration import table1_points
 from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.sim import SimulatedKrc4
+from tests.support.client import SHORT_CAMPAIGN, write_points
 from tests.support.configfile import write_config
 from tests.support.daemon import WAIT_S, daemon_config, running_daemon, seed_calibration
 from tests.support.mqtt import MosquittoProcess
 from tests.support.polling import wait_until
 
 DUT = dut_payload(95.0, (0.0, 0.05, 0.25), fixture_mass_kg=10.288)
-N_BODIES = (0, 2, 5, 10)
 
 
 @dataclass(frozen=True)
@@ -30,19 +29,9 @@ class Ran:
     err: str
 
 
-def write_points(path: Path, n_bodies: tuple[int, ...] = N_BODIES) -> Path:
-    lines = []
-    for p in table1_points(n_bodies=n_bodies, torque_levers_a5_m=(1.011,)):
-        lines += ["[[point]]", f'kind = "{p.kind}"', f"mass_kg = {p.mass_kg!r}", f"lever_a3_m = {p.lever_a3_m!r}",
-                  f"lever_a5_m = {p.lever_a5_m!r}", ""]
-    path.write_text("\n".join(lines))
-    return path
-
-
-def loads_of(n_bodies: tuple[int, ...] = N_BODIES) -> list[dict[str, Any]]:
-    """What the operator mounts for each point, by point index."""
-    return [{"kind": p.kind, "n_cb": p.n_cb, "cb_lever_a5_m": p.cb_lever_a5_m}
-            for p in table1_points(n_bodies=n_bodies, torque_levers_a5_m=(1.011,))]
+def loads_of() -> list[dict[str, Any]]:
+    """What the operator mounts for each point of the short campaign, by point index."""
+    return [{"kind": p.kind, "n_cb": p.n_cb, "cb_lever_a5_m": p.cb_lever_a5_m} for p in SHORT_CAMPAIGN]
 
 
 async def rgse_run(*args: str | Path, sim: SimulatedKrc4 | None = None, loads: list[dict[str, Any]] | None = None,

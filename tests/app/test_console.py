@@ -17,14 +17,14 @@ from typing import Any
 import aiohttp
 
 from rgse_daemon.config import Config, config_from_mapping
-from rgse_daemon.procedures.calibration import table1_points
 from rgse_daemon.store import RunState, Store
 from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.cdp import Page, browser
+from tests.support.client import SHORT_CAMPAIGN
 from tests.support.daemon import Events, daemon_config, running_daemon
 
-POINTS = table1_points(n_bodies=(0, 2, 5, 10), torque_levers_a5_m=(1.011,))
+POINTS = SHORT_CAMPAIGN
 
 
 def console_config(tmp_path: Path, sim: SimulatedKrc4, **extra: Any) -> Config:

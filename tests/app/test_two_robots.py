@@ -5,20 +5,19 @@ its own calibration only; topics stay apart; no result is lost or crossed."""
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from rgse_daemon.client import CalibrationResult, CampaignPoint, MeasurementResult, Prompt, Refused, RgseClient
+from rgse_daemon.client import CalibrationResult, MeasurementResult, Refused, RgseClient
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.krl.render import globals_dat_text
-from rgse_daemon.procedures.calibration import table1_points
 from rgse_daemon.store import RunKind, RunState, Store
-from simulators.krc4.physics import campaign_point_payload, dut_payload
+from simulators.krc4.physics import dut_payload
 from simulators.krc4.sim import SimulatedKrc4
+from tests.support.client import operator_at, short_points
 from tests.support.daemon import daemon_config, running_daemon, seed_calibration
 from tests.support.mqtt import Collector, MosquittoProcess
 from tests.support.pg import PgSchemas
@@ -62,11 +61,6 @@ async def test_two_daemons_share_one_postgresql_and_one_broker(
     cfg_a = robot_config(tmp_path, ROBOT_A, sim_a, private_broker, pg_url)
     cfg_b = robot_config(tmp_path, ROBOT_B, sim_b, private_broker, pg_url)
     cal_b = await seed_calibration(cfg_b, {**calibration_doc, "robot": ROBOT_B})  # B is calibrated, A is not
-    points = table1_points(n_bodies=(0, 2, 5, 10), torque_levers_a5_m=(1.011,))
-
-    def operator_at_a(prompt: Prompt) -> str:
-        sim_a.mount(campaign_point_payload(dataclasses.asdict(prompt)))
-        return f"A: point {prompt.point_index} mounted"
 
     everything = Collector("127.0.0.1", private_broker.port, "rgse/#")
     async with (everything, running_daemon(cfg_a) as da, running_daemon(cfg_b) as db,
@@ -79,10 +73,9 @@ async def test_two_daemons_share_one_postgresql_and_one_broker(
             await a.measure()
         # in parallel: A's campaign, B's measurement
         sim_b.mount(dut_payload(DUT_B_KG, (0.0, 0.05, 0.25), fixture_mass_kg=10.288))
-        campaign = await a.calibrate([CampaignPoint(p.kind, p.mass_kg, p.lever_a3_m, p.lever_a5_m) for p in points],
-                                     method="auto")
+        campaign = await a.calibrate(short_points(), method="auto")
         measure_b = await b.measure(loops=2)
-        cal_a, first_b = await asyncio.gather(campaign.wait(180, operator_at_a), measure_b.wait(180))
+        cal_a, first_b = await asyncio.gather(campaign.wait(180, operator_at(sim_a)), measure_b.wait(180))
         # in parallel again: both measure, each with its own calibration
         sim_a.mount(dut_payload(DUT_A_KG, (0.0, 0.05, 0.25), fixture_mass_kg=10.288))
         runs = await asyncio.gather(a.measure(loops=2), b.measure(loops=2))
