@@ -241,7 +241,8 @@ class MqttConfig(_Section):
     host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(1883, ge=1, le=65535)
     prefix: str | None = Field(None, pattern=r"^[^#+]+$")
-    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (contracts §4)."""
+    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (contracts §4). A trailing ``/`` is dropped here, once
+    (``plant/rgse/`` is ``plant/rgse``): every topic is ``<prefix>/<level>``."""
     username: str | None = None
     password: str | None = None
     tls: bool = False
@@ -254,6 +255,15 @@ class MqttConfig(_Section):
     """Maximum rate of the retained ``state`` topic; high-rate state beyond the queue is dropped and counted."""
     command_tokens: tuple[str, ...] = ()
     """If not empty, a command must carry one of these in its ``token`` field (authorisation)."""
+
+    @field_validator("prefix")
+    @classmethod
+    def _prefix_without_trailing_slash(cls, prefix: str | None) -> str | None:
+        if prefix is None:
+            return None
+        if not prefix.rstrip("/"):
+            raise ValueError(f"{prefix!r}: empty once the trailing '/' is dropped; leave it out for rgse/<robot>")
+        return prefix.rstrip("/")
 
 
 class ConsoleConfig(_Section):

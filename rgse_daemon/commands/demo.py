@@ -36,8 +36,8 @@ from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.procedures.calibration import table1_points
-from rgse_daemon.procedures.common import RunSettings
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.progress import new_progress, running, terminal_console
 from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.process import SimProcess

@@ -77,21 +77,17 @@ from rgse_daemon.io.commands import (
     MeasureCommand,
     parse_command,
 )
+from rgse_daemon.io.topics import FORBIDDEN_IN_LEVEL, MqttError, Topics
 from rgse_daemon.store import OutboxMessage, Store, StoreError
 
 log = logging.getLogger(__name__)
 
 #: Command handler calls in flight at once; more are refused ("busy") rather than queued without bound.
 MAX_COMMANDS_IN_FLIGHT = 8
-_FORBIDDEN_IN_LEVEL = ("/", "+", "#", "\x00")
 
 
 #: Deadline of the retained "offline" publish when stopping (s).
 STOP_PUBLISH_TIMEOUT_S = 3.0
-
-class MqttError(RgseError):
-    """The MQTT bridge was misused (e.g. started twice) or given an unpublishable message."""
-
 
 class ConnectionState(StrEnum):
     STOPPED = "stopped"
@@ -149,53 +145,11 @@ class CommandHandler(Protocol):
 
 
 @dataclass(frozen=True)
-class Topics:
-    """The bridge's topics (contracts §4) under one prefix."""
-
-    prefix: str
-
-    @property
-    def status(self) -> str:
-        return f"{self.prefix}/status"
-
-    @property
-    def state(self) -> str:
-        return f"{self.prefix}/state"
-
-    @property
-    def alarm(self) -> str:
-        return f"{self.prefix}/alarm"
-
-    @property
-    def commands(self) -> str:
-        """The subscription: every verb, one level (so ``cmd/<verb>/reply`` is not ours to read)."""
-        return f"{self.prefix}/cmd/+"
-
-    def command(self, verb: str) -> str:
-        return f"{self.prefix}/cmd/{verb}"
-
-    def reply(self, verb: str) -> str:
-        return f"{self.prefix}/cmd/{verb}/reply"
-
-    def progress(self, run_id: str) -> str:
-        return f"{self.prefix}/run/{_level(run_id, 'run id')}/progress"
-
-    def result(self, run_id: str) -> str:
-        return f"{self.prefix}/run/{_level(run_id, 'run id')}/result"
-
-
-@dataclass(frozen=True)
 class _Out:
     topic: str
     payload: str
     qos: int
     retain: bool = False
-
-
-def _level(value: str, what: str) -> str:
-    if not isinstance(value, str) or not value or any(c in value for c in _FORBIDDEN_IN_LEVEL):
-        raise MqttError(f"{what} {value!r}: must be a non-empty topic level without '/', '+', '#'")
-    return value
 
 
 def _dumps(value: Any, what: str) -> str:
@@ -300,9 +254,6 @@ class MqttBridge:
                 raise ConfigError(f"mqtt bridge {name} {value!r}: must be a finite number > 0")
         if queue_size < 1:
             raise ConfigError(f"mqtt bridge queue_size {queue_size!r}: must be >= 1")
-        prefix = (cfg.prefix or f"rgse/{robot}").rstrip("/")
-        if not prefix:
-            raise ConfigError("mqtt.prefix: empty")
         self._cfg = cfg
         self._robot = robot
         self._store = store
@@ -316,7 +267,7 @@ class MqttBridge:
         self._stop_timeout_s = 4 * self._timeout_s if stop_timeout_s is None else float(stop_timeout_s)
         self._tls = _tls_context(cfg)
         self._client_id = cfg.client_id or f"rgse-{robot}-{secrets.token_hex(4)}"
-        self.topics = Topics(prefix)
+        self.topics = Topics.of(cfg, robot)
         self.counters = MqttCounters()
 
         self._state = ConnectionState.STOPPED
@@ -640,7 +591,7 @@ class MqttBridge:
         self._log.problem(f"refused {exc.verb}", f"mqtt {self.prefix}: refused command: {exc}")
         reply = {"request_id": exc.request_id, "ok": False, "error": exc.problem}
         # An unknown verb is still answered on its own reply topic: the sender listens there.
-        if all(c not in exc.verb for c in _FORBIDDEN_IN_LEVEL) and exc.verb:
+        if all(c not in exc.verb for c in FORBIDDEN_IN_LEVEL) and exc.verb:
             self._enqueue(_Out(self.topics.reply(exc.verb), _dumps(reply, "reply"), qos=1))
         self.publish_alarm(
             {
