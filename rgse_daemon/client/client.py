@@ -358,4 +358,9 @@ class Run:
                     await self.confirm(got, note)
                 except Refused:
                     raise await self._ended_meanwhile() from None
-        return await self.client.result(run_id, self.kind, max(deadline - loop.time(), 0.001))
+        result = await self.client.result(run_id, self.kind, max(deadline - loop.time(), 0.001))
+        # the engine says "done" a moment before the daemon has finished with the run (stored, released): wait for
+        # its state to let go of it, so that the next run a script starts right away is not refused as busy
+        await self.client.until(lambda: (s := self.client.latest_state) is not None and s.run_id != run_id,
+                                f"the daemon to release run {run_id}", max(deadline - loop.time(), 0.001))
+        return result
