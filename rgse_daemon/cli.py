@@ -134,9 +134,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the broker (default 10)")
     _add_json(p)
 
-    from rgse_daemon.commands import run as run_command  # its arguments live with it
 
-    run_command.add_arguments(sub)
+    # rgse run: start a run on the daemon and follow it (on the Python client)
+    p = sub.add_parser("run", help="start a measurement or a campaign on the running daemon and follow it")
+    kinds = p.add_subparsers(dest="run_kind", required=True, metavar="KIND")
+    m = kinds.add_parser("measure", help="an in-line measurement of the mounted DuT")
+    m.add_argument("--loops", type=int, metavar="N")
+    m.add_argument("--fixture-mass", type=float, metavar="KG")
+    m.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
+    c = kinds.add_parser("calibrate", help="a calibration campaign (confirming each load)")
+    c.add_argument("--points", type=Path, metavar="FILE.toml", help="[[point]] tables (default: paper Table 1)")
+    c.add_argument("--method", metavar="paper|auto|NAME")
+    for q in (m, c):
+        q.add_argument("--config", type=Path, required=True, metavar="FILE")
+        q.add_argument("--on-prompt", choices=("stdin", "wait"), default="stdin",
+                       help="stdin: a line on stdin confirms each prompt (default); wait: answered elsewhere")
+        q.add_argument("--timeout", type=float, metavar="S",
+                       help="the whole run, then it is aborted (default 3600)")
+        q.add_argument("--report", type=Path, metavar="DIR", help="also write the HTML report into DIR")
+        q.add_argument("--json", action="store_true", help="print the result as one JSON object")
     return parser
 
 

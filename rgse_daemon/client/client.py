@@ -25,8 +25,6 @@ from typing import Any, TypeVar
 from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.operator import DEFAULT_TIMEOUT_S, Endpoint, Session, describe_status, endpoint_of
-from rgse_daemon.report import build_report
-from rgse_daemon.store import Repository
 
 from .types import (
     TERMINAL,
@@ -205,6 +203,8 @@ class RgseClient:
         if self.config is None:
             raise DataError("a report needs the daemon's configuration (RgseClient.from_config): its store")
         cfg = self.config
+        from rgse_daemon.report import build_report  # matplotlib: only when a report is asked for
+        from rgse_daemon.store import Repository
 
         def write() -> Path:
             with Repository.open(cfg.store.url, cfg.paths.data_dir) as repo:

@@ -25,7 +25,6 @@ import math
 import os
 import sys
 from collections.abc import Awaitable, Callable
-from pathlib import Path
 
 from rgse_daemon.client import (
     Prompt,
@@ -42,26 +41,6 @@ from rgse_daemon.errors import EXIT_FAILED, EXIT_OK, ConfigError
 DEFAULT_RUN_TIMEOUT_S = 3600.0
 #: Bound of the abort sent when the command gives up on a run.
 ABORT_S = 5.0
-
-
-def add_arguments(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
-    p = sub.add_parser("run", help="start a measurement or a campaign on the running daemon and follow it")
-    kinds = p.add_subparsers(dest="run_kind", required=True, metavar="KIND")
-    m = kinds.add_parser("measure", help="an in-line measurement of the mounted DuT")
-    m.add_argument("--loops", type=int, metavar="N")
-    m.add_argument("--fixture-mass", type=float, metavar="KG")
-    m.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
-    c = kinds.add_parser("calibrate", help="a calibration campaign (confirming each load)")
-    c.add_argument("--points", type=Path, metavar="FILE.toml", help="[[point]] tables (default: paper Table 1)")
-    c.add_argument("--method", metavar="paper|auto|NAME")
-    for q in (m, c):
-        q.add_argument("--config", type=Path, required=True, metavar="FILE")
-        q.add_argument("--on-prompt", choices=("stdin", "wait"), default="stdin",
-                       help="stdin: a line on stdin confirms each prompt (default); wait: answered elsewhere")
-        q.add_argument("--timeout", type=float, metavar="S",
-                       help=f"the whole run, then it is aborted (default {DEFAULT_RUN_TIMEOUT_S:g})")
-        q.add_argument("--report", type=Path, metavar="DIR", help="also write the HTML report into DIR")
-        q.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
 
 def _say(text: str) -> None:
