@@ -70,7 +70,8 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
         u = urlsplit(mqtt_url)
         if u.scheme not in ("mqtt", "tcp") or not u.hostname:
             raise ConfigError(f"--mqtt {mqtt_url}: expected mqtt://HOST[:PORT]")
-        mqtt = {"enabled": True, "host": u.hostname, "port": u.port or 1883}
+        # the demo's robot is the simulator it started: commands need no token
+        mqtt = {"enabled": True, "host": u.hostname, "port": u.port or 1883, "command_auth": "open_lab_bench"}
     return config_from_mapping(
         {
             "robot": {"name": ROBOT},

@@ -58,7 +58,7 @@ import random
 import secrets
 import ssl
 from dataclasses import asdict, dataclass
-from datetime import UTC, datetime
+from datetime import datetime
 from enum import StrEnum
 from types import TracebackType
 from typing import Any, Protocol, Self
@@ -78,9 +78,15 @@ from rgse_daemon.io.commands import (
     parse_command,
 )
 from rgse_daemon.io.topics import FORBIDDEN_IN_LEVEL, MqttError, Topics
+from rgse_daemon.logs import RepeatThrottle
 from rgse_daemon.store import OutboxMessage, Store, StoreError
+from rgse_daemon.utc import iso_utc, now_utc
 
 log = logging.getLogger(__name__)
+#: The MQTT client library's logger: a flood of its "Message queue is full" is written once, then counted.
+_client_log = log.getChild("client")
+_client_throttle = RepeatThrottle()
+_client_log.addFilter(_client_throttle)
 
 #: Command handler calls in flight at once; more are refused ("busy") rather than queued without bound.
 MAX_COMMANDS_IN_FLIGHT = 8
@@ -152,19 +158,22 @@ class _Out:
     retain: bool = False
 
 
+def _json_default(value: object) -> str:
+    """Datetimes in a payload are written as :func:`~rgse_daemon.utc.iso_utc` (one time format)."""
+    if isinstance(value, datetime):
+        return iso_utc(value)
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
+
+
 def _dumps(value: Any, what: str) -> str:
     try:
-        return json.dumps(value, separators=(",", ":"), allow_nan=False, ensure_ascii=False)
+        return json.dumps(value, separators=(",", ":"), allow_nan=False, ensure_ascii=False, default=_json_default)
     except (TypeError, ValueError) as exc:
         raise MqttError(f"{what}: not JSON-serialisable: {exc}") from exc
 
 
-def _iso(ts: datetime) -> str:
-    return ts.astimezone(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-
-
 def _now() -> str:
-    return _iso(datetime.now(UTC))
+    return now_utc()
 
 
 class _LogOnce:
@@ -307,6 +316,9 @@ class MqttBridge:
         if self._task is not None:
             raise MqttError("mqtt bridge: already started")
         self._stopping.clear()
+        if self._cfg.command_auth == "open_lab_bench" and not self._cfg.command_tokens:
+            log.warning("mqtt %s: command_auth = open_lab_bench: any client that reaches %s:%d can move the robot "
+                        "(lab bench only; docs/security.md)", self.prefix, self._cfg.host, self._cfg.port)
         self._task = asyncio.create_task(self._run(), name=f"mqtt-bridge {self.prefix}")
 
     async def stop(self) -> None:
@@ -335,6 +347,8 @@ class MqttBridge:
                 await asyncio.gather(task, return_exceptions=True)
             self._state = ConnectionState.STOPPED
             self._connected = False
+            for record in _client_throttle.pending():  # the counts of a flood not yet written
+                _client_log.handle(record)
 
     async def __aenter__(self) -> Self:
         await self.start()
@@ -404,7 +418,7 @@ class MqttBridge:
             username=self._cfg.username,
             password=self._cfg.password,
             identifier=self._client_id,
-            logger=log.getChild("client"),
+            logger=_client_log,
             will=will,
             clean_session=True,
             keepalive=self._cfg.keepalive_s,

@@ -25,6 +25,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from rgse_daemon.utc import iso_utc
+
 EventKind = Literal["state", "step", "loop", "confirm", "alarm", "result", "log"]
 
 
@@ -42,7 +44,7 @@ class Event:
 
     def to_json(self) -> dict[str, Any]:
         """The event as the MQTT payload (contracts §4: step, loop i/n, eta)."""
-        out: dict[str, Any] = {"kind": self.kind, "time": self.time_s}
+        out: dict[str, Any] = {"kind": self.kind, "time": iso_utc(self.time_s)}
         for key in ("message", "run_id", "step", "loop_index", "loop_count", "eta_s"):
             value = getattr(self, key)
             if value not in (None, ""):

@@ -83,6 +83,8 @@ async def rgse(*args: str | Path) -> Ran:
 
 def write_config(path: Path, host: str, port: int, prefix: str | None, extra: str = "") -> Path:
     prefix_line = f'prefix = "{prefix}"\n' if prefix is not None else ""
+    if "command_tokens" not in extra and "command_auth" not in extra:
+        extra += 'command_auth = "open_lab_bench"\n'  # the broker's own test clients only
     path.write_text(
         f'[robot]\nname = "{ROBOT}"\n\n[mqtt]\nenabled = true\nhost = "{host}"\nport = {port}\n{prefix_line}{extra}'
     )
