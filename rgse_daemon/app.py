@@ -219,6 +219,7 @@ class Daemon:
         self.console = Console(self.cfg.console, robot=self.robot, handler=self, state=state.document,
                                light=lambda: self.light.color, store=self.store, store_url=self.cfg.store.url,
                                data_dir=self.cfg.paths.data_dir, tokens=self.cfg.mqtt.command_tokens,
+                               open_bench=self.cfg.mqtt.command_auth == "open_lab_bench",
                                rate_hz=max(self.cfg.mqtt.state_rate_hz, 10.0))
         await self.console.start()
         stack.push_async_callback(self._bounded, "console", self.console.stop)

@@ -13,8 +13,9 @@ One page (``console.html``) and a small HTTP API beside it:
 
 The actions are the MQTT commands: checked by the same :func:`~rgse_daemon.io.commands.parse_command` (schema and
 ``mqtt.command_tokens``) and answered by the same handler, so the console can confirm only what the daemon asks
-for. Each action, accepted or refused, is recorded in the store as an event ``console_action`` with
-``source: "console"``.
+for. Without ``command_tokens`` the console acts only with ``command_auth = "open_lab_bench"``: the broker's ACL
+(``broker_acl``) does not see this page. Each action, accepted or refused, is recorded in the store as an event
+``console_action`` with ``source: "console"``.
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ class Console:
 
     def __init__(self, cfg: ConsoleConfig, *, robot: str, handler: Handler, state: Callable[[], Awaitable[dict]],
                  light: Callable[[], str | None], store: Store, store_url: str | None, data_dir: Path,
-                 tokens: Sequence[str], rate_hz: float) -> None:
+                 tokens: Sequence[str], open_bench: bool, rate_hz: float) -> None:
         self.cfg = cfg
         self.robot = robot
         self._handler = handler
@@ -73,6 +74,7 @@ class Console:
         self._store_url = store_url
         self._data_dir = data_dir
         self._tokens = tuple(tokens)
+        self._open_bench = open_bench
         self.period_s = 1.0 / rate_hz
         self.port: int | None = None
         self.run: dict[str, Any] | None = None  # {run_id, kind?, events, prompt, state}
@@ -202,6 +204,9 @@ class Console:
         record = {"source": "console", "verb": verb, "run_id": body.get("run_id"), "point": body.get("point"),
                   "peer": request.remote}
         try:
+            if not self._tokens and not self._open_bench:
+                raise RgseError("the console needs mqtt.command_tokens (broker_acl authenticates MQTT clients only, "
+                                "not this page): nothing done")
             cmd = parse_command(verb, json.dumps(doc), self._tokens)
             reply = await getattr(self._handler, verb)(cmd)
         except (CommandRefused, RgseError) as exc:

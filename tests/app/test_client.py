@@ -145,7 +145,8 @@ async def test_the_blocking_client_from_a_plain_thread(
 
 async def test_no_broker_is_unreachable_within_the_deadline(tmp_path: Path) -> None:
     cfg = config_from_mapping({"robot": {"name": "KR-X"}, "paths": {"data_dir": str(tmp_path)},
-                               "mqtt": {"enabled": True, "host": "127.0.0.1", "port": free_port()}}, "<test>")
+                               "mqtt": {"enabled": True, "host": "127.0.0.1", "port": free_port(),
+                                        "command_tokens": ["t"]}}, "<test>")
     with pytest.raises(Unreachable, match="cannot connect"):
         async with RgseClient.of(cfg, timeout_s=2):
             pass

@@ -22,7 +22,7 @@ from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.cdp import Page, browser
 from tests.support.client import SHORT_CAMPAIGN
-from tests.support.daemon import Events, daemon_config, running_daemon
+from tests.support.daemon import COMMAND_TOKEN, Events, daemon_config, running_daemon
 
 POINTS = SHORT_CAMPAIGN
 
@@ -64,12 +64,14 @@ async def test_a_campaign_confirmed_by_clicking_with_a_reload_mid_run(sim: Simul
         print(f"\nconsole latency, controller change to page: median {sorted(latencies)[3] * 1000:.0f} ms, "
               f"max {max(latencies) * 1000:.0f} ms (state read at {console.period_s * 1000:.0f} ms intervals)")
 
+        await page.type_into("#token", COMMAND_TOKEN)  # the configured command token, asked for by the page
         task = await rd.daemon.start_calibration(points=POINTS, method="auto")
         for index in range(len(POINTS)):
             await wait_prompt(page, index)
             if index == 2:  # the page is reloaded mid-run: it finds the run, its events, plot and prompt again
                 await page.reload()
                 await wait_prompt(page, index)
+                await page.type_into("#token", COMMAND_TOKEN)
                 run_id = await text(page, "run-id")
                 assert run_id == rd.daemon.engine.run_id
                 assert "loop" in await text(page, "events")
@@ -113,6 +115,7 @@ async def test_an_abort_by_clicking_and_a_token_when_one_is_configured(sim: Simu
         await rd.daemon.start_calibration(points=POINTS, method="auto")
         await wait_prompt(page, 0)
         run_id = rd.daemon.engine.run_id
+        await page.wait_for("!document.getElementById('abort').disabled", "Abort enabled for the run")
         await page.click("#abort")  # no token typed: refused, the run goes on
         await page.wait_for("document.getElementById('said').textContent.includes('unauthorised')", "the refusal")
         assert rd.daemon.engine.state == "confirm"
