@@ -19,13 +19,13 @@ demo: $(STAMP)
 	$(BIN)/rgse demo $(if $(CONSOLE),--console $(CONSOLE))
 
 test: $(STAMP)
-	$(BIN)/ruff check rgse_daemon simulators tests bench
+	$(BIN)/ruff check rgse_daemon simulators tests bench examples
 	$(BIN)/lint-imports
 	bash scripts/ensure-services.sh
 	$(BIN)/python -m pytest
 
 lint: $(STAMP)
-	$(BIN)/ruff check rgse_daemon simulators tests bench
+	$(BIN)/ruff check rgse_daemon simulators tests bench examples
 	$(BIN)/lint-imports
 
 bench: $(STAMP)
