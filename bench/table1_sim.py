@@ -25,8 +25,7 @@ import numpy as np
 from rgse_daemon import kinematics as kin
 from simulators.krc4 import physics as ph
 
-PAPER_CSV = Path(__file__).resolve().parents[2] / "shared" / "paper" / "table1_calibration.csv"
-SHARED_CSV = Path("/work/shared/paper/table1_calibration.csv")
+PAPER_CSV = Path(__file__).resolve().parents[1] / "data" / "paper" / "table1_calibration.csv"
 LOOPS = 10
 N_SAMPLES = 1000
 PERIOD_S = 0.012
@@ -36,9 +35,8 @@ CHANGE_BODIES_S = 600.0
 
 
 def read_table1() -> list[dict[str, float | str]]:
-    path = PAPER_CSV if PAPER_CSV.exists() else SHARED_CSV
     rows = []
-    with path.open() as fh:
+    with PAPER_CSV.open() as fh:
         for row in csv.DictReader(line for line in fh if not line.startswith("#")):
             rows.append({k: (v if k == "calibration_type" else float(v)) for k, v in row.items()})
     return rows
