@@ -35,6 +35,9 @@ from rgse_daemon.pipeline import mass as mass_eq
 
 #: Scale of the gain basis functions, Nm: keeps the coefficients of order one.
 GAIN_SCALE_NM = 1000.0
+#: Evaluations of the bounded least-squares polish of eq. 20 from the grid's best start (the grid start is close; on
+#: near-exact data the valley is flat and the polish would creep on for hundreds of steps without changing K).
+MAX_NFEV_DOUBLE_EXP = 40
 
 
 class CalibrationError(DataError):
@@ -355,7 +358,7 @@ def fit_poly_k(x: np.ndarray, y: np.ndarray, degree: int) -> tuple[PolyK, np.nda
     return PolyK(coef), cov, r_squared(y, a @ coef)
 
 
-def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: int = 3
+def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: int = 1
                      ) -> tuple[DoubleExpK, np.ndarray, float]:
     """Eq. 20 fitted robustly: variable projection on a grid of rates, then bounded least squares from the best starts.
 
@@ -399,7 +402,8 @@ def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: i
         if not np.isfinite(cost[i, j]):
             continue
         p0 = np.array([b1[i, j], rates[i], b3[i, j], rates[j]])
-        r = least_squares(resid, np.clip(p0, lower, upper), jac=jac, bounds=(lower, upper), x_scale="jac")
+        r = least_squares(resid, np.clip(p0, lower, upper), jac=jac, bounds=(lower, upper), x_scale="jac",
+                          max_nfev=MAX_NFEV_DOUBLE_EXP)
         if best is None or r.cost < best.cost:
             best = r
     if best is None:
@@ -611,12 +615,6 @@ class Evaluation:
         r = np.asarray(self.heldout_residual_nm, float)
         return np.sqrt(np.mean(r**2, axis=0)) if r.size else np.full(2, np.nan)
 
-    @property
-    def lever_axis_rms_nm(self) -> np.ndarray:
-        r = np.asarray(self.lever_residual_nm, float)
-        r = r[np.all(np.isfinite(r), axis=1)] if r.size else r
-        return np.sqrt(np.mean(r**2, axis=0)) if r.size else np.full(2, np.nan)
-
 
 def _axis_residual_nm(cal: Calibration, points: CalibrationPoints, index: np.ndarray) -> np.ndarray:
     c3 = cal.k_a3.corrected_torque_nm(points.torque_a3_nm[index])
@@ -702,19 +700,15 @@ def admissibility(evaluations: list[Evaluation]) -> list[Evaluation]:
         return [replace(e, admissible=False, note="no per-axis model to check the A3/A5 split against")
                 if e.joint else e for e in evaluations]
     best = np.min([e.axis_rms_nm for e in axis], axis=0)
-    lever_best = np.nanmin([e.lever_axis_rms_nm for e in axis], axis=0) if any(
-        np.all(np.isfinite(e.lever_axis_rms_nm)) for e in axis) else np.full(2, np.nan)
     out = []
     for e in evaluations:
         if not e.joint:
             out.append(e)
             continue
+        # (the lever-group fold cannot judge the split: without the torque points no joint fit can find it)
         bad = [f"{ax} held-out {v:.1f} Nm vs per-axis {b:.1f} Nm" for ax, v, b in
                zip(("A3", "A5"), e.axis_rms_nm, best, strict=True)
                if v > JOINT_AXIS_FACTOR * max(b, JOINT_AXIS_FLOOR_NM)]
-        bad += [f"{ax} lever group {v:.1f} Nm vs per-axis {b:.1f} Nm" for ax, v, b in
-                zip(("A3", "A5"), e.lever_axis_rms_nm, lever_best, strict=True)
-                if np.isfinite(v) and np.isfinite(b) and v > JOINT_AXIS_FACTOR * max(b, JOINT_AXIS_FLOOR_NM)]
         out.append(replace(e, admissible=not bad, note="; ".join(bad)))
     return out
 
