@@ -161,13 +161,14 @@ def residual_pairs_nm(cal: Calibration, points: CalibrationPoints) -> np.ndarray
 def bootstrap_params(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
                      n: int = BOOTSTRAP_N, seed: int = 0) -> np.ndarray:
     """Residual-pair bootstrap: each refit sees the fitted corrected torques plus a resampled (A3, A5) residual pair
-    per loaded point (pairs keep the axes' correlation; inflated by √(n/(n − p/2)) for the fitted parameters); the
-    calibration masses follow from eq. 21 so joint and per-axis models see the same data."""
+    per loaded point (pairs keep the axes' correlation; centred, inflated by √(n/(n − p/2)) for the fitted
+    parameters); the calibration masses follow from eq. 21 so joint and per-axis models see the same data."""
     cal = cal_mod.fit(points, method, g_m_s2, lever_difference_m)
     loaded = np.flatnonzero(points.mass_kg > 0)
     fitted = np.stack([cal.k_a3.corrected_torque_nm(points.torque_a3_nm),
                        cal.k_a5.corrected_torque_nm(points.torque_a5_nm)], axis=1)
     resid = residual_pairs_nm(cal, points)[loaded]
+    resid = resid - resid.mean(axis=0)  # centred: the refits scatter around the fit, not around its mean residual
     inflate = np.sqrt(len(loaded) / max(len(loaded) - len(cal.params) / 2, 1.0))
     rng = np.random.default_rng(seed)
     denom = g_m_s2 * lever_difference_m
@@ -213,11 +214,22 @@ def refit_spread_kg(cal: Calibration, params: np.ndarray, torque_a3_nm: float, t
 def calibration_uncertainty(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
                             heldout_residual_nm: np.ndarray) -> CalibrationUncertainty:
     """Everything :class:`CalibrationUncertainty` needs, from the calibration points and the method's held-out
-    per-axis residuals (:attr:`calibration.Evaluation.heldout_residual_nm`, loaded points only count)."""
-    loaded = points.mass_kg > 0
-    return CalibrationUncertainty(Reproducibility.from_residuals(np.asarray(heldout_residual_nm)[loaded]),
+    per-axis residuals (:attr:`calibration.Evaluation.heldout_residual_nm`). The reproducibility counts the loaded
+    *interior* configurations only: holding out the heaviest point on an axis is an extrapolation, which the
+    operating-point check (:mod:`rgse_daemon.pipeline.envelope`) treats, not the reproducibility."""
+    return CalibrationUncertainty(Reproducibility.from_residuals(np.asarray(heldout_residual_nm)[interior(points)]),
                                   bootstrap_params(points, method, g_m_s2, lever_difference_m),
                                   reference_params(points, method, g_m_s2, lever_difference_m))
+
+
+def interior(points: CalibrationPoints) -> np.ndarray:
+    """Loaded points whose |M_A3| and |M_A5| both lie below the largest of the other points' (bool mask)."""
+    a3, a5 = np.abs(points.torque_a3_nm), np.abs(points.torque_a5_nm)
+    out = points.mass_kg > 0
+    for i in np.flatnonzero(out):
+        others = np.arange(len(points)) != i
+        out[i] = a3[i] < a3[others].max() and a5[i] < a5[others].max()
+    return out
 
 
 def unusable(u_calibration_kg: float, u_reproducibility_kg: float) -> bool:

@@ -286,11 +286,11 @@ class RobotModel:
         self.ambient_k = self.scenario.thermal.ambient_k
         self.state = RobotState(motor_temp_k=np.full(6, self.ambient_k))
         self.last_truth: TraceTruth | None = None
-        # mountings draw from their own stream: the noise of every trace stays the same whatever is mounted
+        # mountings draw from their own stream: the noise of every trace stays the same whatever is mounted; the
+        # robot as built has none (the first mounting draws)
         self._mount_rng = np.random.default_rng(None if seed is None else [seed, 0x6D6F756E74])
         self.mount_offset_nm = np.zeros(6)
         self.mount_cog_shift_m = 0.0
-        self.new_mounting()
 
     def new_mounting(self) -> None:
         """A load was (re-)mounted: draw this mounting's reading offset δ_i ~ N(0, mount_offset_nm_i) and the shift
@@ -446,7 +446,7 @@ class RobotModel:
         self.last_truth = TraceTruth(
             q_deg=q.copy(),
             payload_mass_kg=payload.mass_kg,
-            payload_cog_flange_m=payload.cog_flange_m,
+            payload_cog_flange_m=payload.cog_flange_m + np.array([0.0, 0.0, self.mount_cog_shift_m]),
             true_torque_nm=tau_arm + tau_pay,
             payload_torque_nm=tau_pay,
             arm_torque_nm=tau_arm,

@@ -1,0 +1,237 @@
+"""The uncertainty budget term by term, the operating-point check, and U on an ill-conditioned eq. 20 fit.
+
+Fast and exact on purpose: these tests pin the equations (sign of the fixture mass in eq. 15/21, the A3 and A5
+sensitivities feeding U, every budget term, the loop scatter check), so that a single changed operator fails."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rgse_daemon.errors import DataError
+from rgse_daemon.manifest import load_points_csv
+from rgse_daemon.pipeline import calibration as C
+from rgse_daemon.pipeline import envelope as E
+from rgse_daemon.pipeline import inline
+from rgse_daemon.pipeline import mass as mass_eq
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import uncertainty as unc
+
+G, DR = 9.81, 1.025
+RAW = pp.Preprocessing(crop_sigma=None, filter="none", window=1, order="backward", location="mean", settle_s=0.0)
+
+
+def linear_cal(k3: float = 1.1, k5: float = 0.85) -> C.Calibration:
+    return C.Calibration("axis-linear", C.GainK(("lin",), np.array([k3])), C.GainK(("lin",), np.array([k5])),
+                         np.zeros((2, 2)), (0.0, 3000.0), (0.0, 800.0), G, DR)
+
+
+def test_eq14_and_eq15_subtract_the_fixture_mass():
+    assert mass_eq.dut_mass_uncorrected_kg(2100.0, 300.0, 100.0, 50.0, G, DR, 10.0) == pytest.approx(
+        (2000.0 - 250.0) / (G * DR) - 10.0)
+    assert mass_eq.dut_mass_kg(2000.0, 400.0, G, DR, 10.288) == pytest.approx(1600.0 / (G * DR) - 10.288)
+    cal = linear_cal()
+    assert float(cal.mass_kg(1000.0, 200.0, 5.0)) == pytest.approx((1100.0 - 170.0) / (G * DR) - 5.0)
+
+
+def loops_of(t3: float, t5: float, n_loops: int = 4, n: int = 400, sigma3: float = 0.0, sigma5: float = 0.0,
+             seed: int = 0) -> list[inline.LoopSamples]:
+    rng = np.random.default_rng(seed)
+    return [(t3 + rng.normal(0, sigma3, n) if sigma3 else np.full(n, t3),
+             t5 + rng.normal(0, sigma5, n) if sigma5 else np.full(n, t5), 0.012, f"l{k}") for k in range(n_loops)]
+
+
+def test_in_line_mass_is_gross_minus_fixture_after_bias():
+    cal = linear_cal()
+    r = inline.in_line_mass(loops_of(1100.0, 250.0), cal, 100.0, 50.0, RAW, fixture_mass_kg=10.288)
+    gross = (1.1 * 1000.0 - 0.85 * 200.0) / (G * DR)
+    assert r.gross_mass_kg == pytest.approx(gross)
+    assert r.mass_kg == pytest.approx(gross - 10.288)
+    assert (r.torque_a3_nm, r.torque_a5_nm) == (pytest.approx(1000.0), pytest.approx(200.0))
+
+
+def test_sensitivities_feed_the_loop_term_per_axis():
+    cal = linear_cal(1.1, 0.85)
+    s3, s5 = inline.slope_kg_per_nm(cal, 1000.0, 200.0)
+    assert s3 == pytest.approx(1.1 / (G * DR)) and s5 == pytest.approx(-0.85 / (G * DR))
+    # noise on A3 only, then on A5 only: the loop term scales with that axis' sensitivity
+    only3 = inline.in_line_mass(loops_of(1000.0, 200.0, sigma3=20.0, seed=1), cal, 0.0, 0.0, RAW)
+    only5 = inline.in_line_mass(loops_of(1000.0, 200.0, sigma5=20.0, seed=1), cal, 0.0, 0.0, RAW)
+    ratio = only3.uncertainty.u_loops_kg / only5.uncertainty.u_loops_kg
+    assert ratio == pytest.approx(1.1 / 0.85, rel=0.02)
+    # the within-loop (batch means) error of one axis, times its sensitivity, over √loops
+    se = [unc.batch_means_se(a3) for a3, _, _, _ in loops_of(1000.0, 200.0, sigma3=20.0, seed=1)]
+    within = abs(s3) * np.sqrt(np.sum(np.square(se))) / 4
+    assert only3.uncertainty.u_loops_kg >= within * (1 - 1e-9)
+
+
+def test_budget_is_the_quadrature_sum_of_every_term():
+    u = unc.MassUncertainty(0.1, 0.2, 0.3, 0.4, 0.5, 0.6)
+    assert u.u_kg == pytest.approx(np.sqrt(0.01 + 0.04 + 0.09 + 0.16 + 0.25 + 0.36))
+    assert u.expanded_kg == pytest.approx(2 * u.u_kg)
+    assert u.components() == {"loops": 0.1, "calibration": 0.2, "model": 0.3, "reference": 0.4, "g": 0.5,
+                              "reproducibility": 0.6}
+    for term in ("u_loops_kg", "u_calibration_kg", "u_model_kg", "u_reference_kg", "u_g_kg",
+                 "u_reproducibility_kg"):
+        kw = dict.fromkeys(("u_loops_kg", "u_calibration_kg", "u_model_kg"), 0.0) | {term: 3.0}
+        assert unc.MassUncertainty(**kw).u_kg == pytest.approx(3.0), term
+    # an old calibration file's budget has no reproducibility term
+    assert "reproducibility" not in unc.MassUncertainty(0.1, 0.2, 0.3).components()
+
+
+def test_reproducibility_propagates_through_eq21_with_the_axes_correlation():
+    denom = G * DR
+    assert unc.Reproducibility(3.0, 4.0, 0.0).u_kg(G, DR) == pytest.approx(5.0 / denom)
+    assert unc.Reproducibility(3.0, 4.0, 1.0).u_kg(G, DR) == pytest.approx(1.0 / denom)  # common mode cancels
+    assert unc.Reproducibility(3.0, 4.0, -1.0).u_kg(G, DR) == pytest.approx(7.0 / denom)
+    r = np.array([[1.0, 2.0], [-1.0, -2.0], [3.0, 0.0]])
+    rep = unc.Reproducibility.from_residuals(r)
+    assert rep.rms_a3_nm == pytest.approx(np.sqrt(11 / 3)) and rep.rms_a5_nm == pytest.approx(np.sqrt(8 / 3))
+    assert rep.corr == pytest.approx((4 / 3) / np.sqrt(11 / 3 * 8 / 3))
+    # the mass residual of the same configurations, exactly: (r3 − r5)/(g·Δr)
+    assert rep.u_kg(G, DR) == pytest.approx(np.sqrt(np.mean((r[:, 0] - r[:, 1]) ** 2)) / denom)
+    with pytest.raises(DataError):
+        unc.Reproducibility.from_residuals(np.array([[1.0, 1.0]]))
+
+
+def test_new_budget_terms_reach_the_result():
+    cal = linear_cal()
+    boot = np.array([[1.1, 0.85], [1.101, 0.85], [1.099, 0.851], [1.1, 0.849]])
+    ref = np.array([[1.1, 0.85], [1.1001, 0.85]])
+    cu = unc.CalibrationUncertainty(unc.Reproducibility(10.0, 10.0, 0.5), boot, ref)
+    alt = linear_cal(1.102, 0.85)
+    r = inline.in_line_mass(loops_of(1000.0, 200.0, sigma3=5.0, sigma5=5.0), cal, 0.0, 0.0, RAW,
+                            alternatives=[alt], uncertainty=cu)
+    m3, m5 = r.torque_a3_nm, r.torque_a5_nm
+    masses = [(p[0] * m3 - p[1] * m5) / (G * DR) for p in boot]
+    c = r.uncertainty.components()
+    assert c["calibration"] == pytest.approx(np.std(masses, ddof=1))
+    assert c["reference"] == pytest.approx(abs(0.0001 * m3) / (G * DR) / np.sqrt(2))
+    assert c["reproducibility"] == pytest.approx(10.0 / (G * DR))
+    assert c["model"] == pytest.approx(0.002 * m3 / (G * DR))
+    assert c["g"] == 0.0 and c["loops"] > 0
+    assert r.uncertainty.u_kg == pytest.approx(np.sqrt(sum(v**2 for v in c.values())))
+    assert r.method == "axis-linear" and r.operating_point == "inside"
+
+
+def test_loops_disagree_flags_scatter_beyond_the_loops_own_errors():
+    assert unc.loops_disagree(np.array([10.0, 10.5, 9.5]), np.array([0.05, 0.05, 0.05]))
+    assert not unc.loops_disagree(np.array([10.0, 10.05, 9.95]), np.array([0.05, 0.05, 0.05]))
+    # the boundary: χ² = Σ((m − m̄)/se)²/(n − 1) = 4.5/se² against factor² = 1
+    m = np.array([0.0, 3.0])
+    assert not unc.loops_disagree(m, np.full(2, np.sqrt(4.5) * 1.001), factor=1.0)
+    assert unc.loops_disagree(m, np.full(2, np.sqrt(4.5) * 0.999), factor=1.0)
+    assert unc.loops_disagree(np.array([0.0, 1.0]), np.array([0.1, 0.1]), factor=3.0)
+    assert not unc.loops_disagree(np.array([0.0, 1.0]), np.array([1.0, 1.0]), factor=3.0)
+    assert not unc.loops_disagree(np.array([5.0]), np.array([0.1]))
+    cal = linear_cal()
+    drifted = [(np.full(400, 1000.0 + 30.0 * k), np.full(400, 200.0), 0.012, f"l{k}") for k in range(3)]
+    noisy = [(a3 + np.random.default_rng(k).normal(0, 1.0, 400), a5, dt, n) for k, (a3, a5, dt, n) in
+             enumerate(drifted)]
+    r = inline.in_line_mass(noisy, cal, 0.0, 0.0, RAW)
+    assert any("loops disagree" in w for w in r.warnings)
+
+
+def test_envelope_check():
+    env = E.Envelope((0.0, 3000.0), (0.0, 800.0), (0.2, 0.6))
+    assert E.check(env, 1500.0, 450.0).status == "inside"
+    assert E.check(env, -1500.0, -450.0).status == "inside"  # signs do not matter
+    out = E.check(env, 3600.0, 900.0)  # A3 20 % of the span beyond, A5 12.5 %
+    assert out.status == "outside" and out.excess == pytest.approx(0.2) and "A3 torque" in out.detail
+    assert E.check(env, 3600.0, 900.0, limit=0.15).status == "refused"
+    assert E.check(env, 3000.0 * 1.6, 800.0 * 1.1).status == "refused"
+    ratio = E.check(env, 1000.0, 750.0)  # ratio 0.75: 37.5 % of the ratio span outside
+    assert ratio.status == "outside" and "ratio" in ratio.detail and ratio.excess == pytest.approx(0.375)
+    assert E.check(env, 3000.0 * 1.04, 700.0).status == "inside"  # within the tolerance
+    with pytest.raises(DataError):
+        E.check(env, 1.0, 1.0, limit=float("nan"))
+    assert E.Envelope.from_dict(env.to_dict()) == env
+    with pytest.raises(DataError):
+        E.Envelope.from_dict({"torque_a3_nm": [1, 0], "torque_a5_nm": [0, 1], "ratio_a5_a3": [0, 1]})
+    built = E.Envelope.from_torques(np.array([0.0, 100.0, -2000.0]), np.array([0.0, 30.0, -400.0]))
+    assert built == E.Envelope((0.0, 2000.0), (0.0, 400.0), (0.2, 0.3))
+
+
+def test_outside_widens_u_by_the_models_spread_and_far_outside_is_refused():
+    cal = linear_cal()
+    alts = [linear_cal(1.11, 0.85), linear_cal(1.1, 0.84)]
+    cu = unc.CalibrationUncertainty(unc.Reproducibility(5.0, 5.0, 0.0), np.array([[1.1, 0.85], [1.1, 0.85]]),
+                                    np.zeros((0, 2)))
+    env = E.Envelope((0.0, 2500.0), (0.0, 700.0), (0.15, 0.3))
+    kw = {"alternatives": alts, "uncertainty": cu, "alternative_uncertainty": [None, None], "envelope": env}
+    inside = inline.in_line_mass(loops_of(2000.0, 400.0), cal, 0.0, 0.0, RAW, **kw)
+    outside = inline.in_line_mass(loops_of(2800.0, 560.0), cal, 0.0, 0.0, RAW, **kw)
+    assert inside.operating_point == "inside" and not inside.warnings
+    assert outside.operating_point == "outside"
+    assert any("outside the calibrated envelope" in w for w in outside.warnings)
+    dev = np.array([float(a.mass_kg(2800.0, 560.0)) for a in alts]) - outside.gross_mass_kg
+    assert outside.uncertainty.u_model_kg == pytest.approx(np.max(np.abs(dev)))
+    assert inside.uncertainty.u_model_kg == pytest.approx(unc.model_form_kg(
+        inside.gross_mass_kg, np.array([float(a.mass_kg(2000.0, 400.0)) for a in alts])))
+    with pytest.raises(E.OperatingPointError, match="far outside"):
+        inline.in_line_mass(loops_of(4000.0, 800.0), cal, 0.0, 0.0, RAW, **kw)
+    assert inline.in_line_mass(loops_of(4000.0, 800.0), cal, 0.0, 0.0, RAW, envelope_limit=2.0,
+                               **kw).operating_point == "outside"
+
+
+@pytest.fixture
+def table1(paper_dir):
+    return load_points_csv(paper_dir / "table1_calibration.csv")
+
+
+def test_ill_conditioned_eq20_keeps_u_finite(table1):
+    """Table 1 with its ±1 kg scatter: eq. 20's four parameters are ill-determined; their covariance pushed
+    through the exponentials explodes, the bootstrap of the fitted curve at the operating point does not."""
+    rng = np.random.default_rng(7)
+    scattered = C.CalibrationPoints(table1.kind, table1.mass_kg, table1.torque_a3_nm,
+                                    table1.torque_a5_nm + rng.normal(0, 15.0, len(table1)) * (table1.mass_kg > 0),
+                                    table1.expected_a3_nm, table1.expected_a5_nm, table1.mass_cov_kg2)
+    cal = C.fit(scattered, "paper", G, DR)
+    ev = C.evaluate(scattered, "paper", G, DR)
+    cu = unc.calibration_uncertainty(scattered, "paper", G, DR, ev.heldout_residual_nm)
+    m3, m5 = 1500.0, 420.0  # a 110 kg DuT in the mass-stack pose
+    u_cal = cu.u_calibration_kg(cal, m3, m5)
+    old = unc.calibration_mc_kg(cal, m3, m5)
+    assert np.isfinite(u_cal) and 0.0 < u_cal < 3.0
+    assert not np.isfinite(old) or old > 10 * u_cal  # the parameter-space propagation is useless here
+    u_rep = cu.reproducibility.u_kg(G, DR)
+    assert not unc.unusable(u_cal, u_rep)
+    # far beyond the points the same bootstrap says the curve is not known: unusable there
+    assert unc.unusable(cu.u_calibration_kg(cal, 9000.0, 8000.0), u_rep)
+    assert unc.unusable(float("inf"), 1.0) and unc.unusable(3.01, 1.0) and not unc.unusable(2.99, 1.0)
+
+
+def test_unusable_model_hands_over_to_an_admissible_alternative():
+    cal = linear_cal()
+    wide = unc.CalibrationUncertainty(unc.Reproducibility(1.0, 1.0, 0.0),
+                                      np.array([[1.0, 0.85], [1.2, 0.85]]), np.zeros((0, 2)))
+    alt = linear_cal(1.101, 0.85)
+    tight = unc.CalibrationUncertainty(unc.Reproducibility(1.0, 1.0, 0.0),
+                                       np.array([[1.101, 0.85], [1.1011, 0.85]]), np.zeros((0, 2)))
+    r = inline.in_line_mass(loops_of(1000.0, 200.0), cal, 0.0, 0.0, RAW, alternatives=[alt], uncertainty=wide,
+                            alternative_uncertainty=[tight])
+    assert r.method == alt.method or r.gross_mass_kg == pytest.approx(float(alt.mass_kg(1000.0, 200.0)))
+    assert any("unusable" in w for w in r.warnings)
+    assert r.uncertainty.u_model_kg == pytest.approx(abs(float(cal.mass_kg(1000.0, 200.0)) - r.gross_mass_kg))
+    # no usable alternative: the model is kept with its wide U and a warning
+    r = inline.in_line_mass(loops_of(1000.0, 200.0), cal, 0.0, 0.0, RAW, uncertainty=wide)
+    assert r.gross_mass_kg == pytest.approx(float(cal.mass_kg(1000.0, 200.0)))
+    assert any("no calibration model has a usable" in w for w in r.warnings)
+
+
+def test_bootstrap_and_reference_refits(table1):
+    boot = unc.bootstrap_params(table1, "axis-linear", G, DR, n=30, seed=3)
+    assert boot.shape == (30, 2) and np.all(np.isfinite(boot))
+    cal = C.fit(table1, "axis-linear", G, DR)
+    # the refits scatter around the fit, by about the parameters' standard errors
+    se = np.sqrt(np.diag(cal.covariance))
+    assert np.all(np.abs(boot.mean(axis=0) - cal.params) < se)
+    assert np.all((boot.std(axis=0) > 0.3 * se) & (boot.std(axis=0) < 3 * se))
+    ref = unc.reference_params(table1, "axis-linear", G, DR, n=20)
+    assert ref.shape == (20, 2) and np.all(ref.std(axis=0) > 0)
+    exact = C.CalibrationPoints(table1.kind, table1.mass_kg, table1.torque_a3_nm, table1.torque_a5_nm,
+                                table1.expected_a3_nm, table1.expected_a5_nm, None)
+    assert unc.reference_params(exact, "axis-linear", G, DR).shape == (0, 2)
+    assert unc.refit_spread_kg(cal, ref[:1], 1000.0, 200.0) == 0.0
+    mask = unc.interior(table1)
+    assert not mask[0] and not mask[-1] and mask[1:-3].all()
