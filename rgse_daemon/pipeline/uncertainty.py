@@ -46,6 +46,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import calibration as cal_mod
@@ -88,11 +89,21 @@ class MassUncertainty:
 
 @dataclass(frozen=True)
 class Reproducibility:
-    """Held-out per-axis residual scatter of a calibration (Nm) and the correlation of A3's with A5's."""
+    """Held-out per-axis residual scatter of a calibration (Nm), the correlation of A3's with A5's, and how many
+    configurations it rests on (``n``; None: unknown, taken as many)."""
 
     rms_a3_nm: float
     rms_a5_nm: float
     corr: float
+    n: int | None = None
+
+    @property
+    def small_sample_factor(self) -> float:
+        """t₀.₉₇₅(n − 1)/t₀.₉₇₅(∞): a scatter estimated from few configurations is itself uncertain (GUM G.3);
+        folding the Student factor into u keeps k = 2 for the whole budget."""
+        if self.n is None or self.n > 200:
+            return 1.0
+        return float(stats.t.ppf(0.975, max(self.n - 1, 1)) / stats.norm.ppf(0.975))
 
     @classmethod
     def from_residuals(cls, residual_nm: np.ndarray) -> Reproducibility:
@@ -102,15 +113,17 @@ class Reproducibility:
             raise CalibrationError("reproducibility needs held-out residuals of at least two configurations")
         s3, s5 = np.sqrt(np.mean(r**2, axis=0))
         corr = float(np.mean(r[:, 0] * r[:, 1]) / (s3 * s5)) if s3 > 0 and s5 > 0 else 0.0
-        return cls(float(s3), float(s5), float(np.clip(corr, -1.0, 1.0)))
+        return cls(float(s3), float(s5), float(np.clip(corr, -1.0, 1.0)), len(r))
 
     def u_kg(self, g_m_s2: float, lever_difference_m: float) -> float:
-        """Eq. 21 propagation: ∂m/∂(K·M)_A3 = 1/(g·Δr), ∂m/∂(K·M)_A5 = −1/(g·Δr), with the axes' correlation."""
+        """Eq. 21 propagation: ∂m/∂(K·M)_A3 = 1/(g·Δr), ∂m/∂(K·M)_A5 = −1/(g·Δr), with the axes' correlation,
+        times :attr:`small_sample_factor`."""
         var = self.rms_a3_nm**2 + self.rms_a5_nm**2 - 2.0 * self.corr * self.rms_a3_nm * self.rms_a5_nm
-        return float(np.sqrt(max(var, 0.0)) / abs(g_m_s2 * lever_difference_m))
+        return float(np.sqrt(max(var, 0.0)) / abs(g_m_s2 * lever_difference_m)) * self.small_sample_factor
 
     def to_dict(self) -> dict[str, float]:
-        return {"rms_a3_nm": self.rms_a3_nm, "rms_a5_nm": self.rms_a5_nm, "corr": self.corr}
+        return {"rms_a3_nm": self.rms_a3_nm, "rms_a5_nm": self.rms_a5_nm, "corr": self.corr,
+                **({} if self.n is None else {"n": self.n})}
 
 
 @dataclass(frozen=True)
@@ -133,8 +146,9 @@ class CalibrationUncertainty:
     @classmethod
     def from_dict(cls, d: Any, n_params: int) -> CalibrationUncertainty:
         try:
+            n = d["reproducibility"].get("n")
             rep = Reproducibility(float(d["reproducibility"]["rms_a3_nm"]), float(d["reproducibility"]["rms_a5_nm"]),
-                                  float(d["reproducibility"]["corr"]))
+                                  float(d["reproducibility"]["corr"]), None if n is None else int(n))
             boot = np.asarray(d["bootstrap_params"], float).reshape(-1, n_params)
             ref = np.asarray(d.get("reference_params") or [], float).reshape(-1, n_params)
         except (KeyError, TypeError, ValueError) as exc:

@@ -214,3 +214,23 @@ def test_calibrate_refuses_a_bad_preprocessing_spec(tmp_path, capsys, dirs, spec
     expect_error(capsys, ["calibrate", "--campaign", str(dirs / "cal"), "--out", str(tmp_path / "o.json"),
                           "--preprocessing", spec], needle)
     assert not (tmp_path / "o.json").exists()
+
+
+def test_calibration_file_of_the_former_schema_still_reads(tmp_path, capsys, dirs):
+    """A CAL.json written before held-out validation, bootstrap and envelope existed: the former five-term budget."""
+    doc = json.loads((dirs / "CAL.json").read_text())
+    for key in ("validation", "uncertainty", "envelope"):
+        del doc["fit"][key]
+    for alt in doc["fit"]["alternatives"]:
+        alt.pop("uncertainty", None)
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(doc))
+    res = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(old), "--json"])
+    assert set(res["u_components_kg"]) == {"loops", "calibration", "model", "reference", "g"}
+    new = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(dirs / "CAL.json"),
+                            "--json"])
+    assert "reproducibility" in new["u_components_kg"]
+    assert res["mass_kg"] == pytest.approx(new["mass_kg"])
+    doc["fit"]["uncertainty"] = {"reproducibility": {"rms_a3_nm": 1.0}}
+    old.write_text(json.dumps(doc))
+    expect_error(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(old)], "fit.uncertainty")

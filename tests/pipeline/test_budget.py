@@ -88,8 +88,11 @@ def test_reproducibility_propagates_through_eq21_with_the_axes_correlation():
     rep = unc.Reproducibility.from_residuals(r)
     assert rep.rms_a3_nm == pytest.approx(np.sqrt(11 / 3)) and rep.rms_a5_nm == pytest.approx(np.sqrt(8 / 3))
     assert rep.corr == pytest.approx((4 / 3) / np.sqrt(11 / 3 * 8 / 3))
-    # the mass residual of the same configurations, exactly: (r3 − r5)/(g·Δr)
-    assert rep.u_kg(G, DR) == pytest.approx(np.sqrt(np.mean((r[:, 0] - r[:, 1]) ** 2)) / denom)
+    # the mass residual of the same configurations, (r3 − r5)/(g·Δr), with the Student factor of 3 configurations
+    assert rep.n == 3 and rep.small_sample_factor == pytest.approx(4.302653 / 1.959964, rel=1e-5)
+    assert rep.u_kg(G, DR) == pytest.approx(np.sqrt(np.mean((r[:, 0] - r[:, 1]) ** 2)) / denom * 4.302653 / 1.959964,
+                                            rel=1e-5)
+    assert unc.Reproducibility(3.0, 4.0, 0.0, 1000).small_sample_factor == 1.0
     with pytest.raises(DataError):
         unc.Reproducibility.from_residuals(np.array([[1.0, 1.0]]))
 
