@@ -568,7 +568,7 @@ def fit(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_
 #: together) held out in turn, then the lever group of the torque-based points held out together.
 VALIDATION_SCHEME = {"configurations": "leave-one-configuration-out (all loops of a point together)",
                      "lever_group": "leave-lever-group-out (the torque-based points together)",
-                     "selection": "lowest score = configuration mean |error| % + 0.05 x lever-group mean |error| % "
+                     "selection": "lowest score = configuration mean |error| % + 0.01 x lever-group mean |error| % "
                                   "among admissible models; per-axis models preferred"}
 #: A joint model is admissible only if, on every axis, its held-out corrected torques scatter around the expected
 #: torques (eq. 17/18) by at most this factor times the best per-axis model's.
@@ -578,7 +578,7 @@ JOINT_AXIS_FLOOR_NM = 1.0
 #: A joint model replaces the best per-axis model only if its selection score is lower by more than this (%).
 PREFER_AXIS_MARGIN_PCT = 0.02
 #: Weight of the lever-group (extrapolation to other levers) error in the selection score.
-LEVER_WEIGHT = 0.05
+LEVER_WEIGHT = 0.01
 
 
 @dataclass(frozen=True)

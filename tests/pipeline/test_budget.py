@@ -238,3 +238,10 @@ def test_bootstrap_and_reference_refits(table1):
     assert unc.refit_spread_kg(cal, ref[:1], 1000.0, 200.0) == 0.0
     mask = unc.interior(table1)
     assert not mask[0] and not mask[-1] and mask[1:-3].all()
+
+
+def test_mass_equations_default_to_the_gross_mass():
+    """Without a fixture mass both equations give the gross mass (m_f = 0 by default)."""
+    assert mass_eq.dut_mass_uncorrected_kg(2100.0, 300.0, 100.0, 50.0, G, DR) == pytest.approx(1750.0 / (G * DR))
+    assert mass_eq.dut_mass_kg(2000.0, 400.0, G, DR) == pytest.approx(1600.0 / (G * DR))
+    assert linear_cal().mass_kg(1000.0, 200.0) == pytest.approx(930.0 / (G * DR))
