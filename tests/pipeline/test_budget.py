@@ -245,3 +245,41 @@ def test_mass_equations_default_to_the_gross_mass():
     assert mass_eq.dut_mass_uncorrected_kg(2100.0, 300.0, 100.0, 50.0, G, DR) == pytest.approx(1750.0 / (G * DR))
     assert mass_eq.dut_mass_kg(2000.0, 400.0, G, DR) == pytest.approx(1600.0 / (G * DR))
     assert linear_cal().mass_kg(1000.0, 200.0) == pytest.approx(930.0 / (G * DR))
+
+
+def test_calibration_uncertainty_round_trips_and_rejects_malformed_records():
+    rep = unc.Reproducibility(12.5, 20.25, -0.25, 9)
+    cu = unc.CalibrationUncertainty(rep, np.array([[1.0, 2.0], [1.5, 2.5], [0.5, 1.5]]), np.array([[3.0, 4.0]]))
+    d = cu.to_dict()
+    assert d["reproducibility"] == {"rms_a3_nm": 12.5, "rms_a5_nm": 20.25, "corr": -0.25, "n": 9}
+    assert d["bootstrap_params"] == [[1.0, 2.0], [1.5, 2.5], [0.5, 1.5]] and d["reference_params"] == [[3.0, 4.0]]
+    assert "3 refits" in d["scheme"] and "1 refits" in d["scheme"]
+    back = unc.CalibrationUncertainty.from_dict(d, 2)
+    assert back.reproducibility == rep
+    np.testing.assert_array_equal(back.fit_params, cu.fit_params)
+    np.testing.assert_array_equal(back.reference_params, cu.reference_params)
+    assert unc.Reproducibility(1.0, 2.0, 0.5).to_dict() == {"rms_a3_nm": 1.0, "rms_a5_nm": 2.0, "corr": 0.5}
+    old = dict(d, reproducibility={"rms_a3_nm": 1.0, "rms_a5_nm": 2.0, "corr": 0.5})
+    assert unc.CalibrationUncertainty.from_dict(old, 2).reproducibility.n is None
+    no_ref = {k: v for k, v in d.items() if k != "reference_params"}
+    assert unc.CalibrationUncertainty.from_dict(no_ref, 2).reference_params.shape == (0, 2)
+    bad = [
+        {k: v for k, v in d.items() if k != "reproducibility"},
+        {k: v for k, v in d.items() if k != "bootstrap_params"},
+        dict(d, reproducibility={"rms_a3_nm": 1.0, "rms_a5_nm": 2.0}),
+        dict(d, reproducibility={"rms_a3_nm": "x", "rms_a5_nm": 2.0, "corr": 0.0}),
+        dict(d, reproducibility={"rms_a3_nm": float("nan"), "rms_a5_nm": 2.0, "corr": 0.0}),
+        dict(d, reproducibility={"rms_a3_nm": 1.0, "rms_a5_nm": float("inf"), "corr": 0.0}),
+        dict(d, reproducibility={"rms_a3_nm": 1.0, "rms_a5_nm": 2.0, "corr": float("nan")}),
+        dict(d, bootstrap_params=[[1.0, 2.0]]),
+        dict(d, bootstrap_params=[[1.0, float("nan")], [1.0, 2.0]]),
+        dict(d, bootstrap_params=[[1.0, 2.0, 3.0]]),
+        dict(d, reference_params=[[float("inf"), 1.0]]),
+        None,
+    ]
+    for record in bad:
+        with pytest.raises(DataError, match=r"fit\.uncertainty"):
+            unc.CalibrationUncertainty.from_dict(record, 2)
+    # exactly two refits are enough
+    assert len(unc.CalibrationUncertainty.from_dict(dict(d, bootstrap_params=d["bootstrap_params"][:2]),
+                                                    2).fit_params) == 2
