@@ -588,7 +588,8 @@ class Evaluation:
     ``loo_*``: every configuration (point) predicted by the fit on all others. ``heldout_residual_nm`` (n, 2): the
     held-out corrected torque ``K(M)·M`` minus the expected torque, A3 and A5 (the identifiability check of a
     joint model, and the reproducibility of the uncertainty). ``lever_*``: the torque-based points predicted by
-    the fit on the others (NaN where there are none or the rest cannot carry the model).
+    the fit on the others (NaN where there are none or the rest cannot carry the model): the selection's
+    extrapolation check.
     """
 
     method: str
@@ -600,7 +601,6 @@ class Evaluation:
     n_params: int
     heldout_residual_nm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     lever_mass_kg: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    lever_residual_nm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     lever_mean_abs_err_pct: float = float("nan")
     admissible: bool = True
     note: str = ""
@@ -641,33 +641,30 @@ def _held_out(points: CalibrationPoints, method: str, g_m_s2: float, lever_diffe
 
 
 def _lever_group_out(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float
-                     ) -> tuple[np.ndarray, np.ndarray]:
+                     ) -> np.ndarray:
     """The torque-based points predicted together by the fit on the other points (NaN elsewhere / if unfittable)."""
-    n = len(points)
-    mass, resid = np.full(n, np.nan), np.full((n, 2), np.nan)
+    mass = np.full(len(points), np.nan)
     group = np.asarray(points.kind) == "torque"
     if not group.any() or group.all():
-        return mass, resid
+        return mass
     try:
         cal = fit(points.subset(~group), method, g_m_s2, lever_difference_m)
     except CalibrationError:
-        return mass, resid
+        return mass
     idx = np.flatnonzero(group)
     mass[idx] = cal.mass_kg(points.torque_a3_nm[idx], points.torque_a5_nm[idx])
-    resid[idx] = _axis_residual_nm(cal, points, idx)
-    return mass, resid
+    return mass
 
 
 def evaluate(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Evaluation:
     cal = fit(points, method, g_m_s2, lever_difference_m)
     ins = cal.mass_kg(points.torque_a3_nm, points.torque_a5_nm)
     loo, resid = _held_out(points, method, g_m_s2, lever_difference_m)
-    lever, lever_resid = _lever_group_out(points, method, g_m_s2, lever_difference_m)
+    lever = _lever_group_out(points, method, g_m_s2, lever_difference_m)
     held = np.isfinite(lever)
     lever_pct = mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else float("nan")
     return Evaluation(method, ins, loo, mean_abs_pct(points.mass_kg, ins), mean_abs_pct(points.mass_kg, loo),
-                      float(np.max(np.abs(loo - points.mass_kg))), len(cal.params), resid, lever, lever_resid,
-                      lever_pct)
+                      float(np.max(np.abs(loo - points.mass_kg))), len(cal.params), resid, lever, lever_pct)
 
 
 def evaluate_all(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float,
