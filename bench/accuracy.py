@@ -28,14 +28,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' simulated campaigns
 
-from rgse_daemon.commands.calibrate import CampaignData, campaign_points
+from rgse_daemon.analysis.calibration import CampaignData, campaign_points
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.envelope import Envelope, OperatingPointError
 from simulators.krc4.scenario import default_scenario
-from tests.offline.simcampaign import G, simulate_campaign, simulate_measurement
+from tests.support.simcampaign import G, simulate_campaign, simulate_measurement
 
 SINGLE = ("axis-linear", "axis-quad", "axis-log", "ratio-linear")
 SCENARIOS = {

@@ -15,14 +15,14 @@ import json
 import numpy as np
 import pytest
 
+from rgse_daemon.analysis.calibration import CampaignData, campaign_points
 from rgse_daemon.cli import main
-from rgse_daemon.commands.calibrate import CampaignData, campaign_points
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.envelope import Envelope
-from tests.offline.simcampaign import G, simulate_campaign, simulate_measurement, write_dirs
+from tests.support.simcampaign import G, simulate_campaign, simulate_measurement, write_dirs
 
 N_SEEDS = 120
 METHOD = "axis-log"
