@@ -406,3 +406,60 @@ def test_former_budget_and_g():
     assert inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, g_measurement_m_s2=9.8134).uncertainty.u_g_kg == 0.0
     both = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, g_u_calibration_m_s2=0.001, g_measurement_m_s2=9.8134)
     assert both.uncertainty.u_g_kg == pytest.approx(both.gross_mass_kg * 0.001 / G)
+
+
+def synthetic_points(r3: np.ndarray, r5: np.ndarray) -> C.CalibrationPoints:
+    """A zero point and loaded points whose expected torques miss an exact linear drive by the residuals given."""
+    mass = np.r_[0.0, 20.93 * np.arange(1, len(r3) + 1)]
+    l5 = np.r_[0.265, 0.275 + 0.0075 * np.arange(1, len(r3) + 1)]
+    e3, e5 = G * mass * (l5 + DR), G * mass * l5
+    t3, t5 = e3 / 1.1, e5 / 0.85
+    e3[1:] += r3
+    e5[1:] += r5
+    return C.CalibrationPoints(np.array(["zero"] + ["mass"] * len(r3)), (e3 - e5) / (G * DR), t3, t5, e3, e5)
+
+
+def test_bootstrap_is_reproducible_and_its_spread_is_the_residuals():
+    rng = np.random.default_rng(11)
+    r3, r5 = rng.normal(0, 20.0, 10), rng.normal(0, 2.0, 10)  # A3 scatters ten times more than A5
+    pts = synthetic_points(r3, r5)
+    boot = unc.bootstrap_params(pts, "axis-linear", G, DR, n=400)
+    np.testing.assert_array_equal(boot, unc.bootstrap_params(pts, "axis-linear", G, DR, n=400, seed=0))
+    assert not np.array_equal(boot, unc.bootstrap_params(pts, "axis-linear", G, DR, n=400, seed=1))
+    cal = C.fit(pts, "axis-linear", G, DR)
+    for axis, t in ((0, pts.torque_a3_nm[1:]), (1, pts.torque_a5_nm[1:])):
+        resid = (unc.residual_pairs_nm(cal, pts)[1:, axis])
+        resid = resid - resid.mean()
+        inflate = np.sqrt(10 / (10 - 1))
+        # a linear LS slope moves by Σ M·r / Σ M²: its spread over resampled residuals
+        want = inflate * np.sqrt(np.mean(resid**2)) * np.sqrt(np.sum(t**2)) / np.sum(t**2)
+        assert boot[:, axis].std() == pytest.approx(want, rel=0.12), axis
+    # a joint model sees the resampled masses of eq. 21: the A3 residuals dominate its spread too
+    joint = unc.bootstrap_params(pts, "gain-linear", G, DR, n=60)
+    assert joint.shape == (60, 2) and np.all(joint.std(axis=0) > 0)
+    assert np.all(np.abs(joint.mean(axis=0) - C.fit(pts, "gain-linear", G, DR).params) < 3 * joint.std(axis=0))
+
+
+def test_refit_spread_and_parameter_mc():
+    cal = linear_cal()
+    params = np.array([[1.1, 0.85], [1.2, 0.85], [1.0, 0.85]])
+    assert unc.refit_spread_kg(cal, params, 1000.0, 200.0) == pytest.approx(100.0 / (G * DR))
+    diverging = C.Calibration("paper", C.PolyK(np.array([1.0])), C.DoubleExpK(np.array([1.0, 1.0, 0.0, 0.0])),
+                              np.zeros((5, 5)), (0.0, 1.0), (0.0, 1.0), G, DR)
+    assert unc.refit_spread_kg(diverging, np.array([[1.0, 1.0, 1.0, 0.0, 0.0], [1.0, 1.0, 5.0, 0.0, 0.0]]),
+                               10.0, 1000.0) == float("inf")
+    assert unc.covariance_mc_kg(cal, np.zeros((2, 2)), 1000.0, 200.0) == 0.0
+    assert unc.covariance_mc_kg(cal, np.zeros((0, 0)), 1000.0, 200.0) == 0.0
+    cov = np.diag([1e-4, 0.0])
+    assert unc.covariance_mc_kg(cal, cov, 1000.0, 200.0) == pytest.approx(0.01 * 1000.0 / (G * DR), rel=0.05)
+    assert unc.covariance_mc_kg(cal, cov, 1000.0, 200.0) == unc.covariance_mc_kg(cal, cov, 1000.0, 200.0, seed=0)
+    assert unc.calibration_mc_kg(cal, 1000.0, 200.0) == 0.0
+
+
+def test_loops_disagree_more_edges():
+    assert not unc.loops_disagree(np.array([1.0, 5.0]), np.array([0.0, 0.0]))  # no within-loop errors known
+    assert unc.loops_disagree(np.array([0.0, 10.0]), np.array([1.0, 1.0]))
+    assert not unc.loops_disagree(np.array([0.0, 3.0]), np.array([1.0, np.nan]))
+    m = np.array([0.0, 3.0, 6.0])  # Σ((m − m̄)/se)² = 18/se², over n − 1 = 2
+    assert not unc.loops_disagree(m, np.full(3, 1.5 * 1.001), factor=2.0)
+    assert unc.loops_disagree(m, np.full(3, 1.5 * 0.999), factor=2.0)
