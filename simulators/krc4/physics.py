@@ -325,9 +325,9 @@ class RobotModel:
         )
 
     def static_reading_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
-        """Noise-free, cold, settled reading (Nm): τ_arm + M0 + G(|τ_pay|)·τ_pay."""
+        """Noise-free, cold, settled reading (Nm) of the load as mounted now: τ_arm + M0 + G(|τ_pay|)·τ_pay + δ."""
         tau_p = self.payload_torques_nm(q_deg, payload)
-        return self.arm_torques_nm(q_deg) + self.residual_nm + self.gains(tau_p) * tau_p
+        return self.arm_torques_nm(q_deg) + self.residual_nm + self.gains(tau_p) * tau_p + self.mount_offset_nm
 
     # --- state ---------------------------------------------------------------------------------------------------
     def _temps_after(self, t0_k: np.ndarray, dt_s: np.ndarray | float, released: bool) -> np.ndarray:
