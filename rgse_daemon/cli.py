@@ -110,6 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--traces", type=Path, required=True, metavar="DIR")
     p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
     p.add_argument("--fixture-mass", type=finite, metavar="KG")
+    p.add_argument("--envelope-limit", type=finite, default=0.5, metavar="FRACTION",
+                   help="refuse a DuT further outside the calibrated loads than this fraction of their span "
+                        "(default 0.5)")
     _add_json(p)
 
     p = sub.add_parser("study", help="the pre-processing parameter study (paper Table A2), ranked")

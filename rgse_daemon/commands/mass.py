@@ -7,10 +7,12 @@ import json
 from pathlib import Path
 
 from rgse_daemon.analysis.mass import compute
+from rgse_daemon.pipeline.envelope import DEFAULT_LIMIT
 
 
 def run(args: argparse.Namespace) -> int:
-    result = compute(Path(args.traces), Path(args.calibration), args.fixture_mass)
+    result = compute(Path(args.traces), Path(args.calibration), args.fixture_mass,
+                     getattr(args, "envelope_limit", DEFAULT_LIMIT))
     if args.json:
         print(json.dumps(result.to_json()))
     else:

@@ -47,6 +47,10 @@ class AxisErrors(_Model):
     """Gear friction that stays locked in: reading offset −sign(last approach) · hysteresis_nm."""
     settle_amplitude_nm: float = Field(0.0, ge=0.0, le=2000.0)
     """Amplitude of the damped oscillation after the brake-release move (Nm)."""
+    mount_offset_nm: float = Field(0.0, ge=0.0, le=200.0)
+    """σ of a reading offset fixed for one mounting of a load and new at every re-mount (Nm): how the load seats
+    on the flange, preload of the bolts, the gear's contact pattern. Table 1's points scatter about ±1 kg around any
+    smooth K; loops of one mounting cannot see it."""
     hold_temperature_rise_k: float = Field(40.0, ge=0.0, le=120.0)
     """Motor temperature rise above ambient at thermal equilibrium while holding with brakes released (K)."""
     torque_constant_nm_a: float = Field(2.0, gt=0.0, le=50.0)
@@ -110,6 +114,14 @@ class Spikes(_Model):
     amplitude_nm: float = Field(100.0, ge=0.0, le=5000.0)
 
 
+class Mounting(_Model):
+    """How a load seats on the flange, new at every (re-)mount."""
+
+    cog_shift_m: float = Field(0.0, ge=0.0, le=0.05)
+    """σ of the load's CoG shift along the flange axis per mounting (m): a real torque change on every axis, equal
+    on A3 and A5 (it cancels in eq. 3/4's mass, not in the per-axis torques of eq. 17/18)."""
+
+
 class Scenario(_Model):
     """All error sources of the simulated torque estimate."""
 
@@ -119,6 +131,7 @@ class Scenario(_Model):
     release: Release = Release()
     settle: Settle = Settle()
     spikes: Spikes = Spikes()
+    mounting: Mounting = Mounting()
     g_m_s2: float = Field(9.81, ge=9.7, le=9.9)
     """Gravity of the simulated world (the paper uses 9.81; Bremen is 9.8134)."""
 

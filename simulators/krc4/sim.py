@@ -231,8 +231,10 @@ class SimulatedKrc4:
         return names
 
     def mount(self, payload: Payload) -> None:
-        """What is bolted onto the flange from now on (builders in ``simulators.krc4.physics``)."""
+        """What is bolted onto the flange from now on (builders in ``simulators.krc4.physics``); every mounting seats
+        a little differently (:meth:`RobotModel.new_mounting`)."""
         self.payload = payload
+        self.model.new_mounting()
 
     @property
     def truth(self) -> TraceTruth | None:
