@@ -1,4 +1,4 @@
-"""The calibration file ``CAL.json`` (contracts §3): write, read back into a :class:`Calibration`, robot check."""
+"""The calibration file ``CAL.json`` (interfaces §3): write, read back into a :class:`Calibration`, robot check."""
 
 from __future__ import annotations
 
@@ -197,6 +197,6 @@ def uncertainty_inputs(path: Path | str, doc: dict[str, Any], cal: Calibration, 
 
 
 def check_robot(path: Path | str, doc: dict[str, Any], robot: str) -> None:
-    """A calibration is only ever used for the robot it names (contracts §3)."""
+    """A calibration is only ever used for the robot it names (interfaces §3)."""
     if doc.get("robot") != robot:
         raise DataError(f"{path}: calibration belongs to robot {doc.get('robot')!r}, the measurement to {robot!r}")

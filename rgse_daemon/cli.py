@@ -1,4 +1,4 @@
-"""The ``rgse`` command (contracts §1): parses arguments, then hands over to one module per sub-command.
+"""The ``rgse`` command (interfaces §1): parses arguments, then hands over to one module per sub-command.
 
 Each sub-command lives in ``rgse_daemon/commands/<name>.py`` and exposes ``run(args) -> int``. Errors that
 come from outside input (config, data files, KRL syntax) end in a one-line message and exit status 2;

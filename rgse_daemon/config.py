@@ -243,7 +243,7 @@ class MqttConfig(_Section):
     host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(1883, ge=1, le=65535)
     prefix: str | None = Field(None, pattern=r"^[^#+]+$")
-    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (contracts §4). A trailing ``/`` is dropped here, once
+    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (interfaces §4). A trailing ``/`` is dropped here, once
     (``plant/rgse/`` is ``plant/rgse``): every topic is ``<prefix>/<level>``."""
     username: str | None = None
     password: str | None = None

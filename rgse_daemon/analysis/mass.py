@@ -68,7 +68,7 @@ def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: p
 
 def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None,
             envelope_limit: float = inline.env_mod.DEFAULT_LIMIT):
-    """The in-line mass of a measurement directory (contracts §2) with a calibration file: what ``rgse mass`` prints,
+    """The in-line mass of a measurement directory (interfaces §2) with a calibration file: what ``rgse mass`` prints,
     and what the daemon stores — one code path, so a stored result is always reproducible from its raw files."""
     man = load_manifest(directory)
     if not man.measurement_traces:

@@ -1,4 +1,4 @@
-"""``rgse mass``: offline in-line mass of a DuT from a measurement directory and a CAL.json (contracts §1)."""
+"""``rgse mass``: offline in-line mass of a DuT from a measurement directory and a CAL.json (interfaces §1)."""
 
 from __future__ import annotations
 

@@ -55,7 +55,7 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
                  alternative_uncertainty: Sequence[unc.CalibrationUncertainty | None] = (),
                  envelope: env_mod.Envelope | None = None,
                  envelope_limit: float = env_mod.DEFAULT_LIMIT) -> InlineMass:
-    """Mass of the DuT and its uncertainty from its loops (contracts §1 ``rgse mass``).
+    """Mass of the DuT and its uncertainty from its loops (interfaces §1 ``rgse mass``).
 
     ``alternatives``: the other admissible calibration models (same points), for the model-form spread, with their
     own ``alternative_uncertainty`` (same order; None where a file has none). ``uncertainty``: the calibration's

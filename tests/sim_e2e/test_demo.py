@@ -1,4 +1,4 @@
-"""``rgse demo`` as a user runs it (contracts §1): the installed CLI, a simulated KR C4 in its own process, the whole
+"""``rgse demo`` as a user runs it (interfaces §1): the installed CLI, a simulated KR C4 in its own process, the whole
 daemon; a campaign, then a 10-loop in-line measurement whose mass must agree with the simulator's truth within U."""
 
 from __future__ import annotations

@@ -61,7 +61,7 @@ async def store(store_url: str | None, data_dir: Path) -> AsyncIterator[Store]:
 
 
 def calibration_doc(cal_id: str, robot: str = ROBOT, method: str = "paper") -> dict:
-    """A small CAL.json-shaped document (contracts §3)."""
+    """A small CAL.json-shaped document (interfaces §3)."""
     return {
         "schema": 1,
         "calibration_id": cal_id,
