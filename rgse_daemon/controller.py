@@ -339,15 +339,19 @@ class Controller:
         return parse_value(await self.pool.read(name))
 
     async def write(self, name: str, value: KrlValue) -> KrlValue:
-        """Write a Python value as KRL (``str`` becomes a quoted CHAR[] string); returns the echoed value.
+        """Write a Python value as KRL (``str`` becomes a quoted CHAR[] string); returns ``value``.
 
-        Raises ``NotAllowedError`` for a name outside the allow-list, before anything is sent.
+        The server's echo is the request's own text (C3 Bridge and KUKAVARPROXY alike), not a read-back of the
+        controller's normalised form: read the variable to learn what the controller holds. Raises
+        ``NotAllowedError`` for a name outside the allow-list, before anything is sent.
         """
         self._check_writable(name)
-        return parse_value(await self.pool.write(name, format_value(value)))
+        await self.pool.write(name, format_value(value))
+        return value
 
     async def write_raw(self, name: str, text: str) -> str:
-        """Write KRL value text as is (e.g. ``#T_START``); same allow-list as :meth:`write`."""
+        """Write KRL value text as is (e.g. ``#T_START``); same allow-list as :meth:`write`. Returns the echo (the
+        request's text on a real server, nothing to rely on)."""
         self._check_writable(name)
         return await self.pool.write(name, text)
 
