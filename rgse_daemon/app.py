@@ -51,6 +51,7 @@ from rgse_daemon.aio import within
 from rgse_daemon.config import Config
 from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import LinkError, RgseError, VariableError
+from rgse_daemon.filelayout import load_layout
 from rgse_daemon.io.commands import AbortCommand, CalibrateCommand, CalibrationPoint, ConfirmCommand, MeasureCommand
 from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.procedures.calibration import CB_MASS_KG, TA_MASS_KG, TA_TORQUE_A5_NM, CampaignPoint, run_calibration
@@ -289,7 +290,9 @@ class Daemon:
         attempt = 0
         while not stop.is_set():
             try:
-                async with Controller.connect(c) as krc:
+                # the path form and listing format `rgse doctor` found on this controller (probed if none)
+                layout = load_layout(self.cfg.paths.data_dir)
+                async with Controller.connect(c, layout=layout) as krc:
                     attempt = 0
                     self.krc = krc
                     self.engine = self._make_engine(krc)
