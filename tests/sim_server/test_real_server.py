@@ -226,3 +226,32 @@ async def test_path_form_variants(share: Path, forms: str, ok: list[str], refuse
                 assert not rsp.ok and rsp.code == 3, path
         finally:
             await c.close()
+
+
+async def test_input_is_dropped_only_while_a_reply_is_still_being_sent(share: Path) -> None:
+    import socket
+
+    name = _trace_file(share, size=fr.MAX_READ_CHUNK)
+    async with KrcServer(ServerConfig(latency_s=0.0), share) as srv:
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)  # a client that reads slowly
+        sock.setblocking(False)
+        await asyncio.get_running_loop().sock_connect(sock, ("127.0.0.1", srv.port))
+        reader, writer = await asyncio.open_connection(sock=sock)
+        c = RawClient(reader, writer)
+        try:
+            assert (await c.call(fr.ReadContentBegin(0, name))).ok
+            chunks = 120  # ~7.7 MB of replies: more than the socket buffers hold, so the server's send backs up
+            await c.send(b"".join(fr.encode_request(i, fr.ReadContentData(0, fr.MAX_READ_CHUNK))
+                                  for i in range(chunks)))
+            for _ in range(200):
+                if srv.counters.by_type[30] >= 1 + chunks:
+                    break
+                await asyncio.sleep(0.01)
+            await c.send(PING)  # arrives while replies are still queued for sending: dropped
+            await asyncio.sleep(0.2)
+            tags = [fr.decode_response(await c.frame())[0] for _ in range(chunks)]
+            assert tags == list(range(chunks))  # every queued request answered, in order
+            assert srv.counters.bytes_discarded == len(PING)
+        finally:
+            await c.close()
