@@ -499,6 +499,7 @@ class Controller:
         """Entries of a controller directory or mask (#21), e.g. ``C:\\KRC\\ROBOTER\\TRACE\\``."""
         if self._use_share():
             return await asyncio.to_thread(_share_list, self._share_path(path), path)
+        shown = path
         layout = await self.trace_layout() if is_trace_name(path) else None
         if layout is not None:
             path = layout.folder(layout.trace_name(path))
@@ -506,7 +507,12 @@ class Controller:
         _expect(rsp, fr.NameListReply, f"list {path}")
         assert isinstance(rsp, fr.NameListReply)
         infos = list(rsp.infos) + [""] * max(0, len(rsp.items) - len(rsp.infos))
-        return [DirEntry(n, i) for n, i in zip(rsp.items, infos, strict=False)]
+        # a server may list entries by their own name only: make them full names, in the caller's form
+        folder = re.sub(r"[\\/][^\\/]*[*?][^\\/]*$", "", shown)  # a mask (…\\*.SRC) lists its folder
+        sep = "/" if "/" in folder and "\\" not in folder else "\\"
+        folder = folder.rstrip("\\/") + sep
+        return [DirEntry(n if re.search(r"[\\/]", n.rstrip("\\/")) else folder + n, i)
+                for n, i in zip(rsp.items, infos, strict=False)]
 
     async def delete_file(self, name: str, *, always: bool = False) -> None:
         """Delete controller file (or empty directory) ``name``: #23, or unlink on the share.
@@ -554,17 +560,20 @@ class Controller:
     ) -> None:
         """Create ``name`` with #22 (C3 Bridge only): ``item_type`` e.g. ``ItemType.DIR``; ``always`` replaces."""
         self._require(fr.MsgType.CREATE, f"create {name}")
+        name = await self._c3_name(name)
         req = fr.Create(item_type, module_part, always, name, template)
         await self._file_command(req, fr.CreateReply, f"create {name}")
 
     async def set_attribute(self, name: str, attributes: int, mask: int) -> None:
         """Set the ``mask`` bits of ``name``'s attributes to those of ``attributes`` (#20, C3 Bridge only)."""
         self._require(fr.MsgType.SET_ATTRIBUTE, f"set attributes of {name}")
+        name = await self._c3_name(name)
         await self._file_command(fr.SetAttribute(attributes, mask, name), fr.SetAttributeReply, f"attributes {name}")
 
     async def get_full_name(self, path: str) -> str:
         """The controller's full name of ``path`` (#27): ``/R1/TEST.SRC`` → ``KRC:\\R1\\PROGRAM\\TEST.SRC``."""
         self._require(fr.MsgType.GET_FULL_NAME, f"full name of {path}")
+        path = await self._c3_name(path)
         rsp = await self._file_command(fr.GetFullName(path), fr.GetFullNameReply, f"full name of {path}")
         assert isinstance(rsp, fr.GetFullNameReply)
         return rsp.path
@@ -572,6 +581,7 @@ class Controller:
     async def get_krc_name(self, path: str) -> str:
         """The KRC name of ``path`` (#28): ``KRC:\\R1\\PROGRAM\\TEST.SRC`` → ``/R1/TEST.SRC``."""
         self._require(fr.MsgType.GET_KRC_NAME, f"KRC name of {path}")
+        path = await self._c3_name(path)
         rsp = await self._file_command(fr.GetKrcName(path), fr.GetKrcNameReply, f"KRC name of {path}")
         assert isinstance(rsp, fr.GetKrcNameReply)
         return rsp.path

@@ -396,6 +396,8 @@ class KrcServer:
             self._tmp = tempfile.TemporaryDirectory(prefix="krc4-share-")
             share_dir = Path(self._tmp.name)
         self.files = ShareFiles(share_dir, listing=self.config.listing, path_forms=self.config.path_forms)
+        for folder in ("TRACE", "R1/PROGRAM"):  # every KR C4 has them
+            (self.files.root / folder).mkdir(parents=True, exist_ok=True)
         self.store = store if store is not None else VariableStore()
         self.program_host: ProgramHost = program_host or StateOnlyProgramHost(self.store, exists=self.files.exists)
         self.on_confirm_all = on_confirm_all or (lambda: self.store.update("$STOPMESS", "FALSE"))

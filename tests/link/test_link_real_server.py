@@ -67,7 +67,8 @@ async def test_status_reads_and_keepalives_behind_a_long_pull_are_late_not_lost(
 
 async def test_a_read_interrupted_by_a_lost_link_starts_again_from_begin(sim: KrcServer) -> None:
     data = _put(sim, "t_NextGenDrive#3.r64", 200_000)  # four chunks
-    async with Controller.connect(cfg_for(sim)) as krc:
+    async with Controller.connect(cfg_for(sim, keepalive_s=20.0)) as krc:  # no PING among the counted requests
+        await krc.trace_layout()  # the path form is known (probed) before the fault is armed
         sim.faults.drop_after_requests = 2  # properties, Begin, then the first chunk request closes the link
         begins = sim.counters.by_type[30]
         assert await krc.get_file("C:\\KRC\\ROBOTER\\TRACE\\t_NextGenDrive#3.r64") == data
@@ -110,11 +111,12 @@ async def test_file_round_trip_on_every_listing_and_path_variant(tmp_path: Path,
                                                                else "C:\\KRC\\ROBOTER\\TRACE\\")
 
 
-async def test_a_recorded_layout_is_used_without_probing(sim: KrcServer, tmp_path: Path) -> None:
+async def test_a_recorded_layout_is_used_without_probing(tmp_path: Path) -> None:
     save_layout(tmp_path, FileLayout("KRC:\\TRACE\\", False, "fields", 123456.0))
     layout = load_layout(tmp_path)
     assert layout == FileLayout("KRC:\\TRACE\\", False, "fields", 123456.0)
-    async with Controller.connect(cfg_for(sim), layout=layout) as krc:
+    async with KrcServer(ServerConfig(latency_s=0.0, path_forms="krc"), tmp_path / "roboter") as sim, \
+            Controller.connect(cfg_for(sim), layout=layout) as krc:
         lists = sim.counters.by_type[fr.MsgType.NAME_LIST]
         await krc.put_file("C:\\KRC\\ROBOTER\\TRACE\\a.xml", b"<Trace/>")
         assert sim.counters.by_type[fr.MsgType.NAME_LIST] == lists  # no probe
