@@ -44,6 +44,7 @@ import contextlib
 import datetime as dt
 import logging
 import os
+import re
 import tempfile
 import time
 from collections import Counter
@@ -802,10 +803,20 @@ class KrcServer:
         return fr.FailureReply(req.TYPE, code=_ERR.NOT_IMPLEMENTED)
 
 
+_TRAILING = re.compile(r"(\d+) unexpected trailing byte")
+
+
 def _decode_lenient(frame: bytes) -> fr.Request:
     """Decode a request as the real server does: bytes after a well-formed body are ignored, not refused."""
-    _tag, msg_type, reader = fr._header(frame)
-    return fr._dec_req_payload(reader, msg_type)
+    try:
+        return fr.decode_request(frame)[1]
+    except ProtocolError as exc:
+        m = _TRAILING.search(str(exc))
+        if m is None or not 0 < int(m.group(1)) < len(frame) - 4:
+            raise
+        body = bytearray(frame[: len(frame) - int(m.group(1))])
+        body[2:4] = (len(body) - 4).to_bytes(2, "big")
+        return fr.decode_request(bytes(body))[1]
 
 
 def _motion_or_key(msg_type: int, frame: bytes) -> fr.Reply:
