@@ -16,9 +16,9 @@ real servers that a client has to live with (kuka-facts ยง3, c3bridge-protocol ย
 * writes (#1, #5, #7) echo **the value text of the request**, not a read-back; ``PING`` and ``@PROXY_*`` are matched
   **exact-case**; the version is **1.4**; #11 (motion) and #12 (KCP keys) are answered (refused with code 7: this
   simulator never moves the robot on a protocol command), not closed;
-* an unknown message type or a length of 0 closes the connection without a reply; a single read (#0/#4) with a
-  malformed body fails with code 0 and an empty value, other malformed requests get code 9; trailing bytes after a
-  well-formed body are ignored;
+* an unknown message type or a length of 0 closes the connection without a reply; #0/#1 with a malformed body
+  fail with code 0 and an empty value, other malformed requests get code 9; trailing bytes after a well-formed
+  body are ignored;
 * the variants that the public source does not settle (c3bridge-real-server.md: listing info text, accepted path
   forms) are switched by ``listing`` and ``path_forms`` (see :data:`LISTING_VARIANTS`, :data:`PATH_FORM_VARIANTS`;
   defaults from the environment variables ``RGSE_SIM_LISTING`` / ``RGSE_SIM_PATHS``, so a whole test suite can be
@@ -524,8 +524,10 @@ class KrcServer:
             except ProtocolError as exc:
                 log.info("malformed request type %d from %s: %s", msg_type, conn.peer, exc)
                 self.counters.malformed_requests += 1
-                # [src] a single read with a malformed body: code 0 and an empty value (others: code 9)
-                code = _ERR.GENERAL if msg_type in (fr.MsgType.READ_VAR_ASCII, fr.MsgType.READ_VAR) else _ERR.PROTOCOL
+                # [src] #0/#1 never map a code: a malformed body fails with code 0 and an empty value; the wide
+                # messages (#4/#5 ...) answer code 9
+                ascii_types = (fr.MsgType.READ_VAR_ASCII, fr.MsgType.WRITE_VAR_ASCII)
+                code = _ERR.GENERAL if msg_type in ascii_types else _ERR.PROTOCOL
                 reply: fr.Reply = _failure(msg_type, code)
             else:
                 if self._names_trip_drop(req):

@@ -141,9 +141,11 @@ async def test_unknown_variable_is_an_empty_value_with_code_0(client: RawClient)
         assert await client.call(req) == reply
 
 
-async def test_malformed_wide_read_is_code_0_with_an_empty_value(client: RawClient) -> None:
-    raw = await client.raw(bytes.fromhex("0005 0003 04 0009"))  # #4 announcing 9 units it does not carry
-    assert raw == bytes.fromhex("0005 0006 04 0000 0000 00")
+async def test_malformed_reads_code_0_on_ascii_code_9_on_wide(client: RawClient) -> None:
+    raw = await client.raw(bytes.fromhex("0005 0003 00 0009"))  # #0 announcing 9 bytes it does not carry
+    assert raw == bytes.fromhex("0005 0006 00 0000 0000 00")
+    raw = await client.raw(bytes.fromhex("0006 0003 04 0009"))  # #4 announcing 9 units it does not carry
+    assert raw == bytes.fromhex("0006 0006 04 0000 0009 00")
 
 
 @pytest.mark.parametrize("msg_type, body", [(11, b"\x01\x00\x00"), (12, b"\x03" + bytes(10))])
