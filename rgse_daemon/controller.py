@@ -149,6 +149,8 @@ class DirEntry:
 
     name: str
     info: str = ""
+    listed_as: str = ""
+    """The name exactly as the server listed it, when that was not the full name (only the entry's own name)."""
 
     @property
     def is_dir(self) -> bool:
@@ -511,7 +513,7 @@ class Controller:
         folder = re.sub(r"[\\/][^\\/]*[*?][^\\/]*$", "", shown)  # a mask (…\\*.SRC) lists its folder
         sep = "/" if "/" in folder and "\\" not in folder else "\\"
         folder = folder.rstrip("\\/") + sep
-        return [DirEntry(n if re.search(r"[\\/]", n.rstrip("\\/")) else folder + n, i)
+        return [DirEntry(n, i) if re.search(r"[\\/]", n.rstrip("\\/")) else DirEntry(folder + n, i, n)
                 for n, i in zip(rsp.items, infos, strict=False)]
 
     async def delete_file(self, name: str, *, always: bool = False) -> None:

@@ -272,7 +272,7 @@ async def _trace_config(krc: Controller, cfg: Config) -> Check:
 def _listing_kind(entry: DirEntry, size: int) -> str:
     if entry.size_bytes == size:
         return "fields"
-    if "\\" not in entry.name and "/" not in entry.name:
+    if entry.listed_as:
         return "bare"
     return "text"
 
@@ -298,7 +298,7 @@ async def _round_trip(krc: Controller, cfg: Config) -> tuple[Check, FileLayout |
                 tried.append(f"{krc.layout.folder(trace_dir)}: {exc}")
                 continue
             layout = FileLayout(trace_dir, trailing, _listing_kind(entry, len(data)), round(rate))
-            detail = (f"{trace_dir}{ROUND_TRIP_NAME}: written, listed as {entry.name!r} (info "
+            detail = (f"{trace_dir}{ROUND_TRIP_NAME}: written, listed as {entry.listed_as or entry.name!r} (info "
                       f"{entry.info!r}: {layout.listing}), read back, deleted; folder listed as "
                       f"{layout.folder(trace_dir)!r}; file rate ≈ {rate / 1000:.0f} kB/s")
             if cfg.controller.file_rate_bytes_s > rate:
