@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.calibration import AxisK, Calibration
 from rgse_daemon.pipeline.preprocess import Preprocessing
@@ -59,7 +60,7 @@ def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, 
 def write(path: Path | str, doc: dict[str, Any]) -> None:
     path = Path(path)
     try:
-        path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        write_atomic(path, json.dumps(doc, indent=2) + "\n")
     except OSError as exc:
         raise DataError(f"{path}: cannot write calibration: {exc}") from exc
 

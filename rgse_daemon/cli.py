@@ -16,15 +16,21 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rgse_daemon import __version__
-from rgse_daemon.errors import ConfigError, DataError, KrlSyntaxError, RgseError
+from rgse_daemon.errors import (
+    EXIT_BAD_INPUT,
+    EXIT_FAILED,
+    EXIT_OK,
+    EXIT_REFUSED,
+    ConfigError,
+    DataError,
+    KrlSyntaxError,
+    RgseError,
+)
 from rgse_daemon.logs import ENV_VAR as LOG_FORMAT_ENV
 from rgse_daemon.logs import FORMATS as LOG_FORMATS
 from rgse_daemon.logs import choose_format, setup_logging
 
-EXIT_OK = 0
-EXIT_FAILED = 1
-EXIT_BAD_INPUT = 2
-EXIT_REFUSED = 3
+__all__ = ["EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_OK", "EXIT_REFUSED", "build_parser", "main"]
 
 
 def _add_json(p: argparse.ArgumentParser) -> None:

@@ -7,22 +7,136 @@ and CI like to do.
 
 from __future__ import annotations
 
+import math
+import re
 import tomllib
 from enum import StrEnum
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
 
 from rgse_daemon.errors import ConfigError
-from rgse_daemon.io.modbus import ModbusConfig
-from rgse_daemon.io.scale import ScaleConfig
 
 #: ISO 10218-1 reduced speed that the controller itself enforces in T1 (kuka-facts §2).
 T1_CONTROLLER_LIMIT_MM_S = 250.0
 
 Seconds = Annotated[float, Field(gt=0.0, le=3600.0)]
+
+
+
+# --- the Modbus safety I/O module (io/modbus.py) ---------------------------------------------------------------
+Address = int  # zero-based Modbus address of one bit
+MAX_BITS_PER_READ = 2000  # Modbus application protocol limit for FC 1 / FC 2
+
+
+# --- configuration -------------------------------------------------------------------------------------------
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class InputMap(_Strict):
+    """Addresses of the three safety inputs (one bit each, 1 = safe)."""
+
+    area_cleared: Address = Field(0, ge=0, le=65535)
+    aut_permitted: Address = Field(1, ge=0, le=65535)
+    estop_ok: Address = Field(2, ge=0, le=65535)
+
+
+class OutputMap(_Strict):
+    """Coil addresses of the stack light and the "measurement running" output."""
+
+    light_green: Address = Field(0, ge=0, le=65535)
+    light_yellow: Address = Field(1, ge=0, le=65535)
+    light_red: Address = Field(2, ge=0, le=65535)
+    running: Address = Field(3, ge=0, le=65535)
+
+
+class ModbusConfig(_Strict):
+    """Where the safety I/O module is, its register map, and how hard to try."""
+
+    host: str = Field("127.0.0.1", min_length=1)
+    port: int = Field(502, ge=1, le=65535)
+    unit_id: int = Field(1, ge=0, le=247)
+    input_table: Literal["discrete_inputs", "coils"] = "discrete_inputs"
+    inputs: InputMap = InputMap()
+    outputs: OutputMap = OutputMap()
+    poll_period_s: float = Field(0.1, gt=0.0, le=10.0)
+    stale_after_polls: int = Field(3, ge=2, le=100)
+    """A reading older than this many poll periods counts as unsafe."""
+    request_timeout_s: float = Field(0.5, gt=0.0, le=30.0)
+    connect_timeout_s: float = Field(2.0, gt=0.0, le=60.0)
+    reconnect_min_s: float = Field(0.2, gt=0.0, le=60.0)
+    reconnect_max_s: float = Field(5.0, gt=0.0, le=600.0)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> ModbusConfig:
+        if self.reconnect_min_s > self.reconnect_max_s:
+            raise ValueError("reconnect_min_s must not exceed reconnect_max_s")
+        ins = list(self.inputs.model_dump().values())
+        outs = list(self.outputs.model_dump().values())
+        if len(set(ins)) != len(ins):
+            raise ValueError(f"input addresses must be distinct, got {self.inputs.model_dump()}")
+        if len(set(outs)) != len(outs):
+            raise ValueError(f"output addresses must be distinct, got {self.outputs.model_dump()}")
+        if self.input_table == "coils" and set(ins) & set(outs):
+            raise ValueError("with input_table='coils' input and output addresses must not overlap")
+        if max(ins) - min(ins) + 1 > MAX_BITS_PER_READ:
+            raise ValueError(f"input addresses must lie within {MAX_BITS_PER_READ} bits of each other")
+        return self
+
+    @property
+    def stale_after_s(self) -> float:
+        return self.stale_after_polls * self.poll_period_s
+
+
+# --- the serial crane scale (io/scale.py) --------------------------------------------------------------------
+KERN_LINE_REGEX = r"^(?P<stab>ST|US),(?P<kind>GS|NT),(?P<sign>[+-]) *(?P<value>\d+(?:\.\d+)?) *(?P<unit>[A-Za-z%]+)$"
+UNIT_TO_KG: dict[str, float] = {"kg": 1.0, "g": 1e-3, "t": 1e3, "lb": 0.45359237}
+_REQUIRED_GROUPS = {"value", "unit"}
+
+
+class ScaleConfig(BaseModel):
+    """How to reach the crane scale and how to read its lines."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    port: str = Field("/dev/ttyUSB0", min_length=1)
+    """A device path or a pyserial URL such as ``socket://10.0.0.8:4001``."""
+    baudrate: int = Field(9600, gt=0, le=921600)
+    bytesize: Literal[7, 8] = 8
+    parity: Literal["N", "E", "O"] = "N"
+    stopbits: Literal[1, 2] = 1
+    mode: Literal["request", "stream"] = "request"
+    request_cmd: str = Field("S", min_length=1, max_length=8)
+    request_interval_s: float = Field(0.5, gt=0.0, le=60.0)
+    resolution_kg: float = Field(0.1, gt=0.0, le=100.0)
+    """The scale's d (HFB 300K100: 0.1 kg); sets the uncertainty and the agreement of consecutive frames."""
+    line_regex: str = KERN_LINE_REGEX
+    stable_tokens: tuple[str, ...] = ("ST",)
+    checksum: Literal["none", "xor8"] = "none"
+    stable_frames_required: int = Field(1, ge=1, le=100)
+    max_consecutive_bad_frames: int = Field(20, ge=1, le=10_000)
+    max_line_bytes: int = Field(128, ge=16, le=4096)
+    open_timeout_s: float = Field(3.0, gt=0.0, le=60.0)
+    default_timeout_s: float = Field(30.0, gt=0.0, le=3600.0)
+
+    @field_validator("line_regex")
+    @classmethod
+    def _regex_usable(cls, value: str) -> str:
+        try:
+            compiled = re.compile(value)
+        except re.error as exc:
+            raise ValueError(f"line_regex does not compile: {exc}") from exc
+        missing = _REQUIRED_GROUPS - set(compiled.groupindex)
+        if missing:
+            raise ValueError(f"line_regex lacks the named groups {sorted(missing)}")
+        return value
+
+    @property
+    def u_kg(self) -> float:
+        return self.resolution_kg / math.sqrt(3.0)
 
 
 class _Section(BaseModel):

@@ -9,7 +9,7 @@ It sits on :class:`~rgse_daemon.link.pool.LinkPool` and hides which server runs 
   (``ControllerConfig.share_dir``); program control, create, attributes and name conversion are not available
   (:class:`~rgse_daemon.link.errors.NotSupportedError`).
 
-Writes are limited to :data:`WRITABLE_VARIABLES` and user globals starting with :data:`WRITABLE_PREFIX`;
+Writes are limited to the safety policy's allow-list (:mod:`rgse_daemon.safety.allowlist`);
 anything else raises :class:`~rgse_daemon.errors.NotAllowedError` before a byte is sent.
 
 Usage::
@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rgse_daemon.config import ControllerConfig, Protocol
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import ConfigError, LinkError, NotAllowedError, ProtocolError, VariableError
 from rgse_daemon.filelayout import TRACE_DIR_CANDIDATES, FileLayout, is_trace_name
 from rgse_daemon.link import frames as fr
@@ -43,14 +44,9 @@ from rgse_daemon.link.connection import ConnectionState
 from rgse_daemon.link.errors import CommandError, NotSupportedError
 from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, format_value, parse_value
 from rgse_daemon.link.pool import LinkPool
+from rgse_daemon.safety.allowlist import WRITABLE_PREFIX, WRITABLE_VARIABLES, writable
 
 log = logging.getLogger(__name__)
-
-#: Variables the daemon may write (trace control and program override); anything else is refused locally.
-WRITABLE_VARIABLES: frozenset[str] = frozenset({"$OV_PRO", "$TRACE.CONFIG[]", "$TRACE.NAME[]", "$TRACE.MODE"})
-#: User globals of the daemon's own KRL programs (declared in its $CONFIG.DAT part) are writable too.
-WRITABLE_PREFIX = "RGSE_"
-_USER_GLOBAL = re.compile(r"RGSE_[A-Z0-9_]+(\[[0-9]*(,[0-9]+)*\])?(\.[A-Z0-9_]+)*")
 
 AXES = range(1, 7)
 #: What one snapshot reads, in this order (26 variables: one #6 with C3 Bridge).
@@ -77,12 +73,6 @@ SNAPSHOT_VARIABLES: tuple[str, ...] = (
 COPY_OVERWRITE_EXISTS = 64
 #: How often a file read starts again from Begin after the connection (and with it the server's buffer) was lost.
 FILE_READ_ATTEMPTS = 3
-
-
-def writable(name: str) -> bool:
-    """Whether the allow-list lets the daemon write ``name`` (case-insensitive, as KRL names are)."""
-    n = name.strip().upper()
-    return n in WRITABLE_VARIABLES or _USER_GLOBAL.fullmatch(n) is not None
 
 
 @dataclass(frozen=True)
@@ -687,10 +677,7 @@ def share_path(root: Path, name: str) -> Path:
 
 
 def _share_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.rgse-tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    write_atomic(path, data)
 
 
 def _share_read(path: Path) -> bytes:

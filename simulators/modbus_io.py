@@ -25,7 +25,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from rgse_daemon.io.modbus import ModbusConfig
+from rgse_daemon.config import ModbusConfig
 
 InputName = Literal["area_cleared", "aut_permitted", "estop_ok"]
 _READ_FC = {1: "coils", 2: "discrete_inputs"}

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 import asyncio
+from collections.abc import AsyncIterator
 from pathlib import Path
 
 import pytest
+
+from tests.support.mqtt import MosquittoProcess
 
 pytest_plugins = ["pytester"]
 
@@ -35,3 +38,14 @@ async def _fail_on_leaked_tasks():
             t.cancel()
         await asyncio.gather(*leaked, return_exceptions=True)
         pytest.fail(f"test leaked {len(leaked)} asyncio task(s): {[t.get_name() for t in leaked]}")
+
+
+@pytest.fixture
+async def private_broker(tmp_path: Path) -> AsyncIterator[MosquittoProcess]:
+    """A Mosquitto of this test alone, with persistence: the only kind of broker a test may restart."""
+    broker = MosquittoProcess(tmp_path / "mosquitto")
+    await broker.start()
+    try:
+        yield broker
+    finally:
+        await broker.stop()

@@ -5,7 +5,7 @@ Publishes an ``abort`` command (contracts §4; schema :class:`~rgse_daemon.io.co
 daemon's broker, as configured in FILE, and waits for the daemon's reply to it. Without ``--run`` the daemon
 aborts whatever run is in progress; with it, only that run. Prints the reply (one JSON line on stdout). Exit 0
 when the daemon accepted; 1 when it refused (its reason on stderr); 2 on a bad configuration or command, an
-unreachable broker, or no reply within ``--timeout`` (default 10 s). See :mod:`rgse_daemon.commands.status`.
+unreachable broker, or no reply within ``--timeout`` (default 10 s). See :mod:`rgse_daemon.io.operator`.
 """
 
 from __future__ import annotations
@@ -13,14 +13,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from rgse_daemon.commands.status import (
-    Conversation,
-    check_fields,
-    check_timeout,
-    endpoint,
-    report_reply,
-    run_operator,
-)
+from rgse_daemon.commands.operator_cli import report_reply, run_operator
+from rgse_daemon.io.operator import Conversation, check_fields, check_timeout, endpoint
 
 DEFAULT_REASON = "aborted by the operator (rgse abort)"
 

@@ -16,17 +16,9 @@ import argparse
 import sys
 from typing import Any
 
-from rgse_daemon.cli import EXIT_FAILED
-from rgse_daemon.commands.status import (
-    Conversation,
-    Unreachable,
-    check_fields,
-    check_timeout,
-    describe_status,
-    endpoint,
-    report_reply,
-    run_operator,
-)
+from rgse_daemon.commands.operator_cli import report_reply, run_operator
+from rgse_daemon.errors import EXIT_FAILED
+from rgse_daemon.io.operator import Conversation, Unreachable, check_fields, check_timeout, describe_status, endpoint
 
 #: How long to wait for the daemon's state when the run is not named (it is retained: normally at once).
 STATE_WAIT_S = 3.0

@@ -1,5 +1,5 @@
 """``rgse reference --run RUN_ID``: weigh the DuT on the crane scale, record it next to the run's in-line result,
-print the paper's Table 2 comparison (see :mod:`rgse_daemon.reference`)."""
+print the paper's Table 2 comparison (see :mod:`rgse_daemon.analysis.reference`)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,11 @@ import asyncio
 import json
 from typing import Any
 
-from rgse_daemon import reference as ref
+from rgse_daemon.analysis import reference as ref
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import ConfigError
 from rgse_daemon.io.scale import CraneScale
+from rgse_daemon.procedures.reference import run_and_result, take_reference
 from rgse_daemon.store import Store
 
 
@@ -20,9 +21,9 @@ async def _reference(args: argparse.Namespace) -> dict[str, Any]:
     if cfg.scale is None:
         raise ConfigError(f"{args.config or '<defaults>'}: no [scale] section; the crane scale is not configured")
     async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
-        await ref.run_and_result(store, args.run)  # before the scale is opened: fail fast on a wrong run
+        await run_and_result(store, args.run)  # before the scale is opened: fail fast on a wrong run
         async with CraneScale(cfg.scale) as scale:
-            run, rec, cmp = await ref.take_reference(
+            run, rec, cmp = await take_reference(
                 store, scale, args.run, weighed=getattr(args, "weighed", "gross"),
                 timeout_s=getattr(args, "timeout", None), operators=getattr(args, "operators", None),
                 operation_min=getattr(args, "operation_min", None))

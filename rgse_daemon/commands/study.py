@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from rgse_daemon.commands.calibrate import load_campaign, points_from_raw
+from rgse_daemon.analysis.calibration import load_campaign, points_from_raw
 from rgse_daemon.manifest import load_points_csv
 from rgse_daemon.pipeline.study import StudyGrid, rank_models, run_study
 from rgse_daemon.progress import stage_progress

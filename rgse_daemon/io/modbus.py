@@ -51,80 +51,17 @@ import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Literal, Self
+from typing import Self
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.pdu import ModbusPDU
 
+from rgse_daemon.config import Address, ModbusConfig
 from rgse_daemon.io import IoDeviceError, IoDeviceRefused, IoLinkError, IoTimeout
+from rgse_daemon.safety.inputs import SafetyInputs
 
 log = logging.getLogger(__name__)
-
-Address = int  # zero-based Modbus address of one bit
-MAX_BITS_PER_READ = 2000  # Modbus application protocol limit for FC 1 / FC 2
-
-
-# --- configuration -------------------------------------------------------------------------------------------
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class InputMap(_Strict):
-    """Addresses of the three safety inputs (one bit each, 1 = safe)."""
-
-    area_cleared: Address = Field(0, ge=0, le=65535)
-    aut_permitted: Address = Field(1, ge=0, le=65535)
-    estop_ok: Address = Field(2, ge=0, le=65535)
-
-
-class OutputMap(_Strict):
-    """Coil addresses of the stack light and the "measurement running" output."""
-
-    light_green: Address = Field(0, ge=0, le=65535)
-    light_yellow: Address = Field(1, ge=0, le=65535)
-    light_red: Address = Field(2, ge=0, le=65535)
-    running: Address = Field(3, ge=0, le=65535)
-
-
-class ModbusConfig(_Strict):
-    """Where the safety I/O module is, its register map, and how hard to try."""
-
-    host: str = Field("127.0.0.1", min_length=1)
-    port: int = Field(502, ge=1, le=65535)
-    unit_id: int = Field(1, ge=0, le=247)
-    input_table: Literal["discrete_inputs", "coils"] = "discrete_inputs"
-    inputs: InputMap = InputMap()
-    outputs: OutputMap = OutputMap()
-    poll_period_s: float = Field(0.1, gt=0.0, le=10.0)
-    stale_after_polls: int = Field(3, ge=2, le=100)
-    """A reading older than this many poll periods counts as unsafe."""
-    request_timeout_s: float = Field(0.5, gt=0.0, le=30.0)
-    connect_timeout_s: float = Field(2.0, gt=0.0, le=60.0)
-    reconnect_min_s: float = Field(0.2, gt=0.0, le=60.0)
-    reconnect_max_s: float = Field(5.0, gt=0.0, le=600.0)
-
-    @model_validator(mode="after")
-    def _consistent(self) -> ModbusConfig:
-        if self.reconnect_min_s > self.reconnect_max_s:
-            raise ValueError("reconnect_min_s must not exceed reconnect_max_s")
-        ins = list(self.inputs.model_dump().values())
-        outs = list(self.outputs.model_dump().values())
-        if len(set(ins)) != len(ins):
-            raise ValueError(f"input addresses must be distinct, got {self.inputs.model_dump()}")
-        if len(set(outs)) != len(outs):
-            raise ValueError(f"output addresses must be distinct, got {self.outputs.model_dump()}")
-        if self.input_table == "coils" and set(ins) & set(outs):
-            raise ValueError("with input_table='coils' input and output addresses must not overlap")
-        if max(ins) - min(ins) + 1 > MAX_BITS_PER_READ:
-            raise ValueError(f"input addresses must lie within {MAX_BITS_PER_READ} bits of each other")
-        return self
-
-    @property
-    def stale_after_s(self) -> float:
-        return self.stale_after_polls * self.poll_period_s
-
 
 # --- values --------------------------------------------------------------------------------------------------
 class LightColor(enum.StrEnum):
@@ -139,33 +76,6 @@ class ConnectionState(enum.StrEnum):
     CONNECTING = "connecting"
     CONNECTED = "connected"
     STOPPED = "stopped"
-
-
-@dataclass(frozen=True)
-class SafetyInputs:
-    """One view of the safety inputs. ``valid`` is False on link loss, a refused or stale read: then all three
-    inputs read False (not cleared, not permitted, E-stop not OK) and ``reason`` says why."""
-
-    area_cleared: bool
-    aut_permitted: bool
-    estop_ok: bool
-    valid: bool
-    time_utc: datetime
-    """When the values were read (for an invalid view: when the doubt arose)."""
-    reason: str = ""
-
-    @property
-    def safe(self) -> bool:
-        """All three inputs good, from a fresh reading."""
-        return self.valid and self.area_cleared and self.aut_permitted and self.estop_ok
-
-    def key(self) -> tuple[bool, bool, bool, bool]:
-        """The safety-relevant part: a change in it is reported by ``SafetyIo.changes()``."""
-        return (self.area_cleared, self.aut_permitted, self.estop_ok, self.valid)
-
-    @classmethod
-    def unsafe(cls, reason: str, time_utc: datetime | None = None) -> SafetyInputs:
-        return cls(False, False, False, False, time_utc or datetime.now(UTC), reason)
 
 
 @dataclass

@@ -615,12 +615,17 @@ class MqttBridge:
                 payload = payload.encode()
             elif not isinstance(payload, bytes | bytearray):
                 payload = b"" if payload is None else str(payload).encode()
-            self._dispatch(verb, bytes(payload))
+            self._dispatch(verb, bytes(payload), retained=bool(message.retain))
 
     # --- commands -----------------------------------------------------------------------------------------------
-    def _dispatch(self, verb: str, payload: bytes) -> None:
+    def _dispatch(self, verb: str, payload: bytes, *, retained: bool = False) -> None:
         try:
             cmd = parse_command(verb, payload, self._cfg.command_tokens)
+            if retained:
+                # A retained command is replayed by the broker to every new subscription: after a reconnect or a
+                # restart it would start a motion nobody asked for now. Commands count only when sent live.
+                raise CommandRefused(verb, "retained command ignored: publish commands with retain=false",
+                                     cmd.request_id)
             if len(self._command_tasks) >= MAX_COMMANDS_IN_FLIGHT:
                 raise CommandRefused(verb, f"busy: {MAX_COMMANDS_IN_FLIGHT} commands in flight", cmd.request_id)
         except CommandRefused as exc:

@@ -43,66 +43,20 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import re
 import time
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Literal, Self
+from typing import Self
 
 import serial
-from pydantic import BaseModel, ConfigDict, Field, field_validator
 from serial_asyncio_fast import create_serial_connection
 
+from rgse_daemon.config import UNIT_TO_KG, ScaleConfig
 from rgse_daemon.io import IoFrameError, IoLinkError, IoTimeout
 
 log = logging.getLogger(__name__)
 
-KERN_LINE_REGEX = r"^(?P<stab>ST|US),(?P<kind>GS|NT),(?P<sign>[+-]) *(?P<value>\d+(?:\.\d+)?) *(?P<unit>[A-Za-z%]+)$"
-UNIT_TO_KG: dict[str, float] = {"kg": 1.0, "g": 1e-3, "t": 1e3, "lb": 0.45359237}
-_REQUIRED_GROUPS = {"value", "unit"}
-
-
-class ScaleConfig(BaseModel):
-    """How to reach the crane scale and how to read its lines."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-    port: str = Field("/dev/ttyUSB0", min_length=1)
-    """A device path or a pyserial URL such as ``socket://10.0.0.8:4001``."""
-    baudrate: int = Field(9600, gt=0, le=921600)
-    bytesize: Literal[7, 8] = 8
-    parity: Literal["N", "E", "O"] = "N"
-    stopbits: Literal[1, 2] = 1
-    mode: Literal["request", "stream"] = "request"
-    request_cmd: str = Field("S", min_length=1, max_length=8)
-    request_interval_s: float = Field(0.5, gt=0.0, le=60.0)
-    resolution_kg: float = Field(0.1, gt=0.0, le=100.0)
-    """The scale's d (HFB 300K100: 0.1 kg); sets the uncertainty and the agreement of consecutive frames."""
-    line_regex: str = KERN_LINE_REGEX
-    stable_tokens: tuple[str, ...] = ("ST",)
-    checksum: Literal["none", "xor8"] = "none"
-    stable_frames_required: int = Field(1, ge=1, le=100)
-    max_consecutive_bad_frames: int = Field(20, ge=1, le=10_000)
-    max_line_bytes: int = Field(128, ge=16, le=4096)
-    open_timeout_s: float = Field(3.0, gt=0.0, le=60.0)
-    default_timeout_s: float = Field(30.0, gt=0.0, le=3600.0)
-
-    @field_validator("line_regex")
-    @classmethod
-    def _regex_usable(cls, value: str) -> str:
-        try:
-            compiled = re.compile(value)
-        except re.error as exc:
-            raise ValueError(f"line_regex does not compile: {exc}") from exc
-        missing = _REQUIRED_GROUPS - set(compiled.groupindex)
-        if missing:
-            raise ValueError(f"line_regex lacks the named groups {sorted(missing)}")
-        return value
-
-    @property
-    def u_kg(self) -> float:
-        return self.resolution_kg / math.sqrt(3.0)
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,14 @@ Public API
     (7 + LVV + 3 bytes) rather than the header's length field, because KUKAVARPROXY's length field is not
     consistent across implementations (``kuka-facts.md`` §3).
 
+Layouts are declared once
+-------------------------
+Each message is a frozen dataclass whose fields are declared with :func:`wire` (the field's codec and the name
+errors give it) in wire order; ``TYPE`` is its message type and ``OP`` its #29/#30 operation byte. One generic
+walker (:class:`_Record`) encodes and decodes every such layout; the codecs (``U8`` … ``WSTR``, ``BLOB``,
+``_List``, ``_Array`` …) each write and read one kind of field. Only #17's request, whose count stands apart from
+its names, has a hand-written layout (:class:`_BenchmarkLayout`).
+
 Every decoder raises :class:`~rgse_daemon.errors.ProtocolError` on malformed bytes, never ``IndexError``,
 ``struct.error`` or ``UnicodeDecodeError``. Encoders raise ``ProtocolError`` when a field does not fit the wire
 (a string longer than 65535 units, a message longer than 65539 bytes, an integer out of range).
@@ -46,10 +54,11 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import operator
 import struct
 from dataclasses import dataclass, field
 from enum import IntEnum, IntFlag
-from typing import ClassVar
+from typing import Any, ClassVar, Protocol
 
 from rgse_daemon.errors import LinkClosed, ProtocolError
 
@@ -188,65 +197,10 @@ class CopyFlag(IntFlag):
     NO_KRL_ANALYSIS = 8192
 
 
-# --- primitive writer / reader ----------------------------------------------------------------------------------
-class _Writer:
-    __slots__ = ("buf",)
-
-    def __init__(self) -> None:
-        self.buf = bytearray()
-
-    def _pack(self, fmt: str, value: int, what: str) -> None:
-        try:
-            self.buf += struct.pack(fmt, value)
-        except struct.error as exc:
-            raise ProtocolError(f"{what}={value!r} does not fit the wire field ({fmt})") from exc
-
-    def u8(self, v: int, what: str = "u8") -> None:
-        self._pack(">B", v, what)
-
-    def boolean(self, v: bool) -> None:
-        self.buf.append(1 if v else 0)
-
-    def u16(self, v: int, what: str = "u16") -> None:
-        self._pack(">H", v, what)
-
-    def i16(self, v: int, what: str = "i16") -> None:
-        self._pack(">h", v, what)
-
-    def u32(self, v: int, what: str = "u32") -> None:
-        self._pack(">I", v, what)
-
-    def i32(self, v: int, what: str = "i32") -> None:
-        self._pack(">i", v, what)
-
-    def astr(self, s: str, what: str = "string") -> None:
-        """STRING of #0/#1: u16 byte count + ISO-8859-1 bytes."""
-        try:
-            raw = s.encode("latin-1")
-        except UnicodeEncodeError as exc:
-            raise ProtocolError(f"{what} {s[:40]!r} is not ISO-8859-1 text") from exc
-        if len(raw) > MAX_LENGTH_FIELD:
-            raise ProtocolError(f"{what} is {len(raw)} bytes, more than 65535")
-        self.u16(len(raw))
-        self.buf += raw
-
-    def wstr(self, s: str, what: str = "wstring") -> None:
-        """WSTRING: u16 count of UTF-16 units + UTF-16LE bytes."""
-        try:
-            raw = s.encode("utf-16-le")
-        except UnicodeEncodeError as exc:
-            raise ProtocolError(f"{what} {s[:40]!r} cannot be encoded as UTF-16") from exc
-        units = len(raw) // 2
-        if units > MAX_LENGTH_FIELD:
-            raise ProtocolError(f"{what} is {units} UTF-16 units, more than 65535")
-        self.u16(units)
-        self.buf += raw
-
-    def raw(self, b: bytes) -> None:
-        self.buf += b
-
-
+# --- wire codecs: each one writes and reads one kind of field --------------------------------------------------
 class _Reader:
+    """A cursor over one frame; every read that runs past the end raises ``ProtocolError`` naming the field."""
+
     __slots__ = ("data", "pos")
 
     def __init__(self, data: bytes | bytearray | memoryview, pos: int = 0) -> None:
@@ -261,39 +215,6 @@ class _Reader:
         self.pos = end
         return out
 
-    def _unpack(self, fmt: str, size: int, what: str) -> int:
-        return struct.unpack(fmt, self.take(size, what))[0]
-
-    def u8(self, what: str = "u8") -> int:
-        return self._unpack(">B", 1, what)
-
-    def boolean(self, what: str = "bool") -> bool:
-        return self._unpack(">B", 1, what) != 0
-
-    def u16(self, what: str = "u16") -> int:
-        return self._unpack(">H", 2, what)
-
-    def i16(self, what: str = "i16") -> int:
-        return self._unpack(">h", 2, what)
-
-    def u32(self, what: str = "u32") -> int:
-        return self._unpack(">I", 4, what)
-
-    def i32(self, what: str = "i32") -> int:
-        return self._unpack(">i", 4, what)
-
-    def astr(self, what: str = "string") -> str:
-        n = self.u16(f"length of {what}")
-        return self.take(n, what).decode("latin-1")
-
-    def wstr(self, what: str = "wstring") -> str:
-        n = self.u16(f"length of {what}")
-        raw = self.take(2 * n, what)
-        try:
-            return raw.decode("utf-16-le")
-        except UnicodeDecodeError as exc:
-            raise ProtocolError(f"{what} is not valid UTF-16LE: {exc.reason}") from exc
-
     def remaining(self) -> int:
         return len(self.data) - self.pos
 
@@ -302,11 +223,212 @@ class _Reader:
             raise ProtocolError(f"{what}: {len(self.data) - self.pos} unexpected trailing byte(s)")
 
 
+class _Codec(Protocol):
+    """One kind of wire field. ``what`` names the field in every error."""
+
+    def put(self, out: bytearray, value: Any, what: str) -> None: ...
+
+    def get(self, r: _Reader, what: str) -> Any: ...
+
+
+class _Int:
+    def __init__(self, fmt: str) -> None:
+        self.struct = struct.Struct(fmt)
+        bits = 8 * self.struct.size
+        self.lo, self.hi = (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if fmt.islower() else (0, (1 << bits) - 1)
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        try:
+            fits = self.lo <= operator.index(value) <= self.hi
+        except TypeError:
+            fits = False
+        if not fits:
+            raise ProtocolError(f"{what}={value!r} does not fit the wire field (an integer {self.lo}..{self.hi})")
+        out += self.struct.pack(value)
+
+    def get(self, r: _Reader, what: str) -> int:
+        value: int = self.struct.unpack(r.take(self.struct.size, what))[0]
+        return value
+
+
+class _Bool:
+    """Senders write 0 or 1; any non-zero byte reads as true (§1)."""
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        out.append(1 if value else 0)
+
+    def get(self, r: _Reader, what: str) -> bool:
+        return r.take(1, what)[0] != 0
+
+
+class _Text:
+    """A u16 length followed by the text, no terminator; the length counts units of ``unit`` bytes."""
+
+    def __init__(self, encoding: str, unit: int, kind: str) -> None:
+        self.encoding, self.unit, self.kind = encoding, unit, kind
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        if not isinstance(value, str):
+            raise ProtocolError(f"{what}={value!r} is not text")
+        try:
+            raw = value.encode(self.encoding)
+        except UnicodeEncodeError as exc:
+            raise ProtocolError(f"{what} {value[:40]!r} is not {self.kind} text") from exc
+        units = len(raw) // self.unit
+        if units > MAX_LENGTH_FIELD:
+            raise ProtocolError(f"{what} is {units} {self.kind} units long, more than 65535")
+        U16.put(out, units, f"length of {what}")
+        out += raw
+
+    def get(self, r: _Reader, what: str) -> str:
+        raw = r.take(self.unit * U16.get(r, f"length of {what}"), what)
+        try:
+            return raw.decode(self.encoding)
+        except UnicodeDecodeError as exc:
+            raise ProtocolError(f"{what} is not valid {self.kind}: {exc.reason}") from exc
+
+
+class _Blob:
+    """A u32 byte count followed by raw bytes (the data chunks of #29 / #30)."""
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        if not isinstance(value, bytes | bytearray | memoryview):
+            raise ProtocolError(f"{what}={value!r} is not bytes")
+        U32.put(out, len(value), f"size of {what}")
+        out += value
+
+    def get(self, r: _Reader, what: str) -> bytes:
+        return r.take(U32.get(r, f"size of {what}"), what)
+
+
+class _LowHigh64:
+    """A 64-bit unsigned number sent as two u32, low word first (#26 sizes and FILETIMEs)."""
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        if not isinstance(value, int) or not 0 <= value < 1 << 64:
+            raise ProtocolError(f"{what}={value!r} is not a 64-bit unsigned number")
+        U32.put(out, value & 0xFFFFFFFF, f"{what} low")
+        U32.put(out, value >> 32, f"{what} high")
+
+    def get(self, r: _Reader, what: str) -> int:
+        return U32.get(r, f"{what} low") | (U32.get(r, f"{what} high") << 32)
+
+
+class _TypeBitmap:
+    """#14: 32 bytes, the first covers types 255..248 and the last 7..0, the MSB being the higher type."""
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        bitmap = bytearray(32)
+        for t in value:
+            if not isinstance(t, int) or not 0 <= t <= 255:
+                raise ProtocolError(f"{what}: type {t!r} is not 0..255")
+            bitmap[31 - t // 8] |= 1 << (t % 8)
+        out += bitmap
+
+    def get(self, r: _Reader, what: str) -> frozenset[int]:
+        bitmap = r.take(32, what)
+        return frozenset((31 - i) * 8 + bit for i, byte in enumerate(bitmap) for bit in range(8) if byte & (1 << bit))
+
+
+class _Array:
+    """Exactly ``n`` items of one codec, no count on the wire."""
+
+    def __init__(self, item: _Codec, n: int) -> None:
+        self.item, self.n = item, n
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        if len(value) != self.n:
+            raise ProtocolError(f"{what} needs {self.n} fields, got {len(value)}")
+        for i, v in enumerate(value):
+            self.item.put(out, v, f"{what}[{i}]")
+
+    def get(self, r: _Reader, what: str) -> tuple[Any, ...]:
+        return tuple(self.item.get(r, f"{what}[{i}]") for i in range(self.n))
+
+
+class _List:
+    """A count (``count`` codec) followed by that many items."""
+
+    def __init__(self, count: _Int, item: _Codec) -> None:
+        self.count, self.item = count, item
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        self.count.put(out, len(value), f"number of {what}")
+        _Array(self.item, len(value)).put(out, value, what)
+
+    def get(self, r: _Reader, what: str) -> tuple[Any, ...]:
+        return _Array(self.item, self.count.get(r, f"number of {what}")).get(r, what)
+
+
+class _Pair:
+    """Two fields in a row, held as a plain tuple (#7's name and value)."""
+
+    def __init__(self, first: tuple[_Codec, str], second: tuple[_Codec, str]) -> None:
+        self.parts = (first, second)
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        if not isinstance(value, tuple | list) or len(value) != 2:
+            raise ProtocolError(f"{what}={value!r} is not a pair")
+        for (codec, name), v in zip(self.parts, value, strict=True):
+            codec.put(out, v, f"{name} of {what}")
+
+    def get(self, r: _Reader, what: str) -> tuple[Any, Any]:
+        (c1, n1), (c2, n2) = self.parts
+        return c1.get(r, f"{n1} of {what}"), c2.get(r, f"{n2} of {what}")
+
+
+U8, U16, I16, U32, I32 = _Int(">B"), _Int(">H"), _Int(">h"), _Int(">I"), _Int(">i")
+BOOL = _Bool()
+ASTR = _Text("latin-1", 1, "ISO-8859-1")
+WSTR = _Text("utf-16-le", 2, "UTF-16")
+BLOB = _Blob()
+U64 = _LowHigh64()
+_NAME_VALUE = _Pair((WSTR, "variable name"), (WSTR, "value"))
+
+
+def wire(codec: _Codec, what: str, *, optional: bool = False, **kw: Any) -> Any:
+    """Declare a message field: its wire ``codec`` and the name errors give it; ``kw`` as for ``dataclasses.field``.
+
+    Fields go on the wire in the order the dataclass declares them. ``optional=True`` opens an optional tail: this
+    field and every later one are sent only when this one is not ``None``, and read only when bytes remain.
+    """
+    return field(metadata={"wire": (codec, what, optional)}, **kw)
+
+
+class _Record:
+    """The wire layout of a dataclass, read from its :func:`wire` fields; the generic encode and decode walkers.
+
+    ``what`` is empty for a whole message; for a record inside one (a #6 entry) it prefixes its fields' names.
+    """
+
+    def __init__(self, cls: type) -> None:
+        self.cls = cls
+        self.fields = tuple((f.name, *f.metadata["wire"]) for f in dataclasses.fields(cls) if "wire" in f.metadata)
+        positional = [f.name for f in dataclasses.fields(cls) if not f.kw_only]
+        assert [name for name, *_ in self.fields] == positional, f"{cls.__name__}: every positional field is wired"
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        for name, codec, field_what, optional in self.fields:
+            v = getattr(value, name)
+            if optional and v is None:
+                return
+            codec.put(out, v, f"{what} {field_what}" if what else field_what)
+
+    def get(self, r: _Reader, what: str) -> Any:
+        values = []
+        for _, codec, field_what, optional in self.fields:
+            if optional and r.remaining() == 0:
+                break  # the later fields keep their defaults
+            values.append(codec.get(r, f"{what} {field_what}" if what else field_what))
+        return self.cls(*values)
+
+
 # --- messages ---------------------------------------------------------------------------------------------------
 class Request:
-    """Base of all request payloads. ``TYPE`` is the message type byte."""
+    """Base of all request payloads. ``TYPE`` is the message type byte; ``OP`` the #29/#30 operation byte."""
 
     TYPE: ClassVar[MsgType]
+    OP: ClassVar[FileOp | None] = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -314,6 +436,7 @@ class Reply:
     """Base of all response payloads; ``code`` and ``success`` are the 3-byte footer."""
 
     TYPE: ClassVar[MsgType]
+    OP: ClassVar[FileOp | None] = None
     code: int = ErrorCode.SUCCESS
     success: bool = True
 
@@ -325,39 +448,39 @@ class Reply:
 @dataclass(frozen=True)
 class ReadVarAscii(Request):
     TYPE: ClassVar[MsgType] = MsgType.READ_VAR_ASCII
-    name: str
+    name: str = wire(ASTR, "variable name")
 
 
 @dataclass(frozen=True)
 class WriteVarAscii(Request):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_VAR_ASCII
-    name: str
-    value: str
+    name: str = wire(ASTR, "variable name")
+    value: str = wire(ASTR, "value")
 
 
 @dataclass(frozen=True)
 class ReadVar(Request):
     TYPE: ClassVar[MsgType] = MsgType.READ_VAR
-    name: str
+    name: str = wire(WSTR, "variable name")
 
 
 @dataclass(frozen=True)
 class WriteVar(Request):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_VAR
-    name: str
-    value: str
+    name: str = wire(WSTR, "variable name")
+    value: str = wire(WSTR, "value")
 
 
 @dataclass(frozen=True)
 class ReadMulti(Request):
     TYPE: ClassVar[MsgType] = MsgType.READ_MULTI
-    names: tuple[str, ...]
+    names: tuple[str, ...] = wire(_List(U8, WSTR), "variable names")
 
 
 @dataclass(frozen=True)
 class WriteMulti(Request):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_MULTI
-    items: tuple[tuple[str, str], ...]
+    items: tuple[tuple[str, str], ...] = wire(_List(U8, _NAME_VALUE), "items")
     """(name, value) pairs."""
 
 
@@ -367,11 +490,11 @@ class ProgramControl(Request):
     otherwise subtype II (cmd 5 select / 6 run ``name`` with ``params``, ``force``)."""
 
     TYPE: ClassVar[MsgType] = MsgType.PROGRAM_CONTROL
-    cmd: int
-    interpreter: int = Interpreter.ROBOT
-    name: str | None = None
-    params: str = ""
-    force: bool = False
+    cmd: int = wire(U8, "program command")
+    interpreter: int = wire(I16, "interpreter", default=Interpreter.ROBOT)
+    name: str | None = wire(WSTR, "program name", optional=True, default=None)
+    params: str = wire(WSTR, "program parameters", default="")
+    force: bool = wire(BOOL, "force", default=False)
 
 
 @dataclass(frozen=True)
@@ -386,7 +509,11 @@ class ProxyFeatures(Request):
 
 @dataclass(frozen=True)
 class Benchmark(Request):
-    """#17: time ``iterations`` reads (or writes, when ``write``) of ``names`` on the server."""
+    """#17: time ``iterations`` reads (or writes, when ``write``) of ``names`` on the server.
+
+    Its layout is the one :func:`wire` cannot declare (the name count stands before ``iterations``, and a value
+    follows each name only when ``write``): :class:`_BenchmarkLayout` writes and reads it.
+    """
 
     TYPE: ClassVar[MsgType] = MsgType.BENCHMARK
     write: bool
@@ -401,17 +528,17 @@ class SetAttribute(Request):
     """#20: set the bits of ``attributes`` selected by ``mask`` (both INT32) on ``name``."""
 
     TYPE: ClassVar[MsgType] = MsgType.SET_ATTRIBUTE
-    attributes: int
-    mask: int
-    name: str
+    attributes: int = wire(I32, "attributes")
+    mask: int = wire(I32, "attribute mask")
+    name: str = wire(WSTR, "file name")
 
 
 @dataclass(frozen=True)
 class NameList(Request):
     TYPE: ClassVar[MsgType] = MsgType.NAME_LIST
-    item_type: int
-    list_flags: int
-    path: str
+    item_type: int = wire(I32, "item type")
+    list_flags: int = wire(I32, "list flags")
+    path: str = wire(WSTR, "path")
 
 
 @dataclass(frozen=True)
@@ -419,102 +546,113 @@ class Create(Request):
     """#22: create ``name``; ``item_type`` is a UINT16 on the wire (unlike #21's INT32), ``module_part`` a UINT8."""
 
     TYPE: ClassVar[MsgType] = MsgType.CREATE
-    item_type: int
-    module_part: int
-    always: bool
-    name: str
-    template: str = ""
+    item_type: int = wire(U16, "item type")
+    module_part: int = wire(U8, "module part")
+    always: bool = wire(BOOL, "always")
+    name: str = wire(WSTR, "file name")
+    template: str = wire(WSTR, "template name", default="")
 
 
 @dataclass(frozen=True)
 class Delete(Request):
     TYPE: ClassVar[MsgType] = MsgType.DELETE
-    always: bool
-    name: str
+    always: bool = wire(BOOL, "always")
+    name: str = wire(WSTR, "file name")
 
 
 @dataclass(frozen=True)
 class Copy(Request):
     TYPE: ClassVar[MsgType] = MsgType.COPY
-    copy_flags: int
-    source: str
-    destination: str
+    copy_flags: int = wire(I32, "copy flags")
+    source: str = wire(WSTR, "source")
+    destination: str = wire(WSTR, "destination")
 
 
 @dataclass(frozen=True)
 class Move(Request):
     TYPE: ClassVar[MsgType] = MsgType.MOVE
-    copy_flags: int
-    source: str
-    destination: str
+    copy_flags: int = wire(I32, "copy flags")
+    source: str = wire(WSTR, "source")
+    destination: str = wire(WSTR, "destination")
 
 
 @dataclass(frozen=True)
 class GetProperties(Request):
     TYPE: ClassVar[MsgType] = MsgType.GET_PROPERTIES
-    flags: int
-    name: str
+    flags: int = wire(I32, "property flags")
+    name: str = wire(WSTR, "file name")
 
 
 @dataclass(frozen=True)
 class GetFullName(Request):
     TYPE: ClassVar[MsgType] = MsgType.GET_FULL_NAME
-    path: str
+    path: str = wire(WSTR, "path")
 
 
 @dataclass(frozen=True)
 class GetKrcName(Request):
     TYPE: ClassVar[MsgType] = MsgType.GET_KRC_NAME
-    path: str
+    path: str = wire(WSTR, "path")
 
 
 @dataclass(frozen=True)
 class WriteContentBegin(Request):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
-    total_size: int
+    OP: ClassVar[FileOp] = FileOp.BEGIN
+    total_size: int = wire(U32, "total size")
 
 
 @dataclass(frozen=True)
 class WriteContentData(Request):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
-    offset: int
-    data: bytes
+    OP: ClassVar[FileOp] = FileOp.DATA
+    offset: int = wire(U32, "offset")
+    data: bytes = wire(BLOB, "chunk data")
 
 
 @dataclass(frozen=True)
 class WriteContentGetSize(Request):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
+    OP: ClassVar[FileOp] = FileOp.GET_SIZE
 
 
 @dataclass(frozen=True)
 class WriteContentEnd(Request):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
-    copy_flags: int
-    file_name: str
+    OP: ClassVar[FileOp] = FileOp.END
+    copy_flags: int = wire(I32, "copy flags")
+    file_name: str = wire(WSTR, "file name")
 
 
 @dataclass(frozen=True)
 class ReadContentBegin(Request):
+    """#30 Begin. The spec's table shows a UINT32 name length at @10 (name at @14); the server source reads a UINT16
+    length at @10 (name at @12), as in #29 End. We follow the source."""
+
     TYPE: ClassVar[MsgType] = MsgType.READ_CONTENT
-    copy_flags: int
-    file_name: str
+    OP: ClassVar[FileOp] = FileOp.BEGIN
+    copy_flags: int = wire(I32, "copy flags")
+    file_name: str = wire(WSTR, "file name")
 
 
 @dataclass(frozen=True)
 class ReadContentData(Request):
     TYPE: ClassVar[MsgType] = MsgType.READ_CONTENT
-    offset: int
-    max_chunk: int = READ_CHUNK_AS_MUCH_AS_POSSIBLE
+    OP: ClassVar[FileOp] = FileOp.DATA
+    offset: int = wire(U32, "offset")
+    max_chunk: int = wire(U32, "max chunk", default=READ_CHUNK_AS_MUCH_AS_POSSIBLE)
 
 
 @dataclass(frozen=True)
 class ReadContentGetSize(Request):
     TYPE: ClassVar[MsgType] = MsgType.READ_CONTENT
+    OP: ClassVar[FileOp] = FileOp.GET_SIZE
 
 
 @dataclass(frozen=True)
 class ReadContentEnd(Request):
     TYPE: ClassVar[MsgType] = MsgType.READ_CONTENT
+    OP: ClassVar[FileOp] = FileOp.END
 
 
 @dataclass(frozen=True)
@@ -526,53 +664,56 @@ class ConfirmAll(Request):
 @dataclass(frozen=True)
 class ReadVarAsciiReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.READ_VAR_ASCII
-    value: str
+    value: str = wire(ASTR, "value")
 
 
 @dataclass(frozen=True)
 class WriteVarAsciiReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_VAR_ASCII
-    value: str
+    value: str = wire(ASTR, "value")
 
 
 @dataclass(frozen=True)
 class ReadVarReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.READ_VAR
-    value: str
+    value: str = wire(WSTR, "value")
 
 
 @dataclass(frozen=True)
 class WriteVarReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_VAR
-    value: str
+    value: str = wire(WSTR, "value")
 
 
 @dataclass(frozen=True)
 class MultiEntry:
-    code: int
-    value: str
+    code: int = wire(U8, "entry code")
+    value: str = wire(WSTR, "value")
 
     @property
     def ok(self) -> bool:
         return self.code == ErrorCode.SUCCESS
 
 
+_ENTRIES = _List(U8, _Record(MultiEntry))
+
+
 @dataclass(frozen=True)
 class ReadMultiReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.READ_MULTI
-    entries: tuple[MultiEntry, ...]
+    entries: tuple[MultiEntry, ...] = wire(_ENTRIES, "entries")
 
 
 @dataclass(frozen=True)
 class WriteMultiReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_MULTI
-    entries: tuple[MultiEntry, ...]
+    entries: tuple[MultiEntry, ...] = wire(_ENTRIES, "entries")
 
 
 @dataclass(frozen=True)
 class ProgramControlReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.PROGRAM_CONTROL
-    cmd: int
+    cmd: int = wire(U8, "program command")
 
 
 @dataclass(frozen=True)
@@ -580,11 +721,11 @@ class ProxyInfoReply(Reply):
     """#13. ``utc`` = (year, month, dayOfWeek, day, hour, minute, second, millisecond)."""
 
     TYPE: ClassVar[MsgType] = MsgType.PROXY_INFO
-    major: int
-    minor: int
-    build_type: int
-    utc: tuple[int, int, int, int, int, int, int, int]
-    computer_name: str
+    major: int = wire(U8, "major")
+    minor: int = wire(U8, "minor")
+    build_type: int = wire(U8, "build type")
+    utc: tuple[int, int, int, int, int, int, int, int] = wire(_Array(U16, 8), "utc")
+    computer_name: str = wire(WSTR, "computer name")
 
 
 @dataclass(frozen=True)
@@ -592,25 +733,25 @@ class ProxyFeaturesReply(Reply):
     """#14. ``types``: the set of supported message type numbers (0–255)."""
 
     TYPE: ClassVar[MsgType] = MsgType.PROXY_FEATURES
-    types: frozenset[int]
+    types: frozenset[int] = wire(_TypeBitmap(), "feature bitmap")
 
 
 @dataclass(frozen=True)
 class BenchmarkReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.BENCHMARK
-    write: bool
-    count: int
-    iterations: int
-    start_ms: int
-    stop_ms: int
-    diff_ms: int
+    write: bool = wire(BOOL, "write")
+    count: int = wire(U8, "count")
+    iterations: int = wire(U32, "iterations")
+    start_ms: int = wire(U32, "start ms")
+    stop_ms: int = wire(U32, "stop ms")
+    diff_ms: int = wire(U32, "diff ms")
 
 
 @dataclass(frozen=True)
 class NameListReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.NAME_LIST
-    items: tuple[str, ...]
-    infos: tuple[str, ...] = ()
+    items: tuple[str, ...] = wire(_List(U16, WSTR), "items")
+    infos: tuple[str, ...] = wire(_List(U16, WSTR), "infos", default=())
 
 
 @dataclass(frozen=True)
@@ -622,29 +763,29 @@ class GetPropertiesReply(Reply):
     """
 
     TYPE: ClassVar[MsgType] = MsgType.GET_PROPERTIES
-    item_type: int
-    size_bytes: int
-    attributes: int
-    creation_filetime: int
-    creation_bias_min: int
-    access_filetime: int
-    access_bias_min: int
-    modified_filetime: int
-    modified_bias_min: int
-    edit_mode: int
-    name: str
+    item_type: int = wire(I32, "item type")
+    size_bytes: int = wire(U64, "size")
+    attributes: int = wire(I32, "attributes")
+    creation_filetime: int = wire(U64, "creation time")
+    creation_bias_min: int = wire(I32, "creation bias")
+    access_filetime: int = wire(U64, "access time")
+    access_bias_min: int = wire(I32, "access bias")
+    modified_filetime: int = wire(U64, "modified time")
+    modified_bias_min: int = wire(I32, "modified bias")
+    edit_mode: int = wire(I32, "edit mode")
+    name: str = wire(WSTR, "item name")
 
 
 @dataclass(frozen=True)
 class GetFullNameReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.GET_FULL_NAME
-    path: str
+    path: str = wire(WSTR, "path")
 
 
 @dataclass(frozen=True)
 class GetKrcNameReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.GET_KRC_NAME
-    path: str
+    path: str = wire(WSTR, "path")
 
 
 @dataclass(frozen=True)
@@ -685,49 +826,57 @@ class MoveReply(Reply):
 @dataclass(frozen=True)
 class WriteContentBeginReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
-    buffer_size: int
+    OP: ClassVar[FileOp] = FileOp.BEGIN
+    buffer_size: int = wire(U32, "buffer size")
 
 
 @dataclass(frozen=True)
 class WriteContentGetSizeReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
-    buffer_size: int
+    OP: ClassVar[FileOp] = FileOp.GET_SIZE
+    buffer_size: int = wire(U32, "buffer size")
 
 
 @dataclass(frozen=True)
 class WriteContentDataReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
-    offset: int
-    written: int
+    OP: ClassVar[FileOp] = FileOp.DATA
+    offset: int = wire(U32, "offset")
+    written: int = wire(U32, "bytes written")
 
 
 @dataclass(frozen=True)
 class WriteContentEndReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.WRITE_CONTENT
+    OP: ClassVar[FileOp] = FileOp.END
 
 
 @dataclass(frozen=True)
 class ReadContentBeginReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.READ_CONTENT
-    file_size: int
+    OP: ClassVar[FileOp] = FileOp.BEGIN
+    file_size: int = wire(U32, "file size")
 
 
 @dataclass(frozen=True)
 class ReadContentGetSizeReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.READ_CONTENT
-    size: int
+    OP: ClassVar[FileOp] = FileOp.GET_SIZE
+    size: int = wire(U32, "size")
 
 
 @dataclass(frozen=True)
 class ReadContentDataReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.READ_CONTENT
-    offset: int
-    data: bytes
+    OP: ClassVar[FileOp] = FileOp.DATA
+    offset: int = wire(U32, "offset")
+    data: bytes = wire(BLOB, "chunk data")
 
 
 @dataclass(frozen=True)
 class ReadContentEndReply(Reply):
     TYPE: ClassVar[MsgType] = MsgType.READ_CONTENT
+    OP: ClassVar[FileOp] = FileOp.END
 
 
 @dataclass(frozen=True)
@@ -745,203 +894,74 @@ class FailureReply(Reply):
     code: int = field(default=ErrorCode.GENERAL, kw_only=True)
 
 
-# --- payload encoders -------------------------------------------------------------------------------------------
-def _enc_req_payload(w: _Writer, req: Request) -> None:
-    match req:
-        case ReadVarAscii(name=name):
-            w.astr(name, "variable name")
-        case WriteVarAscii(name=name, value=value):
-            w.astr(name, "variable name")
-            w.astr(value, "value")
-        case ReadVar(name=name):
-            w.wstr(name, "variable name")
-        case WriteVar(name=name, value=value):
-            w.wstr(name, "variable name")
-            w.wstr(value, "value")
-        case ReadMulti(names=names):
-            w.u8(len(names), "number of names (max 255)")
-            for n in names:
-                w.wstr(n, "variable name")
-        case WriteMulti(items=items):
-            w.u8(len(items), "number of items (max 255)")
-            for n, v in items:
-                w.wstr(n, "variable name")
-                w.wstr(v, "value")
-        case ProgramControl(cmd=cmd, interpreter=interp, name=name, params=params, force=force):
-            w.u8(cmd, "program command")
-            w.i16(interp, "interpreter")
-            if name is not None:
-                w.wstr(name, "program name")
-                w.wstr(params, "program parameters")
-                w.boolean(force)
-        case ProxyInfo() | ProxyFeatures() | ConfirmAll():
-            pass  # no payload after the type byte
-        case Benchmark(write=write, iterations=iterations, names=names, values=values):
-            if write and len(values) != len(names):
-                raise ProtocolError(f"benchmark write needs one value per name ({len(names)} names, {len(values)})")
-            if not write and values:
-                raise ProtocolError("benchmark read carries no values")
-            w.boolean(write)
-            w.u8(len(names), "number of names (max 255)")
-            w.u32(iterations, "iterations")
-            for i, n in enumerate(names):
-                w.wstr(n, "variable name")
-                if write:
-                    w.wstr(values[i], "value")
-        case SetAttribute(attributes=attrs, mask=mask, name=name):
-            w.i32(attrs, "attributes")
-            w.i32(mask, "attribute mask")
-            w.wstr(name, "file name")
-        case NameList(item_type=it, list_flags=lf, path=path):
-            w.i32(it, "item type")
-            w.i32(lf, "list flags")
-            w.wstr(path, "path")
-        case Create(item_type=it, module_part=mp, always=always, name=name, template=template):
-            w.u16(it, "item type")
-            w.u8(mp, "module part")
-            w.boolean(always)
-            w.wstr(name, "file name")
-            w.wstr(template, "template name")
-        case Delete(always=always, name=name):
-            w.boolean(always)
-            w.wstr(name, "file name")
-        case Copy(copy_flags=cf, source=src, destination=dst) | Move(copy_flags=cf, source=src, destination=dst):
-            w.i32(cf, "copy flags")
-            w.wstr(src, "source")
-            w.wstr(dst, "destination")
-        case GetProperties(flags=flags, name=name):
-            w.i32(flags, "property flags")
-            w.wstr(name, "file name")
-        case GetFullName(path=path) | GetKrcName(path=path):
-            w.wstr(path, "path")
-        case WriteContentBegin(total_size=size):
-            w.u8(FileOp.BEGIN)
-            w.u32(size, "total size")
-        case WriteContentData(offset=offset, data=data):
-            w.u8(FileOp.DATA)
-            w.u32(offset, "offset")
-            w.u32(len(data), "chunk size")
-            w.raw(data)
-        case WriteContentGetSize() | ReadContentGetSize():
-            w.u8(FileOp.GET_SIZE)
-        case WriteContentEnd(copy_flags=cf, file_name=fn) | ReadContentBegin(copy_flags=cf, file_name=fn):
-            w.u8(FileOp.END if isinstance(req, WriteContentEnd) else FileOp.BEGIN)
-            w.i32(cf, "copy flags")
-            # #30 Begin: the spec's table shows a UINT32 name length at @10 (name at @14); the server source
-            # reads a UINT16 length at @10 (name at @12), as in #29 End. We follow the source.
-            w.wstr(fn, "file name")
-        case ReadContentData(offset=offset, max_chunk=mc):
-            w.u8(FileOp.DATA)
-            w.u32(offset, "offset")
-            w.u32(mc, "max chunk")
-        case ReadContentEnd():
-            w.u8(FileOp.END)
-        case _:
-            raise ProtocolError(f"not an encodable request: {req!r}")
+# --- layouts by message class and by (type, op) -------------------------------------------------------------------
 
 
-def _filetime_parts(ft: int, what: str) -> tuple[int, int]:
-    if not 0 <= ft < 1 << 64:
-        raise ProtocolError(f"{what}={ft} is not a 64-bit FILETIME")
-    return ft & 0xFFFFFFFF, ft >> 32
+class _BenchmarkLayout:
+    """#17 request: BOOL write, UINT8 count, UINT32 iterations, then count × (wstr name [, wstr value if write])."""
+
+    def put(self, out: bytearray, value: Any, what: str) -> None:
+        if value.write and len(value.values) != len(value.names):
+            n_names, n_values = len(value.names), len(value.values)
+            raise ProtocolError(f"benchmark write needs one value per name ({n_names} names, {n_values} values)")
+        if not value.write and value.values:
+            raise ProtocolError("benchmark read carries no values")
+        items = tuple(zip(value.names, value.values, strict=True)) if value.write else value.names
+        BOOL.put(out, value.write, "write")
+        U8.put(out, len(items), "number of variables")
+        U32.put(out, value.iterations, "iterations")
+        _Array(_NAME_VALUE if value.write else WSTR, len(items)).put(out, items, "variables")
+
+    def get(self, r: _Reader, what: str) -> Benchmark:
+        write, n = BOOL.get(r, "write"), U8.get(r, "number of variables")
+        iterations = U32.get(r, "iterations")
+        items = _Array(_NAME_VALUE if write else WSTR, n).get(r, "variables")
+        if write:
+            return Benchmark(write, iterations, tuple(k for k, _ in items), tuple(v for _, v in items))
+        return Benchmark(write, iterations, items)
 
 
-def _enc_rsp_payload(w: _Writer, rsp: Reply) -> None:
-    match rsp:
-        case ReadVarAsciiReply(value=v) | WriteVarAsciiReply(value=v):
-            w.astr(v, "value")
-        case ReadVarReply(value=v) | WriteVarReply(value=v):
-            w.wstr(v, "value")
-        case ReadMultiReply(entries=entries) | WriteMultiReply(entries=entries):
-            w.u8(len(entries), "number of entries (max 255)")
-            for e in entries:
-                w.u8(e.code, "entry code")
-                w.wstr(e.value, "value")
-        case ProgramControlReply(cmd=cmd):
-            w.u8(cmd, "program command")
-        case ProxyInfoReply(major=ma, minor=mi, build_type=bt, utc=utc, computer_name=cn):
-            w.u8(ma, "major")
-            w.u8(mi, "minor")
-            w.u8(bt, "build type")
-            if len(utc) != 8:
-                raise ProtocolError(f"proxy info utc needs 8 fields, got {len(utc)}")
-            for x in utc:
-                w.u16(x, "utc field")
-            w.wstr(cn, "computer name")
-        case ProxyFeaturesReply(types=types):
-            bitmap = bytearray(32)
-            for t in types:
-                if not 0 <= t <= 255:
-                    raise ProtocolError(f"feature type {t} is not 0..255")
-                bitmap[31 - t // 8] |= 1 << (t % 8)
-            w.raw(bytes(bitmap))
-        case BenchmarkReply(write=wr, count=c, iterations=it, start_ms=s, stop_ms=e, diff_ms=d):
-            w.boolean(wr)
-            w.u8(c, "count")
-            w.u32(it, "iterations")
-            w.u32(s, "start ms")
-            w.u32(e, "stop ms")
-            w.u32(d, "diff ms")
-        case NameListReply(items=items, infos=infos):
-            w.u16(len(items), "number of items")
-            for s in items:
-                w.wstr(s, "item")
-            w.u16(len(infos), "number of infos")
-            for s in infos:
-                w.wstr(s, "info")
-        case GetPropertiesReply() as p:
-            size_lo, size_hi = _filetime_parts(p.size_bytes, "size_bytes")
-            w.i32(p.item_type, "item type")
-            w.u32(size_lo)
-            w.u32(size_hi)
-            w.i32(p.attributes, "attributes")
-            for ft, bias, what in (
-                (p.creation_filetime, p.creation_bias_min, "creation"),
-                (p.access_filetime, p.access_bias_min, "access"),
-                (p.modified_filetime, p.modified_bias_min, "modified"),
-            ):
-                lo, hi = _filetime_parts(ft, f"{what} time")
-                w.u32(lo)
-                w.u32(hi)
-                w.i32(bias, f"{what} bias")
-            w.i32(p.edit_mode, "edit mode")
-            w.wstr(p.name, "item name")
-        case GetFullNameReply(path=path) | GetKrcNameReply(path=path):
-            w.wstr(path, "path")
-        case SetAttributeReply() | CreateReply() | DeleteReply() | CopyReply() | MoveReply():
-            pass  # footer only (Message Length 4)
-        case WriteContentBeginReply(buffer_size=n):
-            w.u8(FileOp.BEGIN)
-            w.u32(n, "buffer size")
-        case WriteContentGetSizeReply(buffer_size=n):
-            w.u8(FileOp.GET_SIZE)
-            w.u32(n, "buffer size")
-        case WriteContentDataReply(offset=o, written=n):
-            w.u8(FileOp.DATA)
-            w.u32(o, "offset")
-            w.u32(n, "bytes written")
-        case WriteContentEndReply() | ReadContentEndReply():
-            w.u8(FileOp.END)
-        case ReadContentBeginReply(file_size=n):
-            w.u8(FileOp.BEGIN)
-            w.u32(n, "file size")
-        case ReadContentGetSizeReply(size=n):
-            w.u8(FileOp.GET_SIZE)
-            w.u32(n, "size")
-        case ReadContentDataReply(offset=o, data=data):
-            w.u8(FileOp.DATA)
-            w.u32(o, "offset")
-            w.u32(len(data), "chunk size")
-            w.raw(data)
-        case ConfirmAllReply():
-            pass  # footer only
-        case FailureReply(payload=payload):
-            w.raw(payload)
-        case _:
-            raise ProtocolError(f"not an encodable reply: {rsp!r}")
+class _Catalogue:
+    """The message classes of one direction (each a direct subclass of ``base``) and the layout of each."""
+
+    def __init__(self, base: type, kind: str) -> None:
+        self.kind = kind
+        self.layouts: dict[type, _Codec] = {
+            cls: _BenchmarkLayout() if cls is Benchmark else _Record(cls)
+            for cls in base.__subclasses__()
+            if "TYPE" in vars(cls)  # FailureReply has no layout of its own
+        }
+        self.classes = {(cls.TYPE, cls.OP): cls for cls in self.layouts}
+        assert len(self.classes) == len(self.layouts), f"two {kind} classes share a message type and operation"
+
+    def put(self, out: bytearray, msg: Request | Reply) -> None:
+        layout = self.layouts.get(type(msg))
+        if layout is None:
+            raise ProtocolError(f"not an encodable {self.kind}: {msg!r}")
+        if msg.OP is not None:
+            U8.put(out, msg.OP, "file operation")
+        layout.put(out, msg, "")
+
+    def get(self, r: _Reader, msg_type: int) -> Any:
+        op = U8.get(r, "file operation") if msg_type in _FILE_TYPES else None
+        cls = self.classes.get((msg_type, op))
+        if cls is None and op is None:
+            raise ProtocolError(f"unknown {self.kind} message type {msg_type}")
+        if cls is None:
+            raise ProtocolError(f"message type {msg_type}: unknown file operation {op} in a {self.kind}")
+        msg = self.layouts[cls].get(r, "")
+        r.end(f"{self.kind} type {msg_type}")
+        return msg
 
 
-def _frame(tag: int, msg_type: int, body: bytes) -> bytes:
+_FILE_TYPES = frozenset((MsgType.WRITE_CONTENT, MsgType.READ_CONTENT))
+_KNOWN_TYPES = frozenset(int(t) for t in MsgType)
+_REQUESTS = _Catalogue(Request, "request")
+_REPLIES = _Catalogue(Reply, "reply")
+
+
+# --- frames -------------------------------------------------------------------------------------------------------
+def _frame(tag: int, msg_type: int, body: bytes | bytearray) -> bytes:
     length = 1 + len(body)
     if length > MAX_LENGTH_FIELD:
         raise ProtocolError(f"message type {msg_type} would be {length + 4} bytes, more than {MAX_FRAME_SIZE}")
@@ -954,19 +974,23 @@ def _frame(tag: int, msg_type: int, body: bytes) -> bytes:
 
 def encode_request(tag: int, req: Request) -> bytes:
     """Encode a whole request frame (header + payload; requests carry no footer)."""
-    w = _Writer()
-    _enc_req_payload(w, req)
-    return _frame(tag, req.TYPE, bytes(w.buf))
+    out = bytearray()
+    _REQUESTS.put(out, req)
+    return _frame(tag, req.TYPE, out)
 
 
 def encode_response(tag: int, rsp: Reply) -> bytes:
     """Encode a whole response frame (header + payload + footer)."""
-    w = _Writer()
-    _enc_rsp_payload(w, rsp)
-    w.u16(int(rsp.code), "error code")
-    w.boolean(rsp.success)
-    msg_type = rsp.msg_type if isinstance(rsp, FailureReply) else rsp.TYPE
-    return _frame(tag, msg_type, bytes(w.buf))
+    out = bytearray()
+    if isinstance(rsp, FailureReply):
+        out += rsp.payload
+        msg_type = rsp.msg_type
+    else:
+        _REPLIES.put(out, rsp)
+        msg_type = rsp.TYPE
+    U16.put(out, rsp.code, "error code")
+    BOOL.put(out, rsp.success, "success")
+    return _frame(tag, msg_type, out)
 
 
 def encode(tag: int, msg: Request | Reply) -> bytes:
@@ -978,12 +1002,11 @@ def encode(tag: int, msg: Request | Reply) -> bytes:
     raise ProtocolError(f"not a message: {msg!r}")
 
 
-# --- decoders ---------------------------------------------------------------------------------------------------
 def _header(frame: bytes | bytearray | memoryview, *, ascii_reply: bool = False) -> tuple[int, int, _Reader]:
     r = _Reader(frame)
-    tag = r.u16("tag")
-    length = r.u16("length")
-    msg_type = r.u8("message type")
+    tag = U16.get(r, "tag")
+    length = U16.get(r, "length")
+    msg_type = U8.get(r, "message type")
     if length == 0 and not ascii_reply:
         raise ProtocolError("message length 0")
     if not ascii_reply and length + 4 != len(r.data):
@@ -991,195 +1014,10 @@ def _header(frame: bytes | bytearray | memoryview, *, ascii_reply: bool = False)
     return tag, msg_type, r
 
 
-def _dec_file_req(r: _Reader, msg_type: int) -> Request:
-    op = r.u8("file operation")
-    if msg_type == MsgType.WRITE_CONTENT:
-        if op == FileOp.BEGIN:
-            return WriteContentBegin(r.u32("total size"))
-        if op == FileOp.DATA:
-            offset = r.u32("offset")
-            size = r.u32("chunk size")
-            return WriteContentData(offset, r.take(size, "chunk data"))
-        if op == FileOp.GET_SIZE:
-            return WriteContentGetSize()
-        if op == FileOp.END:
-            return WriteContentEnd(r.i32("copy flags"), r.wstr("file name"))
-    else:
-        if op == FileOp.BEGIN:
-            return ReadContentBegin(r.i32("copy flags"), r.wstr("file name"))
-        if op == FileOp.DATA:
-            return ReadContentData(r.u32("offset"), r.u32("max chunk"))
-        if op == FileOp.GET_SIZE:
-            return ReadContentGetSize()
-        if op == FileOp.END:
-            return ReadContentEnd()
-    raise ProtocolError(f"message type {msg_type}: unknown file operation {op}")
-
-
-def _dec_req_payload(r: _Reader, msg_type: int) -> Request:
-    match msg_type:
-        case MsgType.READ_VAR_ASCII:
-            return ReadVarAscii(r.astr("variable name"))
-        case MsgType.WRITE_VAR_ASCII:
-            return WriteVarAscii(r.astr("variable name"), r.astr("value"))
-        case MsgType.READ_VAR:
-            return ReadVar(r.wstr("variable name"))
-        case MsgType.WRITE_VAR:
-            return WriteVar(r.wstr("variable name"), r.wstr("value"))
-        case MsgType.READ_MULTI:
-            n = r.u8("number of names")
-            return ReadMulti(tuple(r.wstr("variable name") for _ in range(n)))
-        case MsgType.WRITE_MULTI:
-            n = r.u8("number of items")
-            return WriteMulti(tuple((r.wstr("variable name"), r.wstr("value")) for _ in range(n)))
-        case MsgType.PROGRAM_CONTROL:
-            cmd = r.u8("program command")
-            interp = r.i16("interpreter")
-            if r.remaining() == 0:
-                return ProgramControl(cmd, interp)
-            return ProgramControl(cmd, interp, r.wstr("program name"), r.wstr("program parameters"), r.boolean())
-        case MsgType.PROXY_INFO:
-            return ProxyInfo()
-        case MsgType.PROXY_FEATURES:
-            return ProxyFeatures()
-        case MsgType.BENCHMARK:
-            write = r.boolean()
-            n = r.u8("count")
-            iterations = r.u32("iterations")
-            names: list[str] = []
-            values: list[str] = []
-            for _ in range(n):
-                names.append(r.wstr("variable name"))
-                if write:
-                    values.append(r.wstr("value"))
-            return Benchmark(write, iterations, tuple(names), tuple(values))
-        case MsgType.SET_ATTRIBUTE:
-            return SetAttribute(r.i32("attributes"), r.i32("attribute mask"), r.wstr("file name"))
-        case MsgType.NAME_LIST:
-            return NameList(r.i32("item type"), r.i32("list flags"), r.wstr("path"))
-        case MsgType.CREATE:
-            return Create(
-                r.u16("item type"), r.u8("module part"), r.boolean("always"), r.wstr("file name"), r.wstr("template")
-            )
-        case MsgType.DELETE:
-            return Delete(r.boolean("always"), r.wstr("file name"))
-        case MsgType.COPY:
-            return Copy(r.i32("copy flags"), r.wstr("source"), r.wstr("destination"))
-        case MsgType.MOVE:
-            return Move(r.i32("copy flags"), r.wstr("source"), r.wstr("destination"))
-        case MsgType.GET_PROPERTIES:
-            return GetProperties(r.i32("property flags"), r.wstr("file name"))
-        case MsgType.GET_FULL_NAME:
-            return GetFullName(r.wstr("path"))
-        case MsgType.GET_KRC_NAME:
-            return GetKrcName(r.wstr("path"))
-        case MsgType.WRITE_CONTENT | MsgType.READ_CONTENT:
-            return _dec_file_req(r, msg_type)
-        case MsgType.CONFIRM_ALL:
-            return ConfirmAll()
-    raise ProtocolError(f"unknown request message type {msg_type}")
-
-
 def decode_request(frame: bytes | bytearray | memoryview) -> tuple[int, Request]:
     """Decode one whole request frame into ``(tag, request)``; ``ProtocolError`` if malformed or unknown type."""
     tag, msg_type, r = _header(frame)
-    req = _dec_req_payload(r, msg_type)
-    r.end(f"request type {msg_type}")
-    return tag, req
-
-
-def _dec_file_rsp(r: _Reader, msg_type: int) -> Reply:
-    op = r.u8("file operation")
-    if msg_type == MsgType.WRITE_CONTENT:
-        if op == FileOp.BEGIN:
-            return WriteContentBeginReply(r.u32("buffer size"))
-        if op == FileOp.GET_SIZE:
-            return WriteContentGetSizeReply(r.u32("buffer size"))
-        if op == FileOp.DATA:
-            return WriteContentDataReply(r.u32("offset"), r.u32("bytes written"))
-        if op == FileOp.END:
-            return WriteContentEndReply()
-    else:
-        if op == FileOp.BEGIN:
-            return ReadContentBeginReply(r.u32("file size"))
-        if op == FileOp.GET_SIZE:
-            return ReadContentGetSizeReply(r.u32("size"))
-        if op == FileOp.DATA:
-            offset = r.u32("offset")
-            n = r.u32("chunk size")
-            return ReadContentDataReply(offset, r.take(n, "chunk data"))
-        if op == FileOp.END:
-            return ReadContentEndReply()
-    raise ProtocolError(f"message type {msg_type}: unknown file operation {op} in reply")
-
-
-def _dec_properties(r: _Reader) -> GetPropertiesReply:
-    item_type = r.i32("item type")
-    size = r.u32("size low") | (r.u32("size high") << 32)
-    attributes = r.i32("attributes")
-    times: list[int] = []
-    for what in ("creation", "access", "modified"):
-        times.append(r.u32(f"{what} low") | (r.u32(f"{what} high") << 32))
-        times.append(r.i32(f"{what} bias"))
-    edit_mode = r.i32("edit mode")
-    return GetPropertiesReply(item_type, size, attributes, *times, edit_mode, r.wstr("item name"))
-
-
-def _features(bitmap: bytes) -> frozenset[int]:
-    return frozenset((31 - i) * 8 + bit for i, byte in enumerate(bitmap) for bit in range(8) if byte & (1 << bit))
-
-
-def _dec_rsp_payload(r: _Reader, msg_type: int) -> Reply:
-    match msg_type:
-        case MsgType.READ_VAR_ASCII:
-            return ReadVarAsciiReply(r.astr("value"))
-        case MsgType.WRITE_VAR_ASCII:
-            return WriteVarAsciiReply(r.astr("value"))
-        case MsgType.READ_VAR:
-            return ReadVarReply(r.wstr("value"))
-        case MsgType.WRITE_VAR:
-            return WriteVarReply(r.wstr("value"))
-        case MsgType.READ_MULTI | MsgType.WRITE_MULTI:
-            n = r.u8("number of entries")
-            entries = tuple(MultiEntry(r.u8("entry code"), r.wstr("value")) for _ in range(n))
-            return ReadMultiReply(entries) if msg_type == MsgType.READ_MULTI else WriteMultiReply(entries)
-        case MsgType.PROGRAM_CONTROL:
-            return ProgramControlReply(r.u8("program command"))
-        case MsgType.PROXY_INFO:
-            ma, mi, bt = r.u8("major"), r.u8("minor"), r.u8("build type")
-            utc = tuple(r.u16("utc field") for _ in range(8))
-            return ProxyInfoReply(ma, mi, bt, utc, r.wstr("computer name"))  # type: ignore[arg-type]
-        case MsgType.PROXY_FEATURES:
-            return ProxyFeaturesReply(_features(r.take(32, "feature bitmap")))
-        case MsgType.BENCHMARK:
-            return BenchmarkReply(
-                r.boolean(), r.u8("count"), r.u32("iterations"), r.u32("start ms"), r.u32("stop ms"), r.u32("diff ms")
-            )
-        case MsgType.NAME_LIST:
-            items = tuple(r.wstr("item") for _ in range(r.u16("number of items")))
-            infos = tuple(r.wstr("info") for _ in range(r.u16("number of infos")))
-            return NameListReply(items, infos)
-        case MsgType.GET_PROPERTIES:
-            return _dec_properties(r)
-        case MsgType.GET_FULL_NAME:
-            return GetFullNameReply(r.wstr("path"))
-        case MsgType.GET_KRC_NAME:
-            return GetKrcNameReply(r.wstr("path"))
-        case MsgType.SET_ATTRIBUTE:
-            return SetAttributeReply()
-        case MsgType.CREATE:
-            return CreateReply()
-        case MsgType.DELETE:
-            return DeleteReply()
-        case MsgType.COPY:
-            return CopyReply()
-        case MsgType.MOVE:
-            return MoveReply()
-        case MsgType.WRITE_CONTENT | MsgType.READ_CONTENT:
-            return _dec_file_rsp(r, msg_type)
-        case MsgType.CONFIRM_ALL:
-            return ConfirmAllReply()
-    raise ProtocolError(f"unknown response message type {msg_type}")
+    return tag, _REQUESTS.get(r, msg_type)
 
 
 def decode_response(frame: bytes | bytearray | memoryview) -> tuple[int, Reply]:
@@ -1196,24 +1034,15 @@ def decode_response(frame: bytes | bytearray | memoryview) -> tuple[int, Reply]:
         raise ProtocolError(f"response of {len(raw)} bytes has no room for the footer")
     code, success_byte = struct.unpack(">HB", raw[-FOOTER_SIZE:])
     success = success_byte != 0
-    body = _Reader(raw[: len(raw) - FOOTER_SIZE], HEADER_SIZE)
     try:
-        rsp = _dec_rsp_payload(body, msg_type)
-        body.end(f"response type {msg_type}")
+        rsp = _REPLIES.get(_Reader(raw[: len(raw) - FOOTER_SIZE], HEADER_SIZE), msg_type)
     except ProtocolError:
         if success or msg_type not in _KNOWN_TYPES:
             raise
         return tag, FailureReply(msg_type, raw[HEADER_SIZE:-FOOTER_SIZE], code=code, success=False)
-    return tag, _with_footer(rsp, code, success)
-
-
-_KNOWN_TYPES = frozenset(int(t) for t in MsgType)
-
-
-def _with_footer(rsp: Reply, code: int, success: bool) -> Reply:
-    if rsp.code == code and rsp.success == success:
-        return rsp
-    return dataclasses.replace(rsp, code=code, success=success)
+    if (rsp.code, rsp.success) != (code, success):
+        rsp = dataclasses.replace(rsp, code=code, success=success)
+    return tag, rsp
 
 
 # --- stream splitting -------------------------------------------------------------------------------------------

@@ -26,9 +26,9 @@ from typing import Any
 
 from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
-from rgse_daemon.commands import calibrate as calibrate_command
+from rgse_daemon.analysis import calibration as campaign_analysis
 from rgse_daemon.config import Config
-from rgse_daemon.io.modbus import SafetyInputs
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
@@ -44,11 +44,11 @@ from rgse_daemon.procedures.common import (
     traces_toml,
     verify_start,
     warm_up,
-    write_text_durably,
 )
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import result_topic
+from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import LoopState, OutboxMessage, PointState, RunKind, RunState, Store
 from rgse_daemon.store.errors import StoreConflict
 
@@ -126,8 +126,8 @@ def table1_points(n_bodies: Sequence[int] = range(0, 11),
 # --- the offline path ---------------------------------------------------------------------------------------------
 def fit_campaign(directory: Path, method: str = "auto") -> tuple[dict[str, Any], dict[str, Any]]:
     """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --json`` as a function (the same
-    :func:`commands.calibrate.fit_campaign`); writes CAL.json into the campaign directory."""
-    doc, summary = calibrate_command.fit_campaign(directory, method)
+    :func:`analysis.calibration.fit_campaign`); writes CAL.json into the campaign directory."""
+    doc, summary = campaign_analysis.fit_campaign(directory, method)
     calfile.write(directory / CALIBRATION_FILE, doc)
     return doc, summary
 
@@ -138,7 +138,7 @@ def write_campaign_manifest(run_dir: Path, s: RunSettings, points: list[tuple[Ca
         lines += ["[[point]]", f'kind = "{p.kind}"', f"mass_kg = {p.mass_kg!r}", f"lever_a3_m = {p.lever_a3_m!r}",
                   f"lever_a5_m = {p.lever_a5_m!r}", traces_toml(traces), ""]
     run_dir.mkdir(parents=True, exist_ok=True)
-    write_text_durably(run_dir / "manifest.toml", "\n".join(lines))
+    write_atomic(run_dir / "manifest.toml", "\n".join(lines))
 
 
 def _finish(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, list[str]]],

@@ -22,12 +22,12 @@ from rgse_daemon.aio import within
 from rgse_daemon.config import Config, LimitsConfig
 from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError, KrlSyntaxError, RgseError
-from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.krl.render import RenderedProgram, TemplateDefaults, cube_corners, default_params, render
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.engine import ProgramChecker, run_program
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.retrieval import TRACE_DIR, PulledTrace
+from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.static import CheckContext, ensure_allowed
 from rgse_daemon.store import LoopState, RunState, Store, archive_root, relative_path
 from rgse_daemon.trace.config import TraceConfig, TraceModule, TraceTrigger, render_trace_config
@@ -420,18 +420,6 @@ def setup_toml(s: RunSettings) -> list[str]:
 
 def traces_toml(traces: Sequence[str]) -> str:
     return "traces = [" + ", ".join(_toml_str(t) for t in traces) + "]"
-
-
-def write_text_durably(path: Path, text: str) -> None:
-    """Write ``path`` via a temporary file, fsync and rename (a manifest is never half written)."""
-    import os
-
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", encoding="utf-8") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
 
 
 # --- run lifecycle ----------------------------------------------------------------------------------------------

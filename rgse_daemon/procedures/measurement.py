@@ -22,9 +22,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from rgse_daemon.commands import mass as mass_command
+from rgse_daemon.analysis import mass as mass_analysis
 from rgse_daemon.config import Config
-from rgse_daemon.io.modbus import SafetyInputs
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.common import (
     LoopOutcome,
@@ -36,27 +36,27 @@ from rgse_daemon.procedures.common import (
     run_directory,
     setup_toml,
     traces_toml,
-    write_text_durably,
 )
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import OutboxMessage, RunKind, RunState, Store
 
 CALIBRATION_FILE = "CAL.json"
 
 
 def compute_mass(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None) -> dict[str, Any]:
-    """``rgse mass --traces DIR --calibration CAL --json`` as a function (the same :func:`commands.mass.compute`).
+    """``rgse mass --traces DIR --calibration CAL --json`` as a function (the same :func:`analysis.mass.compute`).
     Returns the contract-§1 JSON object."""
-    return mass_command.compute(directory, calibration_path, fixture_mass_kg).to_json()
+    return mass_analysis.compute(directory, calibration_path, fixture_mass_kg).to_json()
 
 
 def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> None:
     """manifest.toml (contract §2, ``[measurement]``) and the calibration used, as ``CAL.json``."""
     run_dir.mkdir(parents=True, exist_ok=True)
     lines = [*setup_toml(s), "[measurement]", f"fixture_mass_kg = {float(s.fixture_mass_kg)!r}", traces_toml(traces)]
-    write_text_durably(run_dir / "manifest.toml", "\n".join(lines) + "\n")
-    write_text_durably(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
+    write_atomic(run_dir / "manifest.toml", "\n".join(lines) + "\n")
+    write_atomic(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
 
 
 def _finish(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> dict[str, Any]:

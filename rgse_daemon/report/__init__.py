@@ -18,10 +18,9 @@ the stored result, and then asserted equal to it (file hashes, mass, u, U, sampl
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.report.data import (
     CalibrationView,
@@ -45,26 +44,7 @@ __all__ = [
     "load_measurement",
     "render_calibration",
     "render_measurement",
-    "write_atomic",
 ]
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` via a temporary file in the same directory and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".report-", suffix=".tmp", dir=path.parent)
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.fchmod(fd, 0o666 & ~umask)  # mkstemp makes 0600; a report is meant to be read by others
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def build_report(repo: Repository, data_dir: Path, out_dir: Path, *, run_id: str | None = None,

@@ -15,7 +15,8 @@ Store conventions the report relies on (what the daemon and ``tests/report/store
 * calibration run (``calibrations.run_id``): ``points`` whose ``spec`` holds ``kind``, ``mass_kg``,
   ``lever_a3_m``, ``lever_a5_m`` (manifest ``[[point]]``); ``loops`` with ``point_index``; trace files as above.
   A calibration without a run (fitted from a points CSV) is reported from its document alone.
-* reference weighings: events of kind :data:`rgse_daemon.reference.EVENT_KIND` (see :mod:`rgse_daemon.reference`).
+* reference weighings: events of kind :data:`~rgse_daemon.analysis.reference.EVENT_KIND`
+  (see :mod:`rgse_daemon.analysis.reference`).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from rgse_daemon import __version__, calfile
-from rgse_daemon import reference as ref
+from rgse_daemon.analysis import reference as ref
 from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.manifest import Loop, read_loop
 from rgse_daemon.pipeline import calibration as cal_mod

@@ -15,7 +15,7 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime
 from html import escape
 
-from rgse_daemon import reference as ref
+from rgse_daemon.analysis import reference as ref
 from rgse_daemon.report import plots
 from rgse_daemon.report.data import (
     BAND_K,

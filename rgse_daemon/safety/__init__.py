@@ -1,6 +1,7 @@
-"""The interlock: the static check of KRL programs before a push (:mod:`rgse_daemon.safety.static`) and the runtime
-monitor that watches the robot while a program runs (:mod:`rgse_daemon.safety.monitor`)."""
+"""The interlock and the safety policy.
 
-from rgse_daemon.safety.static import CheckContext, ProgramRefused, Violation, check_program, ensure_allowed
-
-__all__ = ["CheckContext", "ProgramRefused", "Violation", "check_program", "ensure_allowed"]
+- :mod:`~rgse_daemon.safety.allowlist`: the controller variables the daemon may write;
+- :mod:`~rgse_daemon.safety.inputs`: the safety inputs (area cleared, AUT permitted, E-stop) as the interlock sees them;
+- :mod:`~rgse_daemon.safety.static`: the static check of KRL programs before a push;
+- :mod:`~rgse_daemon.safety.monitor`: the runtime monitor that watches the robot while a program runs.
+"""

@@ -49,7 +49,7 @@ from rgse_daemon.aio import within
 from rgse_daemon.config import LimitsConfig
 from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import InterlockError, LinkError, RgseError
-from rgse_daemon.io.modbus import SafetyInputs
+from rgse_daemon.safety.inputs import SafetyInputs
 
 _log = logging.getLogger(__name__)
 

@@ -48,7 +48,6 @@ from typing import Any
 import numpy as np
 
 from rgse_daemon.config import LimitsConfig
-from rgse_daemon.controller import WRITABLE_PREFIX, WRITABLE_VARIABLES
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
 from rgse_daemon.kinematics import (
     D6_M,
@@ -62,6 +61,7 @@ from rgse_daemon.krl import ast as k
 from rgse_daemon.krl.lexer import Tok, tokenize
 from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.walk import iter_exprs, root_name, stmt_exprs
+from rgse_daemon.safety.allowlist import WRITABLE_PREFIX, WRITABLE_VARIABLES
 
 #: Statement keywords the check refuses outright (the parser does not accept them either).
 FORBIDDEN_KEYWORDS = frozenset({"INTERRUPT", "TRIGGER", "GOTO", "SWITCH", "CONTINUE", "ANIN", "ANOUT", "BRAKE"})

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from rgse_daemon.aio import within
+from rgse_daemon.durable import fsync_dir
 from rgse_daemon.store.errors import ArchiveConflict, ArchiveError
 
 ARCHIVE_DIRNAME = "archive"
@@ -245,10 +246,6 @@ def _make_dirs(path: Path) -> None:
 
 def _fsync_dir(path: Path) -> None:
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        fsync_dir(path)
     except OSError as exc:
         raise ArchiveError(f"{path}: cannot sync the directory: {exc.strerror or exc}") from exc

@@ -56,6 +56,7 @@ from typing import Protocol
 
 import numpy as np
 
+from rgse_daemon.durable import fsync_dir
 from rgse_daemon.errors import DataError, RgseError, VariableError
 from rgse_daemon.link.krlvalue import parse_value
 from rgse_daemon.trace.config import TraceConfig, parse_trace_config
@@ -399,9 +400,5 @@ def _write_module(
         target = directory / path.name
         os.replace(path, target)
         final.append(target)
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    fsync_dir(directory)
     return final

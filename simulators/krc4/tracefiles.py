@@ -20,13 +20,13 @@ Raises ValueError for unusable arguments (mismatched lengths, non-finite values 
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Mapping
 from datetime import datetime
 from pathlib import Path
 
 import numpy as np
+
+from rgse_daemon.durable import fsync_dir, write_atomic
 
 __all__ = ["write_trace_set"]
 
@@ -48,31 +48,6 @@ def _check_text(kind: str, text: str, *, file_name: bool = False, allow_empty: b
 def _fmt(value: float) -> str:
     """Shortest text that reads back as exactly the same float."""
     return repr(float(value))
-
-
-def _atomic_write(path: Path, data: bytes | np.ndarray) -> None:
-    """Write ``data`` to ``path`` via a fsynced temporary file in the same directory and a rename."""
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            if isinstance(data, np.ndarray):
-                data.tofile(f)
-            else:
-                f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp_name, path)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
-
-
-def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _header(
@@ -214,7 +189,7 @@ def write_trace_set(
     written: list[Path] = []
     if prog_text is not None:
         prog = directory / f"{name}_PROG.TXT"
-        _atomic_write(prog, prog_text.replace("\r\n", "\n").replace("\n", "\r\n").encode("iso-8859-1", "replace"))
+        write_atomic(prog, prog_text.replace("\r\n", "\n").replace("\n", "\r\n").encode("iso-8859-1", "replace"))
         written.append(prog)
     for module, columns in prepared.items():
         stem = f"{name}_{module}"
@@ -226,9 +201,9 @@ def write_trace_set(
         else:
             table = np.concatenate(raws)
         r64, trc, dat = directory / data_file, directory / f"{stem}.trc", directory / f"{stem}.dat"
-        _atomic_write(r64, np.ascontiguousarray(table, dtype="<f8"))
-        _atomic_write(trc, _trc_text(name, module, period_s, [c[0] for c in columns]))
-        _atomic_write(dat, _header(name, module, data_file, period_s, n_samples, columns, storage, factor, offset, now))
+        write_atomic(r64, np.ascontiguousarray(table, dtype="<f8").tobytes())
+        write_atomic(trc, _trc_text(name, module, period_s, [c[0] for c in columns]))
+        write_atomic(dat, _header(name, module, data_file, period_s, n_samples, columns, storage, factor, offset, now))
         written += [r64, trc, dat]
-    _fsync_dir(directory)
+    fsync_dir(directory)
     return written

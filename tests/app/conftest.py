@@ -3,25 +3,16 @@ and a calibration fitted by the offline ``rgse calibrate --campaign`` path from 
 
 from __future__ import annotations
 
-import sys
 from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-# The helpers of other test directories are imported as ``tests.<dir>.<module>``: that needs the checkout on the
-# path also when pytest is started as ``.venv/bin/pytest`` (``python -m pytest`` puts it there itself).
-_REPO = str(Path(__file__).resolve().parents[2])
-if _REPO not in sys.path:
-    sys.path.insert(0, _REPO)
-
-from daemon_helpers import fit_sim_calibration  # noqa: E402
-
-from rgse_daemon.krl.render import globals_dat_text  # noqa: E402
-from simulators.krc4.sim import SimulatedKrc4  # noqa: E402
-from simulators.modbus_io import ModbusIoSim  # noqa: E402
-from tests.mqtt.mqtt_helpers import MosquittoProcess  # noqa: E402
+from rgse_daemon.krl.render import globals_dat_text
+from simulators.krc4.sim import SimulatedKrc4
+from simulators.modbus_io import ModbusIoSim
+from tests.support.daemon import fit_sim_calibration
 
 SIM_SEED = 7
 TIME_SCALE = 100.0
@@ -34,16 +25,6 @@ async def sim(tmp_path: Path) -> AsyncIterator[SimulatedKrc4]:
         s.install_globals(globals_dat_text())
         yield s
 
-
-@pytest.fixture
-async def private_broker(tmp_path: Path) -> AsyncIterator[MosquittoProcess]:
-    """A Mosquitto of this test alone, with persistence: the only kind of broker a test may restart."""
-    broker = MosquittoProcess(tmp_path / "mosquitto")
-    await broker.start()
-    try:
-        yield broker
-    finally:
-        await broker.stop()
 
 
 @pytest.fixture

@@ -14,18 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from daemon_helpers import (
-    PREFIX,
-    ROBOT,
-    WAIT_S,
-    Events,
-    command,
-    daemon_config,
-    first_of,
-    run_end,
-    running_daemon,
-    seed_calibration,
-)
 
 from rgse_daemon.app import STOP_TIMEOUT_S, Daemon, NotConnected, campaign_point
 from rgse_daemon.errors import InterlockError
@@ -41,7 +29,20 @@ from simulators.krc4.physics import dut_payload, mass_calibration_payload, torqu
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.krc4.variables import ProState
 from simulators.modbus_io import ModbusIoSim
-from tests.mqtt.mqtt_helpers import Collector, MosquittoProcess, free_port, retained, wait_until
+from tests.support.daemon import (
+    PREFIX,
+    ROBOT,
+    WAIT_S,
+    Events,
+    command,
+    daemon_config,
+    first_of,
+    run_end,
+    running_daemon,
+    seed_calibration,
+)
+from tests.support.mqtt import Collector, MosquittoProcess, free_port, retained
+from tests.support.polling import wait_until
 
 DUT = dut_payload(95.0, (0.0, 0.05, 0.25), fixture_mass_kg=10.288)
 
@@ -303,7 +304,7 @@ def test_controller_backoff_is_exponential_jittered_and_capped(tmp_path: Path) -
     cfg = daemon_config(tmp_path, controller_port=7000)  # reconnect 0.05 s .. 0.4 s
     d = Daemon(cfg)
     for attempt, base in enumerate((0.05, 0.1, 0.2, 0.4, 0.4, 0.4)):
-        delays = [d._backoff_s(attempt) for _ in range(50)]
+        delays = [d.link.backoff_s(attempt) for _ in range(50)]
         assert all(0.5 * base <= x <= base for x in delays) and len(set(delays)) > 1, attempt
 
 

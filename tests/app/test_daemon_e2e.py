@@ -21,7 +21,17 @@ import time
 from pathlib import Path
 from typing import Any
 
-from daemon_helpers import (
+from rgse_daemon import cli
+from rgse_daemon.analysis.reference import references
+from rgse_daemon.krl.render import globals_dat_text
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.store import Repository, RunState
+from simulators.krc4.physics import dut_payload
+from simulators.krc4.process import SimProcess
+from simulators.modbus_io import ModbusIoSim
+from simulators.scale import ScaleSim, ScaleSimConfig
+from tests.support.chromium import Dom, dump_dom
+from tests.support.daemon import (
     FIXTURE_KG,
     PREFIX,
     ROBOT,
@@ -34,19 +44,8 @@ from daemon_helpers import (
     running_daemon,
     seed_calibration,
 )
-
-from rgse_daemon import cli
-from rgse_daemon.krl.render import globals_dat_text
-from rgse_daemon.procedures.events import Event
-from rgse_daemon.reference import references
-from rgse_daemon.store import Repository, RunState
-from simulators.krc4.physics import dut_payload
-from simulators.krc4.process import SimProcess
-from simulators.modbus_io import ModbusIoSim
-from simulators.scale import ScaleSim, ScaleSimConfig
-from tests.mqtt.mqtt_helpers import Collector, MosquittoProcess, retained, wait_until
-from tests.report.chromium import dump_dom
-from tests.report.test_report import Dom
+from tests.support.mqtt import Collector, MosquittoProcess, retained
+from tests.support.polling import wait_until
 
 DUT_KG = 95.0
 LOOPS = 3

@@ -13,10 +13,10 @@ import uuid
 from pathlib import Path
 
 import aiomqtt
-from daemon_helpers import ROBOT
 
 from simulators.krc4.sim import SimulatedKrc4
-from tests.mqtt.mqtt_helpers import MosquittoProcess
+from tests.support.daemon import ROBOT
+from tests.support.mqtt import MosquittoProcess
 
 WAIT_S = 30.0
 

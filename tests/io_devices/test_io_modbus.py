@@ -8,19 +8,15 @@ import random
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
-from iodev_helpers import fast_cfg, wait_until
 from pydantic import ValidationError
 
+from rgse_daemon.config import ModbusConfig
 from rgse_daemon.io import IoDeviceRefused, IoLinkError
-from rgse_daemon.io.modbus import (
-    ConnectionState,
-    LightColor,
-    ModbusConfig,
-    SafetyInputs,
-    SafetyIo,
-    backoff_s,
-)
+from rgse_daemon.io.modbus import ConnectionState, LightColor, SafetyIo, backoff_s
+from rgse_daemon.safety.inputs import SafetyInputs
 from simulators.modbus_io import ModbusIoSim
+from tests.support.iodev import fast_cfg
+from tests.support.polling import wait_until
 
 
 async def test_inputs_seen_by_client(modbus_sim: ModbusIoSim) -> None:

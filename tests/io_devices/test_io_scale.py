@@ -9,8 +9,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import ValidationError
 
+from rgse_daemon.config import UNIT_TO_KG, ScaleConfig
 from rgse_daemon.io import IoFrameError, IoLinkError, IoTimeout
-from rgse_daemon.io.scale import UNIT_TO_KG, CraneScale, ScaleConfig, parse_line, xor8
+from rgse_daemon.io.scale import CraneScale, parse_line, xor8
 from simulators.scale import ScaleSim, ScaleSimConfig, display_step
 
 D_KG = 0.1  # Kern HFB 300K100

@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import asyncio
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator
 
 import numpy as np
 import pytest
 
 from simulators.krc4.krl import KrlInterpreter, MotionEvent, parse_axes
 from simulators.krc4.variables import ProgramControlError, ProState, VariableStore, module_name
+from tests.support.polling import wait_until
 
 TIME_SCALE = 200.0
 HOME = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
@@ -53,11 +54,6 @@ def axes(store: VariableStore) -> np.ndarray:
     return np.array(parse_axes(store.read("$AXIS_ACT")))
 
 
-async def until(predicate: Callable[[], bool], timeout_s: float = 10.0) -> None:
-    """Poll a store condition (the store has no change notification) until it holds, at most ``timeout_s``."""
-    async with asyncio.timeout(timeout_s):
-        while not predicate():  # noqa: ASYNC110 - polling is the point: nothing signals these values
-            await asyncio.sleep(0.001)
 
 
 async def run_to_end(interp: KrlInterpreter, name: str) -> None:
@@ -227,11 +223,11 @@ async def test_wait_for_handshake_and_trace_setters(interp: KrlInterpreter, stor
     store.register_setter("$TRACE.MODE", lambda v: seen.append(("mode", v)))
     store.register_setter("$TRACE.NAME[]", lambda v: seen.append(("name", v)))
     interp.run("HS", "", False)
-    await until(lambda: store.read("READY") == "TRUE")
+    await wait_until(lambda: store.read("READY") == "TRUE")
     await asyncio.sleep(0.02)  # 4 simulated seconds: the program must still be waiting
     assert store.read("$PRO_STATE1") == "#P_ACTIVE" and seen == [("name", '"dut_l01"')]
     store.write("GO", "TRUE")  # the daemon's write over the link
-    await until(lambda: len(seen) >= 3)
+    await wait_until(lambda: len(seen) >= 3)
     assert seen[1:] == [("mode", "#T_START"), ("mode", "#T_STOP")]
     assert await interp.wait_state(ProState.END, ProState.STOP) is ProState.END, interp.last_error
     assert store.read("READY") == "FALSE"
@@ -268,7 +264,7 @@ async def test_enabling_switch_release_is_stop2(interp: KrlInterpreter, store, p
     events: list[MotionEvent] = []
     interp.add_motion_listener(events.append)
     interp.run("LONGMV", "", False)
-    await until(lambda: abs(axes(store)[0]) >= 5.0)
+    await wait_until(lambda: abs(axes(store)[0]) >= 5.0)
     interp.set_enabling_switch(False)
     assert store.read("$STOPMESS") == "TRUE" and store.read("$PERI_RDY") == "FALSE"
     assert await interp.wait_state(ProState.STOP, ProState.END) is ProState.STOP

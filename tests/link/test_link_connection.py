@@ -6,22 +6,14 @@ import asyncio
 import socket
 
 import pytest
-from link_miniserver import MiniServer
 
 from rgse_daemon.config import ControllerConfig, Protocol
 from rgse_daemon.errors import LinkClosed, LinkTimeout, ProtocolError, VariableError
 from rgse_daemon.link import frames as f
 from rgse_daemon.link.connection import Connection, ConnectionState, LinkStats
 from rgse_daemon.link.pool import LinkPool
-
-
-async def until(predicate, what: str, limit_s: float = 10.0) -> None:
-    """Wait (polling) until ``predicate()`` holds; fail the test after ``limit_s``."""
-    for _ in range(int(limit_s / 0.005)):
-        if predicate():
-            return
-        await asyncio.sleep(0.005)
-    pytest.fail(f"never happened: {what}")
+from tests.support.link_miniserver import MiniServer
+from tests.support.polling import wait_until
 
 
 def conn_for(srv: MiniServer, **kw) -> Connection:
@@ -101,7 +93,7 @@ async def test_cancelled_caller_does_not_corrupt_the_stream() -> None:
     async with MiniServer() as srv, conn_for(srv, request_timeout_s=5.0) as conn:
         srv.fault = "stall"
         task = asyncio.create_task(conn.read_var("$OV_PRO"))
-        await until(lambda: len(srv.requests) >= 1, "request reached the server")
+        await wait_until(lambda: len(srv.requests) >= 1, "request reached the server")
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task
@@ -119,7 +111,7 @@ async def test_requests_are_serialised_on_one_connection() -> None:
 
 async def test_keepalive_pings_while_idle() -> None:
     async with MiniServer() as srv, conn_for(srv, keepalive_s=0.02) as conn:
-        await until(lambda: conn.stats.keepalives >= 2, "two keep-alives")
+        await wait_until(lambda: conn.stats.keepalives >= 2, "two keep-alives")
         assert f.ReadVarAscii("PING") in srv.requests
 
 
@@ -146,7 +138,7 @@ async def test_connect_refused_backs_off_and_maintainer_heals() -> None:
         srv.fault = "drop"
         with pytest.raises(LinkClosed):
             await conn2.read_var("$OV_PRO")
-        await until(lambda: conn2.state is ConnectionState.CONNECTED, "maintainer reconnected")
+        await wait_until(lambda: conn2.state is ConnectionState.CONNECTED, "maintainer reconnected")
         assert conn2.stats.reconnects == 1
 
 
@@ -213,7 +205,7 @@ async def test_pool_refuses_kvp_when_c3_is_configured() -> None:
 async def test_idle_connection_closed_by_peer_is_reopened_before_sending() -> None:
     async with MiniServer() as srv, conn_for(srv) as conn:
         srv.drop_all()
-        await until(lambda: conn._reader.at_eof(), "FIN reached the client's reader")
+        await wait_until(lambda: conn._reader.at_eof(), "FIN reached the client's reader")
         assert await conn.write_var("$OV_PRO", "50") == "50"  # safe even for a write: nothing had been sent
         assert conn.stats.errors == 0 and conn.stats.reconnects == 1
 

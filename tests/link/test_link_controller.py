@@ -10,11 +10,12 @@ from pathlib import Path
 import pytest
 
 from rgse_daemon.config import ControllerConfig, Protocol
-from rgse_daemon.controller import SNAPSHOT_VARIABLES, Controller, LoadData, share_path, writable
+from rgse_daemon.controller import SNAPSHOT_VARIABLES, Controller, LoadData, share_path
 from rgse_daemon.errors import ConfigError, LinkClosed, LinkTimeout, NotAllowedError, ProtocolError, VariableError
 from rgse_daemon.link import frames as fr
 from rgse_daemon.link.errors import CommandError, NotSupportedError
 from rgse_daemon.link.krlvalue import KrlEnum
+from rgse_daemon.safety.allowlist import writable
 from simulators.krc4.server import KrcServer, ServerConfig
 from simulators.krc4.variables import Kind
 

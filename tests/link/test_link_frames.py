@@ -133,6 +133,39 @@ def test_encoder_rejects_what_does_not_fit(bad: f.Request) -> None:
         f.encode_request(1, bad)
 
 
+@pytest.mark.parametrize(
+    ("bad", "field"),
+    [
+        (f.ReadVar(5), "variable name"),  # type: ignore[arg-type]
+        (f.ReadMulti(("A", 3)), r"variable names\[1\]"),  # type: ignore[arg-type]
+        (f.WriteMulti((("A",),)), r"items\[0\]"),  # type: ignore[arg-type]
+        (f.WriteContentData(0, "text"), "chunk data"),  # type: ignore[arg-type]
+        (f.Create(1, 2, True, None), "file name"),  # type: ignore[arg-type]
+        (f.SetAttribute(1 << 31, 0, "A"), "attributes"),
+        (f.ProgramControl(5, 1.5), "interpreter"),  # type: ignore[arg-type]
+    ],
+)
+def test_encoder_error_names_the_field(bad: f.Request, field: str) -> None:
+    with pytest.raises(ProtocolError, match=field):
+        f.encode_request(1, bad)
+
+
+@pytest.mark.parametrize(
+    ("decode", "hexstr", "field"),
+    [
+        (f.decode_request, "00 01 00 0A 06 02 00 01 41 00 00 02 42 00", r"variable names\[1\]"),
+        (f.decode_request, "00 01 00 0A 0A 05 00 01 00 01 41 00 00 00", "force"),
+        (f.decode_request, "00 01 00 06 1D 07 00 00 00 01", "unknown file operation 7"),
+        (f.decode_request, "00 01 00 02 63 00", "unknown request message type 99"),
+        (f.decode_response, "00 01 00 0A 06 02 01 00 00 01 00 05 01 01", r"entries\[1\] value"),
+        (f.decode_response, "00 01 00 08 1B 00 01 00 D8 00 01 01", "path is not valid UTF-16"),
+    ],
+)
+def test_decoder_error_names_the_field(decode, hexstr: str, field: str) -> None:
+    with pytest.raises(ProtocolError, match=field):
+        decode(h(hexstr))
+
+
 # --- #20 #22 #23 #24 #25 #28: layouts of c3bridge-protocol §3.9, computed by hand ------------------------------
 FILE_OP_REQUEST_LAYOUTS = [
     # #20: @5 INT32 attributes, @9 INT32 mask, @13 wstr name

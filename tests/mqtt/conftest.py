@@ -17,9 +17,9 @@ from pathlib import Path
 
 import psycopg
 import pytest
-from mqtt_helpers import MosquittoProcess, RecordingHandler, clear_retained, port_open
 
 from rgse_daemon.store import Store
+from tests.support.mqtt import RecordingHandler, clear_retained, port_open
 
 PG_URL = os.environ.get("RGSE_TEST_PG_URL", "postgresql://postgres@127.0.0.1:5432/test")
 SYSTEM_BROKER = ("127.0.0.1", 1883)
@@ -39,15 +39,6 @@ async def prefix(system_broker: tuple[str, int]) -> AsyncIterator[str]:
     yield p
     await clear_retained(*system_broker, p)
 
-
-@pytest.fixture
-async def private_broker(tmp_path: Path) -> AsyncIterator[MosquittoProcess]:
-    broker = MosquittoProcess(tmp_path / "mosquitto")
-    await broker.start()
-    try:
-        yield broker
-    finally:
-        await broker.stop()
 
 
 @pytest.fixture

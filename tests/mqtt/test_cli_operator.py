@@ -18,13 +18,14 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mqtt_helpers import ROBOT, RecordingHandler, free_port, mqtt_config, stored_result, wait_until
 
 from rgse_daemon.commands.abort import DEFAULT_REASON
 from rgse_daemon.errors import RgseError
 from rgse_daemon.io.commands import AbortCommand, ConfirmCommand
 from rgse_daemon.io.mqtt import MqttBridge
 from rgse_daemon.store import Store
+from tests.support.mqtt import ROBOT, RecordingHandler, free_port, mqtt_config, stored_result
+from tests.support.polling import wait_until
 
 VERSION = "9.8.7"
 

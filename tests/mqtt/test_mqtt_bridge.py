@@ -11,7 +11,12 @@ import sys
 from pathlib import Path
 
 import pytest
-from mqtt_helpers import (
+
+from rgse_daemon.config import MqttConfig
+from rgse_daemon.errors import ConfigError
+from rgse_daemon.io.mqtt import ConnectionState, MqttBridge, MqttError
+from rgse_daemon.store import Store
+from tests.support.mqtt import (
     ROBOT,
     Collector,
     MosquittoProcess,
@@ -19,13 +24,8 @@ from mqtt_helpers import (
     mqtt_config,
     retained,
     stored_result,
-    wait_until,
 )
-
-from rgse_daemon.config import MqttConfig
-from rgse_daemon.errors import ConfigError
-from rgse_daemon.io.mqtt import ConnectionState, MqttBridge, MqttError
-from rgse_daemon.store import Store
+from tests.support.polling import wait_until
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent.parent

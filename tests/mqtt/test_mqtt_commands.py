@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from mqtt_helpers import ROBOT, Collector, MosquittoProcess, RecordingHandler, mqtt_config, retained, wait_until
 
 from rgse_daemon.io.commands import (
     AbortCommand,
@@ -23,6 +22,8 @@ from rgse_daemon.io.commands import (
 )
 from rgse_daemon.io.mqtt import MqttBridge
 from rgse_daemon.store import Store, StoreError
+from tests.support.mqtt import ROBOT, Collector, MosquittoProcess, RecordingHandler, mqtt_config, retained
+from tests.support.polling import wait_until
 
 TOKENS = ("s3cret-1", "s3cret-2")
 
@@ -157,6 +158,28 @@ async def test_bad_commands_are_refused_without_effect(
     assert alarm["verb"] == verb and alarm["request_id"] == request_id and error in alarm["error"]
     assert handler.calls == []
     assert session.bridge.counters.refused_commands == 1 and session.bridge.counters.commands == 0
+
+
+async def test_a_retained_command_is_not_replayed_to_a_new_session(
+    system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler
+) -> None:
+    """A command left retained on the broker is delivered to every new subscription, e.g. the daemon's after a
+    reconnect or a restart: it is refused there; the same command sent live is carried out."""
+    topic = f"{prefix}/cmd/measure"
+    async with Collector(*system_broker, f"{prefix}/nothing") as sender:
+        await sender._client.publish(topic, json.dumps({"request_id": "r-1", "loops": 3}), qos=1, retain=True)
+    try:
+        async with _session(system_broker, prefix, store, handler) as session:
+            ((_, reply),) = await session.replies(1)
+            assert reply == {"request_id": "r-1", "ok": False,
+                             "error": "retained command ignored: publish commands with retain=false"}
+            assert handler.calls == []
+            await session.send("measure", {"request_id": "r-2", "loops": 3})
+            await wait_until(lambda: len(handler.calls) == 1, "the live command reached the handler")
+            assert handler.calls[0][1].request_id == "r-2"
+    finally:
+        async with Collector(*system_broker, f"{prefix}/nothing") as sender:
+            await sender._client.publish(topic, b"", qos=1, retain=True)  # clear it from the shared broker
 
 
 async def test_without_the_right_token_nothing_happens(guarded: Session, handler: RecordingHandler) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from rgse_daemon.cli import main
-from tests.offline.campaign import Drive, write_campaign, write_measurement
+from tests.support.campaign import Drive, write_campaign, write_measurement
 
 
 def run_json(capsys, argv: list[str]) -> dict:

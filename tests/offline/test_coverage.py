@@ -14,17 +14,17 @@ import numpy as np
 import pytest
 
 from rgse_daemon import calfile
-from rgse_daemon.cli import main
-from rgse_daemon.commands.calibrate import (
+from rgse_daemon.analysis.calibration import (
     CampaignData,
     campaign_points,
     fit_and_describe,
     loo_rms_rel,
     plausible_alternatives,
 )
+from rgse_daemon.cli import main
 from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import preprocess as pp
-from tests.offline.simcampaign import G, simulate_campaign, simulate_measurement, write_dirs
+from tests.support.simcampaign import G, simulate_campaign, simulate_measurement, write_dirs
 
 N_SEEDS = 40
 

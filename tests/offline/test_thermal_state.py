@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from rgse_daemon.commands.mass import THERMAL_MISMATCH_K, thermal_mismatch
+from rgse_daemon.analysis.mass import THERMAL_MISMATCH_K, thermal_mismatch
 from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import read_loop, thermal_state_k
 from simulators.krc4.tracefiles import write_trace_set

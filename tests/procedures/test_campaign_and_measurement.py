@@ -15,6 +15,7 @@ from rgse_daemon.procedures.measurement import compute_mass, run_measurement
 from rgse_daemon.store import LoopState, PointState, RunState, Store, archive_root, verify_file
 from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.sim import SimulatedKrc4
+from tests.support.plans import short
 
 from .conftest import TIME_SCALE, make_engine
 
@@ -43,11 +44,6 @@ def steady(cfg, **kw) -> RunSettings:
     simulator runs TIME_SCALE times faster), so that every point and the DuT are measured in one thermal state."""
     return short(cfg, warmup_until_steady=True, warmup_steady_window_s=300.0 / TIME_SCALE,
                  warmup_max_s=2400.0 / TIME_SCALE, **kw)
-
-
-def short(cfg, **kw) -> RunSettings:
-    base = {"loops": 1, "trace_samples": 400, "warmup_cycles": 1, "payload_lever_max_m": 1.0}
-    return RunSettings.from_config(cfg, **{**base, **kw})
 
 
 async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store: Store, engine: RunEngine):

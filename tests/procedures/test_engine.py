@@ -18,9 +18,10 @@ from rgse_daemon.procedures.measurement import measurement_plan
 from rgse_daemon.procedures.retrieval import TRACE_DIR
 from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import Store, archive_root
+from tests.support.plans import long_motion, moving, robot_still, trace_stopped
+from tests.support.polling import wait_until
 
 from .conftest import STALE_PERIODS, make_engine
-from .plans import long_motion, moving, robot_still, trace_stopped, until
 
 
 def _fails_while_moving(s: RunSettings, sim) -> m.Plan:
@@ -48,8 +49,8 @@ def _fails_while_moving(s: RunSettings, sim) -> m.Plan:
 async def test_finaliser_runs_on_error(sim, engine: RunEngine, settings):
     with pytest.raises(DataError, match="the cause"):
         await engine.run(_fails_while_moving(settings, sim))
-    await until(lambda: robot_still(sim), 10, "program stopped")
-    await until(lambda: trace_stopped(sim), 10, "trace stopped")
+    await wait_until(lambda: robot_still(sim), "program stopped", timeout_s=10)
+    await wait_until(lambda: trace_stopped(sim), "trace stopped", timeout_s=10)
     assert engine.state == "failed"
 
 
@@ -75,27 +76,27 @@ async def test_cleanup_error_does_not_mask_the_cause(sim, krc, cfg, settings):
     with pytest.raises(DataError, match="the cause"):
         await engine.run(breaking())
     sim.server.faults.drop_on_variable = None
-    await until(lambda: robot_still(sim), 10, "program stopped by the finaliser's next step")
+    await wait_until(lambda: robot_still(sim), "program stopped by the finaliser's next step", timeout_s=10)
 
 
 async def test_finaliser_runs_on_cancel(sim, engine: RunEngine, settings):
     task = asyncio.create_task(engine.run(long_motion(settings)))
-    await until(lambda: moving(sim), what="moving")
+    await wait_until(lambda: moving(sim), what="moving")
     task.cancel()
     with pytest.raises(asyncio.CancelledError):
         await task
-    await until(lambda: robot_still(sim), 10, "program stopped")
-    await until(lambda: trace_stopped(sim), 10, "trace stopped")
+    await wait_until(lambda: robot_still(sim), "program stopped", timeout_s=10)
+    await wait_until(lambda: trace_stopped(sim), "trace stopped", timeout_s=10)
 
 
 async def test_abort_stops_and_raises(sim, engine: RunEngine, settings):
     task = asyncio.create_task(engine.run(long_motion(settings)))
-    await until(lambda: moving(sim), what="moving")
+    await wait_until(lambda: moving(sim), what="moving")
     engine.abort("operator pressed abort")
     with pytest.raises(PlanAborted, match="operator"):
         await asyncio.wait_for(task, 30)
-    await until(lambda: robot_still(sim), 10, "program stopped")
-    await until(lambda: trace_stopped(sim), 10, "trace stopped")
+    await wait_until(lambda: robot_still(sim), "program stopped", timeout_s=10)
+    await wait_until(lambda: trace_stopped(sim), "trace stopped", timeout_s=10)
     assert engine.state == "aborted"
 
 

@@ -10,14 +10,14 @@ from datetime import UTC, datetime
 import pytest
 
 from rgse_daemon.controller import LoadData, Snapshot
-from rgse_daemon.io.modbus import SafetyInputs
 from rgse_daemon.procedures.common import PreconditionError, check_preconditions
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.monitor import DEFAULT_WATCHERS, Expect, InterlockTrip, Monitor, Observation, WatchContext
 from simulators.krc4.sim import SimulatedKrc4
-
-from .plans import long_motion, moving, robot_still, trace_stopped, until
+from tests.support.plans import long_motion, moving, robot_still, trace_stopped
+from tests.support.polling import wait_until
 
 
 def _release_enabling_switch(sim: SimulatedKrc4) -> None:
@@ -49,14 +49,14 @@ async def test_trip_stops_motion_and_trace(sim, engine: RunEngine, settings, fau
     alarms: list[Event] = []
     engine.subscribe(lambda ev: alarms.append(ev) if ev.kind == "alarm" else None)
     task = asyncio.create_task(engine.run(long_motion(settings)))
-    await until(lambda: moving(sim), what="warm-up moving with the trace recording")
+    await wait_until(lambda: moving(sim), what="warm-up moving with the trace recording")
     fault(sim)
     with pytest.raises(InterlockTrip) as info:
         await asyncio.wait_for(task, 30)
     assert info.value.watcher == watcher
     assert [a.data["watcher"] for a in alarms] == [watcher]
-    await until(lambda: robot_still(sim), 10, "program stopped, robot still")
-    await until(lambda: trace_stopped(sim), 10, "trace stopped")
+    await wait_until(lambda: robot_still(sim), "program stopped, robot still", timeout_s=10)
+    await wait_until(lambda: trace_stopped(sim), "trace stopped", timeout_s=10)
     assert sim.store.read("$PRO_STATE1") in ("#P_STOP", "#P_RESET", "#P_FREE")
     assert engine.state == "failed"
     assert engine.monitor is not None and engine.monitor.stats.trip_latency_s is not None

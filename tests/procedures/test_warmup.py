@@ -12,9 +12,9 @@ from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from simulators.krc4.physics import mass_calibration_payload
 from simulators.krc4.sim import SimulatedKrc4
+from tests.support.plans import short
 
 from .conftest import TIME_SCALE, make_engine
-from .test_campaign_and_measurement import short
 
 #: The simulator's default equilibrium motor temperature rise while the drives hold (K, scenario thermal model).
 HOLD_RISE_K = 40.0

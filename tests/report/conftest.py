@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from rgse_daemon.store import Repository
-from tests.offline.campaign import write_campaign, write_measurement
-from tests.report.storefill import Filled, fill
+from tests.support.campaign import write_campaign, write_measurement
+from tests.support.storefill import Filled, fill
 
 DUT_KG = 107.3
 FIXTURE_KG = 10.288

@@ -11,16 +11,17 @@ from pathlib import Path
 
 import pytest
 
+from rgse_daemon.analysis.reference import EVENT_KIND, FAILED_KIND, references
 from rgse_daemon.commands import reference as reference_cmd
+from rgse_daemon.config import ScaleConfig
 from rgse_daemon.errors import ConfigError, DataError
 from rgse_daemon.io import IoFrameError, IoTimeout
-from rgse_daemon.io.scale import ScaleConfig, parse_line
-from rgse_daemon.reference import EVENT_KIND, FAILED_KIND, references
+from rgse_daemon.io.scale import parse_line
 from rgse_daemon.report import build_report
 from rgse_daemon.store import Repository
 from simulators.scale import ScaleSim, ScaleSimConfig
 from tests.report.conftest import FIXTURE_KG, World, write_config
-from tests.report.test_report import Dom
+from tests.support.chromium import Dom
 
 D_KG = 0.1
 

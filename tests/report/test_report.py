@@ -7,8 +7,6 @@ import argparse
 import json
 import subprocess
 import sys
-from collections import defaultdict
-from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
@@ -16,40 +14,8 @@ import pytest
 from rgse_daemon.commands import report as report_cmd
 from rgse_daemon.report import ReportConsistencyError, build_report
 from rgse_daemon.store import ArchiveError, Repository, archive_root
-from tests.report.chromium import REPO, dump_dom, screenshot
 from tests.report.conftest import World, write_config
-
-
-class Dom(HTMLParser):
-    """Collects ``<img>`` attributes, ``data-field`` values and the text shown by each numbered element."""
-
-    def __init__(self, text: str) -> None:
-        super().__init__(convert_charrefs=True)
-        self.images: list[dict[str, str | None]] = []
-        self.fields: dict[str, list[str]] = defaultdict(list)
-        self.shown: dict[str, list[str]] = defaultdict(list)
-        self.body: dict[str, str | None] = {}
-        self._open: list[str] = []
-        self.feed(text)
-
-    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
-        a = dict(attrs)
-        if tag == "img":
-            self.images.append(a)
-        if tag == "body":
-            self.body = a
-        if "data-field" in a:
-            self.fields[a["data-field"] or ""].append(a.get("data-value") or "")
-            self._open.append(a["data-field"] or "")
-            self.shown[a["data-field"] or ""].append("")
-
-    def handle_data(self, data: str) -> None:
-        for f in self._open:
-            self.shown[f][-1] += data
-
-    def handle_endtag(self, tag: str) -> None:
-        if tag in ("span", "code") and self._open:
-            self._open.pop()
+from tests.support.chromium import REPO, Dom, dump_dom, screenshot
 
 
 def _assert_all_images_loaded(dom: Dom, n_expected: int) -> None:

@@ -10,18 +10,13 @@ import pytest
 from rgse_daemon.errors import ConfigError, ProtocolError
 from rgse_daemon.link import frames as fr
 from simulators.krc4.server import GARBAGE_REPLY, KrcServer, ServerConfig
+from tests.support.polling import wait_until
 
 from .conftest import DEADLINE_S, RawClient
 
 PING = fr.encode_request(1, fr.ReadVarAscii("PING"))
 
 
-async def _until(predicate, what: str) -> None:
-    for _ in range(int(DEADLINE_S / 0.01)):
-        if predicate():
-            return
-        await asyncio.sleep(0.01)
-    pytest.fail(f"timed out waiting until {what}")
 
 
 async def test_kvp_client_limit_when_configured_closes_the_eleventh(share: Path) -> None:
@@ -35,7 +30,7 @@ async def test_kvp_client_limit_when_configured_closes_the_eleventh(share: Path)
             await eleventh.close()
             assert srv.counters.connections_refused == 1
             await clients.pop().close()
-            await _until(lambda: srv.client_count == 9, "server notices the closed client")
+            await wait_until(lambda: srv.client_count == 9, "server notices the closed client")
             replacement = await RawClient.open(srv.port)
             clients.append(replacement)
             assert await replacement.call(fr.ReadVarAscii("PING")) == fr.ReadVarAsciiReply("PONG")
@@ -199,7 +194,7 @@ async def test_serve_forever_until_cancelled_then_closed(share: Path) -> None:
     srv = KrcServer(ServerConfig(latency_s=0.0), share)
     task = asyncio.create_task(srv.serve_forever())
     try:
-        await _until(lambda: srv.port != 0, "the server listens")
+        await wait_until(lambda: srv.port != 0, "the server listens")
         c = await RawClient.open(srv.port)
         assert await c.call(fr.ReadVarAscii("PING")) == fr.ReadVarAsciiReply("PONG")
     finally:

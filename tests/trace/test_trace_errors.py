@@ -9,10 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tracehelpers import edit_channel, write_small_set
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.trace import read_trace_file, read_trace_set
+from tests.support.tracehelpers import edit_channel, write_small_set
 
 DAT = "run1_NextGenDrive#3.dat"
 R64 = "run1_NextGenDrive#3.r64"

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from tracehelpers import write_small_set
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.trace import read_trace_file
 from rgse_daemon.trace.diadem import parse_header
+from tests.support.tracehelpers import write_small_set
 
 DAT = "run1_NextGenDrive#3.dat"
 

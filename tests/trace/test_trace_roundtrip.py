@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from tracehelpers import DRIVE_UNITS, drive_channels, edit_channel, write_small_set
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.trace import read_trace_file, read_trace_set
 from rgse_daemon.trace.channels import ISTMOMENT, drive_module
 from simulators.krc4.tracefiles import write_trace_set
+from tests.support.tracehelpers import DRIVE_UNITS, drive_channels, edit_channel, write_small_set
 
 
 @pytest.mark.parametrize("storage", ["BLOCK", "CHANNEL"])
@@ -255,7 +255,7 @@ def test_without_sha256_reads_the_same_values(tmp_path: Path) -> None:
 
 def test_files_appear_by_rename_data_before_header(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Each file is renamed into place from a temporary name in the same directory; .r64 before .dat."""
-    import simulators.krc4.tracefiles as tracefiles
+    import rgse_daemon.durable as tracefiles  # the simulator writes its trace files with the project's durable helper
 
     renames: list[tuple[Path, Path]] = []
     real_replace = tracefiles.os.replace
@@ -278,7 +278,7 @@ def test_files_appear_by_rename_data_before_header(tmp_path: Path, monkeypatch: 
 
 
 def test_failed_write_leaves_no_temporary_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    import simulators.krc4.tracefiles as tracefiles
+    import rgse_daemon.durable as tracefiles  # the simulator writes its trace files with the project's durable helper
 
     def failing_fsync(fd: int) -> None:
         raise OSError("disk full")

@@ -1,4 +1,4 @@
-"""Helpers of the daemon tests (imported by name: this directory is on sys.path under pytest).
+"""Helpers of the daemon tests.
 
 * :func:`daemon_config`: a configuration for short runs against the simulators and a private broker.
 * :func:`running_daemon`: ``Daemon(cfg).run(stop)`` as a task, connected, stopped (bounded) on exit.
@@ -23,14 +23,14 @@ from typing import Any, Self
 
 import aiomqtt
 
+from rgse_daemon.analysis.calibration import fit_campaign
 from rgse_daemon.app import STOP_TIMEOUT_S, Daemon
-from rgse_daemon.commands.calibrate import fit_campaign
 from rgse_daemon.config import Config, MeasurementConfig, config_from_mapping
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.store import Store
 from rgse_daemon.systemd import Notifier
-from tests.mqtt.mqtt_helpers import Collector
-from tests.offline.simcampaign import ROBOT, simulate_campaign, simulate_measurement, write_dirs
+from tests.support.mqtt import Collector
+from tests.support.simcampaign import ROBOT, simulate_campaign, simulate_measurement, write_dirs
 
 __all__ = ["ROBOT"]
 
@@ -77,7 +77,8 @@ def daemon_config(
 
 def fit_sim_calibration(directory: Path, seed: int = 5) -> dict[str, Any]:
     """A Table-1-like campaign on the simulated KR 500 (same physics as the simulated KR C4), written as a campaign
-    directory and fitted by ``rgse calibrate --campaign DIR`` (:func:`rgse_daemon.commands.calibrate.fit_campaign`)."""
+    directory and fitted as ``rgse calibrate --campaign DIR`` does
+    (:func:`rgse_daemon.analysis.calibration.fit_campaign`)."""
     campaign, model = simulate_campaign(seed, n_loops=2)
     write_dirs(campaign, simulate_measurement(model, 50.0, n_loops=1), directory / "campaign", directory / "dut")
     doc, _ = fit_campaign(directory / "campaign", "auto")

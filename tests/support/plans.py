@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 from dataclasses import replace
 
 from rgse_daemon.procedures import messages as m
@@ -28,13 +27,6 @@ def long_motion(s: RunSettings) -> m.Plan:
     yield from run_checked(prog, s)
 
 
-async def until(predicate, timeout_s: float = 30.0, what: str = "condition") -> None:
-    """Poll ``predicate`` until true, at most ``timeout_s`` (fails the test with ``what`` otherwise)."""
-    deadline = asyncio.get_running_loop().time() + timeout_s
-    while not predicate():  # the simulator's state has no change event to await: poll it
-        if asyncio.get_running_loop().time() > deadline:
-            raise AssertionError(f"{what}: not reached within {timeout_s:g} s")
-        await asyncio.sleep(0.01)
 
 
 def moving(sim: SimulatedKrc4) -> bool:
@@ -49,3 +41,8 @@ def robot_still(sim: SimulatedKrc4) -> bool:
 
 def trace_stopped(sim: SimulatedKrc4) -> bool:
     return sim.store.read("$TRACE.STATE") == "#T_END"
+
+
+def short(cfg, **kw) -> RunSettings:
+    base = {"loops": 1, "trace_samples": 400, "warmup_cycles": 1, "payload_lever_max_m": 1.0}
+    return RunSettings.from_config(cfg, **{**base, **kw})

@@ -40,12 +40,6 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-async def wait_until(predicate: Callable[[], bool], what: str, timeout_s: float = 15.0) -> None:
-    """Poll ``predicate`` until true; fail naming ``what`` at the deadline (a hang guard, not a timing check)."""
-    async with asyncio.timeout(timeout_s):
-        while not predicate():  # noqa: ASYNC110 - counters and flags of the code under test have no event to await
-            await asyncio.sleep(0.02)
-    assert predicate(), what
 
 
 class MosquittoProcess:

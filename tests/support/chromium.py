@@ -5,6 +5,8 @@ from __future__ import annotations
 import functools
 import subprocess
 import tempfile
+from collections import defaultdict
+from html.parser import HTMLParser
 from pathlib import Path
 
 import pytest
@@ -42,3 +44,35 @@ def dump_dom(page: Path) -> str:
 def screenshot(page: Path, out: Path, height: int = 3000) -> Path:
     _run(["--hide-scrollbars", f"--window-size=1200,{height}", f"--screenshot={out}", page.resolve().as_uri()])
     return out
+
+
+class Dom(HTMLParser):
+    """Collects ``<img>`` attributes, ``data-field`` values and the text shown by each numbered element."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(convert_charrefs=True)
+        self.images: list[dict[str, str | None]] = []
+        self.fields: dict[str, list[str]] = defaultdict(list)
+        self.shown: dict[str, list[str]] = defaultdict(list)
+        self.body: dict[str, str | None] = {}
+        self._open: list[str] = []
+        self.feed(text)
+
+    def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+        a = dict(attrs)
+        if tag == "img":
+            self.images.append(a)
+        if tag == "body":
+            self.body = a
+        if "data-field" in a:
+            self.fields[a["data-field"] or ""].append(a.get("data-value") or "")
+            self._open.append(a["data-field"] or "")
+            self.shown[a["data-field"] or ""].append("")
+
+    def handle_data(self, data: str) -> None:
+        for f in self._open:
+            self.shown[f][-1] += data
+
+    def handle_endtag(self, tag: str) -> None:
+        if tag in ("span", "code") and self._open:
+            self._open.pop()

@@ -1,0 +1,184 @@
+"""The calibration of a campaign: read its loops, pre-process and average them (eq. 16), fit and describe K.
+
+One code path for ``rgse calibrate`` and the daemon's calibration campaign, so a stored calibration is always
+reproducible from its campaign directory."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon import calfile
+from rgse_daemon.errors import DataError
+from rgse_daemon.manifest import Manifest, load_manifest, read_loops, source_sha256, thermal_state_k
+from rgse_daemon.pipeline import calibration as cal_mod
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import uncertainty as unc
+from rgse_daemon.pipeline.calibration import CalibrationPoints
+
+#: Robot named in a calibration fitted from a bare points CSV (the paper's robot type; the CSV names none).
+POINTS_ROBOT = "KR500R2830"
+
+
+@dataclass(frozen=True)
+class CampaignData:
+    """A campaign's loops, read once: per point a list of (A3 loop, A5 loop, period) triples."""
+
+    manifest: Manifest
+    loops: list[list[tuple[np.ndarray, np.ndarray, float]]]
+    files: list[Path]
+    thermal_state_k: dict[str, float] | None = None
+    """Mean A3/A5 motor temperature over every loop (K), when the traces recorded it."""
+
+
+def load_campaign(directory: Path) -> CampaignData:
+    man = load_manifest(directory)
+    if not man.points:
+        raise DataError(f"{man.path}: a calibration campaign needs [[point]] entries")
+    if not any(p.kind == "zero" for p in man.points):
+        raise DataError(f"{man.path}: a calibration campaign needs a 'zero' point (the M_0 bias)")
+    loops = []
+    every_loop = []
+    for spec in man.points:
+        point_loops = read_loops(directory, spec.traces)
+        every_loop += point_loops
+        loops.append([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point_loops])
+    files = [man.path, *sorted(p for p in Path(directory).iterdir() if p.suffix in (".dat", ".r64"))]
+    return CampaignData(man, loops, files, thermal_state_k(every_loop))
+
+
+def campaign_points(data: CampaignData, cfg: pp.Preprocessing) -> tuple[CalibrationPoints, float, float]:
+    """Pre-process every loop, average (eq. 16), remove the zero-load bias M_0; returns points and biases."""
+    raw3, raw5 = [], []
+    for point_loops in data.loops:
+        raw3.append(pp.double_average_nm([pp.process_loop(a3, dt, cfg).torque_nm for a3, _, dt in point_loops]))
+        raw5.append(pp.double_average_nm([pp.process_loop(a5, dt, cfg).torque_nm for _, a5, dt in point_loops]))
+    return points_from_raw(data.manifest, np.array(raw3), np.array(raw5))
+
+
+def points_from_raw(man: Manifest, raw3: np.ndarray, raw5: np.ndarray) -> tuple[CalibrationPoints, float, float]:
+    kinds = np.array([p.kind for p in man.points])
+    zero = kinds == "zero"
+    bias3, bias5 = float(raw3[zero].mean()), float(raw5[zero].mean())
+    g = man.setup.g_m_s2
+    mass = np.array([p.mass_kg for p in man.points])
+    e3 = g * mass * np.array([p.lever_a3_m for p in man.points])  # expected normalised torque g·m·lever
+    e5 = g * mass * np.array([p.lever_a5_m for p in man.points])
+    # the measured torque carries the sign of the axis direction; K (negative then) absorbs it
+    n3, n5 = pp.normalise(raw3, bias3), pp.normalise(raw5, bias5)
+    var = np.array([p.mass_var_kg2(man.setup.body_mass_u_kg) for p in man.points])
+    cov = cal_mod.reference_mass_covariance(var, nested=man.setup.reference_correlation == "nested")
+    return CalibrationPoints(kinds, mass, n3, n5, e3, e5, cov), bias3, bias5
+
+
+def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float):
+    """Evaluate every model (in-sample and LOO), pick ``method`` (or the auto choice) and fit it on all points."""
+    evaluations = cal_mod.evaluate_all(points, g, dr)
+    if method == "auto":
+        chosen = cal_mod.select_auto(evaluations)
+    else:
+        if method not in cal_mod.MODELS:
+            raise DataError(f"unknown calibration method {method!r}; use auto or one of {', '.join(cal_mod.MODELS)}")
+        found = [e for e in evaluations if e.method == method]
+        chosen = found[0] if found else cal_mod.evaluate(points, method, g, dr)
+    cal = cal_mod.fit(points, chosen.method, g, dr)
+    cov_ref = cal_mod.reference_mass_param_covariance(points, chosen.method, g, dr)
+    cal.covariance = cal.covariance + cov_ref
+    cal.covariance_reference = cov_ref
+    return cal, chosen, evaluations
+
+
+def plausible_alternatives(points: CalibrationPoints, chosen: cal_mod.Evaluation,
+                           evaluations: list[cal_mod.Evaluation], g: float, dr: float) -> list[dict]:
+    """The other models whose LOO error is within ``PLAUSIBLE_LOO_FACTOR`` of the chosen one's, fitted on all
+    points (CAL.json ``fit.alternatives``: the model-form term of the uncertainty)."""
+    limit = unc.PLAUSIBLE_LOO_FACTOR * chosen.loo_mean_abs_err_pct
+    return [{"method": e.method, "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct,
+             "models": cal_mod.fit(points, e.method, g, dr).models_dict()}
+            for e in evaluations if e.method != chosen.method and e.loo_mean_abs_err_pct <= limit]
+
+
+def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, robot: str,
+              pre: pp.Preprocessing | None, bias3: float, bias5: float, g_u: float,
+              sources: dict[str, str], where: Path,
+              thermal: dict[str, float] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Fit and describe a calibration: (CAL.json document, the ``--json`` summary). One code path for the CLI and
+    the daemon's campaign, so a stored calibration is always reproducible from its campaign directory."""
+    try:
+        cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
+    except DataError as exc:
+        raise DataError(f"{where}: {exc}") from exc
+    doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
+                        in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
+                        loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
+                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": loo_rms_rel(points, chosen),
+                                   "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr)},
+                        g_u_m_s2=g_u, thermal_state_k=thermal)
+    summary = {
+        "calibration_id": doc["calibration_id"],
+        "method": cal.method,
+        "in_sample_mean_abs_err_pct": chosen.in_sample_mean_abs_err_pct,
+        "loo_mean_abs_err_pct": chosen.loo_mean_abs_err_pct,
+        "loo_max_abs_err_kg": chosen.loo_max_abs_err_kg,
+        "points": len(points),
+        "r2": cal.r2,
+        "models": [{"method": e.method, "in_sample_mean_abs_err_pct": e.in_sample_mean_abs_err_pct,
+                    "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg,
+                    "n_params": e.n_params} for e in evaluations],
+    }
+    return doc, summary
+
+
+def parse_preprocessing(spec: str | None) -> pp.Preprocessing:
+    """``--preprocessing``: ``paper`` (method F, the default) or ``key=value,...`` over the fields of
+    :class:`~rgse_daemon.pipeline.preprocess.Preprocessing` (e.g. a row of ``rgse study --campaign``:
+    ``crop_sigma=2,filter=gaussian,window=100,order=forward,location=huber``); unnamed fields keep method F's value.
+    ``crop_sigma=none`` keeps every sample."""
+    if spec is None or spec.strip().lower() == "paper":
+        return pp.PAPER
+    fields = {f.name: f.type for f in dataclasses.fields(pp.Preprocessing)}
+    values: dict[str, Any] = {}
+    for item in spec.split(","):
+        key, sep, text = (part.strip() for part in item.partition("="))
+        if not sep or key not in fields:
+            raise DataError(f"--preprocessing {spec!r}: {item.strip()!r} is not KEY=VALUE with KEY one of "
+                            f"{', '.join(fields)}")
+        if key in values:
+            raise DataError(f"--preprocessing {spec!r}: {key} given twice")
+        try:
+            if key == "crop_sigma":
+                values[key] = None if text.lower() == "none" else float(text)
+            elif key == "window":
+                values[key] = int(text)
+            elif key == "settle_s":
+                values[key] = float(text)
+            else:
+                values[key] = text
+        except ValueError:
+            raise DataError(f"--preprocessing {spec!r}: {key}={text!r} is not a number") from None
+    try:
+        return dataclasses.replace(pp.PAPER, **values)
+    except pp.PreprocessError as exc:
+        raise DataError(f"--preprocessing {spec!r}: {exc}") from None
+
+
+def fit_campaign(directory: Path, method: str,
+                 pre: pp.Preprocessing = pp.PAPER) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``rgse calibrate --campaign DIR [--preprocessing SPEC]`` without writing: (CAL.json document, summary)."""
+    data = load_campaign(directory)
+    points, bias3, bias5 = campaign_points(data, pre)
+    setup = data.manifest.setup
+    return calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot, pre=pre,
+                     bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2, sources=source_sha256(data.files),
+                     where=directory, thermal=data.thermal_state_k)
+
+
+def loo_rms_rel(points: CalibrationPoints, ev: cal_mod.Evaluation) -> float:
+    """RMS of the relative LOO mass errors over the loaded points (the model term of the uncertainty)."""
+    loaded = points.mass_kg > 0
+    rel = (ev.loo_mass_kg[loaded] - points.mass_kg[loaded]) / points.mass_kg[loaded]
+    return float(np.sqrt(np.mean(rel**2))) if rel.size else 0.0

@@ -1,0 +1,99 @@
+"""The in-line mass of a measurement directory with a calibration file (eq. 16, 21 and the U budget).
+
+One code path for ``rgse mass`` and the daemon's measurement run, so a stored result is always reproducible from
+its raw files."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon import calfile
+from rgse_daemon.errors import DataError
+from rgse_daemon.manifest import Loop, load_manifest, read_loops, thermal_state_k
+from rgse_daemon.pipeline import inline
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import uncertainty as unc
+from rgse_daemon.pipeline.calibration import Calibration
+
+#: Largest accepted difference between the measurement's and the calibration's mean A3/A5 motor temperature (K).
+THERMAL_MISMATCH_K = 3.0
+
+
+@dataclass
+class MassResult:
+    mass_kg: float
+    u_kg: float
+    U_kg: float
+    gross_mass_kg: float
+    fixture_mass_kg: float
+    loops: int
+    samples_used: int
+    samples_total: int
+    calibration_id: str
+    method: str
+    warnings: list[str] = field(default_factory=list)
+    u_components_kg: dict[str, float] = field(default_factory=dict)
+    motor_temp_k: dict[str, float] | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"mass_kg": self.mass_kg, "u_kg": self.u_kg, "U_kg": self.U_kg, "k": int(unc.COVERAGE_K),
+                "gross_mass_kg": self.gross_mass_kg, "fixture_mass_kg": self.fixture_mass_kg, "loops": self.loops,
+                "samples_used": self.samples_used, "samples_total": self.samples_total,
+                "calibration_id": self.calibration_id, "method": self.method, "cog_m": None,
+                "warnings": self.warnings, "u_components_kg": self.u_components_kg,
+                "motor_temp_k": self.motor_temp_k}
+
+
+def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: pp.Preprocessing,
+            fixture_mass_kg: float, g_measurement_m_s2: float | None = None,
+            g_u_measurement_m_s2: float = 0.0, alternatives: list[Calibration] = ()) -> MassResult:
+    """Pre-process every loop, average (eq. 16), normalise with the calibration's M_0, apply eq. 21, budget U."""
+    fit = cal_doc["fit"]
+    r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in loops], cal,
+                            float(cal_doc["bias_nm"]["A3"]), float(cal_doc["bias_nm"]["A5"]), pre, fixture_mass_kg,
+                            float(fit.get("loo_residual_rms_rel", 0.0)), float(cal_doc.get("g_u_m_s2", 0.0)),
+                            g_measurement_m_s2, g_u_measurement_m_s2, alternatives)
+    return MassResult(r.mass_kg, r.uncertainty.u_kg, r.uncertainty.expanded_kg, r.gross_mass_kg, fixture_mass_kg,
+                      len(loops), r.samples_used, r.samples_total, str(cal_doc["calibration_id"]), cal.method,
+                      r.warnings, r.uncertainty.components())
+
+
+def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None):
+    """The in-line mass of a measurement directory (contracts §2) with a calibration file: what ``rgse mass`` prints,
+    and what the daemon stores — one code path, so a stored result is always reproducible from its raw files."""
+    man = load_manifest(directory)
+    if not man.measurement_traces:
+        raise DataError(f"{man.path}: no [measurement] table (is this a calibration campaign?)")
+    doc, cal, pre = calfile.read(calibration_path)
+    calfile.check_robot(calibration_path, doc, man.setup.robot)
+    fixture = fixture_mass_kg if fixture_mass_kg is not None else (man.fixture_mass_kg or 0.0)
+    if not np.isfinite(fixture) or fixture < 0:
+        raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")
+    loops = read_loops(directory, man.measurement_traces)
+    result = measure(loops, cal, doc, pre or pp.PAPER, fixture, man.setup.g_m_s2, man.setup.g_u_m_s2 or 0.0,
+                     calfile.alternatives(calibration_path, doc, cal))
+    if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
+        result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
+    result.motor_temp_k = thermal_state_k(loops)
+    mismatch = thermal_mismatch(result.motor_temp_k, doc.get("thermal_state_k"))
+    if mismatch is not None:
+        result.warnings.append(mismatch)
+    return result
+
+
+def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any) -> str | None:
+    """A warning when the A3/A5 motor temperatures of the measurement differ from the calibration campaign's by more
+    than :data:`THERMAL_MISMATCH_K` (the torque estimate drifts with motor temperature; U does not model it)."""
+    if measured_k is None or not isinstance(calibration_k, dict):
+        return None
+    diffs = {ax: measured_k[ax] - float(calibration_k[ax]) for ax in ("A3", "A5") if ax in calibration_k}
+    off = {ax: d for ax, d in diffs.items() if abs(d) > THERMAL_MISMATCH_K}
+    if not off:
+        return None
+    text = ", ".join(f"{ax} {d:+.1f} K" for ax, d in off.items())
+    return (f"motor temperatures differ from the calibration campaign's ({text}; limit {THERMAL_MISMATCH_K:g} K): "
+            f"warm up until steady, or re-calibrate")

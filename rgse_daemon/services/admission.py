@@ -1,0 +1,167 @@
+"""Run admission: the robot is one resource, so one run at a time, and a run starts only on a connected controller,
+in T1 — or in AUT with the safety I/O module's inputs all good."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Awaitable, Callable
+from dataclasses import replace
+from typing import Any
+
+from rgse_daemon.config import Config
+from rgse_daemon.controller import Controller
+from rgse_daemon.errors import LinkError, RgseError
+from rgse_daemon.procedures.common import PreconditionError
+from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.safety.inputs import SafetyInputs
+from rgse_daemon.services.link import DaemonCounters
+from rgse_daemon.store import Store
+
+log = logging.getLogger("rgse_daemon.app")
+
+#: Bounded wait for a cancelled run to end (s).
+STOP_TIMEOUT_S = 15.0
+#: How long ``measure``/``calibrate`` wait for the run to start before answering without its run id (s).
+RUN_START_TIMEOUT_S = 10.0
+
+
+class Busy(RgseError):
+    """A run is already in progress: the robot is one resource."""
+
+
+class NotConnected(RgseError):
+    """The controller link is not up (yet): no run can start."""
+
+
+class RunAdmission:
+    """Admits one run at a time and holds it: ``task``, ``kind``, its run id once started, its outcome.
+
+    ``on_failed(kind, run_id, error)`` is told when a run ends in an error (the daemon alarms and lights red).
+    """
+
+    def __init__(self, cfg: Config, counters: DaemonCounters, inputs: Callable[[], SafetyInputs | None],
+                 on_failed: Callable[[str, str | None, str], None]) -> None:
+        self.cfg = cfg
+        self.counters = counters
+        self._inputs = inputs
+        self._on_failed = on_failed
+        self.task: asyncio.Task[Any] | None = None
+        self.kind: str | None = None
+        self.stopping = False
+        self.last_result: Any = None
+        self.last_error: str | None = None
+        self._started: asyncio.Future[str | None] | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.task is not None and not self.task.done()
+
+    @property
+    def run_id(self) -> str | None:
+        """The run id of the current (or last) run, once it has started."""
+        started = self._started
+        return started.result() if started is not None and started.done() else None
+
+    def mark_started(self, run_id: str | None) -> None:
+        """The engine says the run is running (its ``state`` event)."""
+        started = self._started
+        if started is not None and not started.done():
+            started.set_result(run_id)
+
+    def start(self, kind: str, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]], *,
+              engine: RunEngine | None, krc: Controller | None, store: Store, connected: bool,
+              link_error: str | None) -> asyncio.Task[Any]:
+        """Reserve the robot for one run (synchronously: no second request can slip in) and start it in a task."""
+        if self.stopping:
+            self.counters.runs_refused += 1
+            raise Busy("busy: the daemon is stopping")
+        if self.active:
+            self.counters.runs_refused += 1
+            run_id = self.run_id
+            raise Busy(f"busy: a {self.kind} run{f' ({run_id})' if run_id else ''} is in progress; "
+                       "abort it first or wait")
+        if engine is None or krc is None or not connected:
+            self.counters.runs_refused += 1
+            c = self.cfg.controller
+            why = f" ({link_error})" if link_error else ""
+            raise NotConnected(f"not connected: controller {c.host}:{c.port} is not connected{why}")
+        self.kind = kind
+        self._started = asyncio.get_running_loop().create_future()
+        self.counters.runs_started += 1
+
+        async def runner() -> Any:
+            try:
+                await self.check_start_mode(krc, engine)
+                result = await coro_factory(engine, store)
+            except asyncio.CancelledError:
+                raise
+            except Exception as exc:
+                self.last_error = f"{type(exc).__name__}: {exc}"
+                log.error("%s run failed: %s", kind, self.last_error)
+                self._on_failed(kind, self.run_id, self.last_error)
+                raise
+            self.last_result = result
+            return result
+
+        self.task = asyncio.create_task(runner(), name=f"rgse-run-{kind}")
+        self.task.add_done_callback(lambda t: t.cancelled() or t.exception())  # retrieved: logged above
+        return self.task
+
+    async def check_start_mode(self, krc: Controller, engine: RunEngine) -> None:
+        """Before anything is recorded or moved: AUT only with the safety I/O module's inputs all good (area
+        cleared, key switch AUT permitted, E-stop OK, a fresh reading), else :class:`PreconditionError` — the plan's
+        own preconditions, the static check and the monitor check it again. The runtime monitor then allows exactly
+        the mode the run starts in (T1, or AUT when the module is configured): a mode change during the run trips."""
+        timeout_s = self.cfg.controller.request_timeout_s * 2
+        try:
+            async with asyncio.timeout(timeout_s):
+                snap = await krc.snapshot()
+        except TimeoutError as exc:
+            raise LinkError(f"no controller snapshot within {timeout_s:g} s") from exc
+        mode = snap.mode_op
+        inputs = self._inputs()
+        if mode == "AUT":
+            if inputs is None or not inputs.safe:
+                why = "no safety I/O module configured" if inputs is None else (
+                    inputs.reason or ", ".join(n for n, ok in (("area not cleared", inputs.area_cleared),
+                                                               ("AUT key not turned", inputs.aut_permitted),
+                                                               ("E-stop not OK", inputs.estop_ok)) if not ok))
+                raise PreconditionError(f"refused to start: AUT needs the area cleared, the AUT key and E-stop OK "
+                                        f"({why})")
+        if engine.monitor is not None:
+            allowed = {mode} if mode == "T1" or (mode == "AUT" and inputs is not None) else {"T1"}
+            engine.monitor.context = replace(engine.monitor.context, allowed_modes=frozenset(allowed))
+
+    async def started(self, task: asyncio.Task[Any]) -> str | None:
+        """Wait until the run has started (its run id; None for a dry run) or has failed before (raises why)."""
+        started = self._started
+        assert started is not None
+        await asyncio.wait({started, task}, timeout=RUN_START_TIMEOUT_S, return_when=asyncio.FIRST_COMPLETED)
+        if started.done():
+            return started.result()
+        if task.done():
+            if task.cancelled():
+                raise RgseError("the run was cancelled before it started")
+            exc = task.exception()
+            if exc is not None:
+                raise exc
+        return None
+
+    async def stop(self) -> None:
+        """Cancel the run in progress (its finaliser makes the robot safe, the store marks it interrupted) and wait,
+        bounded — call it while the controller link is still open."""
+        task = self.task
+        if task is None or task.done():
+            return
+        if task.cancelling() == 0:  # once: a second cancel would interrupt the finaliser that makes the robot safe
+            log.warning("stopping: cancelling the %s run in progress", self.kind)
+            task.cancel()
+        done, _ = await asyncio.wait({task}, timeout=STOP_TIMEOUT_S)
+        if not done:
+            log.error("the %s run did not end within %.0f s of its cancellation", self.kind, STOP_TIMEOUT_S)
+
+    async def wait_end(self) -> None:
+        task = self.task
+        if task is not None and not task.done():
+            await asyncio.wait({task})
