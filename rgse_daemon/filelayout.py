@@ -20,8 +20,9 @@ from rgse_daemon.errors import ConfigError
 LAYOUT_FILENAME = "controller_layout.json"
 #: Forms of the controller's TRACE folder, most likely first (kuka-facts §5 names the disk path).
 TRACE_DIR_CANDIDATES: tuple[str, ...] = ("C:\\KRC\\ROBOTER\\TRACE\\", "KRC:\\TRACE\\")
-#: A name in the TRACE folder, in any candidate form: group 1 is the rest below the folder.
-_TRACE_NAME = re.compile(r"^(?:C:[\\/]+KRC[\\/]+ROBOTER[\\/]+TRACE|KRC:[\\/]*TRACE)(?:[\\/]+(.*))?$", re.IGNORECASE)
+#: A name in the TRACE folder, in any candidate form or as a KRC name ``/TRACE/…``: group 1 is the rest below it.
+_TRACE_NAME = re.compile(r"^(?:C:[\\/]+KRC[\\/]+ROBOTER[\\/]+TRACE|KRC:[\\/]*TRACE|/TRACE)(?:[\\/]+(.*))?$",
+                         re.IGNORECASE)
 
 
 @dataclass(frozen=True)
