@@ -48,10 +48,12 @@ from rgse_daemon.controller import Controller
 from rgse_daemon.errors import RgseError
 from rgse_daemon.io.commands import AbortCommand, CalibrateCommand, CalibrationPoint, ConfirmCommand, MeasureCommand
 from rgse_daemon.procedures.calibration import CB_MASS_KG, TA_MASS_KG, TA_TORQUE_A5_NM, CampaignPoint, run_calibration
-from rgse_daemon.procedures.common import RunSettings, static_checker
+from rgse_daemon.procedures.documents import Document, Result
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import run_measurement
+from rgse_daemon.procedures.programs import static_checker
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
 from rgse_daemon.services.admission import Busy, NotConnected, RunAdmission
@@ -291,6 +293,7 @@ class Daemon:
             share_dir=self.cfg.controller.share_dir,
         )
         engine.subscribe(self._event)
+        engine.subscribe_documents(self._document)
         return engine
 
     # --- events out ----------------------------------------------------------------------------------------------
@@ -304,14 +307,16 @@ class Daemon:
         if self.mqtt is not None:
             if ev.kind == "alarm":
                 self.mqtt.publish_alarm(ev.to_json())
-            elif ev.kind == "result":
-                self.mqtt.notify_outbox()  # the result is in the store's outbox already
-            elif ev.run_id is not None:
+            elif ev.run_id is not None and ev.kind != "result":  # a result goes out from the outbox: _document
                 self.mqtt.publish_progress(ev.run_id, ev.to_json())
         if ev.kind == "alarm":
             self.light.want("red")
         elif ev.kind == "state":
             self.light.want_for_state(ev.data.get("state"))
+
+    def _document(self, doc: Document) -> None:
+        if isinstance(doc, Result) and self.mqtt is not None:
+            self.mqtt.notify_outbox()  # the recorder stored the result with its outbox row: publish it now
 
     def _publish_alarm(self, doc: dict[str, Any]) -> None:
         if self.mqtt is not None:
@@ -350,6 +355,7 @@ class Daemon:
     def _dry(self, engine: RunEngine) -> RunEngine:
         dry = RunEngine(engine.krc, checker=engine.checker, monitor=None, dry_run=True, share_dir=engine.share_dir)
         dry.subscribe(self._event)
+        dry.subscribe_documents(self._document)
         return dry
 
     async def start_calibration(self, *, points: list[CampaignPoint] | None = None, method: str = "auto",

@@ -15,6 +15,7 @@ from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.calibration import AxisK, Calibration
 from rgse_daemon.pipeline.preprocess import Preprocessing
+from rgse_daemon.trace.names import plain_name
 
 SCHEMA = 1
 
@@ -132,6 +133,11 @@ def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing |
             raise DataError(f"{path}: {exc}") from exc
     if not isinstance(doc.get("robot"), str):
         raise DataError(f"{path}: calibration file lacks the robot it belongs to")
+    sources = doc.get("source_sha256", {})
+    if not isinstance(sources, dict):
+        raise DataError(f"{path}: source_sha256 must be an object of file name -> SHA-256")
+    for name in sources:
+        plain_name(name, f"{path}: source_sha256")
     return doc, cal, pre
 
 

@@ -10,10 +10,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import math
 import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import NoReturn
 
 from rgse_daemon import __version__
 from rgse_daemon.errors import (
@@ -33,12 +35,38 @@ from rgse_daemon.logs import choose_format, setup_logging
 __all__ = ["EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_OK", "EXIT_REFUSED", "build_parser", "main"]
 
 
+class _Parser(argparse.ArgumentParser):
+    """Bad arguments end in one line (``rgse mass: error: ...``) and exit 2, like every other bad input."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def finite(text: str) -> float:
+    """An argparse type: a finite number (``nan``/``inf`` are refused as such)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def positive(text: str) -> float:
+    """An argparse type: a finite number > 0 (a timeout, a time scale)."""
+    value = finite(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
 def _add_json(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="rgse", description="Robotic GSE in-line mass determination on a KUKA KR C4, automated."
     )
     parser.add_argument("--version", action="version", version=f"rgse {__version__}")
@@ -80,7 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("mass", help="offline in-line mass from a measurement directory")
     p.add_argument("--traces", type=Path, required=True, metavar="DIR")
     p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
-    p.add_argument("--fixture-mass", type=float, metavar="KG")
+    p.add_argument("--fixture-mass", type=finite, metavar="KG")
     _add_json(p)
 
     p = sub.add_parser("study", help="the pre-processing parameter study (paper Table A2), ranked")
@@ -100,9 +128,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, metavar="FILE")
     p.add_argument("--weighed", choices=("gross", "net"), default="gross",
                    help="gross: DuT and fixture hang on the scale together (the paper's 117.6 kg)")
-    p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for a stable weighing")
+    p.add_argument("--timeout", type=positive, metavar="S", help="wait at most S s for a stable weighing")
     p.add_argument("--operators", type=int, metavar="N", help="operators of the crane-scale procedure (Table 2)")
-    p.add_argument("--operation-min", type=float, metavar="MIN", help="its total time of operation (Table 2)")
+    p.add_argument("--operation-min", type=positive, metavar="MIN", help="its total time of operation (Table 2)")
     _add_json(p)
 
     p = sub.add_parser("krl", help="KRL programs: static check, rendering")

@@ -8,6 +8,7 @@ and CI like to do.
 from __future__ import annotations
 
 import math
+import os
 import re
 import tomllib
 from enum import StrEnum
@@ -15,7 +16,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
-from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict
+from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, SettingsError
 
 from rgse_daemon.errors import ConfigError
 
@@ -33,7 +34,7 @@ MAX_BITS_PER_READ = 2000  # Modbus application protocol limit for FC 1 / FC 2
 
 # --- configuration -------------------------------------------------------------------------------------------
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class InputMap(_Strict):
@@ -100,7 +101,7 @@ _REQUIRED_GROUPS = {"value", "unit"}
 class ScaleConfig(BaseModel):
     """How to reach the crane scale and how to read its lines."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     port: str = Field("/dev/ttyUSB0", min_length=1)
     """A device path or a pyserial URL such as ``socket://10.0.0.8:4001``."""
@@ -140,7 +141,8 @@ class ScaleConfig(BaseModel):
 
 
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # NaN and inf are refused as such ("finite number"), not by a bound they happen to fail.
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Protocol(StrEnum):
@@ -245,7 +247,8 @@ class MqttConfig(_Section):
     host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(1883, ge=1, le=65535)
     prefix: str | None = Field(None, pattern=r"^[^#+]+$")
-    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (contracts §4)."""
+    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (contracts §4). A trailing ``/`` is dropped here, once
+    (``plant/rgse/`` is ``plant/rgse``): every topic is ``<prefix>/<level>``."""
     username: str | None = None
     password: str | None = None
     tls: bool = False
@@ -258,6 +261,45 @@ class MqttConfig(_Section):
     """Maximum rate of the retained ``state`` topic; high-rate state beyond the queue is dropped and counted."""
     command_tokens: tuple[str, ...] = ()
     """If not empty, a command must carry one of these in its ``token`` field (authorisation)."""
+    command_auth: Literal["token", "broker_acl", "open_lab_bench"] = "token"
+    """Who may send commands that move the robot (docs/security.md). ``token`` (default): only a client that knows
+    one of ``command_tokens`` (which must then be set). ``broker_acl``: the broker authenticates every client and its
+    ACL lets only operators publish to ``<prefix>/cmd/#`` (deploy/mosquitto.acl); the daemon must log in
+    (``username``). ``open_lab_bench``: anyone who reaches the broker — only on an isolated lab bench."""
+
+    @model_validator(mode="after")
+    def _commands_authenticated(self) -> MqttConfig:
+        if not self.enabled:
+            return self
+        if self.command_auth == "token" and not self.command_tokens:
+            raise ValueError(
+                "command_tokens is empty, so any client that reaches the broker could move the robot: set "
+                "command_tokens, or command_auth = \"broker_acl\" (broker login + ACL, see docs/security.md), or "
+                "command_auth = \"open_lab_bench\" on an isolated lab bench"
+            )
+        if self.command_auth == "broker_acl" and not self.username:
+            raise ValueError("command_auth = \"broker_acl\" needs username (and password): the broker's ACL "
+                             "can only tell clients apart when they log in")
+        return self
+
+    @field_validator("command_tokens")
+    @classmethod
+    def _tokens_usable(cls, tokens: tuple[str, ...]) -> tuple[str, ...]:
+        for i, t in enumerate(tokens):
+            if not t.strip():
+                raise ValueError(f"token {i} is empty: an empty token would authorise a command without one")
+            if len(t) > 256 or any(c.isspace() or not c.isprintable() for c in t):
+                raise ValueError(f"token {i} must be 1-256 printable characters without spaces")
+        return tokens
+
+    @field_validator("prefix")
+    @classmethod
+    def _prefix_without_trailing_slash(cls, prefix: str | None) -> str | None:
+        if prefix is None:
+            return None
+        if not prefix.rstrip("/"):
+            raise ValueError(f"{prefix!r}: empty once the trailing '/' is dropped; leave it out for rgse/<robot>")
+        return prefix.rstrip("/")
 
 
 class Config(BaseSettings):
@@ -292,21 +334,67 @@ class Config(BaseSettings):
         return (env_settings, init_settings)
 
 
+ENV_PREFIX = "RGSE_"
+
+
+def _env_variables() -> dict[str, str]:
+    """The ``RGSE_*`` environment variables by upper-case name (pydantic-settings matches them case-blind)."""
+    return {k.upper(): k for k in os.environ if k.upper().startswith(ENV_PREFIX)}
+
+
+def _env_name(loc: tuple[int | str, ...], env: dict[str, str]) -> str | None:
+    """The environment variable that set the field at ``loc`` (or its section), if one did."""
+    keys = [str(p) for p in loc if isinstance(p, str)]
+    for k in range(len(keys), 0, -1):
+        name = ENV_PREFIX + "__".join(keys[:k]).upper()
+        if name in env:
+            return env[name]
+    return None
+
+
 def _format_validation_error(source: str, exc: ValidationError) -> str:
+    env = _env_variables()
     problems = []
     for err in exc.errors():
         where = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-        problems.append(f"{where}: {msg}")
+        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
+        var = _env_name(err["loc"], env)
+        problems.append(f"{where} (from environment {var}): {msg}" if var else f"{where}: {msg}")
     return f"{source}: " + "; ".join(problems)
 
 
+def _settings_error(source: str, exc: SettingsError) -> str:
+    """One line for an environment value pydantic-settings could not even parse (a section or list is JSON)."""
+    cause = exc.__cause__
+    field_name = str(exc).split('"')[1] if str(exc).count('"') >= 2 else ""
+    names = sorted(v for k, v in _env_variables().items()
+                   if k == ENV_PREFIX + field_name.upper() or k.startswith(ENV_PREFIX + field_name.upper() + "__"))
+    why = f"{type(cause).__name__}: {cause}" if cause is not None else str(exc)
+    return (f"{source}: environment {', '.join(names) or ENV_PREFIX + '*'}: not a valid value for {field_name!r} "
+            f"(a whole section or a list must be JSON): {why}")
+
+
+def _check_env_sections(source: str) -> None:
+    """``RGSE_<SECTION>__<KEY>`` must name a config section (an unknown key inside one is refused by the section's
+    model): a misspelt section would otherwise be ignored. Variables without ``__`` (``RGSE_LOG_FORMAT``) are not
+    configuration."""
+    for upper, name in sorted(_env_variables().items()):
+        section, sep, _ = upper[len(ENV_PREFIX):].partition("__")
+        if sep and section.lower() not in Config.model_fields:
+            raise ConfigError(f"{source}: environment {name}: no config section {section.lower()!r} "
+                              f"(sections: {', '.join(Config.model_fields)})")
+
+
 def config_from_mapping(data: dict[str, Any], source: str = "<config>") -> Config:
-    """Validate an already parsed mapping; raises :class:`ConfigError` naming every bad field."""
+    """Validate an already parsed mapping plus the environment; raises :class:`ConfigError` naming every bad field
+    (and the environment variable it came from, if one did)."""
+    _check_env_sections(source)
     try:
         return Config(**data)
     except ValidationError as exc:
         raise ConfigError(_format_validation_error(source, exc)) from exc
+    except SettingsError as exc:
+        raise ConfigError(_settings_error(source, exc)) from exc
 
 
 def load_config(path: Path | str | None) -> Config:

@@ -13,6 +13,14 @@
   ``extra_<name>`` so it never replaces one.
 * ``auto`` (the default): ``journal`` when stderr is the journal's stream — ``$JOURNAL_STREAM`` holds the
   ``device:inode`` of that stream, compared with ``fstat`` of stderr — otherwise ``text``.
+
+Hygiene, in every format (filters on the handler, so third-party loggers such as the MQTT client's are covered):
+
+* control characters in a message (a NUL in an abort reason, an escape sequence in a file name) are written
+  escaped (``\\x00``); newlines and tabs stay (tracebacks);
+* a warning (or worse) repeated with the same text is written once; further copies within
+  :data:`REPEAT_WINDOW_S` are counted, and the count is written with the next copy after the window (``... [and
+  5523 more times in the last 60 s]``) or when logging shuts down.
 """
 
 from __future__ import annotations
@@ -20,7 +28,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import re
 import sys
+import time
 from collections.abc import Mapping
 from datetime import UTC, datetime
 from typing import IO, Any
@@ -33,6 +43,75 @@ JOURNAL_FORMAT = "%(levelname)s %(name)s: %(message)s"
 #: Attributes every LogRecord has; anything else on a record came from ``extra=``.
 _RECORD_ATTRS = frozenset(logging.LogRecord("", 0, "", 0, "", (), None).__dict__) | {"message", "asctime"}
 _JSON_FIXED = ("time", "level", "logger", "message", "exception", "stack")
+
+
+#: Repeats of one warning within this many seconds are counted instead of written.
+REPEAT_WINDOW_S = 60.0
+#: Distinct warnings remembered for throttling (the oldest is forgotten first).
+REPEAT_KEYS_MAX = 1024
+
+_CONTROL_RE = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
+_CONTROL_ALL_RE = re.compile(r"[\x00-\x1f\x7f-\x9f]")
+
+
+def escape_controls(text: str, *, keep_newlines: bool = False) -> str:
+    """``text`` with control characters written as ``\\xNN`` (NUL, ESC, DEL, C1, and newline/tab unless
+    ``keep_newlines``): text from outside cannot forge log lines, drive a terminal, or put NUL into a store."""
+    pattern = _CONTROL_RE if keep_newlines else _CONTROL_ALL_RE
+    return pattern.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+
+
+class EscapeControls(logging.Filter):
+    """Escape control characters of each record's message (newlines and tabs kept)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        message = record.getMessage()
+        escaped = escape_controls(message, keep_newlines=True)
+        if escaped != message:
+            record.msg, record.args = escaped, None
+        return True
+
+
+class RepeatThrottle(logging.Filter):
+    """Write a repeated warning once per ``window_s`` and count the copies in between (see the module docstring)."""
+
+    def __init__(self, window_s: float = REPEAT_WINDOW_S, level: int = logging.WARNING,
+                 clock: Any = time.monotonic) -> None:
+        super().__init__()
+        self.window_s = window_s
+        self.level = level
+        self._clock = clock
+        self._seen: dict[tuple[str, int, str], list[float | int]] = {}  # key -> [window start, suppressed]
+        self.suppressed_total = 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno < self.level:
+            return True
+        key = (record.name, record.levelno, record.getMessage())
+        now = self._clock()
+        entry = self._seen.get(key)
+        if entry is not None and now - entry[0] < self.window_s:
+            entry[1] += 1
+            self.suppressed_total += 1
+            return False
+        if entry is not None and entry[1]:
+            record.msg, record.args = f"{key[2]} [and {entry[1]} more times in the last {now - entry[0]:.0f} s]", None
+        self._seen.pop(key, None)
+        self._seen[key] = [now, 0]
+        if len(self._seen) > REPEAT_KEYS_MAX:
+            self._seen.pop(next(iter(self._seen)))
+        return True
+
+    def pending(self) -> list[logging.LogRecord]:
+        """Records that report the copies counted but not yet written (then forgotten)."""
+        out = []
+        now = self._clock()
+        for (name, levelno, message), (start, count) in self._seen.items():
+            if count:
+                out.append(logging.LogRecord(name, levelno, "", 0, "%s [and %d more times in the last %.0f s]",
+                                             (message, count, now - start), None))
+        self._seen.clear()
+        return out
 
 
 def syslog_priority(levelno: int) -> int:
@@ -140,7 +219,19 @@ def make_formatter(fmt: str, stream: IO[Any] | None = None) -> logging.Formatter
 
 
 class _RgseHandler(logging.StreamHandler):
-    """The handler :func:`setup_logging` installs; told apart from handlers others installed."""
+    """The handler :func:`setup_logging` installs; told apart from handlers others installed. Escapes control
+    characters and throttles repeats; on close it writes the counts of repeats not yet reported."""
+
+    def __init__(self, stream: IO[Any]) -> None:
+        super().__init__(stream)
+        self.addFilter(EscapeControls())
+        self.throttle = RepeatThrottle()
+        self.addFilter(self.throttle)
+
+    def close(self) -> None:
+        for record in self.throttle.pending():
+            super().emit(record)
+        super().close()
 
 
 def setup_logging(level: int, fmt: str = "auto", stream: IO[Any] | None = None) -> logging.Handler | None:

@@ -19,6 +19,7 @@ import numpy as np
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.calibration import CalibrationPoints, reference_mass_covariance
 from rgse_daemon.trace.diadem import read_trace_set
+from rgse_daemon.trace.names import plain_name
 
 MODULE_A3 = "NextGenDrive#3"
 MODULE_A5 = "NextGenDrive#5"
@@ -111,7 +112,7 @@ def _traces(d: dict[str, Any], where: str) -> tuple[str, ...]:
     t = d.get("traces")
     if not isinstance(t, list) or not t or not all(isinstance(x, str) and x for x in t):
         raise DataError(f"{where}: 'traces' must be a non-empty list of trace names")
-    return tuple(t)
+    return tuple(plain_name(x, f"{where}: traces[{i}]") for i, x in enumerate(t))
 
 
 def load_manifest(directory: Path | str) -> Manifest:

@@ -36,8 +36,8 @@ from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.procedures.calibration import table1_points
-from rgse_daemon.procedures.common import RunSettings
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.progress import new_progress, running, terminal_console
 from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.process import SimProcess
@@ -70,7 +70,8 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None) -> Config
         u = urlsplit(mqtt_url)
         if u.scheme not in ("mqtt", "tcp") or not u.hostname:
             raise ConfigError(f"--mqtt {mqtt_url}: expected mqtt://HOST[:PORT]")
-        mqtt = {"enabled": True, "host": u.hostname, "port": u.port or 1883}
+        # the demo's robot is the simulator it started: commands need no token
+        mqtt = {"enabled": True, "host": u.hostname, "port": u.port or 1883, "command_auth": "open_lab_bench"}
     return config_from_mapping(
         {
             "robot": {"name": ROBOT},

@@ -26,12 +26,27 @@ import json
 from collections.abc import Sequence
 from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
 from rgse_daemon.errors import RgseError
+from rgse_daemon.logs import escape_controls
+from rgse_daemon.trace.names import name_problem
+
+
+def _plain(value: str) -> str:
+    """A run id names a run directory: a plain name, never ``.`` or ``..``."""
+    problem = name_problem(value)
+    if problem is not None:
+        raise ValueError(problem)
+    return value
+
 
 RequestId = Annotated[str, Field(min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\-]+$")]
-RunId = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9_.\-]+$")]
+RunId = Annotated[str, Field(min_length=1, max_length=128, pattern=r"^[A-Za-z0-9_.\-]+$"),
+                  AfterValidator(_plain)]
+#: Free text of an operator (an abort reason, a confirmation note): kept, with control characters escaped (a NUL
+#: or an escape sequence would otherwise reach the log, the terminal and the store as they are).
+Text = Annotated[str, Field(min_length=1, max_length=500), AfterValidator(escape_controls)]
 Token = Annotated[str | None, Field(default=None, max_length=256, repr=False)]
 
 #: The largest command payload accepted, in bytes; anything longer is refused unread.
@@ -95,7 +110,7 @@ class AbortCommand(_Command):
 
     VERB: ClassVar[str] = "abort"
     run_id: RunId | None = None
-    reason: str = Field(min_length=1, max_length=500)
+    reason: Text
 
 
 class ConfirmCommand(_Command):
@@ -105,7 +120,7 @@ class ConfirmCommand(_Command):
     run_id: RunId
     point: int | None = Field(None, ge=0, le=1000)
     """Index of the campaign point whose load is mounted; ``None``: the step the run waits for now."""
-    message: str | None = Field(None, min_length=1, max_length=500)
+    message: Text | None = None
     """The operator's note, recorded with the confirmation (e.g. 'bodies 1-3 mounted, bolts torqued')."""
 
 

@@ -58,7 +58,7 @@ import random
 import secrets
 import ssl
 from dataclasses import asdict, dataclass
-from datetime import UTC, datetime
+from datetime import datetime
 from enum import StrEnum
 from types import TracebackType
 from typing import Any, Protocol, Self
@@ -77,21 +77,23 @@ from rgse_daemon.io.commands import (
     MeasureCommand,
     parse_command,
 )
+from rgse_daemon.io.topics import FORBIDDEN_IN_LEVEL, MqttError, Topics
+from rgse_daemon.logs import RepeatThrottle
 from rgse_daemon.store import OutboxMessage, Store, StoreError
+from rgse_daemon.utc import iso_utc, now_utc
 
 log = logging.getLogger(__name__)
+#: The MQTT client library's logger: a flood of its "Message queue is full" is written once, then counted.
+_client_log = log.getChild("client")
+_client_throttle = RepeatThrottle()
+_client_log.addFilter(_client_throttle)
 
 #: Command handler calls in flight at once; more are refused ("busy") rather than queued without bound.
 MAX_COMMANDS_IN_FLIGHT = 8
-_FORBIDDEN_IN_LEVEL = ("/", "+", "#", "\x00")
 
 
 #: Deadline of the retained "offline" publish when stopping (s).
 STOP_PUBLISH_TIMEOUT_S = 3.0
-
-class MqttError(RgseError):
-    """The MQTT bridge was misused (e.g. started twice) or given an unpublishable message."""
-
 
 class ConnectionState(StrEnum):
     STOPPED = "stopped"
@@ -149,42 +151,6 @@ class CommandHandler(Protocol):
 
 
 @dataclass(frozen=True)
-class Topics:
-    """The bridge's topics (contracts §4) under one prefix."""
-
-    prefix: str
-
-    @property
-    def status(self) -> str:
-        return f"{self.prefix}/status"
-
-    @property
-    def state(self) -> str:
-        return f"{self.prefix}/state"
-
-    @property
-    def alarm(self) -> str:
-        return f"{self.prefix}/alarm"
-
-    @property
-    def commands(self) -> str:
-        """The subscription: every verb, one level (so ``cmd/<verb>/reply`` is not ours to read)."""
-        return f"{self.prefix}/cmd/+"
-
-    def command(self, verb: str) -> str:
-        return f"{self.prefix}/cmd/{verb}"
-
-    def reply(self, verb: str) -> str:
-        return f"{self.prefix}/cmd/{verb}/reply"
-
-    def progress(self, run_id: str) -> str:
-        return f"{self.prefix}/run/{_level(run_id, 'run id')}/progress"
-
-    def result(self, run_id: str) -> str:
-        return f"{self.prefix}/run/{_level(run_id, 'run id')}/result"
-
-
-@dataclass(frozen=True)
 class _Out:
     topic: str
     payload: str
@@ -192,25 +158,22 @@ class _Out:
     retain: bool = False
 
 
-def _level(value: str, what: str) -> str:
-    if not isinstance(value, str) or not value or any(c in value for c in _FORBIDDEN_IN_LEVEL):
-        raise MqttError(f"{what} {value!r}: must be a non-empty topic level without '/', '+', '#'")
-    return value
+def _json_default(value: object) -> str:
+    """Datetimes in a payload are written as :func:`~rgse_daemon.utc.iso_utc` (one time format)."""
+    if isinstance(value, datetime):
+        return iso_utc(value)
+    raise TypeError(f"Object of type {type(value).__name__} is not JSON serializable")
 
 
 def _dumps(value: Any, what: str) -> str:
     try:
-        return json.dumps(value, separators=(",", ":"), allow_nan=False, ensure_ascii=False)
+        return json.dumps(value, separators=(",", ":"), allow_nan=False, ensure_ascii=False, default=_json_default)
     except (TypeError, ValueError) as exc:
         raise MqttError(f"{what}: not JSON-serialisable: {exc}") from exc
 
 
-def _iso(ts: datetime) -> str:
-    return ts.astimezone(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
-
-
 def _now() -> str:
-    return _iso(datetime.now(UTC))
+    return now_utc()
 
 
 class _LogOnce:
@@ -300,9 +263,6 @@ class MqttBridge:
                 raise ConfigError(f"mqtt bridge {name} {value!r}: must be a finite number > 0")
         if queue_size < 1:
             raise ConfigError(f"mqtt bridge queue_size {queue_size!r}: must be >= 1")
-        prefix = (cfg.prefix or f"rgse/{robot}").rstrip("/")
-        if not prefix:
-            raise ConfigError("mqtt.prefix: empty")
         self._cfg = cfg
         self._robot = robot
         self._store = store
@@ -316,7 +276,7 @@ class MqttBridge:
         self._stop_timeout_s = 4 * self._timeout_s if stop_timeout_s is None else float(stop_timeout_s)
         self._tls = _tls_context(cfg)
         self._client_id = cfg.client_id or f"rgse-{robot}-{secrets.token_hex(4)}"
-        self.topics = Topics(prefix)
+        self.topics = Topics.of(cfg, robot)
         self.counters = MqttCounters()
 
         self._state = ConnectionState.STOPPED
@@ -356,6 +316,9 @@ class MqttBridge:
         if self._task is not None:
             raise MqttError("mqtt bridge: already started")
         self._stopping.clear()
+        if self._cfg.command_auth == "open_lab_bench" and not self._cfg.command_tokens:
+            log.warning("mqtt %s: command_auth = open_lab_bench: any client that reaches %s:%d can move the robot "
+                        "(lab bench only; docs/security.md)", self.prefix, self._cfg.host, self._cfg.port)
         self._task = asyncio.create_task(self._run(), name=f"mqtt-bridge {self.prefix}")
 
     async def stop(self) -> None:
@@ -384,6 +347,8 @@ class MqttBridge:
                 await asyncio.gather(task, return_exceptions=True)
             self._state = ConnectionState.STOPPED
             self._connected = False
+            for record in _client_throttle.pending():  # the counts of a flood not yet written
+                _client_log.handle(record)
 
     async def __aenter__(self) -> Self:
         await self.start()
@@ -453,7 +418,7 @@ class MqttBridge:
             username=self._cfg.username,
             password=self._cfg.password,
             identifier=self._client_id,
-            logger=log.getChild("client"),
+            logger=_client_log,
             will=will,
             clean_session=True,
             keepalive=self._cfg.keepalive_s,
@@ -640,7 +605,7 @@ class MqttBridge:
         self._log.problem(f"refused {exc.verb}", f"mqtt {self.prefix}: refused command: {exc}")
         reply = {"request_id": exc.request_id, "ok": False, "error": exc.problem}
         # An unknown verb is still answered on its own reply topic: the sender listens there.
-        if all(c not in exc.verb for c in _FORBIDDEN_IN_LEVEL) and exc.verb:
+        if all(c not in exc.verb for c in FORBIDDEN_IN_LEVEL) and exc.verb:
             self._enqueue(_Out(self.topics.reply(exc.verb), _dumps(reply, "reply"), qos=1))
         self.publish_alarm(
             {

@@ -26,7 +26,8 @@ import aiomqtt
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.io.commands import parse_command
-from rgse_daemon.io.mqtt import Topics, _tls_context
+from rgse_daemon.io.mqtt import _tls_context
+from rgse_daemon.io.topics import Topics
 
 log = logging.getLogger(__name__)
 
@@ -70,13 +71,10 @@ def endpoint(path: Path) -> Endpoint:
         raise ConfigError(f"{path}: mqtt.enabled is false: the daemon of this configuration is not on a broker")
     if m.password is not None and m.username is None:
         raise ConfigError(f"{path}: mqtt.password is set without mqtt.username")
-    prefix = (m.prefix or f"rgse/{cfg.robot.name}").rstrip("/")  # as the daemon's bridge derives it
-    if not prefix:
-        raise ConfigError(f"{path}: mqtt.prefix: empty")
     return Endpoint(
         host=m.host,
         port=m.port,
-        topics=Topics(prefix),
+        topics=Topics.of(m, cfg.robot.name),  # as the daemon's bridge derives them
         username=m.username,
         password=m.password,
         tls=_tls_context(m),
@@ -258,7 +256,7 @@ async def read_status(ep: Endpoint, timeout_s: float) -> dict[str, Any]:
     t = ep.topics
 
     async def body(conv: Conversation) -> dict[str, Any]:
-        await conv.subscribe((t.status, t.state, f"{t.prefix}/run/+/result"))
+        await conv.subscribe((t.status, t.state, t.results))
         await conv.read_retained()
         results = {}
         head, tail = f"{t.prefix}/run/", "/result"

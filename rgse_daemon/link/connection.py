@@ -282,11 +282,12 @@ class Connection:
         frame = encode_request(tag, req)
         self.stats.requests += 1
         t0 = time.monotonic()
+        received = _Received(reader)
         try:
             async with asyncio.timeout(timeout_s):
                 writer.write(frame)
                 await writer.drain()
-                raw = await read_frame(reader, responses=True)
+                raw = await read_frame(received, responses=True)  # type: ignore[arg-type]
             got_tag, rsp = decode_response(raw)
             if got_tag != tag:
                 raise ProtocolError(f"reply tag {got_tag:#06x} does not match request tag {tag:#06x}")
@@ -295,6 +296,13 @@ class Connection:
                 raise ProtocolError(f"reply type {got_type} to a request of type {int(req.TYPE)}")
         except TimeoutError as exc:
             self.stats.timeouts += 1
+            if received.count:  # bytes came, but no whole frame: the cause is what came, not silence
+                self.stats.errors += 1
+                problem = (f"{received.count} bytes received in reply to message type {int(req.TYPE)} "
+                           f"({received.head()}) do not form a complete frame within {timeout_s} s: garbage on the "
+                           "line, or not a C3 Bridge/KUKAVARPROXY server")
+                self._drop(problem)
+                raise ProtocolError(f"{self.name}: {problem}") from exc
             self._drop(f"no reply to type {int(req.TYPE)} within {timeout_s} s")
             raise LinkTimeout(f"{self.name}: no reply to message type {int(req.TYPE)} within {timeout_s} s") from exc
         except ProtocolError as exc:
@@ -414,3 +422,28 @@ class Connection:
                             await self._ensure_connected()
                 except LinkError:
                     pass  # counted in stats.connect_failures; backoff grows
+
+
+class _Received:
+    """The reply's stream, counting what arrived (also the part of a frame still awaited), so that a deadline
+    reached after garbage names the garbage instead of "no reply"."""
+
+    def __init__(self, reader: asyncio.StreamReader) -> None:
+        self._reader = reader
+        self._seen = bytearray()
+
+    async def readexactly(self, n: int) -> bytes:
+        data = await self._reader.readexactly(n)
+        self._seen += data
+        return data
+
+    def _waiting(self) -> bytes:
+        return bytes(getattr(self._reader, "_buffer", b""))  # bytes of an unfinished readexactly (CPython)
+
+    @property
+    def count(self) -> int:
+        return len(self._seen) + len(self._waiting())
+
+    def head(self) -> str:
+        first = (bytes(self._seen) + self._waiting())[:16]
+        return "first bytes " + first.hex(" ") + (" …" if self.count > 16 else "")

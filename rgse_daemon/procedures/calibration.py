@@ -29,28 +29,20 @@ from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import calibration as campaign_analysis
 from rgse_daemon.config import Config
 from rgse_daemon.durable import write_atomic
+from rgse_daemon.io.topics import Topics
+from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
-from rgse_daemon.procedures.common import (
-    LoopOutcome,
-    RunSettings,
-    close_run,
-    loop,
-    motor_temps_k,
-    prepare,
-    render_program,
-    run_checked,
-    run_directory,
-    setup_toml,
-    traces_toml,
-    verify_start,
-    warm_up,
-)
+from rgse_daemon.procedures.directory import setup_toml, traces_toml
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
-from rgse_daemon.procedures.measurement import result_topic
+from rgse_daemon.procedures.loop import LoopOutcome, loop
+from rgse_daemon.procedures.preconditions import verify_start
+from rgse_daemon.procedures.programs import render_program, run_checked
+from rgse_daemon.procedures.recorder import StoreRecorder
+from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.procedures.warmup import motor_temps_k, prepare, warm_up
 from rgse_daemon.safety.inputs import SafetyInputs
-from rgse_daemon.store import LoopState, OutboxMessage, PointState, RunKind, RunState, Store
-from rgse_daemon.store.errors import StoreConflict
+from rgse_daemon.store import LoopState, PointState, RunKind, Store
 
 CALIBRATION_FILE = "CAL.json"
 
@@ -149,27 +141,22 @@ def _finish(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, lis
 
 # --- the plan ---------------------------------------------------------------------------------------------------------
 def campaign_plan(
-    store: Store,
-    run_id: str,
-    run_dir: Path,
-    archive: Path,
+    run: d.RunContext,
     s: RunSettings,
     *,
     method: str = "auto",
     inputs: Callable[[], SafetyInputs] | None = None,
-    result_topic: str | None = None,
 ) -> m.Plan:
-    """The campaign as a plan over the points stored for ``run_id`` (see the module docstring); returns the
+    """The campaign as a plan over the points recorded for the run (see the module docstring); returns the
     calibration summary (None in a dry run)."""
-    records = yield m.Call("campaign points", store.points, (run_id,), dry_run_safe=True)
-    loops_before = yield m.Call("campaign loops", store.loops, (run_id,), dry_run_safe=True)
-    next_index = 1 + max((lp.index for lp in loops_before), default=0)
+    progress: d.CampaignProgress = yield m.ReadCampaign()
+    next_index = 1 + max((lp.index for lp in progress.loops), default=0)
     session = secrets.token_hex(2)  # new trace names on every (re)start: raw files are never replaced
     prepared = False
     warnings: list[str] = []
     warm_temps: tuple[float, ...] | None = None
-    n = len(records)
-    for rec in records:
+    n = len(progress.points)
+    for rec in progress.points:
         point = CampaignPoint.from_spec(rec.spec)
         if rec.state == PointState.DONE:
             continue
@@ -178,13 +165,7 @@ def campaign_plan(
                            data={"point_index": rec.index, **point.spec()}))
         note = yield m.Confirm(f"mount {point.label} (point {rec.index + 1}/{n}) and confirm",
                                data={"point_index": rec.index, **point.spec()})
-        said = f"point {rec.index + 1}/{n} ({point.label}): {note or 'confirmed'}"
-        yield m.Call("record confirmation", store.add_event, ("info", "operator_confirmed", said),
-                     {"run_id": run_id, "data": {"point_index": rec.index, "note": note}})
-        for lp in loops_before:  # an earlier attempt at this point (daemon stopped): superseded
-            if lp.point_index == rec.index and lp.state != LoopState.FAILED:
-                yield m.Call("supersede loop", store.update_loop, (run_id, lp.index), {"state": LoopState.FAILED})
-        yield m.Call("point measuring", store.set_point_state, (run_id, rec.index, PointState.MEASURING))
+        yield d.PointStarted(rec.index, f"point {rec.index + 1}/{n} ({point.label}): {note or 'confirmed'}", note)
         if not prepared:
             warnings += yield from prepare(s, inputs)
             prepared = True
@@ -200,37 +181,30 @@ def campaign_plan(
         for j in range(1, s.loops + 1):
             yield m.Checkpoint(f"point {rec.index} loop {j}")
             trace = f"cal{rec.index:02d}_{session}_l{j:02d}"
-            out = yield from loop(store, run_id, run_dir, archive, next_index, trace, s, point_index=rec.index)
+            out = yield from loop(next_index, trace, run, s, point_index=rec.index)
             next_index += 1
             outcomes.append(out)
             yield m.Emit(Event("loop", f"point {rec.index + 1}/{n} loop {j}/{s.loops} done", step="loop",
                                loop_index=j, loop_count=s.loops, data={"point_index": rec.index,
                                                                        **out.timing.to_json()}))
-        yield m.Call("point done", store.set_point_state, (run_id, rec.index, PointState.DONE))
+        yield d.PointDone(rec.index)
         warm_temps = motor_temps_k((yield m.ReadState()))  # the thermal state the point was measured in
-    # every point done: the campaign directory from the stored loops (this session's and earlier ones)
-    records = yield m.Call("campaign points", store.points, (run_id,), dry_run_safe=True)
-    loops_all = yield m.Call("campaign loops", store.loops, (run_id,), dry_run_safe=True)
-    if records is None or loops_all is None:
-        return None
-    used = [lp for lp in loops_all if lp.state == LoopState.ARCHIVED]
-    manifest_points = [
-        (CampaignPoint.from_spec(r.spec), [lp.trace_name for lp in used if lp.point_index == r.index]) for r in records
-    ]
+    # every point done: the campaign directory from the recorded loops (this session's and earlier ones)
+    progress = yield m.ReadCampaign()
+    used = [lp for lp in progress.loops if lp.state == LoopState.ARCHIVED]
+    manifest_points = [(CampaignPoint.from_spec(r.spec), [lp.trace_name for lp in used if lp.point_index == r.index])
+                       for r in progress.points]
     yield m.Emit(Event("step", "fitting the calibration (offline path)", step="compute"))
     t0 = time.monotonic()
-    fitted = yield m.Process("fit calibration", _finish, (run_dir, s, manifest_points, method))
-    if fitted is None:
+    fitted = yield m.Process("fit calibration", _finish, (run.run_dir, s, manifest_points, method))
+    if fitted is None:  # dry run
         return None
     doc, summary = fitted
-    files = yield m.Call("trace files", store.trace_files, (run_id,))
     used_idx = {lp.index for lp in used}
-    shas = sorted({f.sha256 for f in files if f.loop_index in used_idx})
-    yield m.Call("store calibration", store.add_calibration, (doc,), {"run_id": run_id, "activate": True})
-    summary = {**summary, "run_id": run_id, "robot": s.robot, "trace_sha256": shas, "warnings": warnings,
+    shas = sorted({f.sha256 for f in progress.trace_files if f.loop_index in used_idx})
+    summary = {**summary, "run_id": run.run_id, "robot": s.robot, "trace_sha256": shas, "warnings": warnings,
                "compute_s": time.monotonic() - t0}
-    publish = OutboxMessage(result_topic) if result_topic else None
-    yield m.Call("record result", store.record_result, (run_id, summary, shas), {"publish": publish})
+    yield d.Result(summary, shas, calibration=doc)
     yield m.Emit(Event("result", f"calibration {doc['calibration_id']} ({summary['method']}) active",
                        step="result", data=summary))
     return summary
@@ -253,27 +227,11 @@ async def run_calibration(
     shutdown) — then call again with the same ``run_id`` to continue at the first incomplete point.
     """
     s = settings or RunSettings.from_config(cfg)
+    recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
     if run_id is None:
         pts = list(points) if points is not None else table1_points()
-        run = await store.create_run(RunKind.CALIBRATION, s.robot, {"settings": s.to_json(), "method": method})
-        await store.add_points(run.id, [p.spec() for p in pts])
+        opening = d.OpenRun(RunKind.CALIBRATION, s.robot, {"settings": s.to_json(), "method": method},
+                            points=tuple(p.spec() for p in pts))
     else:
-        run = await store.get_run(run_id)
-        if run.kind != RunKind.CALIBRATION or run.robot != s.robot:
-            raise StoreConflict(f"run {run_id}: not a calibration campaign of robot {s.robot}")
-        if run.state not in (RunState.INTERRUPTED, RunState.QUEUED, RunState.RUNNING):
-            raise StoreConflict(f"run {run_id}: is {run.state.value}, cannot continue")
-    archive, run_dir = run_directory(cfg.paths.data_dir, run.directory)
-    await store.set_run_state(run.id, RunState.RUNNING)
-    error: BaseException | None = None
-    try:
-        return await engine.run(
-            campaign_plan(store, run.id, run_dir, archive, s, method=method, inputs=inputs,
-                          result_topic=result_topic(cfg, run.id)),
-            run_id=run.id,
-        )
-    except BaseException as exc:
-        error = exc
-        raise
-    finally:
-        await close_run(store, run.id, error)
+        opening = d.OpenRun(RunKind.CALIBRATION, s.robot, resume_run_id=run_id)
+    return await engine.execute(opening, lambda run: campaign_plan(run, s, method=method, inputs=inputs), recorder)

@@ -4,7 +4,8 @@
 
     engine = RunEngine(krc, checker=static_checker(cfg), monitor=Monitor(krc), share_dir=cfg.controller.share_dir)
     engine.subscribe(lambda ev: queue.put_nowait(ev))          # progress, alarms, confirm prompts, results
-    result = await engine.run(measurement_plan(...), run_id=run.id)
+    engine.subscribe_documents(on_document)                    # run documents, once the recorder has them
+    result = await engine.execute(OpenRun(...), lambda run: measurement_plan(run, ...), recorder)
     engine.pause(); engine.resume(); engine.abort("operator"); engine.confirm()   # from CLI/MQTT commands
 
 What the engine guarantees, whatever the plan does (bluesky's RunEngine + ``finalize_wrapper``, architecture
@@ -20,8 +21,12 @@ lessons 1–3):
   snapshot) and refuses before a byte reaches the controller; a refusal is an ``alarm`` too.
 * **Pause/resume** take effect at ``Checkpoint`` messages (robot still, nothing recording); **abort** interrupts
   at once with :class:`PlanAborted` (then the finaliser runs); cancelling the task does the same and re-raises.
-* **Dry run:** messages are logged and checked (``Push`` still runs the static check on the live state), nothing
-  is sent; replies are ``None`` for acting messages.
+* **Dry run:** only messages whose type is ``inert`` execute; every other one is logged and answered with its
+  ``dry_reply()`` (``Push`` still runs the static check on the live state first). Nothing is sent, nothing recorded.
+* **One run skeleton** (:meth:`RunEngine.execute`): ``OpenRun`` to the recorder, the plan, ``CloseRun`` with how it
+  ended (completed, aborted, failed, interrupted on cancellation) — for the measurement and the campaign alike.
+  Documents the plan yields go to the recorder (awaited, bounded), then to the document subscribers.
+* **States** (:class:`EngineState`) change only along :data:`TRANSITIONS`; anything else is a bug and raises.
 * Every wait on the outside world has a deadline; ``CancelledError`` is never swallowed.
 """
 
@@ -31,31 +36,70 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Coroutine
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
 from rgse_daemon.aio import within
 from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import InterlockError, LinkError, RgseError
+from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.events import Event, Subscriber
+from rgse_daemon.procedures.messages import PROGRAM_DIR
 from rgse_daemon.procedures.retrieval import TRACE_DIR, pull_trace
 from rgse_daemon.safety.monitor import TRACE_ACTIVE_STATES, Expect, InterlockTrip, Monitor
+from rgse_daemon.store import RunState
 
 _log = logging.getLogger(__name__)
 
-#: Where the daemon's programs go on the controller.
-PROGRAM_DIR = "KRC:\\R1\\PROGRAM\\"
+__all__ = ["PROGRAM_DIR", "EngineState", "PlanAborted", "ProgramChecker", "RunEngine"]
+
 #: Deadline of each step of the finaliser (s).
 CLEANUP_TIMEOUT_S = 5.0
 #: Deadline of single requests the engine sends (select, start, write) (s).
 REQUEST_TIMEOUT_S = 10.0
 #: How often waits poll the controller (s).
 WAIT_POLL_S = 0.02
+#: Deadline of one document's recording (the store) (s).
+RECORD_TIMEOUT_S = 30.0
+#: Deadline of recording how a run ended (s); shielded from cancellation.
+CLOSE_TIMEOUT_S = 10.0
+
+DocumentSubscriber = Callable[[d.Document], None]
+"""Sees every document after the recorder made it durable; called on the event loop, must not block."""
 
 ProgramChecker = Callable[[m.Program, Snapshot], None]
 """Raise :class:`InterlockError` if ``program`` may not run in the state ``snapshot`` shows."""
+
+
+class EngineState(StrEnum):
+    """What the engine is doing; published as ``state`` events and in the daemon's retained ``state`` topic."""
+
+    IDLE = "idle"  # no plan has run yet
+    RUNNING = "running"
+    PAUSED = "paused"  # at a checkpoint, waiting for resume (or abort)
+    CONFIRM = "confirm"  # waiting for the operator's confirmation (a campaign point mounted)
+    DONE = "done"
+    FAILED = "failed"
+    ABORTED = "aborted"
+
+
+_ENDED = frozenset({EngineState.DONE, EngineState.FAILED, EngineState.ABORTED})
+#: The legal state changes. A plan ends from any state it can be in when an error, an abort or a cancellation
+#: arrives (paused or waiting for the operator included); ended states start the next plan.
+TRANSITIONS: dict[EngineState, frozenset[EngineState]] = {
+    EngineState.IDLE: frozenset({EngineState.RUNNING}),
+    EngineState.RUNNING: frozenset({EngineState.PAUSED, EngineState.CONFIRM, *_ENDED}),
+    EngineState.PAUSED: frozenset({EngineState.RUNNING, *_ENDED}),
+    EngineState.CONFIRM: frozenset({EngineState.RUNNING, *_ENDED}),
+    **{s: frozenset({EngineState.RUNNING}) for s in _ENDED},
+}
+
+
+class EngineStateError(RgseError):
+    """A state change outside :data:`TRANSITIONS` (a bug in the engine)."""
 
 
 class PlanAborted(RgseError):
@@ -90,17 +134,6 @@ def finalize_wrapper(plan: m.Plan, final: Callable[[], m.Plan] = make_safe) -> m
     return result
 
 
-def run_program(program: m.Program, timeout_s: float) -> Generator[m.Msg, Any, tuple[float, float]]:
-    """Push (static check first), select, start and wait for ``#P_END``. Returns (start time, robot time in s):
-    the time from the start command until the controller reported the end (motion and the program's own waits)."""
-    name = yield m.Push(program)
-    yield m.Select(name if name is not None else PROGRAM_DIR + program.name.upper() + ".SRC")
-    t_start = yield m.Start()
-    reply = yield m.WaitProgram(frozenset({"P_END"}), timeout_s)
-    waited_s = reply[1] if reply is not None else 0.0
-    return (t_start or 0.0), waited_s
-
-
 # --- the engine -------------------------------------------------------------------------------------------------------
 class RunEngine:
     """Executes one plan at a time; see the module docstring."""
@@ -124,8 +157,10 @@ class RunEngine:
         self.share_dir = share_dir
         self.trace_dir = trace_dir
         self.run_id: str | None = None
-        self.state = "idle"
+        self.state = EngineState.IDLE
         self._subscribers: list[Subscriber] = []
+        self._document_subscribers: list[DocumentSubscriber] = []
+        self._recorder: d.Recorder | None = None
         self._resume = asyncio.Event()
         self._resume.set()
         self._confirm = asyncio.Event()
@@ -141,6 +176,12 @@ class RunEngine:
         """Call ``subscriber(event)`` for every event; returns a function that unsubscribes."""
         self._subscribers.append(subscriber)
         return lambda: self._subscribers.remove(subscriber) if subscriber in self._subscribers else None
+
+    def subscribe_documents(self, subscriber: DocumentSubscriber) -> Callable[[], None]:
+        """Call ``subscriber(doc)`` for every run document once the recorder has it; returns the unsubscriber."""
+        self._document_subscribers.append(subscriber)
+        return lambda: (self._document_subscribers.remove(subscriber)
+                        if subscriber in self._document_subscribers else None)
 
     def pause(self) -> None:
         """Pause at the next checkpoint."""
@@ -160,7 +201,7 @@ class RunEngine:
 
     @property
     def waiting_for_confirmation(self) -> bool:
-        return self.state == "confirm"
+        return self.state == EngineState.CONFIRM
 
     # --- events -------------------------------------------------------------------------------------------------
     def emit(self, event: Event) -> None:
@@ -172,11 +213,53 @@ class RunEngine:
             except Exception:
                 _log.exception("event subscriber %r failed", sub)
 
-    def _set_state(self, state: str) -> None:
+    def _set_state(self, state: EngineState) -> None:
+        if state not in TRANSITIONS[self.state]:
+            raise EngineStateError(f"engine state {self.state.value} -> {state.value}: not a legal transition")
         self.state = state
-        self.emit(Event("state", state, data={"state": state}))
+        self.emit(Event("state", state.value, data={"state": state.value}))
 
     # --- running a plan -----------------------------------------------------------------------------------------
+    async def execute(self, opening: d.OpenRun, plan_for: Callable[[d.RunContext], m.Plan],
+                      recorder: d.Recorder) -> Any:
+        """The run skeleton of every recorded run: record ``opening`` (the recorder creates or continues the run),
+        run ``plan_for(run)``, then record :class:`~documents.CloseRun` with how it ended — whatever happened,
+        cancellation included (bounded, shielded; a store error there is logged). Returns the plan's value.
+
+        A dry run opens nothing (the plan gets :meth:`RunContext.dry`), records nothing and carries no run id."""
+        if self._running:
+            raise RgseError("the engine already runs a plan")
+        self._recorder = recorder
+        self.run_id = None
+        try:
+            run: d.RunContext = await self._execute(opening)
+            if self.dry_run:
+                return await self.run(plan_for(run))
+            error: BaseException | None = None
+            try:
+                return await self.run(plan_for(run), run_id=run.run_id)
+            except BaseException as exc:
+                error = exc
+                raise
+            finally:
+                await self._close(run.run_id, error)
+        finally:
+            self._recorder = None
+
+    async def _close(self, run_id: str, exc: BaseException | None) -> None:
+        if exc is None:
+            doc = d.CloseRun(RunState.COMPLETED)
+        elif isinstance(exc, asyncio.CancelledError):
+            doc = d.CloseRun(RunState.INTERRUPTED, "daemon stopped during the run")
+        elif isinstance(exc, PlanAborted):
+            doc = d.CloseRun(RunState.ABORTED, str(exc))
+        else:
+            doc = d.CloseRun(RunState.FAILED, f"{type(exc).__name__}: {exc}")
+        try:
+            await asyncio.shield(self._record(doc, run_id, CLOSE_TIMEOUT_S))
+        except RgseError as err:
+            _log.error("run %s: could not record state %s: %r", run_id, doc.state, err)
+
     async def run(self, plan: m.Plan, *, run_id: str | None = None) -> Any:
         """Execute ``plan`` inside the finaliser; returns its value or raises what failed it."""
         if self._running:
@@ -185,8 +268,8 @@ class RunEngine:
         self.run_id = run_id
         self._interrupt = None
         self._trace_armed = False
-        self._set_state("running")
-        outcome = "failed"
+        self._set_state(EngineState.RUNNING)
+        outcome = EngineState.FAILED
         try:
             if self.monitor is not None and not self.dry_run:
                 self.monitor.expect(Expect.IDLE)
@@ -194,10 +277,10 @@ class RunEngine:
                     result = await self._drive(finalize_wrapper(plan))
             else:
                 result = await self._drive(finalize_wrapper(plan))
-            outcome = "done"
+            outcome = EngineState.DONE
             return result
         except PlanAborted:
-            outcome = "aborted"
+            outcome = EngineState.ABORTED
             raise
         finally:
             self._running = False
@@ -252,16 +335,13 @@ class RunEngine:
 
     # --- message execution --------------------------------------------------------------------------------------
     async def _execute(self, msg: m.Msg) -> Any:
-        if self.dry_run and isinstance(msg, m.ACTING):
+        if self.dry_run and not msg.inert:
+            if isinstance(msg, m.Push):
+                await self._check(msg.program)  # a dry run refuses what the real run would refuse
             _log.info("dry run: %s", msg.describe())
-            if isinstance(msg, m.Start):
-                return time.monotonic()
-            return None
-        if self.dry_run and isinstance(msg, m.WaitProgram):
-            return "P_END", 0.0  # nothing was started: nothing to wait for
-        if self.dry_run and isinstance(msg, m.TraceWait):
-            return 0.0
-        handler = getattr(self, f"_do_{type(msg).__name__}", None)
+            return msg.dry_reply()
+        # the handler of the message's type, else of its nearest base (Compute → Process, any Document)
+        handler = next((h for cls in type(msg).__mro__ if (h := getattr(self, f"_do_{cls.__name__}", None))), None)
         if handler is None:
             raise RgseError(f"the engine does not know message {type(msg).__name__}")
         _log.debug("%s", msg.describe())
@@ -279,8 +359,8 @@ class RunEngine:
         except TimeoutError as exc:
             raise StepTimeout(f"{what}: no answer within {timeout_s:g} s") from exc
 
-    async def _do_Push(self, msg: m.Push) -> str | None:
-        prog = msg.program
+    async def _check(self, prog: m.Program) -> None:
+        """The static check of ``prog`` against the live snapshot; a refusal is an alarm too."""
         snap = await self._snapshot()
         try:
             # the check is numeric work: off the event loop, so the monitor keeps polling
@@ -289,10 +369,11 @@ class RunEngine:
             self.emit(Event("alarm", f"program {prog.name} refused: {exc}",
                             data={"watcher": "static_check", "program": prog.name, "detail": str(exc)}))
             raise
-        src_name = PROGRAM_DIR + prog.name.upper() + ".SRC"
-        if self.dry_run:
-            _log.info("dry run: Push %s (static check passed)", prog.name)
-            return src_name
+
+    async def _do_Push(self, msg: m.Push) -> str:
+        prog = msg.program
+        await self._check(prog)
+        src_name = msg.dry_reply()
         async with self._file_window(f"push {prog.name}"):
             if prog.dat_text is not None:
                 await self._bounded(f"put {prog.name}.DAT", self.krc.put_file(
@@ -398,47 +479,59 @@ class RunEngine:
                                     share_dir=self.share_dir)
 
     async def _do_Sleep(self, msg: m.Sleep) -> None:
-        if not self.dry_run:
-            await asyncio.sleep(msg.seconds)
+        await asyncio.sleep(msg.seconds)
 
     async def _do_Checkpoint(self, msg: m.Checkpoint) -> None:
         if self._resume.is_set():
             return
-        self._set_state("paused")
+        self._set_state(EngineState.PAUSED)
         await self._resume.wait()  # abort also sets it; the interrupt is then thrown into the plan
-        self._set_state("running")
+        self._set_state(EngineState.RUNNING)
 
     async def _do_Confirm(self, msg: m.Confirm) -> str:
         self._confirm.clear()
         self._confirm_note = ""
         self.emit(Event("confirm", msg.prompt, data=dict(msg.data)))
-        if self.dry_run:
-            return ""
-        self._set_state("confirm")
+        self._set_state(EngineState.CONFIRM)
         try:
             if msg.timeout_s is None:
                 await self._confirm.wait()
             else:
                 await self._bounded(f"confirm '{msg.prompt}'", self._confirm.wait(), msg.timeout_s)
         finally:
-            self.state = "running"
-        self.emit(Event("state", "running", data={"state": "running"}))
+            self._set_state(EngineState.RUNNING)  # also on abort: the finaliser runs, nobody waits for a confirm
         return self._confirm_note
 
     async def _do_Emit(self, msg: m.Emit) -> None:
         self.emit(msg.event)
 
     async def _do_Process(self, msg: m.Process) -> Any:
-        if self.dry_run and not msg.dry_run_safe:
-            _log.info("dry run: skip %s", msg.describe())
-            return None
         return await self._bounded(msg.label, asyncio.to_thread(msg.fn, *msg.args), msg.timeout_s)
 
-    async def _do_Call(self, msg: m.Call) -> Any:
-        if self.dry_run and not msg.dry_run_safe:
-            _log.info("dry run: skip %s", msg.describe())
-            return None
-        return await self._bounded(msg.label, msg.fn(*msg.args, **msg.kwargs), msg.timeout_s)
+    async def _do_ReadCampaign(self, msg: m.ReadCampaign) -> d.CampaignProgress:
+        if self._recorder is None or self.run_id is None:
+            return d.CampaignProgress()  # nothing recorded (a dry run, a plan run without a recorder)
+        return await self._bounded("read the campaign", self._recorder.campaign(self.run_id), RECORD_TIMEOUT_S)
+
+    async def _do_Document(self, doc: d.Document) -> Any:
+        return await self._record(doc, self.run_id)
+
+    def _record(self, doc: d.Document, run_id: str | None,
+                timeout_s: float = RECORD_TIMEOUT_S) -> Coroutine[Any, Any, Any]:
+        """The recorder makes ``doc`` durable (its error fails the plan), then the subscribers see it. The recorder
+        is taken now, so a shielded recording finishes even if the run ends meanwhile."""
+        if self._recorder is None:
+            raise RgseError(f"{doc.describe()}: this run has no recorder (run it with RunEngine.execute)")
+        return self._recorded(doc, self._recorder.record(run_id, doc), timeout_s)
+
+    async def _recorded(self, doc: d.Document, recording: Coroutine[Any, Any, Any], timeout_s: float) -> Any:
+        reply = await self._bounded(f"record {doc.describe()}", recording, timeout_s)
+        for sub in list(self._document_subscribers):
+            try:
+                sub(doc)
+            except Exception:
+                _log.exception("document subscriber %r failed", sub)
+        return reply
 
     def _raise_if_interrupted(self) -> None:
         """Polling waits check this each round: Python 3.11's ``wait_for`` can swallow a cancellation that arrives

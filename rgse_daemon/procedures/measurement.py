@@ -4,9 +4,9 @@ Flow: verify the controller (T1, or AUT with the area cleared; ``$LOAD.M = -1``;
 configuration → warm-up move → measurement pose → ``loops`` × (brake-release move → settle → trace → pull, verify,
 archive, delete the controller copy) → write ``manifest.toml`` → compute the mass **by the same code as**
 ``rgse mass --traces DIR --calibration CAL.json`` (:func:`compute_mass`) with the robot's *active* calibration, whose
-document is written beside the traces as ``CAL.json`` → store the result with the SHA-256 of its raw files and
-queue it for MQTT. The run directory is thus a complete contract-§2 measurement directory: the result is always
-reproducible from it with the offline command.
+document is written beside the traces as ``CAL.json`` → the :class:`~documents.Result` with the SHA-256 of its
+raw files (the recorder stores it and queues it for MQTT). The run directory is thus a complete contract-§2
+measurement directory: the result is always reproducible from it with the offline command.
 
 ::
 
@@ -25,22 +25,19 @@ from typing import Any
 from rgse_daemon.analysis import mass as mass_analysis
 from rgse_daemon.config import Config
 from rgse_daemon.durable import write_atomic
+from rgse_daemon.io.topics import Topics
+from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
-from rgse_daemon.procedures.common import (
-    LoopOutcome,
-    PreconditionError,
-    RunSettings,
-    close_run,
-    loop,
-    prepare,
-    run_directory,
-    setup_toml,
-    traces_toml,
-)
+from rgse_daemon.procedures.directory import setup_toml, traces_toml
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.loop import LoopOutcome, loop
+from rgse_daemon.procedures.preconditions import PreconditionError
+from rgse_daemon.procedures.recorder import StoreRecorder
+from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.procedures.warmup import prepare
 from rgse_daemon.safety.inputs import SafetyInputs
-from rgse_daemon.store import OutboxMessage, RunKind, RunState, Store
+from rgse_daemon.store import RunKind, Store
 
 CALIBRATION_FILE = "CAL.json"
 
@@ -76,55 +73,44 @@ def timing_summary(outcomes: list[LoopOutcome], compute_s: float) -> dict[str, A
 
 
 def measurement_plan(
-    store: Store,
-    run_id: str,
-    run_dir: Path,
-    archive: Path,
+    run: d.RunContext,
     s: RunSettings,
     cal_doc: dict[str, Any],
     *,
     inputs: Callable[[], SafetyInputs] | None = None,
-    result_topic: str | None = None,
 ) -> m.Plan:
-    """The measurement run as a plan (see the module docstring); returns the stored result (or None in a dry run)."""
+    """The measurement run as a plan (see the module docstring); returns the result (or None in a dry run)."""
     warnings = yield from prepare(s, inputs)
-    tag = run_id.rsplit("-", 1)[-1][:8].lower()
+    tag = run.run_id.rsplit("-", 1)[-1][:8].lower()
     outcomes: list[LoopOutcome] = []
     for i in range(1, s.loops + 1):
         yield m.Checkpoint(f"loop {i}")
         yield m.Emit(Event("step", f"loop {i}/{s.loops}", step="loop", loop_index=i, loop_count=s.loops))
-        out = yield from loop(store, run_id, run_dir, archive, i, f"dut_{tag}_l{i:02d}", s)
+        out = yield from loop(i, f"dut_{tag}_l{i:02d}", run, s)
         outcomes.append(out)
         per_loop_s = sum(o.timing.robot_s + o.timing.overhead_s for o in outcomes) / len(outcomes)
         yield m.Emit(Event("loop", f"loop {i}/{s.loops} done", step="loop", loop_index=i, loop_count=s.loops,
                            eta_s=per_loop_s * (s.loops - i), data=out.timing.to_json()))
     yield m.Emit(Event("step", "computing the mass (offline path)", step="compute"))
     t0 = time.monotonic()
-    result = yield m.Process("compute mass", _finish, (run_dir, s, [o.trace for o in outcomes], cal_doc))
+    result = yield m.Process("compute mass", _finish, (run.run_dir, s, [o.trace for o in outcomes], cal_doc))
     if result is None:  # dry run
         return None
     compute_s = time.monotonic() - t0
     shas = sorted({h for o in outcomes for h in o.sha256s})
     result = {
         **result,
-        "run_id": run_id,
+        "run_id": run.run_id,
         "robot": s.robot,
         "trace_sha256": shas,
         "warnings": [*result.get("warnings", []), *(warnings or [])],
         "controller_copies_deleted": all(o.deleted for o in outcomes),
         "timing": timing_summary(outcomes, compute_s),
     }
-    publish = OutboxMessage(result_topic) if result_topic else None
-    yield m.Call("record result", store.record_result, (run_id, result, shas), {"publish": publish})
+    yield d.Result(result, shas)
     yield m.Emit(Event("result", f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg (k = 2)",
                        step="result", data=result))
     return result
-
-
-def result_topic(cfg: Config, run_id: str) -> str:
-    """``<prefix>/run/<run_id>/result`` (contracts §4)."""
-    prefix = cfg.mqtt.prefix or f"rgse/{cfg.robot.name}"
-    return f"{prefix}/run/{run_id}/result"
 
 
 async def run_measurement(
@@ -135,30 +121,14 @@ async def run_measurement(
     settings: RunSettings | None = None,
     inputs: Callable[[], SafetyInputs] | None = None,
 ) -> dict[str, Any] | None:
-    """Create the run record, execute :func:`measurement_plan` on ``engine``, record how it ended.
+    """Execute :func:`measurement_plan` on ``engine`` as a recorded run (:meth:`RunEngine.execute`).
 
     Refuses (PreconditionError) without an active calibration for this robot. In a dry run nothing is stored.
     """
     s = settings or RunSettings.from_config(cfg)
-    cal = await store.active_calibration(s.robot)
+    recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+    cal = await recorder.active_calibration(s.robot)
     if cal is None:
         raise PreconditionError(f"robot {s.robot}: no active calibration; run a calibration campaign first")
-    if engine.dry_run:
-        archive, run_dir = run_directory(cfg.paths.data_dir, "dry-run")
-        return await engine.run(measurement_plan(store, "dry-run", run_dir, archive, s, cal.document,
-                                                 inputs=inputs))
-    run = await store.create_run(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json(), "calibration_id": cal.id})
-    archive, run_dir = run_directory(cfg.paths.data_dir, run.directory)
-    await store.set_run_state(run.id, RunState.RUNNING)
-    error: BaseException | None = None
-    try:
-        return await engine.run(
-            measurement_plan(store, run.id, run_dir, archive, s, cal.document, inputs=inputs,
-                             result_topic=result_topic(cfg, run.id)),
-            run_id=run.id,
-        )
-    except BaseException as exc:
-        error = exc
-        raise
-    finally:
-        await close_run(store, run.id, error)
+    opening = d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json(), "calibration_id": cal.id})
+    return await engine.execute(opening, lambda run: measurement_plan(run, s, cal.document, inputs=inputs), recorder)

@@ -3,20 +3,30 @@
 A plan is a generator: ``reply = yield Msg(...)``. Keeping every action a plain, inspectable value is what gives
 a dry run (the engine logs and checks, sends nothing), limit checks before motion (``Push`` runs the interlock's
 static check against the live controller state), pause/resume at ``Checkpoint`` and a resumable campaign
-(the plan asks the store where it stopped, via ``Call``) — bluesky's plan/engine split (architecture lesson 1).
+(:class:`ReadCampaign`) — bluesky's plan/engine split (architecture lesson 1). What a plan wants *recorded* it yields
+as a run document (:mod:`~rgse_daemon.procedures.documents`, also messages); it holds no store.
 
-Replies (what ``yield`` returns) are named in each docstring. In a dry run, messages that would act on the
-controller or the store return ``None`` (see :attr:`Msg.dry_reply`); reads still happen.
+Replies (what ``yield`` returns) are named in each docstring.
+
+**Dry runs are inert by construction.** A message type is executed in a dry run only if its class says it is
+``inert`` (it changes nothing outside the daemon: reads, progress, pure computation, pause points). Every other
+message — whatever moves the robot, writes to the controller, waits for what such a message began, or records to
+the store — is logged and answered with :meth:`Msg.dry_reply` instead. A new message type is therefore skipped in
+a dry run until someone declares it inert; no list has to be kept up to date.
 """
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable, Generator
+import time
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 from rgse_daemon.procedures.events import Event
+
+#: Where the daemon's programs go on the controller.
+PROGRAM_DIR = "KRC:\\R1\\PROGRAM\\"
 
 
 class Program(Protocol):
@@ -32,10 +42,17 @@ class Program(Protocol):
 
 @dataclass(frozen=True)
 class Msg:
-    """Base of every message."""
+    """Base of every message. Not inert: a dry run skips it (see the module docstring)."""
+
+    #: True only if executing this message changes nothing outside the daemon; a dry run executes only these.
+    inert: ClassVar[bool] = False
 
     def describe(self) -> str:
         return type(self).__name__
+
+    def dry_reply(self) -> Any:
+        """What a dry run answers instead of executing a message that is not inert."""
+        return None
 
 
 Plan = Generator[Msg, Any, Any]
@@ -53,6 +70,10 @@ class Push(Msg):
     def describe(self) -> str:
         return f"Push {self.program.name}"
 
+    def dry_reply(self) -> str:
+        """The controller name the program would have (a dry run still checks it: see the engine)."""
+        return PROGRAM_DIR + self.program.name.upper() + ".SRC"
+
 
 @dataclass(frozen=True)
 class Select(Msg):
@@ -69,6 +90,9 @@ class Start(Msg):
     """Start the selected program; from here the monitor expects it running. Reply: wall time of the start (s,
     monotonic). In T1 the operator still holds the enabling switch; the controller refuses a start without it."""
 
+    def dry_reply(self) -> float:
+        return time.monotonic()
+
 
 @dataclass(frozen=True)
 class WaitProgram(Msg):
@@ -80,6 +104,9 @@ class WaitProgram(Msg):
 
     def describe(self) -> str:
         return f"WaitProgram {'/'.join(sorted(self.states))} ≤ {self.timeout_s:g} s"
+
+    def dry_reply(self) -> tuple[str, float]:
+        return "P_END", 0.0  # nothing was started: nothing to wait for
 
 
 @dataclass(frozen=True)
@@ -100,10 +127,14 @@ class StopProgram(Msg):
 class ReadState(Msg):
     """Reply: a fresh :class:`~rgse_daemon.controller.Snapshot` (also in a dry run: reading changes nothing)."""
 
+    inert: ClassVar[bool] = True
+
 
 @dataclass(frozen=True)
 class ReadVar(Msg):
     """Reply: the parsed value of one variable (also in a dry run)."""
+
+    inert: ClassVar[bool] = True
 
     name: str
 
@@ -146,9 +177,12 @@ class TraceStart(Msg):
 @dataclass(frozen=True)
 class TraceWait(Msg):
     """Wait until the trace has been written (``$TRACE.STATE`` back to ``#T_END`` after leaving it), at most
-    ``timeout_s``. Reply: waited_s."""
+    ``timeout_s``. Reply: waited_s (0 in a dry run: no trace was started)."""
 
     timeout_s: float = 120.0
+
+    def dry_reply(self) -> float:
+        return 0.0
 
 
 @dataclass(frozen=True)
@@ -172,7 +206,8 @@ class Pull(Msg):
 # --- flow --------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Sleep(Msg):
-    """Wait ``seconds`` of daemon (wall) time. Controller-timed waits (settling) belong in the KRL program."""
+    """Wait ``seconds`` of daemon (wall) time. Controller-timed waits (settling) belong in the KRL program.
+    Skipped in a dry run (it waits for the robot to settle)."""
 
     seconds: float
 
@@ -181,56 +216,62 @@ class Sleep(Msg):
 class Checkpoint(Msg):
     """A point where the plan may pause (robot still, nothing recording)."""
 
+    inert: ClassVar[bool] = True
+
     label: str = ""
 
 
 @dataclass(frozen=True)
 class Confirm(Msg):
     """Ask the operator (CLI/MQTT ``confirm``) and wait for :meth:`RunEngine.confirm`; ``timeout_s`` None: no limit.
-    Reply: the operator's note (str) or ``""``. Dry run: confirmed at once."""
+    Reply: the operator's note (str) or ``""``. Dry run: confirmed at once (nobody mounts anything)."""
 
     prompt: str
     timeout_s: float | None = None
     data: dict[str, Any] = field(default_factory=dict)
+
+    def dry_reply(self) -> str:
+        return ""
 
 
 @dataclass(frozen=True)
 class Emit(Msg):
     """Publish a progress event to the engine's subscribers."""
 
+    inert: ClassVar[bool] = True
+
     event: Event
 
 
 @dataclass(frozen=True)
 class Process(Msg):
-    """Run blocking work (the pipeline: reading traces, fitting) in a worker thread, at most ``timeout_s``.
-    Reply: ``fn(*args)``. Dry run: skipped (reply None) unless ``dry_run_safe``."""
+    """Run blocking work with effects (writing the manifest, fitting and writing CAL.json) in a worker thread, at
+    most ``timeout_s``. Reply: ``fn(*args)``. Skipped in a dry run (reply None)."""
 
     label: str
     fn: Callable[..., Any]
     args: tuple[Any, ...] = ()
     timeout_s: float = 300.0
-    dry_run_safe: bool = False
 
     def describe(self) -> str:
         return f"Process {self.label}"
 
 
 @dataclass(frozen=True)
-class Call(Msg):
-    """Await an async function (the store), at most ``timeout_s``. Reply: its result.
-    Dry run: skipped (reply None) unless ``dry_run_safe``."""
+class Compute(Process):
+    """A pure computation (rendering a program: choosing the safe axis speed) in a worker thread, so the event loop
+    and the interlock monitor keep going. Executed in a dry run too."""
 
-    label: str
-    fn: Callable[..., Awaitable[Any]]
-    args: tuple[Any, ...] = ()
-    kwargs: dict[str, Any] = field(default_factory=dict)
-    timeout_s: float = 30.0
-    dry_run_safe: bool = False
+    inert: ClassVar[bool] = True
 
     def describe(self) -> str:
-        return f"Call {self.label}"
+        return f"Compute {self.label}"
 
 
-#: Messages that change the controller; in a dry run they are logged, not sent.
-ACTING: tuple[type[Msg], ...] = (Select, Start, VerifyDone, StopProgram, WriteVar, PutFile, TraceStart, TraceStop, Pull)
+@dataclass(frozen=True)
+class ReadCampaign(Msg):
+    """Where the run's campaign stands, from the engine's recorder (the store): reply
+    :class:`~rgse_daemon.procedures.documents.CampaignProgress` (points, loops and trace files recorded so far),
+    so a campaign resumes at the first incomplete point."""
+
+    inert: ClassVar[bool] = True

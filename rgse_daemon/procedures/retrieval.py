@@ -28,6 +28,7 @@ from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.link.errors import CommandError
 from rgse_daemon.manifest import MODULE_A3, MODULE_A5
 from rgse_daemon.store.archive import ArchivedFile, archive_file_async
+from rgse_daemon.trace.names import plain_name
 
 _log = logging.getLogger(__name__)
 
@@ -85,10 +86,11 @@ async def pull_trace(
     """Pull, verify and archive every file of ``trace``; see the module docstring. Raises DataError if the set is
     incomplete or a copy does not match what was read (nothing is deleted then)."""
     t0 = asyncio.get_running_loop().time()
+    plain_name(trace, f"{trace_dir}: trace name")
     prefix = f"{trace}_".upper()
     listing = await krc.list_dir(trace_dir)
     entries = [e for e in listing if not e.is_dir and _base_name(e.name).upper().startswith(prefix)]
-    names = {_base_name(e.name): e for e in entries}
+    names = {plain_name(_base_name(e.name), f"{trace_dir}: listed file"): e for e in entries}
     missing = [trace + s for s in REQUIRED_SUFFIXES if not any(n.upper() == (trace + s).upper() for n in names)]
     if missing:
         raise DataError(f"{trace_dir}{trace}: trace incomplete on the controller, missing {', '.join(missing)}")

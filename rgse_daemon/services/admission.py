@@ -12,8 +12,8 @@ from typing import Any
 from rgse_daemon.config import Config
 from rgse_daemon.controller import Controller
 from rgse_daemon.errors import LinkError, RgseError
-from rgse_daemon.procedures.common import PreconditionError
 from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.services.link import DaemonCounters
 from rgse_daemon.store import Store

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from typing import Any
 
 from rgse_daemon.errors import RgseError
+from rgse_daemon.procedures.engine import EngineState
 
 log = logging.getLogger("rgse_daemon.app")
 
@@ -15,8 +16,10 @@ log = logging.getLogger("rgse_daemon.app")
 LIGHT_TIMEOUT_S = 2.0
 
 #: Stack light colour of each engine state (states not named leave the light as it is).
-STATE_LIGHT = {"running": "yellow", "paused": "yellow", "finalizing": "yellow", "confirm": "yellow",
-               "done": "green", "idle": "green", "failed": "red", "aborted": "red"}
+STATE_LIGHT: dict[str, str] = {
+    EngineState.RUNNING: "yellow", EngineState.PAUSED: "yellow", EngineState.CONFIRM: "yellow",
+    EngineState.DONE: "green", EngineState.IDLE: "green", EngineState.FAILED: "red", EngineState.ABORTED: "red",
+}
 
 
 class StackLight:

@@ -16,6 +16,7 @@ from rgse_daemon.services.admission import RunAdmission
 from rgse_daemon.services.link import ControllerLink
 from rgse_daemon.store import Store
 from rgse_daemon.systemd import Notifier
+from rgse_daemon.utc import iso_utc
 
 log = logging.getLogger("rgse_daemon.app")
 
@@ -72,7 +73,7 @@ class StatePublisher:
             state["controller_error"] = self.link.error
         if self.safety_io is not None:
             inputs = self.safety_io.inputs
-            state["safety_io"] = {**dataclasses.asdict(inputs), "time_utc": inputs.time_utc.isoformat()}
+            state["safety_io"] = {**dataclasses.asdict(inputs), "time_utc": iso_utc(inputs.time_utc)}
         return state
 
     async def run(self) -> None:

@@ -45,6 +45,7 @@ import numpy as np
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.trace.channels import ZEIT
+from rgse_daemon.trace.names import inside, plain_name
 
 __all__ = ["Channel", "TraceFile", "TraceSet", "parse_header", "read_trace_file", "read_trace_set"]
 
@@ -55,6 +56,9 @@ _EXPLICIT = {"EXPLIZIT", "EXPLICIT"}
 _STORAGES = {"BLOCK", "CHANNEL"}
 #: A header is a few kB; anything much larger is not a DIAdem header.
 _MAX_HEADER_BYTES = 16 * 1024 * 1024
+#: The largest data file read: the controller's buffer holds 50 000 samples per channel (trace/config.py), a drive
+#: module's file of ~20 channels is ~8 MB, so 256 MiB is far beyond any real trace and still fits in memory.
+MAX_DATA_BYTES = 256 * 1024 * 1024
 #: Relative tolerance on the step of an explicit time channel.
 _TIME_STEP_RTOL = 1e-6
 _INT_RE = re.compile(r"[+-]?[0-9]+")
@@ -260,29 +264,45 @@ def _spec(index: int, block: dict[int, str], source: str) -> _Spec:
 
 
 # --- data --------------------------------------------------------------------------------------------------------
-def _read_raw(path: Path, source: str, with_sha256: bool) -> tuple[np.ndarray, str | None]:
-    """All float64 values of a data file (read-only) and, if asked, the SHA-256 of its bytes, hashing the buffer
-    already read rather than reading the file twice."""
+def _read_raw(
+    path: Path, specs: list[_Spec], source: str, with_sha256: bool
+) -> tuple[dict[str, np.ndarray], bool, str | None]:
+    """The raw values of each channel of one data file (read-only), whether all are finite and, if asked, the
+    SHA-256 of the file's bytes.
+
+    The file's size is checked against the header (codes 220/221, :func:`_layout`) and :data:`MAX_DATA_BYTES`
+    *before* a byte of it is read, and no more than that is ever read: a 2 GB file behind a 40-sample header is
+    refused at once instead of filling the memory. The SHA-256 hashes the buffer already read."""
     dtype = _DTYPES["REAL64"]
     try:
         with open(path, "rb") as f:
             size = os.fstat(f.fileno()).st_size
             if size % dtype.itemsize:
                 raise DataError(f"{path}: data size {size} bytes is not a multiple of {dtype.itemsize} (REAL64)")
-            raw = np.fromfile(f, dtype=dtype, count=size // dtype.itemsize)
+            if size > MAX_DATA_BYTES:
+                raise DataError(f"{path}: data file of {size} bytes exceeds {MAX_DATA_BYTES} bytes, far more than "
+                                "the controller's trace buffer writes; not read")
+            n_values = size // dtype.itemsize
+            layout = _layout(specs, n_values, path)
+            raw = np.fromfile(f, dtype=dtype, count=n_values)
     except FileNotFoundError:
         raise DataError(f"{source}: data file {path.name!r} (code 211) not found beside the header") from None
     except OSError as exc:
         raise DataError(f"{path}: cannot read data file: {exc}") from exc
-    if raw.size * dtype.itemsize != size:
+    if raw.size != n_values:
         raise DataError(f"{path}: data file changed while reading ({raw.size * dtype.itemsize} of {size} bytes)")
     digest = hashlib.sha256(raw.view(np.uint8)).hexdigest() if with_sha256 else None
     raw.flags.writeable = False
-    return raw, digest
+    finite = _all_finite(raw)
+    if isinstance(layout, int):  # BLOCK: a table of ``layout`` columns, one row per sample
+        table = raw.reshape(-1, layout)
+        return {s.name: table[:, s.pointer - 1] for s in specs}, finite, digest
+    return {s.name: raw[sl] for s, sl in zip(specs, layout, strict=True)}, finite, digest
 
 
-def _columns(raw: np.ndarray, specs: list[_Spec], path: Path) -> dict[str, np.ndarray]:
-    """Raw values of each channel of one data file, sliced by pointer (221) and count (220)."""
+def _layout(specs: list[_Spec], n_values: int, path: Path) -> int | list[slice]:
+    """Check that a data file of ``n_values`` values holds exactly what ``specs`` announce (pointers 221, counts
+    220), before it is read; the row width for BLOCK storage, else each channel's slice (CHANNEL, ``specs`` order)."""
     storage = specs[0].storage
     if any(s.storage != storage for s in specs):
         raise DataError(f"{path}: channels mix BLOCK and CHANNEL storage in one data file")
@@ -294,13 +314,12 @@ def _columns(raw: np.ndarray, specs: list[_Spec], path: Path) -> dict[str, np.nd
         counts = {s.count for s in specs}
         if len(counts) != 1:
             raise DataError(f"{path}: channels of one BLOCK file have different counts (code 220): {sorted(counts)}")
-        if raw.size % width:
-            raise DataError(f"{path}: {raw.size} values are not a multiple of the row width ({width} channels)")
-        rows = raw.size // width
+        if n_values % width:
+            raise DataError(f"{path}: {n_values} values are not a multiple of the row width ({width} channels)")
+        rows = n_values // width
         if rows != specs[0].count:
             raise DataError(f"{path}: header count (code 220) {specs[0].count} disagrees with the data ({rows} rows)")
-        table = raw.reshape(rows, width)
-        return {s.name: table[:, s.pointer - 1] for s in specs}
+        return width
     expected = 1
     for s in sorted(specs, key=lambda s: s.pointer):
         if s.pointer != expected:
@@ -309,9 +328,9 @@ def _columns(raw: np.ndarray, specs: list[_Spec], path: Path) -> dict[str, np.nd
                 "(channels must follow one another)"
             )
         expected += s.count
-    if expected - 1 != raw.size:
-        raise DataError(f"{path}: header counts (code 220) add up to {expected - 1} values, data has {raw.size}")
-    return {s.name: raw[s.pointer - 1 : s.pointer - 1 + s.count] for s in specs}
+    if expected - 1 != n_values:
+        raise DataError(f"{path}: header counts (code 220) add up to {expected - 1} values, data has {n_values}")
+    return [slice(s.pointer - 1, s.pointer - 1 + s.count) for s in specs]
 
 
 def _all_finite(values: np.ndarray) -> bool:
@@ -428,13 +447,13 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
             raise DataError(f"{source}: data file (code 211) names the header itself")
         if not dat_path.with_name(file_name).is_file():
             raise DataError(f"{source}: data file {file_name!r} (code 211) not found beside the header")
+        inside(dat_path.parent, dat_path.with_name(file_name))
     for file_name, group in by_file.items():
         data_path = dat_path.with_name(file_name)
-        raw, digest = _read_raw(data_path, source, with_sha256)
+        columns, finite, digest = _read_raw(data_path, group, source, with_sha256)
         if digest is not None:
             sha256[file_name] = digest
-        finite = _all_finite(raw)
-        raw_by_name.update({name: (column, finite) for name, column in _columns(raw, group, data_path).items()})
+        raw_by_name.update({name: (column, finite) for name, column in columns.items()})
         data_paths.append(data_path)
 
     n_samples = time_spec.count
@@ -506,6 +525,7 @@ def read_trace_set(
     hashing release the GIL, so the two cores overlap. ``with_sha256`` as for :func:`read_trace_file`.
     """
     directory = Path(directory)
+    plain_name(name, f"{directory}: trace name")
     if not directory.is_dir():
         raise DataError(f"{directory}: trace directory not found")
     wanted = _modules_present(directory, name) if modules is None else list(modules)
@@ -515,6 +535,8 @@ def read_trace_set(
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         raise DataError(f"{', '.join(missing)}: trace file(s) of requested module(s) not found")
+    for p in paths:
+        inside(directory, p)
 
     def read_one(path: Path, module: str) -> TraceFile:
         return read_trace_file(path, module, with_sha256=with_sha256)

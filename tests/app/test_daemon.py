@@ -20,8 +20,10 @@ from rgse_daemon.errors import InterlockError
 from rgse_daemon.io.commands import CalibrationPoint
 from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.procedures.calibration import table1_points
-from rgse_daemon.procedures.common import PreconditionError, RunSettings, program
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.preconditions import PreconditionError
+from rgse_daemon.procedures.programs import program
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.monitor import InterlockTrip
 from rgse_daemon.store import RunState, Store, StoreError
 from rgse_daemon.systemd import Notifier

@@ -19,6 +19,7 @@ from tests.support.daemon import ROBOT
 from tests.support.mqtt import MosquittoProcess
 
 WAIT_S = 30.0
+TOKEN = "daemon-process-token"
 
 
 def _config(path: Path, sim: SimulatedKrc4, broker_port: int, prefix: str, data_dir: Path) -> Path:
@@ -42,6 +43,7 @@ enabled = true
 host = "127.0.0.1"
 port = {broker_port}
 prefix = "{prefix}"
+command_tokens = ["{TOKEN}"]
 """, encoding="utf-8")
     return path
 
@@ -83,7 +85,8 @@ async def test_rgse_daemon_process_ready_serves_commands_and_stops_cleanly_on_si
                         if not published and seen.get(f"{prefix}/status", {}).get("state") == "online":
                             # the daemon is on the broker (READY does not wait for it): a measurement without an
                             # active calibration is refused with the reason, nothing started
-                            await client.publish(f"{prefix}/cmd/measure", json.dumps({"request_id": "p-1"}), qos=1)
+                            command = {"request_id": "p-1", "token": TOKEN}
+                            await client.publish(f"{prefix}/cmd/measure", json.dumps(command), qos=1)
                             published = True
                         reply = seen.get(f"{prefix}/cmd/measure/reply")
                         if reply is not None:

@@ -14,16 +14,21 @@ import sys
 import time
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from rgse_daemon.commands.abort import DEFAULT_REASON
+from rgse_daemon.config import load_config
 from rgse_daemon.errors import RgseError
 from rgse_daemon.io.commands import AbortCommand, ConfirmCommand
 from rgse_daemon.io.mqtt import MqttBridge
-from rgse_daemon.store import Store
+from rgse_daemon.io.topics import Topics
+from rgse_daemon.procedures import documents as d
+from rgse_daemon.procedures.recorder import StoreRecorder
+from rgse_daemon.store import RunKind, Store, archive_file_async
 from tests.support.mqtt import ROBOT, RecordingHandler, free_port, mqtt_config, stored_result
 from tests.support.polling import wait_until
 
@@ -78,6 +83,8 @@ async def rgse(*args: str | Path) -> Ran:
 
 def write_config(path: Path, host: str, port: int, prefix: str | None, extra: str = "") -> Path:
     prefix_line = f'prefix = "{prefix}"\n' if prefix is not None else ""
+    if "command_tokens" not in extra and "command_auth" not in extra:
+        extra += 'command_auth = "open_lab_bench"\n'  # the broker's own test clients only
     path.write_text(
         f'[robot]\nname = "{ROBOT}"\n\n[mqtt]\nenabled = true\nhost = "{host}"\nport = {port}\n{prefix_line}{extra}'
     )
@@ -263,6 +270,7 @@ async def test_bad_configuration_or_command_exits_2_before_any_network_io(tmp_pa
     good = write_config(tmp_path / "good.toml", "127.0.0.1", port, "rgse-test/nobody")
     disabled = tmp_path / "disabled.toml"
     disabled.write_text("[mqtt]\nenabled = false\n")
+    slash_only = write_config(tmp_path / "slash.toml", "127.0.0.1", port, "/")
     runs = await asyncio.gather(
         rgse("status", "--config", tmp_path / "missing.toml"),
         rgse("abort", "--config", disabled),
@@ -270,6 +278,7 @@ async def test_bad_configuration_or_command_exits_2_before_any_network_io(tmp_pa
         rgse("abort", "--config", good, "--reason", ""),
         rgse("confirm", "--config", good, "--run", "../etc"),
         rgse("status", "--config", good, "--timeout", "0"),
+        rgse("status", "--config", slash_only),
     )
     expected = [
         "cannot read config file",
@@ -278,7 +287,38 @@ async def test_bad_configuration_or_command_exits_2_before_any_network_io(tmp_pa
         "cmd/abort: schema: reason",
         "cmd/confirm: schema: run_id",
         "--timeout 0.0: must be a finite number",
+        "empty once the trailing '/' is dropped",
     ]
     for ran, fragment in zip(runs, expected, strict=True):
         ran.one_line_error(fragment)
         assert "cannot connect" not in ran.err
+
+
+async def test_a_result_under_a_prefix_with_a_trailing_slash_reaches_rgse_status(
+    system_broker: tuple[str, int], prefix: str, store: Store, data_dir: Path, tmp_path: Path,
+    handler: RecordingHandler,
+) -> None:
+    """Regression: ``prefix = "plant/rgse/"`` (the config allows it) once sent results to ``plant/rgse//run/…/result``
+    while the bridge and ``rgse status`` used ``plant/rgse``: nobody received them. The config drops the slash once;
+    the run's recorder, the bridge and the operator's client all take their topics from it."""
+    config = write_config(tmp_path / "slash.toml", *system_broker, prefix + "/")
+    cfg = load_config(config)
+    assert cfg.mqtt.prefix == prefix
+    recorder = StoreRecorder(store, data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+    run = await recorder.record(None, d.OpenRun(RunKind.MEASUREMENT, ROBOT, {"fixture_mass_kg": 10.288}))
+    src = tmp_path / "share" / f"{run.run_id}_NextGenDrive#3.r64"
+    src.parent.mkdir()
+    src.write_bytes(b"raw" * 64)
+    f = await archive_file_async(src, run.run_dir, timeout_s=30)
+    await recorder.record(run.run_id, d.LoopStarted(1, "t1", datetime.now(UTC)))
+    await recorder.record(run.run_id, d.TraceArchived(1, "t1", (f,), deleted=True))
+    result = {"mass_kg": 107.65, "u_kg": 0.35, "U_kg": 0.70, "k": 2, "loops": 1, "warnings": []}
+    await recorder.record(run.run_id, d.Result(result, [f.sha256]))
+    assert [o.topic for o in await store.pending_outbox()] == [f"{prefix}/run/{run.run_id}/result"]
+    async with MqttBridge(cfg.mqtt, ROBOT, store, handler, VERSION, timeout_s=5) as bridge:
+        assert bridge.prefix == prefix
+        await wait_until(lambda: bridge.counters.outbox_published >= 1, "result published")
+        ran = await rgse("status", "--config", config, "--json")
+    assert ran.rc == 0, ran
+    doc = json.loads(ran.out)
+    assert doc["prefix"] == prefix and doc["results"][run.run_id]["mass_kg"] == 107.65

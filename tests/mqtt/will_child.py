@@ -22,7 +22,8 @@ class _Handler:
 
 
 async def main(host: str, port: int, prefix: str, data_dir: Path) -> None:
-    cfg = MqttConfig(enabled=True, host=host, port=port, prefix=prefix, keepalive_s=5)
+    cfg = MqttConfig(enabled=True, host=host, port=port, prefix=prefix, keepalive_s=5,
+                     command_auth="open_lab_bench")
     async with (
         await Store.open(None, data_dir) as store,
         MqttBridge(cfg, "KR500R2830-1234", store, _Handler(), "9.9.9"),

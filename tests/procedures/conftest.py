@@ -12,8 +12,9 @@ from rgse_daemon.controller import Controller
 from rgse_daemon.krl import ast as k
 from rgse_daemon.krl.parser import parse_dat
 from rgse_daemon.krl.render import globals_dat_text
-from rgse_daemon.procedures.common import RunSettings, static_checker
 from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.procedures.programs import static_checker
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import Store
 from simulators.krc4.sim import SimulatedKrc4

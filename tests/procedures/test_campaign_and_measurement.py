@@ -7,11 +7,12 @@ import json
 from pathlib import Path
 
 from rgse_daemon.controller import Controller
+from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures.calibration import fit_campaign, run_calibration, table1_points
-from rgse_daemon.procedures.common import RunSettings
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import compute_mass, run_measurement
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.store import LoopState, PointState, RunState, Store, archive_root, verify_file
 from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.sim import SimulatedKrc4
@@ -31,10 +32,10 @@ def mount_on_confirm(sim: SimulatedKrc4, engine: RunEngine, seen: list[int]):
     def on_event(ev: Event) -> None:
         if ev.kind != "confirm":
             return
-        d = ev.data
-        seen.append(d["point_index"])
-        sim.mount(campaign_point_payload(d))
-        asyncio.get_running_loop().call_soon(engine.confirm, f"mounted point {d['point_index']}")
+        data = ev.data
+        seen.append(data["point_index"])
+        sim.mount(campaign_point_payload(data))
+        asyncio.get_running_loop().call_soon(engine.confirm, f"mounted point {data['point_index']}")
 
     return on_event
 
@@ -49,8 +50,15 @@ def steady(cfg, **kw) -> RunSettings:
 async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store: Store, engine: RunEngine):
     seen: list[int] = []
     engine.subscribe(mount_on_confirm(sim, engine, seen))
+    docs: list[d.Document] = []
+    engine.subscribe_documents(docs.append)
     summary = await run_calibration(engine, store, cfg, points=SHORT_POINTS, settings=steady(cfg))
     assert summary is not None
+    loop_docs = ["LoopStarted", "LoopRecording", "LoopRecorded", "TraceArchived"]
+    assert [type(doc).__name__ for doc in docs] == [
+        "OpenRun", *(["PointStarted", *loop_docs, "PointDone"] * len(SHORT_POINTS)), "Result", "CloseRun"]
+    assert docs[-2].calibration is not None and docs[-1] == d.CloseRun(RunState.COMPLETED)
+    docs.clear()
     assert seen == list(range(len(SHORT_POINTS)))
     cal = await store.active_calibration(cfg.robot.name)
     assert cal is not None and cal.id == summary["calibration_id"] and cal.run_id == summary["run_id"]
@@ -67,6 +75,7 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     engine.subscribe(events.append)
     result = await run_measurement(engine, store, cfg, settings=steady(cfg, loops=3, trace_samples=600))
     assert result is not None
+    assert [type(doc).__name__ for doc in docs] == ["OpenRun", *loop_docs * 3, "Result", "CloseRun"]
     assert sim.truth is not None and sim.truth.payload_mass_kg > DUT_MASS_KG + FIXTURE_KG  # + the MPA
     err_kg = abs(result["mass_kg"] - DUT_MASS_KG)
     assert err_kg <= result["U_kg"], f"measured {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f}, true {DUT_MASS_KG}"

@@ -10,14 +10,18 @@ from dataclasses import replace
 import pytest
 
 from rgse_daemon.errors import DataError, InterlockError
+from rgse_daemon.io.topics import Topics
+from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
-from rgse_daemon.procedures.common import RunSettings, axes_of, program, run_checked
 from rgse_daemon.procedures.engine import PlanAborted, RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import measurement_plan
+from rgse_daemon.procedures.programs import axes_of, program, run_checked
+from rgse_daemon.procedures.recorder import StoreRecorder
 from rgse_daemon.procedures.retrieval import TRACE_DIR
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.monitor import Monitor
-from rgse_daemon.store import Store, archive_root
+from rgse_daemon.store import RunKind, Store
 from tests.support.plans import long_motion, moving, robot_still, trace_stopped
 from tests.support.polling import wait_until
 
@@ -124,11 +128,14 @@ async def test_pause_and_resume_at_checkpoints(sim, engine: RunEngine):
 async def test_dry_run_sends_nothing(sim, krc, cfg, store: Store, settings):
     engine = make_engine(krc, cfg, dry_run=True)
     axes_before = sim.store.read("$AXIS_ACT")
-    archive = archive_root(cfg.paths.data_dir)
     pushed: list[str] = []
+    documents: list[d.Document] = []
     engine.subscribe(lambda ev: pushed.append(ev.message) if ev.kind == "step" else None)
-    result = await engine.run(measurement_plan(store, "dry-run", archive / "dry-run", archive, settings, {}))
-    assert result is None
+    engine.subscribe_documents(documents.append)
+    recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+    opening = d.OpenRun(RunKind.MEASUREMENT, settings.robot, {"settings": settings.to_json()})
+    result = await engine.execute(opening, lambda run: measurement_plan(run, settings, {}), recorder)
+    assert result is None and documents == [] and engine.run_id is None
     assert "warm-up move, run 1 (1 cycles)" in pushed and "loop 2/2" in pushed
     assert not (sim.share_dir / "R1" / "PROGRAM").exists() or not any((sim.share_dir / "R1" / "PROGRAM").iterdir())
     assert not (sim.share_dir / "TRACE").exists() or not any((sim.share_dir / "TRACE").iterdir())
@@ -170,7 +177,7 @@ async def test_trace_files_deleted_over_the_link_without_a_share(sim, krc, cfg, 
                        share_dir=None)
 
     def plan() -> m.Plan:
-        from rgse_daemon.procedures.common import TRACE_CONFIG_NAME, trace_config_xml
+        from rgse_daemon.procedures.programs import TRACE_CONFIG_NAME, trace_config_xml
 
         yield m.PutFile(TRACE_DIR + TRACE_CONFIG_NAME, trace_config_xml(settings).encode())
         yield m.TraceStart("keep_me", TRACE_CONFIG_NAME)

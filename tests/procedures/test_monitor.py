@@ -10,9 +10,9 @@ from datetime import UTC, datetime
 import pytest
 
 from rgse_daemon.controller import LoadData, Snapshot
-from rgse_daemon.procedures.common import PreconditionError, check_preconditions
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.preconditions import PreconditionError, check_preconditions
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.monitor import DEFAULT_WATCHERS, Expect, InterlockTrip, Monitor, Observation, WatchContext
 from simulators.krc4.sim import SimulatedKrc4

@@ -13,10 +13,10 @@ import pytest
 from rgse_daemon.controller import Controller
 from rgse_daemon.manifest import MODULE_A3, MODULE_A5
 from rgse_daemon.procedures.calibration import run_calibration, table1_points
-from rgse_daemon.procedures.common import RunSettings
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.retrieval import pull_trace
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import LoopState, RunState, Store, archive_root, verify_file
 from rgse_daemon.store.archive import ArchiveConflict

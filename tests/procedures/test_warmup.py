@@ -7,9 +7,10 @@ import numpy as np
 
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.calibration import run_calibration, table1_points
-from rgse_daemon.procedures.common import RunSettings, ThermalHistory, warm_up
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.procedures.warmup import ThermalHistory, warm_up
 from simulators.krc4.physics import mass_calibration_payload
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.plans import short

@@ -36,6 +36,7 @@ __all__ = ["ROBOT"]
 
 PREFIX = f"rgse/{ROBOT}"
 FIXTURE_KG = 10.288
+COMMAND_TOKEN = "daemon-test-token"  # commands that move the robot need one (secure by default)
 #: Deadline of waits on the daemon (a hang guard, not a timing check).
 WAIT_S = 60.0
 
@@ -66,7 +67,8 @@ def daemon_config(
         "limits": {"snapshot_stale_s": 1.0},
         "measurement": ms,
         "mqtt": {"enabled": broker_port is not None, "host": "127.0.0.1", "port": broker_port or 1883,
-                 "reconnect_min_s": 0.05, "reconnect_max_s": 0.4, "state_rate_hz": 20.0},
+                 "reconnect_min_s": 0.05, "reconnect_max_s": 0.4, "state_rate_hz": 20.0,
+                 "command_tokens": [COMMAND_TOKEN]},
     }
     if modbus_port is not None:
         data["modbus"] = {"host": "127.0.0.1", "port": modbus_port, "poll_period_s": 0.05, "stale_after_polls": 40,
@@ -194,7 +196,7 @@ async def command(peer: Collector, verb: str, body: dict[str, Any], timeout_s: f
     def replies() -> list[dict[str, Any]]:
         return [r for r in peer.json_on(reply_topic) if r.get("request_id") == rid]
 
-    await peer.publish(f"{PREFIX}/cmd/{verb}", json.dumps({"request_id": rid, **body}))
+    await peer.publish(f"{PREFIX}/cmd/{verb}", json.dumps({"request_id": rid, "token": COMMAND_TOKEN, **body}))
     await peer.wait_for(lambda _: bool(replies()), f"a reply to cmd/{verb} {rid}", timeout_s)
     (reply,) = replies()
     return reply

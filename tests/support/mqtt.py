@@ -186,6 +186,8 @@ def mqtt_config(host: str, port: int, prefix: str | None, **overrides: Any) -> M
         "reconnect_max_s": 0.5,
         "state_rate_hz": 50.0,
     }
+    if "command_tokens" not in overrides:
+        values["command_auth"] = "open_lab_bench"  # tests on the loopback broker; tokens are tested on their own
     values.update(overrides)
     return MqttConfig(**values)
 

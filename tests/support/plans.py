@@ -5,14 +5,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 from rgse_daemon.procedures import messages as m
-from rgse_daemon.procedures.common import (
-    TRACE_CONFIG_NAME,
-    RunSettings,
-    render_program,
-    run_checked,
-    trace_config_xml,
-)
+from rgse_daemon.procedures.programs import TRACE_CONFIG_NAME, render_program, run_checked, trace_config_xml
 from rgse_daemon.procedures.retrieval import TRACE_DIR
+from rgse_daemon.procedures.settings import RunSettings
 from simulators.krc4.sim import SimulatedKrc4
 
 LONG_TRACE = "long_trace"

@@ -1,0 +1,123 @@
+"""The KRL programs and the trace configuration of a run, and the plan stubs that run a program checked.
+
+Every program is rendered for the live pose (its axis speed chosen for the T1 limit) and pushed only after the
+interlock's static check against the live controller state (:func:`static_checker`, run by the engine's ``Push``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Generator, Sequence
+from typing import Any
+
+from rgse_daemon.config import LimitsConfig
+from rgse_daemon.controller import Snapshot
+from rgse_daemon.errors import InterlockError, KrlSyntaxError
+from rgse_daemon.krl.render import RenderedProgram, TemplateDefaults, cube_corners, default_params, render
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.engine import ProgramChecker
+from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.safety.inputs import SafetyInputs
+from rgse_daemon.safety.static import CheckContext, ensure_allowed
+from rgse_daemon.trace.config import TraceConfig, TraceModule, TraceTrigger, render_trace_config
+
+#: Trace configuration file the daemon writes into the controller's TRACE folder.
+TRACE_CONFIG_NAME = "rgse_meas.xml"
+#: Modules recorded: the interpolator (pose, override) and the drives of A3 and A5 (torque, current, temperature).
+TRACE_MODULES = ("KRCIpo", "NextGenDrive#3", "NextGenDrive#5")
+#: Opaque channel IDs requested per module (the ID-to-name mapping is not public; the drive modules record their
+#: seven standard channels).
+TRACE_CHANNELS = (1, 2, 3, 4, 5, 6, 7)
+
+
+def program(name: str, s: RunSettings, start_deg: Sequence[float], **extra: Any) -> RenderedProgram:
+    """Render template ``name`` for this run: axis speed chosen for the T1 limit from the current pose, with every
+    point within ``payload_lever_max_m`` of the flange counted (the static check re-verifies it before the push)."""
+    defaults = TemplateDefaults(
+        limit_mm_s=s.speed_limit_mm_s,
+        payload_points_flange_m=cube_corners(s.payload_lever_max_m),
+        start_deg=tuple(float(v) for v in start_deg),
+        meas_pose=s.meas_pose_deg,
+        warmup_amplitude_deg=s.warmup_amplitude_deg,
+        warmup_cycles=s.warmup_cycles,
+        brake_angle_deg=s.brake_release_deg,
+    )
+    params = default_params(name, defaults)
+    if extra:
+        params = params.model_copy(update=extra)
+    return render(name, params)
+
+
+
+def render_program(name: str, s: RunSettings, snap: Snapshot | None) -> Generator[m.Msg, Any, RenderedProgram]:
+    """:func:`program` from the current axes, rendered in a worker thread (choosing the safe axis speed is numeric
+    work that must not stall the event loop, or the interlock monitor's snapshots would go stale)."""
+    rendered = yield m.Compute(f"render {name}", program, (name, s, axes_of(snap, s.meas_pose_deg)),
+                               timeout_s=60.0)
+    return rendered
+
+
+def trace_config_xml(s: RunSettings) -> str:
+    """The KUKA Trace configuration for one loop: ``trace_samples`` at ``trace_period_s``, triggered at once."""
+    rate_us = round(s.trace_period_s * 1e6)
+    cfg = TraceConfig(
+        time_s=s.trace_time_s,
+        pretrigger_s=0.0,
+        basename="rgse",
+        modules=tuple(TraceModule(name, rate_us, TRACE_CHANNELS) for name in TRACE_MODULES),
+        trigger=TraceTrigger("KRCIpo", 1),
+    )
+    return render_trace_config(cfg)
+
+
+def static_checker(
+    limits: LimitsConfig, payload_lever_max_m: float, inputs: Callable[[], SafetyInputs] | None = None
+) -> ProgramChecker:
+    """The engine's ``Push`` check: the interlock's static check (:func:`~rgse_daemon.safety.static.ensure_allowed`)
+    against the live context — mode, safety inputs and axes from the snapshot, every point within
+    ``payload_lever_max_m`` of the flange for the speed bound. The DuT's mass is what is being measured, so the load
+    diagram check gets none (0 kg); the runtime monitor's speed watcher still applies."""
+    points = tuple(tuple(p) for p in cube_corners(payload_lever_max_m))
+
+    def check(prog: m.Program, snap: Snapshot) -> None:
+        inp = inputs() if inputs is not None else None
+        ctx = CheckContext(
+            limits=limits,
+            mode=snap.mode_op or "UNREADABLE",
+            area_cleared=bool(inp is not None and inp.valid and inp.area_cleared and inp.estop_ok),
+            key_confirmed=bool(inp is not None and inp.valid and inp.aut_permitted),
+            payload_points_flange_m=points,  # type: ignore[arg-type]
+            start_axes_deg=snap.axes_deg,
+        )
+        try:
+            ensure_allowed(prog.src_text, prog.dat_text, ctx, file=f"{prog.name}.src")
+        except KrlSyntaxError as exc:
+            raise InterlockError(f"{prog.name}.src: refused, does not parse: {exc}") from exc
+
+    return check
+
+
+
+def axes_of(snap: Snapshot | None, fallback: Sequence[float]) -> tuple[float, ...]:
+    if snap is None or snap.axes_deg is None:
+        return tuple(fallback)
+    return snap.axes_deg
+
+
+def run_checked(prog: RenderedProgram, s: RunSettings) -> Generator[m.Msg, Any, float]:
+    """Push (static check), select, start, wait for ``#P_END``, verify the handshake ``RGSE_DONE``; returns the robot
+    time in s (start → end as the controller reported it)."""
+    _, robot_s = yield from run_program(prog, s.program_timeout_s)
+    yield m.VerifyDone("RGSE_DONE")
+    return robot_s
+
+
+
+def run_program(program: m.Program, timeout_s: float) -> Generator[m.Msg, Any, tuple[float, float]]:
+    """Push (static check first), select, start and wait for ``#P_END``. Returns (start time, robot time in s):
+    the time from the start command until the controller reported the end (motion and the program's own waits)."""
+    name = yield m.Push(program)
+    yield m.Select(name)
+    t_start = yield m.Start()
+    reply = yield m.WaitProgram(frozenset({"P_END"}), timeout_s)
+    waited_s = reply[1] if reply is not None else 0.0
+    return (t_start or 0.0), waited_s

@@ -1,0 +1,66 @@
+"""The parameters of a run (``[measurement]`` of the config): what the measurement run and the campaign share."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+from rgse_daemon import kinematics as kin
+from rgse_daemon.config import Config
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """The parameters of a run, from ``[measurement]`` of the config; tests and the demo shorten them."""
+
+    robot: str
+    loops: int
+    settle_s: float
+    trace_period_s: float
+    trace_samples: int
+    brake_release_deg: float
+    warmup_cycles: int
+    warmup_amplitude_deg: float
+    fixture_mass_kg: float
+    payload_lever_max_m: float
+    speed_limit_mm_s: float
+    program_timeout_s: float
+    trace_timeout_s: float
+    warmup_until_steady: bool = False
+    warmup_steady_k: float = 1.0
+    warmup_steady_window_s: float = 300.0
+    warmup_max_s: float = 2400.0
+    g_m_s2: float = kin.G_PAPER_M_S2
+    lever_difference_m: float = kin.D4_M
+    meas_pose_deg: tuple[float, ...] = tuple(float(v) for v in kin.measurement_pose())
+
+    @classmethod
+    def from_config(cls, cfg: Config, **overrides: Any) -> RunSettings:
+        ms = cfg.measurement
+        base = cls(
+            robot=cfg.robot.name,
+            loops=ms.loops,
+            settle_s=ms.settle_s,
+            trace_period_s=ms.trace_period_s,
+            trace_samples=ms.trace_samples,
+            brake_release_deg=ms.brake_release_deg,
+            warmup_cycles=ms.warmup_cycles,
+            warmup_amplitude_deg=ms.warmup_amplitude_deg,
+            fixture_mass_kg=ms.fixture_mass_kg,
+            payload_lever_max_m=ms.payload_lever_max_m,
+            speed_limit_mm_s=cfg.limits.t1_speed_mm_s,
+            program_timeout_s=ms.program_timeout_s,
+            trace_timeout_s=ms.trace_timeout_s,
+            warmup_until_steady=ms.warmup_until_steady,
+            warmup_steady_k=ms.warmup_steady_k,
+            warmup_steady_window_s=ms.warmup_steady_window_s,
+            warmup_max_s=ms.warmup_max_s,
+        )
+        return replace(base, **overrides)
+
+    @property
+    def trace_time_s(self) -> float:
+        return self.trace_samples * self.trace_period_s
+
+    def to_json(self) -> dict[str, Any]:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
