@@ -259,7 +259,8 @@ async def _resident(krc: Controller, defaults: TemplateDefaults) -> Check:
 
 
 async def _trace_config(krc: Controller, cfg: Config) -> Check:
-    from rgse_daemon.procedures.common import TRACE_CONFIG_NAME, RunSettings, trace_config_xml
+    from rgse_daemon.procedures.programs import TRACE_CONFIG_NAME, trace_config_xml
+    from rgse_daemon.procedures.settings import RunSettings
 
     data = trace_config_xml(RunSettings.from_config(cfg)).encode("utf-8")
     name = TRACE_DIR_CANDIDATES[0] + TRACE_CONFIG_NAME

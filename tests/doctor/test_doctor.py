@@ -40,7 +40,7 @@ def _config(sim: SimulatedKrc4, data_dir: Path, **sections: Any) -> Config:
     base: dict[str, Any] = {
         "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge", "request_timeout_s": 2.0},
         "paths": {"data_dir": str(data_dir)},
-        "mqtt": {"enabled": True, "host": "127.0.0.1", "port": 1883},
+        "mqtt": {"enabled": True, "host": "127.0.0.1", "port": 1883, "command_auth": "open_lab_bench"},
     }
     for key, value in sections.items():
         base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
