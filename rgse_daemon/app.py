@@ -55,9 +55,11 @@ from rgse_daemon.procedures.measurement import run_measurement
 from rgse_daemon.procedures.programs import static_checker
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.inputs import SafetyInputs
+from rgse_daemon.safety.latch import SafetyLatch
 from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
 from rgse_daemon.services.admission import Busy, NotConnected, RunAdmission
 from rgse_daemon.services.link import ControllerLink, DaemonCounters
+from rgse_daemon.services.recovery import Recovery
 from rgse_daemon.services.signals import Alarms, StackLight
 from rgse_daemon.services.state import StatePublisher, snapshot_json, watchdog_loop
 from rgse_daemon.store import RunKind, RunState, Store
@@ -129,6 +131,8 @@ class Daemon:
         self._tasks: list[asyncio.Task[Any]] = []
         self._controller_task: asyncio.Task[None] | None = None
         self._resumed = False
+        self.latch = SafetyLatch(cfg.paths.data_dir)
+        self.recovery: Recovery | None = None
 
     # --- what the jobs hold, as the rest of the code and the tests read it -----------------------------------------
     @property
@@ -172,6 +176,9 @@ class Daemon:
             recovered = await self.store.recover_interrupted(self.robot)
             if recovered:
                 log.warning("runs left running by a previous daemon marked interrupted: %s", [r.id for r in recovered])
+            self.recovery = Recovery(self.cfg, self.store, self.latch, self._publish_alarm,
+                                     lambda run_id, p: self.mqtt.publish_progress(run_id, p) if self.mqtt else None,
+                                     lambda: self.mqtt.notify_outbox() if self.mqtt else None)
 
             if self.cfg.modbus is not None:
                 from rgse_daemon.io.modbus import SafetyIo
@@ -198,8 +205,10 @@ class Daemon:
             if self.safety_io is not None:
                 self._spawn(self.light.run(), "stack-light")
             stack.push_async_callback(self._cancel_tasks)
-            self._controller_task = asyncio.create_task(self.link.run(stop, self._link_up, self._link_down),
-                                                        name="rgse-controller")
+            # before each connect counts: stop what was left running, finish interrupted runs (docs/recovery.md)
+            self._controller_task = asyncio.create_task(
+                self.link.run(stop, self._link_up, self._link_down, prepare=self.recovery.on_connect),
+                name="rgse-controller")
             stack.push_async_callback(self._stop_controller)
             stack.push_async_callback(self.admission.stop)
 
@@ -239,7 +248,7 @@ class Daemon:
         task, self._controller_task = self._controller_task, None
         if task is None:
             return
-        if not self.connected.is_set():
+        if self.link.connecting:  # not while the link closes: a cancel there would leave its connections open
             task.cancel()
         done, _ = await asyncio.wait({task}, timeout=STOP_TIMEOUT_S)
         if not done:
@@ -289,7 +298,8 @@ class Daemon:
             krc,
             checker=static_checker(self.cfg.limits, self.cfg.measurement.payload_lever_max_m, inputs),
             monitor=Monitor(krc, inputs=inputs,
-                            stale_periods=self.cfg.limits.snapshot_stale_s / DEFAULT_POLL_PERIOD_S),
+                            stale_periods=self.cfg.limits.snapshot_stale_s / DEFAULT_POLL_PERIOD_S,
+                            on_unsafe=self.recovery.on_unsafe if self.recovery is not None else None),
             share_dir=self.cfg.controller.share_dir,
         )
         engine.subscribe(self._event)
@@ -321,6 +331,8 @@ class Daemon:
     def _publish_alarm(self, doc: dict[str, Any]) -> None:
         if self.mqtt is not None:
             self.mqtt.publish_alarm(doc)
+        if doc.get("kind") in ("safety_latch", "left_running_stopped", "run_interrupted"):
+            self.light.want("red")
 
     def _run_failed(self, kind: str, run_id: str | None, error: str) -> None:
         self._publish_alarm({"kind": "run_failed", "run_kind": kind, "run_id": run_id,
@@ -331,6 +343,11 @@ class Daemon:
     def _start_run(self, kind: str, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]],
                    engine: RunEngine | None = None) -> asyncio.Task[Any]:
         assert self.store is not None
+        try:
+            self.latch.check()
+        except RgseError:
+            self.counters.runs_refused += 1
+            raise
         self._confirm_data = {}
         return self.admission.start(kind, coro_factory, engine=engine if engine is not None else self.engine,
                                     krc=self.krc, store=self.store, connected=self.connected.is_set() and

@@ -161,6 +161,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-record", action="store_true", help="do not record the controller's file layout")
     _add_json(p)
 
+    p = sub.add_parser("safety", help="the safety latch: set when a stop could not be confirmed; no run until cleared")
+    safety_sub = p.add_subparsers(dest="safety_command", required=True, metavar="ACTION")
+    c = safety_sub.add_parser("status", help="show the latch (exit 0 clear, 1 set)")
+    c.add_argument("--config", type=Path, required=True, metavar="FILE")
+    c = safety_sub.add_parser("clear", help="clear the latch after checking the robot is stopped")
+    c.add_argument("--config", type=Path, required=True, metavar="FILE")
+    c.add_argument("--message", required=True, metavar="TEXT", help="what the operator checked (logged)")
+
     p = sub.add_parser("status", help="the running daemon's retained status, state and results")
     p.add_argument("--config", type=Path, required=True, metavar="FILE")
     p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the broker (default 10)")

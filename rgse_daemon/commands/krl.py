@@ -84,7 +84,7 @@ def template_defaults(cfg: Config) -> TemplateDefaults:
 
 def _read_text(path: Path) -> str:
     try:
-        return path.read_text(encoding="latin-1")
+        return path.read_bytes().decode("latin-1")  # as stored: no newline translation (a lone CR is refused)
     except OSError as exc:
         raise DataError(f"{path}: cannot read: {exc.strerror or exc}") from exc
 

@@ -33,8 +33,11 @@ class IntLit:
 
 @dataclass(frozen=True)
 class RealLit:
+    """A REAL literal: ``value`` as binary64, ``text`` the source's decimal text (``None`` when built in code)."""
+
     value: float
     pos: Pos = field(default=NOPOS, compare=False, repr=False)
+    text: str | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)

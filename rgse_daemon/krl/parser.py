@@ -426,7 +426,7 @@ class _Parser:
                 self.advance()  # a negative literal, so that {A2 -90} holds the number -90
                 if nxt.kind is Tok.INT:
                     return IntLit(-int(nxt.value), self.pos(tok))
-                return RealLit(-float(nxt.value), self.pos(tok))
+                return RealLit(-float(nxt.value), self.pos(tok), "-" + nxt.text)
             self.depth += 1
             try:
                 if self.depth > MAX_NESTING:
@@ -465,7 +465,7 @@ class _Parser:
             return IntLit(tok.value, p)
         if tok.kind is Tok.REAL and isinstance(tok.value, float):
             self.advance()
-            return RealLit(tok.value, p)
+            return RealLit(tok.value, p, tok.text)
         if tok.kind is Tok.STR:
             self.advance()
             return StrLit(tok.text, p)

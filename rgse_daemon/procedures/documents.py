@@ -118,7 +118,8 @@ class LoopRecorded(Document):
 @dataclass(frozen=True)
 class TraceArchived(Document):
     """The trace files of loop ``index`` are durable and verified in the run directory (absolute paths, SHA-256,
-    size); ``deleted`` tells whether the controller's copies are gone (else ``delete_note`` says why)."""
+    size); ``deleted`` tells whether the controller's copies are gone (else ``delete_note`` says why; empty: the
+    delete comes after this document is recorded)."""
 
     index: int
     trace: str

@@ -51,6 +51,7 @@ from rgse_daemon.procedures.messages import PROGRAM_DIR
 from rgse_daemon.procedures.retrieval import TRACE_DIR, pull_trace
 from rgse_daemon.safety.monitor import TRACE_ACTIVE_STATES, Expect, InterlockTrip, Monitor
 from rgse_daemon.store import RunState
+from rgse_daemon.store.final import retry_final
 
 _log = logging.getLogger(__name__)
 
@@ -255,10 +256,9 @@ class RunEngine:
             doc = d.CloseRun(RunState.ABORTED, str(exc))
         else:
             doc = d.CloseRun(RunState.FAILED, f"{type(exc).__name__}: {exc}")
-        try:
-            await asyncio.shield(self._record(doc, run_id, CLOSE_TIMEOUT_S))
-        except RgseError as err:
-            _log.error("run %s: could not record state %s: %r", run_id, doc.state, err)
+        # retried until the store takes it (disk full, database restarting): store/final.py
+        await retry_final(lambda: asyncio.shield(self._record(doc, run_id, CLOSE_TIMEOUT_S)),
+                          f"run {run_id}: state {doc.state}")
 
     async def run(self, plan: m.Plan, *, run_id: str | None = None) -> Any:
         """Execute ``plan`` inside the finaliser; returns its value or raises what failed it."""
@@ -477,6 +477,10 @@ class RunEngine:
         async with self._file_window(f"pull {msg.trace}"):
             return await pull_trace(self.krc, msg.trace, msg.dest_dir, trace_dir=self.trace_dir,
                                     share_dir=self.share_dir)
+
+    async def _do_DeleteTraceCopies(self, msg: m.DeleteTraceCopies) -> tuple[bool, str]:
+        return await self._bounded(f"delete {msg.pulled.trace} on the controller", msg.pulled.delete_copies(),
+                                   msg.timeout_s)
 
     async def _do_Sleep(self, msg: m.Sleep) -> None:
         await asyncio.sleep(msg.seconds)

@@ -78,11 +78,14 @@ def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *,
         return outcome
     timing.pull_s = pulled.duration_s
     t0 = time.monotonic()
-    yield d.TraceArchived(index, trace, pulled.files, pulled.deleted, pulled.delete_note)
+    yield d.TraceArchived(index, trace, pulled.files, False)  # indexed in the store ...
+    deleted, note = yield m.DeleteTraceCopies(pulled)  # ... and only then may the controller's copies go
+    if not deleted:  # recorded again (indexing is idempotent), now with the note why the copies stay
+        yield d.TraceArchived(index, trace, pulled.files, False, note)
     timing.store_s = time.monotonic() - t0
     outcome.sha256s = pulled.sha256s
-    outcome.deleted = pulled.deleted
-    outcome.delete_note = pulled.delete_note
+    outcome.deleted = deleted
+    outcome.delete_note = note
     return outcome
 
 

@@ -192,8 +192,9 @@ class TraceStop(Msg):
 
 @dataclass(frozen=True)
 class Pull(Msg):
-    """Fetch every file of trace ``trace`` from the controller's TRACE folder into ``dest_dir`` durably, verified,
-    and delete the controller copies once archived. Reply: :class:`~rgse_daemon.procedures.retrieval.PulledTrace`."""
+    """Fetch every file of trace ``trace`` from the controller's TRACE folder into ``dest_dir`` durably, verified.
+    The controller copies stay until :class:`DeleteTraceCopies`. Reply:
+    :class:`~rgse_daemon.procedures.retrieval.PulledTrace`."""
 
     trace: str
     dest_dir: Path
@@ -201,6 +202,18 @@ class Pull(Msg):
 
     def describe(self) -> str:
         return f"Pull {self.trace} → {self.dest_dir}"
+
+
+@dataclass(frozen=True)
+class DeleteTraceCopies(Msg):
+    """Delete the controller copies of a pulled trace — only once the store indexed its files. Reply: (deleted,
+    note); a failed delete is not an error (the note says why)."""
+
+    pulled: Any
+    timeout_s: float = 60.0
+
+    def describe(self) -> str:
+        return f"DeleteTraceCopies {getattr(self.pulled, 'trace', '?')}"
 
 
 # --- flow --------------------------------------------------------------------------------------------------------

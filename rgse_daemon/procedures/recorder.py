@@ -75,7 +75,7 @@ class StoreRecorder:
                     await st.add_trace_file(run_id, relative_path(f.path, self.archive), f.sha256, f.size,
                                             loop_index=doc.index)
                 await st.update_loop(run_id, doc.index, state=LoopState.ARCHIVED)
-                if not doc.deleted:
+                if not doc.deleted and doc.delete_note:  # no note yet: the delete comes after the index
                     await st.add_event("warning", "trace_left_on_controller", f"{doc.trace}: {doc.delete_note}",
                                        run_id=run_id, data={"trace": doc.trace})
             case d.PointDone():

@@ -7,10 +7,15 @@ Raw data is the one thing that cannot be made again, so a trace is pulled like t
 2. read each file over the link; its size must equal the size the listing reported (when the server reports one);
 3. write it to a staging file, then :func:`~rgse_daemon.store.archive.archive_file` it into ``dest_dir`` with the
    size and SHA-256 of *what was read* as expectations: a short or corrupted local copy is an error, never archived;
-4. only after every file is durable and verified, delete the controller copies: on the controller's share where
-   it is mounted (``controller.share_dir``), else over the link (:meth:`Controller.delete_file`: C3 Bridge #23).
-   A delete that fails never fails the pull: the files stay on the controller, :attr:`PulledTrace.deleted` is
-   False and :attr:`PulledTrace.delete_note` says why (recorded with the loop as ``trace_left_on_controller``).
+4. the controller copies are **not** deleted by the pull: the caller first indexes the archived files in the store,
+   then calls :meth:`PulledTrace.delete_copies` (a disk-full store must never leave a file that is neither indexed
+   nor on the controller). It deletes on the controller's share where it is mounted (``controller.share_dir``),
+   else over the link (:meth:`Controller.delete_file`: C3 Bridge #23). A delete that fails never fails the loop:
+   the files stay on the controller, and the returned note says why (recorded with the loop as
+   ``trace_left_on_controller``). ``pull_trace(..., delete=True)`` deletes at once (for callers without a store).
+
+:func:`archived_not_indexed` lists files of a trace that were archived (a complete, published file) but that the
+store does not index — what a daemon killed between the archive and the index leaves; crash recovery indexes them.
 """
 
 from __future__ import annotations
@@ -20,14 +25,15 @@ import hashlib
 import logging
 import os
 import re
-from dataclasses import dataclass
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from rgse_daemon.controller import Controller, share_path
 from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.link.errors import CommandError
 from rgse_daemon.manifest import MODULE_A3, MODULE_A5
-from rgse_daemon.store.archive import ArchivedFile, archive_file_async
+from rgse_daemon.store.archive import ArchivedFile, archive_file_async, file_digest
 from rgse_daemon.trace.names import plain_name
 
 _log = logging.getLogger(__name__)
@@ -42,20 +48,29 @@ STAGING_DIRNAME = ".incoming"
 @dataclass(frozen=True)
 class PulledTrace:
     """One trace, archived: the files (path, sha256, size), whether the controller copies were deleted and how
-    long pulling + archiving took (s, daemon overhead)."""
+    long pulling + archiving took (s, daemon overhead). ``names`` are the controller's file names."""
 
     trace: str
     files: tuple[ArchivedFile, ...]
     deleted: bool
     delete_note: str
     duration_s: float
+    names: tuple[str, ...] = ()
+    _delete: Callable[[], Awaitable[tuple[bool, str]]] | None = field(default=None, repr=False, compare=False)
+
+    async def delete_copies(self) -> tuple[bool, str]:
+        """Delete the controller copies — call only once the store has indexed :attr:`files`. Returns (deleted,
+        note); never raises for a failed delete."""
+        if self._delete is None:
+            return self.deleted, self.delete_note
+        return await self._delete()
 
     @property
     def sha256s(self) -> tuple[str, ...]:
         return tuple(f.sha256 for f in self.files)
 
 
-def _base_name(full: str) -> str:
+def base_name(full: str) -> str:
     return re.split(r"[\\/]", full.rstrip("\\/"))[-1]
 
 
@@ -82,17 +97,20 @@ async def pull_trace(
     *,
     trace_dir: str = TRACE_DIR,
     share_dir: Path | None = None,
+    delete: bool = False,
+    require_complete: bool = True,
 ) -> PulledTrace:
     """Pull, verify and archive every file of ``trace``; see the module docstring. Raises DataError if the set is
-    incomplete or a copy does not match what was read (nothing is deleted then)."""
+    incomplete (unless not ``require_complete``: crash recovery keeps whatever a stopped trace left) or a copy does
+    not match what was read (nothing is deleted then)."""
     t0 = asyncio.get_running_loop().time()
     plain_name(trace, f"{trace_dir}: trace name")
     prefix = f"{trace}_".upper()
     listing = await krc.list_dir(trace_dir)
-    entries = [e for e in listing if not e.is_dir and _base_name(e.name).upper().startswith(prefix)]
-    names = {plain_name(_base_name(e.name), f"{trace_dir}: listed file"): e for e in entries}
+    entries = [e for e in listing if not e.is_dir and base_name(e.name).upper().startswith(prefix)]
+    names = {plain_name(base_name(e.name), f"{trace_dir}: listed file"): e for e in entries}
     missing = [trace + s for s in REQUIRED_SUFFIXES if not any(n.upper() == (trace + s).upper() for n in names)]
-    if missing:
+    if missing and require_complete:
         raise DataError(f"{trace_dir}{trace}: trace incomplete on the controller, missing {', '.join(missing)}")
     staging = dest_dir / STAGING_DIRNAME
     archived: list[ArchivedFile] = []
@@ -114,8 +132,31 @@ async def pull_trace(
         pass  # not empty (another pull in flight) or already gone
     if len(archived) != len(names):
         raise DataError(f"{trace}: archived {len(archived)} of {len(names)} files")
-    deleted, note = await _delete_controller_copies(krc, trace_dir, sorted(names), share_dir)
-    return PulledTrace(trace, tuple(archived), deleted, note, asyncio.get_running_loop().time() - t0)
+    listed_names = sorted(names)
+
+    async def delete_copies() -> tuple[bool, str]:
+        return await _delete_controller_copies(krc, trace_dir, listed_names, share_dir)
+
+    duration_s = asyncio.get_running_loop().time() - t0
+    if delete:
+        deleted, note = await delete_copies()
+        return PulledTrace(trace, tuple(archived), deleted, note, duration_s, tuple(listed_names))
+    return PulledTrace(trace, tuple(archived), False, "not deleted yet: index first", duration_s,
+                       tuple(listed_names), delete_copies)
+
+
+def archived_not_indexed(run_dir: Path, trace: str, indexed: set[Path]) -> list[ArchivedFile]:
+    """Archived files of ``trace`` in ``run_dir`` (published names: a partial copy has a hidden temporary name) that
+    are not in ``indexed`` (absolute paths), with their SHA-256 and size as read now."""
+    prefix = f"{trace}_".upper()
+    found: list[ArchivedFile] = []
+    if not run_dir.is_dir():
+        return found
+    for path in sorted(run_dir.iterdir()):
+        if path.is_file() and path.name.upper().startswith(prefix) and path.resolve() not in indexed:
+            sha, size = file_digest(path)
+            found.append(ArchivedFile(path, sha, size))
+    return found
 
 
 async def _delete_controller_copies(

@@ -10,7 +10,16 @@ loss. On a trip it, in this order and each step bounded by ``stop_timeout_s``:
 
 1. stops the robot program (``#10 STOP``) — a STOP 2 equivalent: the robot ramps down on its path and holds;
 2. stops the trace (``$TRACE.MODE = #T_STOP``) if one is armed or recording;
-3. calls ``on_trip(trip)`` (the engine publishes the alarm and fails the plan with :class:`InterlockTrip`).
+3. calls ``on_trip(trip)`` (the engine publishes the alarm and fails the plan with :class:`InterlockTrip`);
+4. keeps stopping until a read-back confirms program and trace stopped
+   (:func:`~rgse_daemon.safety.makesafe.stop_until_confirmed`, with backoff, at most ``make_safe_deadline_s``):
+   after a stall or a lost link the first stop may never have arrived. Not confirmed by the deadline, it calls
+   ``on_unsafe(report)`` (the daemon latches: :mod:`rgse_daemon.safety.latch`). The plan's block does not end before
+   this step has, so no new run starts while the stop is still unconfirmed.
+
+A plan that ends without a trip gets the same check once its block ends (:meth:`Monitor.running`): a program still
+active or a trace still recording (the plan's own finaliser failed, e.g. its stop was refused) is stopped until
+confirmed, or latched. A plan that ended normally costs one read of three variables.
 
 The plan tells the monitor what to expect through :attr:`Monitor.context` (allowed modes, program expected
 running or idle, safety inputs): the engine updates it as it starts and ends programs.
@@ -41,7 +50,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field, replace
 from enum import StrEnum
 
@@ -50,6 +59,7 @@ from rgse_daemon.config import LimitsConfig
 from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import InterlockError, LinkError, RgseError
 from rgse_daemon.safety.inputs import SafetyInputs
+from rgse_daemon.safety.makesafe import STOP_DEADLINE_S, TRACE_ACTIVE_STATES, StopReport, stop_until_confirmed
 
 _log = logging.getLogger(__name__)
 
@@ -65,8 +75,6 @@ WINDOW_AXIS_TOLERANCE_DEG = 0.01
 STANDSTILL_SPEED_M_S = 0.001
 #: How long opening or closing a file window waits for the fresh snapshot it needs, beyond the file work (s).
 WINDOW_SNAPSHOT_WAIT_S = 5.0
-#: Trace states in which a trace is armed, recording or being written (stop it on a trip).
-TRACE_ACTIVE_STATES = frozenset({"T_WAIT", "TRIGGERED", "T_START"})
 
 
 class InterlockTrip(InterlockError):
@@ -173,8 +181,15 @@ def _aut_inputs(obs: Observation, ctx: WatchContext) -> str | None:
         return "AUT without safety inputs (no Modbus I/O configured)"
     if not obs.inputs.valid:
         return f"safety inputs invalid: {obs.inputs.reason}"
-    bad = [n for n, ok in (("E-stop", obs.inputs.estop_ok), ("area cleared", obs.inputs.area_cleared),
-                           ("AUT key", obs.inputs.aut_permitted)) if not ok]
+    bad = [
+        n
+        for n, ok in (
+            ("E-stop", obs.inputs.estop_ok),
+            ("area cleared", obs.inputs.area_cleared),
+            ("AUT key", obs.inputs.aut_permitted),
+        )
+        if not ok
+    ]
     return f"safety inputs not OK in AUT: {', '.join(bad)}" if bad else None
 
 
@@ -191,8 +206,11 @@ def _estop(obs: Observation, ctx: WatchContext) -> str | None:
 
 def _stop2(obs: Observation, ctx: WatchContext) -> str | None:
     assert obs.snapshot is not None
-    return "$STOPMESS is TRUE (enabling switch released, STOP 2 or another stop message)" if obs.snapshot.stopmess \
+    return (
+        "$STOPMESS is TRUE (enabling switch released, STOP 2 or another stop message)"
+        if obs.snapshot.stopmess
         else None
+    )
 
 
 def _program_state(obs: Observation, ctx: WatchContext) -> str | None:
@@ -283,9 +301,12 @@ class MonitorStats:
     trip_latency_s: float | None = None
     """Time from the start of the poll that saw the trip until the program stop was acknowledged."""
     stop_errors: list[str] = field(default_factory=list)
+    stop_report: StopReport | None = None
+    """How the stop after the trip was confirmed (or not)."""
 
 
 TripHandler = Callable[[InterlockTrip], None]
+UnsafeHandler = Callable[[InterlockTrip, StopReport], Awaitable[None]]
 
 
 class Monitor:
@@ -305,6 +326,8 @@ class Monitor:
         stale_periods: float = STALE_PERIODS,
         stop_timeout_s: float = STOP_TIMEOUT_S,
         inputs: Callable[[], SafetyInputs] | None = None,
+        make_safe_deadline_s: float = STOP_DEADLINE_S,
+        on_unsafe: UnsafeHandler | None = None,
     ) -> None:
         if not 0.0 < poll_period_s <= 0.05:
             raise InterlockError(f"monitor poll period {poll_period_s} s: must be > 0 and <= 0.05 s (>= 20 Hz)")
@@ -317,10 +340,13 @@ class Monitor:
         self.stale_after_s = stale_periods * poll_period_s
         self.stop_timeout_s = stop_timeout_s
         self.inputs = inputs
+        self.make_safe_deadline_s = make_safe_deadline_s
+        self.on_unsafe = on_unsafe
         self.stats = MonitorStats()
         self.latest: Snapshot | None = None
         self.trip: InterlockTrip | None = None
         self._task: asyncio.Task[None] | None = None
+        self._confirming = False
         self._window: _FileWindow | None = None
         self._cleared_at = 0.0  # start of the last poll that passed every check on time
         self._polled = asyncio.Event()  # set after every poll
@@ -381,14 +407,22 @@ class Monitor:
     async def running(self, on_trip: TripHandler):  # type: ignore[no-untyped-def]
         """Poll in a background task while the block runs; the task ends with the block (or at a trip)."""
         self.trip = None
+        self._confirming = False
         self._task = asyncio.get_running_loop().create_task(self._poll(on_trip), name="rgse-interlock-monitor")
         try:
             yield self
         finally:
             task, self._task = self._task, None
             if task is not None:
-                task.cancel()
-                await asyncio.wait({task})  # a cancel of *this* task still propagates from here
+                try:
+                    if self._confirming and not task.done():
+                        # a trip's stop is not confirmed yet: the block ends once it is, or latched (bounded)
+                        await asyncio.wait({task}, timeout=self.make_safe_deadline_s + 2 * self.stop_timeout_s)
+                finally:
+                    task.cancel()
+                    await asyncio.wait({task})  # a cancel of *this* task still propagates from here
+                if not self._confirming:
+                    await self._confirm_idle()
 
     def _allowed_s(self, t0: float) -> float:
         """How long the poll that started at ``t0`` may take: the normal limit, or, inside a file window, until the
@@ -461,10 +495,36 @@ class Monitor:
                 _log.error("%s", trip, extra={"watcher": watcher.name, "detail": detail})
                 await self.make_safe(snap)
                 self.stats.trip_latency_s = time.monotonic() - t0
+                self._confirming = True
                 on_trip(trip)
+                await self._confirm_stop(trip)
                 return
             self._polled.set()
             await asyncio.sleep(max(0.0, self.poll_period_s - (time.monotonic() - t0)))
+
+    async def _confirm_stop(self, trip: InterlockTrip) -> None:
+        """Step 4 of the module docstring: stop until a read-back confirms it, or hand the failure on."""
+        report = await stop_until_confirmed(self.krc, deadline_s=self.make_safe_deadline_s)
+        self.stats.stop_report = report
+        if report.confirmed:
+            _log.info("interlock: stop confirmed: %s", report.describe(), extra={"watcher": trip.watcher})
+            return
+        _log.critical("interlock: stop NOT confirmed: %s", report.describe(), extra={"watcher": trip.watcher})
+        if self.on_unsafe is not None:
+            await self.on_unsafe(trip, report)
+
+    async def _confirm_idle(self) -> None:
+        """The block ended without a trip: nothing may still move or record (see the module docstring)."""
+        report = await stop_until_confirmed(self.krc, deadline_s=self.make_safe_deadline_s, deselect=False)
+        self.stats.stop_report = report
+        if report.acted:
+            _log.error("interlock: the plan ended with something still running: %s", report.describe())
+        if not report.confirmed:
+            _log.critical("interlock: stop at the end of the plan NOT confirmed: %s", report.describe())
+            if self.on_unsafe is not None:
+                trip = InterlockTrip("plan_end", "the plan ended with program or trace not confirmed stopped",
+                                     report.describe())
+                await self.on_unsafe(trip, report)
 
     async def make_safe(self, snap: Snapshot | None) -> None:
         """Stop the program, then the trace; each step bounded, errors recorded (never raised: the trip is the
@@ -474,13 +534,19 @@ class Monitor:
                 await within(self.krc.stop_program(), self.stop_timeout_s)
             except (TimeoutError, RgseError) as exc:
                 self.stats.stop_errors.append(f"stop program: {exc!r}")
-                _log.error("interlock: could not stop the program: %r", exc,
-                           extra={"watcher": self.trip.watcher if self.trip else None})
+                _log.error(
+                    "interlock: could not stop the program: %r",
+                    exc,
+                    extra={"watcher": self.trip.watcher if self.trip else None},
+                )
         trace_state = snap.trace_state if snap is not None else None
         if trace_state is None or trace_state in TRACE_ACTIVE_STATES:
             try:
                 await within(self.krc.write_raw("$TRACE.MODE", "#T_STOP"), self.stop_timeout_s)
             except (TimeoutError, RgseError) as exc:
                 self.stats.stop_errors.append(f"stop trace: {exc!r}")
-                _log.error("interlock: could not stop the trace: %r", exc,
-                           extra={"watcher": self.trip.watcher if self.trip else None})
+                _log.error(
+                    "interlock: could not stop the trace: %r",
+                    exc,
+                    extra={"watcher": self.trip.watcher if self.trip else None},
+                )

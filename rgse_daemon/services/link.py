@@ -49,7 +49,9 @@ class ControllerLink:
     while it is up, ``error`` says why it is not.
 
     ``on_up(krc)`` runs after every (re)connect, before the link counts as supervised; ``on_down(lost)`` runs before
-    the link closes, with ``lost`` None on a requested stop, else why the link was lost.
+    the link closes, with ``lost`` None on a requested stop, else why the link was lost. ``prepare(krc)`` (optional)
+    runs after every (re)connect *before* ``connected`` is set: no run can be admitted while it runs (the daemon
+    stops what a previous daemon or link left running, :mod:`rgse_daemon.services.recovery`).
     """
 
     def __init__(self, cfg: ControllerConfig, counters: DaemonCounters, alarms: Alarms,
@@ -62,6 +64,8 @@ class ControllerLink:
         self.connected = asyncio.Event()
         self.krc: Controller | None = None
         self.error: str | None = None
+        self.connecting = False
+        """True while a connect attempt is in flight (the only phase a shutdown may cancel)."""
 
     @property
     def where(self) -> str:
@@ -73,16 +77,21 @@ class ControllerLink:
         return min(c.reconnect_max_s, c.reconnect_min_s * 2.0 ** min(attempt, 30)) * random.uniform(0.5, 1.0)
 
     async def run(self, stop: asyncio.Event, on_up: Callable[[Controller], Awaitable[None]],
-                  on_down: Callable[[str | None], Awaitable[None]]) -> None:
+                  on_down: Callable[[str | None], Awaitable[None]],
+                  prepare: Callable[[Controller], Awaitable[None]] | None = None) -> None:
         """Keep the controller connected until ``stop``; the first connect may fail (controller booting), a link may
         be lost: back off and connect anew."""
         attempt = 0
         while not stop.is_set():
+            self.connecting = True
             try:
                 # the TRACE path form and listing format `rgse doctor` found on this controller (probed if none)
                 layout = load_layout(self.data_dir) if self.data_dir is not None else None
                 async with Controller.connect(self.cfg, layout=layout) as krc:
+                    self.connecting = False
                     attempt = 0
+                    if prepare is not None:
+                        await prepare(krc)
                     self.krc = krc
                     self.counters.controller_connects += 1
                     self.error = None
@@ -106,6 +115,7 @@ class ControllerLink:
                 self.error = f"{type(exc).__name__}: {exc}"
                 self.alarms.raise_("link", f"{self.where}: unexpected error: {self.error}")
             finally:
+                self.connecting = False
                 self.connected.clear()
                 self.krc = None
             if stop.is_set():

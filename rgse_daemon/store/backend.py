@@ -24,7 +24,7 @@ import psycopg
 from psycopg.rows import dict_row
 
 from rgse_daemon.store.dialect import POSTGRESQL, SQLITE, Dialect
-from rgse_daemon.store.errors import StoreError
+from rgse_daemon.store.errors import StoreConnectionLost, StoreError
 
 Row = dict[str, Any]
 
@@ -181,7 +181,7 @@ class PostgresBackend(Backend):
     def _execute(self, sql: str, params: Sequence[Any]) -> list[Row]:
         if self._conn is None or self._conn.closed:
             if self._in_transaction:
-                raise StoreError(f"{self.description}: connection lost inside a transaction")
+                raise StoreConnectionLost(f"{self.description}: connection lost inside a transaction")
             self._connect()
         assert self._conn is not None
         try:
@@ -190,6 +190,7 @@ class PostgresBackend(Backend):
         except psycopg.OperationalError as exc:
             if self._conn.closed or self._conn.broken:
                 self._conn = None
+                raise StoreConnectionLost(f"{self.description}: connection lost: {exc}") from exc
             raise StoreError(f"{self.description}: {exc}") from exc
         except psycopg.Error as exc:
             raise StoreError(f"{self.description}: {exc}") from exc

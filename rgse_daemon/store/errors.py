@@ -19,6 +19,11 @@ class StoreTimeout(StoreError):
     """A store operation did not finish within its deadline; its outcome is unknown."""
 
 
+class StoreConnectionLost(StoreError):
+    """The database connection broke under an operation (server restart, backend terminated); the operation did
+    not commit, or its outcome is unknown. The next operation reconnects; the async store retries once."""
+
+
 class StoreConflict(StoreError):
     """The request contradicts recorded data (another document under the same id, an illegal state change)."""
 

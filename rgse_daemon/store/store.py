@@ -5,14 +5,17 @@ requires and what keeps transactions from interleaving). The event loop never bl
 waits at most ``timeout_s``; the database-side timeouts (lock wait, statement, connect) are set to
 :data:`DB_TIMEOUT_FRACTION` of it, so the database normally gives up first with a clean :class:`StoreError`.
 If the deadline still passes, :class:`StoreTimeout` says the outcome is unknown — every write is keyed or
-content-derived, so retrying is safe. Cancellation propagates to the caller unchanged; an operation already
-running on the thread finishes (or rolls back) there.
+content-derived, so retrying is safe. One dropped database connection (:class:`StoreConnectionLost`: a PostgreSQL
+restart, a terminated backend) is retried once on a new connection, not reported: the operation is one
+transaction, rolled back by the server when the connection broke. Cancellation propagates to the caller
+unchanged; an operation already running on the thread finishes (or rolls back) there.
 """
 
 from __future__ import annotations
 
 import asyncio
 import functools
+import logging
 from collections.abc import Awaitable, Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
@@ -20,8 +23,10 @@ from types import TracebackType
 from typing import Concatenate, ParamSpec, Self, TypeVar
 
 from rgse_daemon.aio import within
-from rgse_daemon.store.errors import StoreError, StoreTimeout
+from rgse_daemon.store.errors import StoreConnectionLost, StoreError, StoreTimeout
 from rgse_daemon.store.repository import Clock, Repository, utc_now
+
+_log = logging.getLogger(__name__)
 
 #: Database-side timeouts as a fraction of the per-call deadline: the database should give up first.
 DB_TIMEOUT_FRACTION = 0.8
@@ -86,11 +91,17 @@ class Store:
     async def _call(self, name: str, fn: Callable[[], R]) -> R:
         if self._closed:
             raise StoreError(f"store {name}: the store is closed")
-        fut = asyncio.get_running_loop().run_in_executor(self._executor, fn)
-        try:
-            return await within(fut, self._timeout_s)
-        except TimeoutError as exc:
-            raise StoreTimeout(f"store {name}: no answer within {self._timeout_s:g} s; outcome unknown") from exc
+        for attempt in (1, 2):
+            fut = asyncio.get_running_loop().run_in_executor(self._executor, fn)
+            try:
+                return await within(fut, self._timeout_s)
+            except TimeoutError as exc:
+                raise StoreTimeout(f"store {name}: no answer within {self._timeout_s:g} s; outcome unknown") from exc
+            except StoreConnectionLost as exc:
+                if attempt == 2:
+                    raise
+                _log.warning("store %s: %s; retrying once on a new connection", name, exc)
+        raise AssertionError("unreachable")
 
     @property
     def description(self) -> str:

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import PurePath
@@ -44,7 +43,10 @@ import numpy as np
 from rgse_daemon.errors import KrlSyntaxError, RgseError, VariableError
 from rgse_daemon.kinematics import flange_pose_xyzabc
 from rgse_daemon.krl import ast as k
+from rgse_daemon.krl import values as kv
+from rgse_daemon.krl.evaluate import BUILTINS, Evaluator
 from rgse_daemon.krl.parser import parse_dat, parse_src
+from rgse_daemon.krl.values import KrlArray, Value, check_index, convert, element, member, merge
 from rgse_daemon.krl.walk import iter_exprs
 from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, ProtocolError, format_value, parse_value
 from simulators.krc4.files import ShareFiles
@@ -138,52 +140,19 @@ def share_loader(files: ShareFiles) -> ProgramLoader:
     return load
 
 
-# --- values -------------------------------------------------------------------------------------------------------
-@dataclass
-class KrlArray:
-    """A non-CHAR array variable: ``dims`` sizes, elements by 1-based index tuple (missing ones are the default)."""
-
-    type_name: str
-    dims: tuple[int, ...]
-    items: dict[tuple[int, ...], Value] = field(default_factory=dict)
-
-
-Value = KrlValue | KrlArray
-
-
+# --- values ---------------------------------------------------------------------------------------------------------
 def default_value(type_name: str) -> KrlValue:
-    """The value a fresh variable of ``type_name`` holds."""
-    if type_name == "INT":
-        return 0
-    if type_name == "REAL":
-        return 0.0
-    if type_name == "BOOL":
-        return False
-    if type_name == "CHAR":
-        return ""
-    fields = _STRUCT_FIELDS.get(type_name)
-    if fields is None:
+    """The value a fresh variable of ``type_name`` holds (structures: every field uninitialised)."""
+    value = kv.default_value(type_name)
+    if value is kv.UNKNOWN or isinstance(value, KrlArray):
         raise KrlRuntimeError(f"type {type_name} is not known to the simulator")
-    return KrlStruct(type_name, tuple((f, 0 if f in _INT_FIELDS else 0.0) for f in fields))
+    return value  # type: ignore[return-value]
 
 
-def coerce(type_name: str, value: Value) -> Value:
-    """KRL's assignment conversions: INT → REAL widens, REAL → INT rounds; aggregates merge into the old struct."""
-    if type_name == "REAL" and isinstance(value, int) and not isinstance(value, bool):
-        return float(value)
-    if type_name == "INT" and isinstance(value, float):
-        return math.floor(value + 0.5) if value >= 0 else -math.floor(-value + 0.5)
-    if isinstance(value, KrlStruct) and type_name in _STRUCT_FIELDS:
-        return merge_struct(default_value(type_name), value)  # type: ignore[arg-type]
-    return value
-
-
-def merge_struct(old: KrlStruct, new: KrlStruct) -> KrlStruct:
-    """An aggregate assigned to a structure changes the fields it names and leaves the others as they were."""
-    given = dict(new.fields)
-    fields = [(name, given.pop(name, value)) for name, value in old.fields]
-    fields += list(given.items())
-    return KrlStruct(old.type_name or new.type_name, tuple(fields))
+def coerce(type_name: str, value: Value, old: Value = kv.UNKNOWN) -> Value:
+    """KRL's assignment conversion (:func:`rgse_daemon.krl.values.convert`, the simulator's choices where the
+    controller's is not documented: a tie rounds away from zero, ABS of an INT is an INT)."""
+    return convert(type_name or None, value, old, strict=False)
 
 
 def _truth(value: Value, pos: k.Pos) -> bool:
@@ -196,18 +165,6 @@ def _number(value: Value, pos: k.Pos) -> int | float:
     if isinstance(value, int | float) and not isinstance(value, bool):
         return value
     raise KrlRuntimeError(f"expected a number, got {value!r}", pos)
-
-
-_BUILTINS: dict[str, Callable[..., float]] = {
-    "ABS": abs,
-    "SQRT": math.sqrt,
-    "SIN": lambda x: math.sin(math.radians(x)),
-    "COS": lambda x: math.cos(math.radians(x)),
-    "TAN": lambda x: math.tan(math.radians(x)),
-    "ASIN": lambda x: math.degrees(math.asin(x)),
-    "ACOS": lambda x: math.degrees(math.acos(x)),
-    "ATAN2": lambda y, x: math.degrees(math.atan2(y, x)),
-}
 
 
 class _ExitLoop(Exception):
@@ -570,6 +527,8 @@ class KrlInterpreter:
             if exc.file is None:  # raised deep inside an expression: name the file and the statement
                 raise KrlRuntimeError(exc.message, exc.pos or stmt.pos, file) from None
             raise
+        except kv.EvalError as exc:  # the shared evaluator: a run-time error, or semantics the model does not know
+            raise KrlRuntimeError(exc.reason, exc.pos if exc.pos.line else stmt.pos, file) from None
         except (VariableError, ProtocolError, MotionError, ZeroDivisionError, ValueError, OverflowError) as exc:
             raise KrlRuntimeError(str(exc) or type(exc).__name__, stmt.pos, file) from exc
 
@@ -581,7 +540,7 @@ class KrlInterpreter:
         """Results of the DEFFCT calls inside ``expr`` by node id, innermost first."""
         results: dict[int, Value] = {}
         for node in reversed(list(iter_exprs(expr))):  # reversed pre-order: arguments before their call
-            if isinstance(node, k.Call) and node.name not in _BUILTINS:
+            if isinstance(node, k.Call) and node.name not in BUILTINS:
                 routine = self._program.routine(node.name) if self._program else None
                 if routine is None or not routine.is_function:
                     raise KrlRuntimeError(f"unknown function {node.name}", node.pos)
@@ -617,9 +576,10 @@ class KrlInterpreter:
                     await self._checkpoint()
                     await self._tick()
             case k.For(var=var, start=start, stop=stop, step=step):
-                first = _number(await self._evaluate(start, frame), stmt.pos)
-                last = _number(await self._evaluate(stop, frame), stmt.pos)
-                inc = _number(await self._evaluate(step, frame), stmt.pos) if step is not None else 1
+                # the counter is an INT; REAL bounds are rounded as an assignment to an INT rounds them
+                first = coerce("INT", await self._evaluate(start, frame))
+                last = coerce("INT", await self._evaluate(stop, frame))
+                inc = coerce("INT", await self._evaluate(step, frame)) if step is not None else 1
                 if inc == 0:
                     raise KrlRuntimeError("FOR with STEP 0", stmt.pos)
                 counter = first
@@ -813,7 +773,7 @@ class KrlInterpreter:
         elif kind is Kind.STRUC and isinstance(value, KrlStruct):
             old = self._read_store(key)
             if isinstance(old, KrlStruct):
-                value = merge_struct(old, value)
+                value = merge(old.type_name, old, value, strict=False)
         self.store.write(key, format_value(value))  # type: ignore[arg-type]
 
     def _resolve(
@@ -877,7 +837,7 @@ class KrlInterpreter:
         values, types = (frame.values, frame.types) if where == "frame" else (self._module_data, self._module_types)
         type_name = types.get(key, "")
         if not ops:
-            values[key] = coerce(type_name, value)
+            values[key] = coerce(type_name, value, values.get(key, kv.UNKNOWN))
         else:
             old = values[key]
             elem_type = old.type_name if isinstance(old, KrlArray) else ""
@@ -886,61 +846,14 @@ class KrlInterpreter:
     # --- expressions -----------------------------------------------------------------------------------------------
     def _eval(self, expr: k.Expr, frame: _Frame, pre: dict[int, Value]) -> Value:
         """Evaluate ``expr``; ``pre`` holds the results of its DEFFCT calls (see :meth:`_call_functions`)."""
-        match expr:
-            case k.IntLit(value=v) | k.RealLit(value=v) | k.BoolLit(value=v) | k.StrLit(value=v):
-                return v
-            case k.EnumLit(name=n):
-                return KrlEnum(n)
-            case k.Name() | k.Index() | k.Member():
-                return self._read_var(expr, frame, pre)
-            case k.Aggregate(type_name=t, items=items):
-                fields = tuple((i.name, self._eval(i.value, frame, pre)) for i in items)
-                return KrlStruct(t, fields)  # type: ignore[arg-type]
-            case k.Unary(op=op, operand=operand):
-                v = self._eval(operand, frame, pre)
-                if op == "NOT":
-                    return not _truth(v, expr.pos)
-                if op == "B_NOT":
-                    return ~int(_number(v, expr.pos))
-                n = _number(v, expr.pos)
-                return -n if op == "-" else n
-            case k.Binary(op=op, left=left, right=right):
-                return self._binary(op, self._eval(left, frame, pre), self._eval(right, frame, pre), expr.pos)
-            case k.Call(name=name, args=args):
-                if id(expr) in pre:
-                    return pre[id(expr)]
-                if name not in _BUILTINS:
-                    raise KrlRuntimeError(f"unknown function {name}", expr.pos)
-                values = tuple(float(_number(self._eval(a, frame, pre), expr.pos)) for a in args)
-                return float(_BUILTINS[name](*values))
-        raise KrlRuntimeError(f"cannot evaluate {type(expr).__name__}", getattr(expr, "pos", None))
 
-    @staticmethod
-    def _binary(op: str, a: Value, b: Value, pos: k.Pos) -> Value:
-        if op == "==":
-            return a == b
-        if op == "<>":
-            return a != b
-        if op in ("AND", "OR", "EXOR"):
-            x, y = _truth(a, pos), _truth(b, pos)
-            return (x and y) if op == "AND" else (x or y) if op == "OR" else (x != y)
-        x, y = _number(a, pos), _number(b, pos)
-        if op == "+":
-            return x + y
-        if op == "-":
-            return x - y
-        if op == "*":
-            return x * y
-        if op == "/":
-            if y == 0:
-                raise KrlRuntimeError("division by zero", pos)
-            if isinstance(x, int) and isinstance(y, int):
-                return int(x / y)  # INT / INT cuts off the decimals
-            return x / y
-        if op in ("<", ">", "<=", ">="):
-            return {"<": x < y, ">": x > y, "<=": x <= y, ">=": x >= y}[op]
-        ix, iy = int(x), int(y)
-        return {"B_AND": ix & iy, "B_OR": ix | iy, "B_EXOR": ix ^ iy}[op]
+        def call(node: k.Call) -> Value:
+            if id(node) in pre:
+                return pre[id(node)]
+            raise KrlRuntimeError(f"unknown function {node.name}", node.pos)
+
+        evaluator = Evaluator(read=lambda e: self._read_var(e, frame, pre), call=call, wide=False, strict=False)
+        return evaluator.evaluate(expr)
 
 
 # --- motion settings ----------------------------------------------------------------------------------------------
@@ -1029,44 +942,35 @@ def _render(op: tuple[str, object]) -> str:
 def _step(value: Value, op: str, arg: object, pos: k.Pos) -> Value:
     """One index or member access on a runtime value."""
     if op == "mem":
-        if isinstance(value, KrlStruct) and isinstance(arg, str) and arg in value:
-            return value[arg]
-        raise KrlRuntimeError(f"no member {arg} in {value!r}", pos)
+        return member(value, str(arg), pos)
     assert isinstance(arg, tuple)
-    if isinstance(value, str):
-        if arg == ():
-            return value
-        if len(arg) == 1 and 1 <= arg[0] <= len(value):
-            return value[arg[0] - 1]
-        raise KrlRuntimeError(f"string index {arg} out of range", pos)
-    if isinstance(value, KrlArray):
-        if len(arg) != len(value.dims) or any(not 1 <= i <= d for i, d in zip(arg, value.dims, strict=True)):
-            raise KrlRuntimeError(f"index {list(arg)} outside the array's size {list(value.dims)}", pos)
-        return value.items.get(arg, default_value(value.type_name))
-    raise KrlRuntimeError(f"cannot index {value!r}", pos)
+    return element(value, arg, pos)
 
 
 def _replace(old: Value, ops: list[tuple[str, object]], value: Value, pos: k.Pos) -> Value:
     """``old`` with the element at path ``ops`` replaced by ``value`` (structures are immutable: rebuild)."""
     if not ops:
         if isinstance(old, KrlStruct) and isinstance(value, KrlStruct):
-            return merge_struct(old, value)
-        if isinstance(old, float) and isinstance(value, int) and not isinstance(value, bool):
-            return float(value)
+            return merge(old.type_name, old, value, pos, strict=False)
+        if isinstance(old, float) and kv.is_int(value):
+            return coerce("REAL", value)
         return value
     (op, arg), rest = ops[0], ops[1:]
     if op == "mem":
-        if not isinstance(old, KrlStruct) or arg not in old:
+        assert isinstance(arg, str)
+        if not isinstance(old, KrlStruct):
             raise KrlRuntimeError(f"no member {arg} in {old!r}", pos)
-        fields = tuple((n, _replace(v, rest, value, pos) if n == arg else v) for n, v in old.fields)
-        return KrlStruct(old.type_name, fields)  # type: ignore[arg-type]
+        inner = old[arg] if arg in old else kv.UNKNOWN
+        new_field = _replace(inner, rest, value, pos) if rest else value
+        return merge(old.type_name, old, KrlStruct(None, ((arg, new_field),)), pos, strict=False)  # type: ignore[arg-type]
     assert isinstance(arg, tuple)
     if isinstance(old, str):
         if arg == () and not rest and isinstance(value, str):
             return value
         raise KrlRuntimeError('only whole strings (name[] = "...") can be assigned', pos)
     if isinstance(old, KrlArray):
-        current = _step(old, "idx", arg, pos)
+        check_index(old, arg, pos)
+        current = old.items.get(arg, kv.default_value(old.type_name))
         items = dict(old.items)
         items[arg] = _replace(current, rest, value, pos)
         return KrlArray(old.type_name, old.dims, items)

@@ -77,6 +77,14 @@ async def _child(conn: Connection, share_dir: str, seed: int | None, time_scale:
                     conn.send(("ok", None))
                 elif verb == "truth":
                     conn.send(("ok", sim.truth))
+                elif verb == "peek":  # the controller's own variables, as its smartPAD shows them
+                    conn.send(("ok", {name: sim.store.read(name) for name in msg[1]}))
+                elif verb == "update":  # a variable changed on the controller's side (e.g. the mode selector)
+                    sim.store.update(msg[1], msg[2])
+                    conn.send(("ok", None))
+                elif verb == "fault":  # set one of the server's fault injections (server.Faults)
+                    setattr(sim.server.faults, msg[1], msg[2])
+                    conn.send(("ok", None))
                 else:
                     conn.send(("error", f"unknown request {verb!r}"))
             except Exception as exc:
@@ -178,6 +186,22 @@ class SimProcess:
     async def mount(self, payload: Payload) -> None:
         """The operator bolts ``payload`` onto the flange (builders in ``simulators.krc4.physics``)."""
         await asyncio.to_thread(self._request_blocking, ("mount", payload))
+
+    async def peek(self, *names: str) -> dict[str, str]:
+        """The simulator's own values of ``names`` (ground truth, not what a client read over the link)."""
+        return await asyncio.to_thread(self._request_blocking, ("peek", names))
+
+    async def fault(self, name: str, value: Any) -> None:
+        """Set ``server.faults.<name>`` in the child (see :class:`simulators.krc4.server.Faults`)."""
+        await asyncio.to_thread(self._request_blocking, ("fault", name, value))
+
+    async def update(self, name: str, value: str) -> None:
+        """Set ``name`` to the value text ``value`` in the controller's variable store (no client involved)."""
+        await asyncio.to_thread(self._request_blocking, ("update", name, value))
+
+    @property
+    def pid(self) -> int | None:
+        return self._proc.pid
 
     async def truth(self) -> TraceTruth | None:
         """Ground truth of the last trace the simulator wrote."""

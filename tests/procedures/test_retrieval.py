@@ -49,7 +49,10 @@ async def test_pull_without_share_deletes_over_the_link(sim: SimulatedKrc4, krc:
     other = _trace_files(sim, "t10")  # a name starting like it: not part of the trace
     deletes = sim.server.counters.by_type[DELETE]
     pulled = await pull_trace(krc, "t1", tmp_path / "run")
-    assert pulled.deleted is True and pulled.delete_note == "deleted over the link"
+    # the pull itself deletes nothing: the caller indexes the files in the store first
+    assert pulled.deleted is False and _on_controller(sim, "t1") == sorted(files)
+    assert sim.server.counters.by_type[DELETE] == deletes
+    assert await pulled.delete_copies() == (True, "deleted over the link")
     assert sim.server.counters.by_type[DELETE] - deletes == len(files)
     assert _on_controller(sim, "t1") == []
     assert _on_controller(sim, "t10") == sorted(other)
@@ -77,7 +80,7 @@ async def test_nothing_is_deleted_when_the_local_copy_is_not_archived(
 async def test_refused_delete_leaves_the_files_and_says_so(sim: SimulatedKrc4, krc: Controller, tmp_path: Path) -> None:
     files = _trace_files(sim, "t3")
     sim.server.faults.refuse_types = {DELETE: ACCESS}
-    pulled = await pull_trace(krc, "t3", tmp_path / "run")
+    pulled = await pull_trace(krc, "t3", tmp_path / "run", delete=True)
     assert pulled.deleted is False
     assert pulled.delete_note.startswith(f"left on the controller ({len(files)} of {len(files)} files)")
     assert "(code 2)" in pulled.delete_note
@@ -91,7 +94,7 @@ async def test_one_read_only_file_is_left_the_others_deleted(
     files = _trace_files(sim, "t4")
     locked = f"t4_{MODULE_A3}.trc"
     (sim.share_dir / "TRACE" / locked).chmod(0o444)  # #23 without 'always' refuses a read-only file
-    pulled = await pull_trace(krc, "t4", tmp_path / "run")
+    pulled = await pull_trace(krc, "t4", tmp_path / "run", delete=True)
     assert pulled.deleted is False
     assert pulled.delete_note.startswith(f"left on the controller (1 of {len(files)} files)")
     assert locked in pulled.delete_note

@@ -138,7 +138,9 @@ def test_constant_targets_from_the_data_list_and_locals() -> None:
     assert rules(program("  PTP xg"), dat=dat) == {"TARGET"}
     local = program("  p = {A3 100, A5 5}\n  p.A3 = 95\n  PTP p", "  DECL E6AXIS p\n")
     assert rules(local) == set()
-    assert rules(program("  PTP p", "  DECL E6AXIS p\n")) == {"TARGET"}
+    # never assigned: its fields keep the axes where they are (or the controller stops on them): no motion either way
+    assert rules(program("  PTP p", "  DECL E6AXIS p\n")) == set()
+    assert rules(program("  PTP p", "  DECL E6POS p\n")) == {"CARTESIAN"}
 
 
 def test_forbidden_keywords_are_refused_not_syntax_errors() -> None:

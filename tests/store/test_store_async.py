@@ -134,6 +134,5 @@ async def test_postgres_reconnects_after_the_server_dropped_it(pg_schemas: PgSch
                 "SELECT pg_terminate_backend(pid) FROM pg_stat_activity WHERE application_name = %s", (app,)
             ).fetchall()
         assert killed == [(True,)]
-        with pytest.raises(StoreError):
-            await store.get_run("r1")  # the call that finds the connection dead reports it
-        assert (await store.get_run("r1")).id == "r1"  # the next one reconnects (same schema via the URL)
+        # the call that finds the connection dead retries once on a new one (same schema via the URL): no error
+        assert (await store.get_run("r1")).id == "r1"
