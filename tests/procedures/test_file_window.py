@@ -19,6 +19,7 @@ from rgse_daemon.procedures.retrieval import PulledTrace
 from rgse_daemon.safety.monitor import InterlockTrip
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.krc4.variables import e6axis
+from tests.support.polling import wait_until
 
 from .conftest import make_engine
 
@@ -75,7 +76,10 @@ async def test_a_status_read_later_than_the_file_work_allows_trips(sim, cfg, tmp
         task = asyncio.create_task(engine.run(_pull_plan("w4", tmp_path / "run")))
         await asyncio.sleep(0.3)
         sim.server.faults.extra_latency_s = 8.0  # the controller hangs far beyond any file work's deadline
+        monitor = engine.monitor
+        assert monitor is not None
+        await wait_until(lambda: monitor.trip is not None, "the interlock trips", 40.0)
+        sim.server.faults.extra_latency_s = 0.0  # the controller answers again: the stop can be confirmed
         with pytest.raises(InterlockTrip) as info:
             await asyncio.wait_for(task, 40)
-        sim.server.faults.extra_latency_s = 0.0
         assert info.value.watcher == "link"
