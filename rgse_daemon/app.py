@@ -125,7 +125,8 @@ class Daemon:
         self.counters = DaemonCounters()
         self.light = StackLight(None)
         self.alarms = Alarms(self._publish_alarm, self.light)
-        self.link = ControllerLink(cfg.controller, self.counters, self.alarms, busy=lambda: self.run_active)
+        self.link = ControllerLink(cfg.controller, self.counters, self.alarms, busy=lambda: self.run_active,
+                                   data_dir=cfg.paths.data_dir)
         self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed)
         self._confirm_data: dict[str, Any] = {}
         self._tasks: list[asyncio.Task[Any]] = []

@@ -160,6 +160,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run", metavar="RUN_ID", help="abort only this run (default: the run in progress)")
     p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the reply (default 10)")
 
+    p = sub.add_parser("doctor", help="commissioning checklist of the controller, I/O, scale, broker and store")
+    p.add_argument("--config", type=Path, required=True, metavar="FILE")
+    p.add_argument("--no-record", action="store_true", help="do not record the controller's file layout")
+    _add_json(p)
+
     p = sub.add_parser("safety", help="the safety latch: set when a stop could not be confirmed; no run until cleared")
     safety_sub = p.add_subparsers(dest="safety_command", required=True, metavar="ACTION")
     c = safety_sub.add_parser("status", help="show the latch (exit 0 clear, 1 set)")

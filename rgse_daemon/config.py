@@ -168,6 +168,10 @@ class ControllerConfig(_Section):
     reconnect_max_s: Seconds = 10.0
     share_dir: Path | None = None
     """The controller's ``roboter`` share mounted locally: the file path used with plain KUKAVARPROXY."""
+    file_rate_bytes_s: float = Field(40_000.0, gt=0.0)
+    """The slowest rate (bytes/s) the controller's file work may run at: a file operation's deadline is
+    ``request_timeout_s`` + bytes / this. The real C3 Bridge loads a whole file before its first reply; ``rgse
+    doctor`` measures the real rate (keep this at about half of it; the default assumes 100 kB/s, 2.5× margin)."""
 
     @model_validator(mode="after")
     def _backoff_ordered(self) -> ControllerConfig:

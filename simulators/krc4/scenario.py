@@ -122,8 +122,21 @@ class Mounting(_Model):
     on A3 and A5 (it cancels in eq. 3/4's mass, not in the per-axis torques of eq. 17/18)."""
 
 
+class ServerBehaviour(_Model):
+    """How the controller's C3 Bridge server behaves where the real one is slow or unknown (``[server]``); a key
+    left out takes the server's default (``simulators.krc4.server.ServerConfig``, the environment variables
+    ``RGSE_SIM_LISTING`` / ``RGSE_SIM_PATHS`` for the variants)."""
+
+    file_rate_bytes_s: float | None = Field(None, gt=0.0, le=1e10)
+    """Bytes per second of the controller's file work (a #30 Begin loads the whole file before it answers)."""
+    listing: str | None = Field(None, pattern="^(fields|bare|text)$")
+    """#21 answer format: ``fields``, ``bare`` or ``text`` (simulators.krc4.files.LISTING_VARIANTS)."""
+    path_forms: str | None = Field(None, pattern="^(any|disk|krc)$")
+    """Accepted path forms: ``any``, ``disk`` or ``krc`` (simulators.krc4.files.PATH_FORM_VARIANTS)."""
+
+
 class Scenario(_Model):
-    """All error sources of the simulated torque estimate."""
+    """All error sources of the simulated torque estimate, and the server's behaviour (``server``)."""
 
     axes: dict[str, AxisErrors] = Field(default_factory=lambda: {k: AxisErrors() for k in AXIS_KEYS})
     arm: ArmModel = ArmModel()
@@ -132,6 +145,7 @@ class Scenario(_Model):
     settle: Settle = Settle()
     spikes: Spikes = Spikes()
     mounting: Mounting = Mounting()
+    server: ServerBehaviour = ServerBehaviour()
     g_m_s2: float = Field(9.81, ge=9.7, le=9.9)
     """Gravity of the simulated world (the paper uses 9.81; Bremen is 9.8134)."""
 

@@ -155,8 +155,9 @@ class SimulatedKrc4:
         self.model = RobotModel(_scenario(scenario), seed=seed)
         self.clock = SimClock(time_scale)
         self.store = VariableStore()
+        behaviour = {k: v for k, v in self.model.scenario.server.model_dump().items() if v is not None}
         self.server = KrcServer(
-            ServerConfig(host=host, port=port, latency_s=latency_s),
+            ServerConfig(host=host, port=port, latency_s=latency_s, **behaviour),
             Path(share_dir) if share_dir is not None else None,
             store=self.store,
         )
