@@ -40,11 +40,11 @@ import os
 import re
 import shutil
 import stat
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import RgseError
 
 # C3 Bridge error codes (c3bridge-protocol §1).
@@ -409,17 +409,7 @@ class ShareFiles:
             raise FileOpError(name, "is a directory", CODE_ACCESS)
         if path.exists() and not path.stat().st_mode & stat.S_IWUSR:
             raise FileOpError(name, "is read-only", CODE_ACCESS)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(content)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        write_atomic(path, content)
 
 
 def _read_only(path: Path) -> bool:
