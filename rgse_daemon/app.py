@@ -121,10 +121,12 @@ class Daemon:
         self.engine: RunEngine | None = None
         self.safety_io: Any = None  # rgse_daemon.io.modbus.SafetyIo when configured
         self.mqtt: Any = None  # rgse_daemon.io.mqtt.MqttBridge when enabled
+        self.console: Any = None  # rgse_daemon.services.console.Console when enabled
         self.counters = DaemonCounters()
         self.light = StackLight(None)
         self.alarms = Alarms(self._publish_alarm, self.light)
-        self.link = ControllerLink(cfg.controller, self.counters, self.alarms, busy=lambda: self.run_active)
+        self.link = ControllerLink(cfg.controller, self.counters, self.alarms, busy=lambda: self.run_active,
+                                   data_dir=cfg.paths.data_dir)
         self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed)
         self._confirm_data: dict[str, Any] = {}
         self._tasks: list[asyncio.Task[Any]] = []
@@ -198,6 +200,8 @@ class Daemon:
             state = StatePublisher(self.link, self.admission, rate_hz=self.cfg.mqtt.state_rate_hz,
                                    engine=lambda: self.engine, mqtt=lambda: self.mqtt, safety_io=self.safety_io)
             self._spawn(state.run(), "state")
+            if self.cfg.console.enabled:
+                await self._start_console(state, stack)
             if self.notifier.watchdog_interval_s is not None:
                 self._spawn(watchdog_loop(self.notifier, self.store, self.robot, self.notifier.watchdog_interval_s),
                             "watchdog")
@@ -217,6 +221,18 @@ class Daemon:
             self.admission.stopping = True
             self.notifier.stopping()
             log.info("stopping")
+
+    async def _start_console(self, state: StatePublisher, stack: contextlib.AsyncExitStack) -> None:
+        from rgse_daemon.services.console import Console
+
+        assert self.store is not None
+        self.console = Console(self.cfg.console, robot=self.robot, handler=self, state=state.document,
+                               light=lambda: self.light.color, store=self.store, store_url=self.cfg.store.url,
+                               data_dir=self.cfg.paths.data_dir, tokens=self.cfg.mqtt.command_tokens,
+                               open_bench=self.cfg.mqtt.command_auth == "open_lab_bench",
+                               rate_hz=max(self.cfg.mqtt.state_rate_hz, 10.0))
+        await self.console.start()
+        stack.push_async_callback(self._bounded, "console", self.console.stop)
 
     async def _bounded(self, what: str, close: Callable[[], Awaitable[Any]]) -> None:
         """Close one component within :data:`STOP_TIMEOUT_S`; a failure is logged, the shutdown goes on."""
@@ -313,6 +329,8 @@ class Daemon:
             self._confirm_data = dict(ev.data)
         if self._on_event is not None:
             self._on_event(ev)
+        if self.console is not None:
+            self.console.event(ev)
         if self.mqtt is not None:
             if ev.kind == "alarm":
                 self.mqtt.publish_alarm(ev.to_json())

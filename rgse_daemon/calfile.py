@@ -1,4 +1,4 @@
-"""The calibration file ``CAL.json`` (contracts §3): write, read back into a :class:`Calibration`, robot check."""
+"""The calibration file ``CAL.json`` (interfaces §3): write, read back into a :class:`Calibration`, robot check."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ import numpy as np
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.calibration import AxisK, Calibration
+from rgse_daemon.pipeline.envelope import Envelope
 from rgse_daemon.pipeline.preprocess import Preprocessing
+from rgse_daemon.pipeline.uncertainty import CalibrationUncertainty
 from rgse_daemon.trace.names import plain_name
 
 SCHEMA = 1
@@ -154,7 +156,47 @@ def alternatives(path: Path | str, doc: dict[str, Any], cal: Calibration) -> lis
     return out
 
 
+def uncertainty(path: Path | str, doc: dict[str, Any], cal: Calibration) -> CalibrationUncertainty | None:
+    """``fit.uncertainty`` (held-out reproducibility, bootstrap refits); None in files written before it existed."""
+    d = (doc.get("fit") or {}).get("uncertainty")
+    if d is None:
+        return None
+    try:
+        return CalibrationUncertainty.from_dict(d, len(cal.params))
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from exc
+
+
+def alternative_uncertainties(path: Path | str, doc: dict[str, Any], alts: list[Calibration]
+                              ) -> list[CalibrationUncertainty | None]:
+    """The ``uncertainty`` of every ``fit.alternatives`` entry, in the order of :func:`alternatives`."""
+    out = []
+    for entry, alt in zip((doc.get("fit") or {}).get("alternatives") or [], alts, strict=True):
+        out.append(uncertainty(path, {"fit": {"uncertainty": entry.get("uncertainty")}}, alt))
+    return out
+
+
+def envelope(path: Path | str, doc: dict[str, Any]) -> Envelope | None:
+    """``fit.envelope``: the loads the campaign covered; None in files written before it existed."""
+    d = (doc.get("fit") or {}).get("envelope")
+    if d is None:
+        return None
+    try:
+        return Envelope.from_dict(d)
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from exc
+
+
+def uncertainty_inputs(path: Path | str, doc: dict[str, Any], cal: Calibration, alts: list[Calibration]
+                       ) -> dict[str, Any]:
+    """The keyword arguments of :func:`rgse_daemon.pipeline.inline.in_line_mass` that come from a calibration file:
+    ``uncertainty``, ``alternative_uncertainty`` and ``envelope`` (None / empty in older files)."""
+    return {"uncertainty": uncertainty(path, doc, cal),
+            "alternative_uncertainty": alternative_uncertainties(path, doc, list(alts)),
+            "envelope": envelope(path, doc)}
+
+
 def check_robot(path: Path | str, doc: dict[str, Any], robot: str) -> None:
-    """A calibration is only ever used for the robot it names (contracts §3)."""
+    """A calibration is only ever used for the robot it names (interfaces §3)."""
     if doc.get("robot") != robot:
         raise DataError(f"{path}: calibration belongs to robot {doc.get('robot')!r}, the measurement to {robot!r}")

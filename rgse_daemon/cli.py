@@ -1,4 +1,4 @@
-"""The ``rgse`` command (contracts §1): parses arguments, then hands over to one module per sub-command.
+"""The ``rgse`` command (interfaces §1): parses arguments, then hands over to one module per sub-command.
 
 Each sub-command lives in ``rgse_daemon/commands/<name>.py`` and exposes ``run(args) -> int``. Errors that
 come from outside input (config, data files, KRL syntax) end in a one-line message and exit status 2;
@@ -83,6 +83,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_json(p)
     p.add_argument("--report", type=Path, metavar="DIR", help="also write the HTML report into DIR")
     p.add_argument("--mqtt", metavar="URL", help="also publish on this broker, e.g. mqtt://127.0.0.1:1883")
+    p.add_argument("--console", type=int, metavar="PORT", help="also serve the web console on 127.0.0.1:PORT")
 
     p = sub.add_parser("sim", help="run the simulated KR C4 as a server until SIGINT/SIGTERM")
     p.add_argument("--host", default="127.0.0.1")
@@ -109,6 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--traces", type=Path, required=True, metavar="DIR")
     p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
     p.add_argument("--fixture-mass", type=finite, metavar="KG")
+    p.add_argument("--envelope-limit", type=finite, default=0.5, metavar="FRACTION",
+                   help="refuse a DuT further outside the calibrated loads than this fraction of their span "
+                        "(default 0.5)")
     _add_json(p)
 
     p = sub.add_parser("study", help="the pre-processing parameter study (paper Table A2), ranked")
@@ -156,6 +160,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--run", metavar="RUN_ID", help="abort only this run (default: the run in progress)")
     p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the reply (default 10)")
 
+    p = sub.add_parser("doctor", help="commissioning checklist of the controller, I/O, scale, broker and store")
+    p.add_argument("--config", type=Path, required=True, metavar="FILE")
+    p.add_argument("--no-record", action="store_true", help="do not record the controller's file layout")
+    _add_json(p)
+
     p = sub.add_parser("safety", help="the safety latch: set when a stop could not be confirmed; no run until cleared")
     safety_sub = p.add_subparsers(dest="safety_command", required=True, metavar="ACTION")
     c = safety_sub.add_parser("status", help="show the latch (exit 0 clear, 1 set)")
@@ -168,6 +177,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, required=True, metavar="FILE")
     p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the broker (default 10)")
     _add_json(p)
+
+
+    # rgse run: start a run on the daemon and follow it (on the Python client)
+    p = sub.add_parser("run", help="start a measurement or a campaign on the running daemon and follow it")
+    kinds = p.add_subparsers(dest="run_kind", required=True, metavar="KIND")
+    m = kinds.add_parser("measure", help="an in-line measurement of the mounted DuT")
+    m.add_argument("--loops", type=int, metavar="N")
+    m.add_argument("--fixture-mass", type=float, metavar="KG")
+    m.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
+    c = kinds.add_parser("calibrate", help="a calibration campaign (confirming each load)")
+    c.add_argument("--points", type=Path, metavar="FILE.toml", help="[[point]] tables (default: paper Table 1)")
+    c.add_argument("--method", metavar="paper|auto|NAME")
+    for q in (m, c):
+        q.add_argument("--config", type=Path, required=True, metavar="FILE")
+        q.add_argument("--on-prompt", choices=("stdin", "wait"), default="stdin",
+                       help="stdin: a line on stdin confirms each prompt (default); wait: answered elsewhere")
+        q.add_argument("--timeout", type=float, metavar="S",
+                       help="the whole run, then it is aborted (default 3600)")
+        q.add_argument("--report", type=Path, metavar="DIR", help="also write the HTML report into DIR")
+        q.add_argument("--json", action="store_true", help="print the result as one JSON object")
     return parser
 
 

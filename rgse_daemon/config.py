@@ -168,6 +168,10 @@ class ControllerConfig(_Section):
     reconnect_max_s: Seconds = 10.0
     share_dir: Path | None = None
     """The controller's ``roboter`` share mounted locally: the file path used with plain KUKAVARPROXY."""
+    file_rate_bytes_s: float = Field(40_000.0, gt=0.0)
+    """The slowest rate (bytes/s) the controller's file work may run at: a file operation's deadline is
+    ``request_timeout_s`` + bytes / this. The real C3 Bridge loads a whole file before its first reply; ``rgse
+    doctor`` measures the real rate (keep this at about half of it; the default assumes 100 kB/s, 2.5× margin)."""
 
     @model_validator(mode="after")
     def _backoff_ordered(self) -> ControllerConfig:
@@ -243,7 +247,7 @@ class MqttConfig(_Section):
     host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(1883, ge=1, le=65535)
     prefix: str | None = Field(None, pattern=r"^[^#+]+$")
-    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (contracts §4). A trailing ``/`` is dropped here, once
+    """Topic prefix; ``None`` gives ``rgse/<robot name>`` (interfaces §4). A trailing ``/`` is dropped here, once
     (``plant/rgse/`` is ``plant/rgse``): every topic is ``<prefix>/<level>``."""
     username: str | None = None
     password: str | None = None
@@ -298,6 +302,16 @@ class MqttConfig(_Section):
         return prefix.rstrip("/")
 
 
+class ConsoleConfig(_Section):
+    """The operator's web console served by the daemon (off by default)."""
+
+    enabled: bool = False
+    host: str = Field("127.0.0.1", min_length=1)
+    """Address to listen on; the default serves only this machine (put a reverse proxy with TLS in front)."""
+    port: int = Field(8080, ge=0, le=65535)
+    """TCP port; 0 picks a free one (tests)."""
+
+
 class Config(BaseSettings):
     """The whole configuration file."""
 
@@ -312,6 +326,7 @@ class Config(BaseSettings):
     store: StoreConfig = StoreConfig()
     measurement: MeasurementConfig = MeasurementConfig()
     mqtt: MqttConfig = MqttConfig()
+    console: ConsoleConfig = ConsoleConfig()
     modbus: ModbusConfig | None = None
     """The Modbus TCP safety I/O module; absent: no area-cleared input, so AUT is never allowed."""
     scale: ScaleConfig | None = None

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import os
 import re
 import shutil
@@ -37,12 +38,15 @@ from pathlib import Path
 from rgse_daemon.config import ControllerConfig, Protocol
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import ConfigError, LinkError, NotAllowedError, ProtocolError, VariableError
+from rgse_daemon.filelayout import TRACE_DIR_CANDIDATES, FileLayout, is_trace_name
 from rgse_daemon.link import frames as fr
 from rgse_daemon.link.connection import ConnectionState
 from rgse_daemon.link.errors import CommandError, NotSupportedError
 from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, format_value, parse_value
 from rgse_daemon.link.pool import LinkPool
 from rgse_daemon.safety.allowlist import WRITABLE_PREFIX, WRITABLE_VARIABLES, writable
+
+log = logging.getLogger(__name__)
 
 AXES = range(1, 7)
 #: What one snapshot reads, in this order (26 variables: one #6 with C3 Bridge).
@@ -67,6 +71,8 @@ SNAPSHOT_VARIABLES: tuple[str, ...] = (
 
 #: #29 End copy flag: overwrite an existing file (c3bridge-protocol §3.9, copy flags).
 COPY_OVERWRITE_EXISTS = 64
+#: How often a file read starts again from Begin after the connection (and with it the server's buffer) was lost.
+FILE_READ_ATTEMPTS = 3
 
 
 @dataclass(frozen=True)
@@ -128,14 +134,30 @@ class Snapshot:
 
 @dataclass(frozen=True)
 class DirEntry:
-    """One entry of :meth:`Controller.list_dir`: the controller's full name and the server's info text."""
+    """One entry of :meth:`Controller.list_dir`: the name as the server gave it (a full name or only the entry's
+    own) and the server's info text, whose format the protocol leaves open (parsed defensively)."""
 
     name: str
     info: str = ""
+    listed_as: str = ""
+    """The name exactly as the server listed it, when that was not the full name (only the entry's own name)."""
 
     @property
     def is_dir(self) -> bool:
         return self.name.endswith(("\\", "/"))
+
+    @property
+    def base_name(self) -> str:
+        return re.split(r"[\\/]", self.name.rstrip("\\/"))[-1]
+
+    @property
+    def size_bytes(self) -> int | None:
+        """The size if the info text is ``<itemType>;<sizeBytes>;<attributes>;<modified>`` (four integers), else
+        ``None``: an unknown format is never guessed at."""
+        parts = self.info.split(";")
+        if len(parts) == 4 and all(p.strip().isdigit() for p in parts):
+            return int(parts[1])
+        return None
 
 
 class _Decoder:
@@ -213,20 +235,33 @@ def _num(s: KrlStruct, path: str) -> float:
 class Controller:
     """The robot controller; construct with :meth:`connect`. See the module docstring."""
 
-    def __init__(self, cfg: ControllerConfig, pool: LinkPool) -> None:
+    def __init__(self, cfg: ControllerConfig, pool: LinkPool, layout: FileLayout | None = None) -> None:
         self.cfg = cfg
         self.pool = pool
+        self.layout = layout
+        """The TRACE folder's working path form (``rgse doctor``'s record); probed at first use if ``None``."""
 
     @classmethod
     @contextlib.asynccontextmanager
-    async def connect(cls, cfg: ControllerConfig, *, seed: int | None = None) -> AsyncIterator[Controller]:
+    async def connect(
+        cls, cfg: ControllerConfig, *, seed: int | None = None, layout: FileLayout | None = None
+    ) -> AsyncIterator[Controller]:
         """Open the link (pool + protocol detection), yield the controller, close the link on exit."""
         pool = LinkPool(cfg, seed=seed)
         await pool.start()
         try:
-            yield cls(cfg, pool)
+            yield cls(cfg, pool, layout)
         finally:
             await pool.close()
+
+    def busy_until(self) -> float:
+        """Monotonic time by which the controller's file work in flight must end (0.0: none): status reads queue
+        behind it on the single-threaded server."""
+        return self.pool.load.busy_until()
+
+    def file_timeout_s(self, size_bytes: int) -> float:
+        """Deadline of one file operation moving ``size_bytes``: the request deadline + bytes at the slowest rate."""
+        return self.cfg.request_timeout_s + size_bytes / self.cfg.file_rate_bytes_s
 
     @property
     def protocol(self) -> Protocol:
@@ -296,15 +331,19 @@ class Controller:
         return parse_value(await self.pool.read(name))
 
     async def write(self, name: str, value: KrlValue) -> KrlValue:
-        """Write a Python value as KRL (``str`` becomes a quoted CHAR[] string); returns the echoed value.
+        """Write a Python value as KRL (``str`` becomes a quoted CHAR[] string); returns ``value``.
 
-        Raises ``NotAllowedError`` for a name outside the allow-list, before anything is sent.
+        The server's echo is the request's own text (C3 Bridge and KUKAVARPROXY alike), not a read-back of the
+        controller's normalised form: read the variable to learn what the controller holds. Raises
+        ``NotAllowedError`` for a name outside the allow-list, before anything is sent.
         """
         self._check_writable(name)
-        return parse_value(await self.pool.write(name, format_value(value)))
+        await self.pool.write(name, format_value(value))
+        return value
 
     async def write_raw(self, name: str, text: str) -> str:
-        """Write KRL value text as is (e.g. ``#T_START``); same allow-list as :meth:`write`."""
+        """Write KRL value text as is (e.g. ``#T_START``); same allow-list as :meth:`write`. Returns the echo (the
+        request's text on a real server, nothing to rely on)."""
         self._check_writable(name)
         return await self.pool.write(name, text)
 
@@ -362,6 +401,7 @@ class Controller:
         if self._use_share():
             await asyncio.to_thread(_share_write, self._share_path(name), data)
             return
+        name = await self._c3_name(name)
         what = f"put {name}"
         async with self.pool.connection() as conn:  # the write buffer belongs to one connection
             rsp = await conn.request(fr.WriteContentBegin(len(data)))
@@ -375,19 +415,46 @@ class Controller:
                 if rsp.written != len(chunk) or rsp.offset != offset:
                     raise ProtocolError(f"{what}: wrote {rsp.written} of {len(chunk)} bytes at offset {offset}")
                 offset += len(chunk)
-            rsp = await conn.request(fr.WriteContentEnd(COPY_OVERWRITE_EXISTS, name))
+            # End writes the whole buffer (CopyMem2File) before it answers: a deadline sized by the bytes
+            rsp = await conn.request(fr.WriteContentEnd(COPY_OVERWRITE_EXISTS, name),
+                                     timeout_s=self.file_timeout_s(len(data)), file_work=True)
             _expect(rsp, fr.WriteContentEndReply, what)
 
-    async def get_file(self, name: str) -> bytes:
-        """The content of controller file ``name``: #30 in chunks ≤ 64512 bytes, or the share."""
+    async def get_file(self, name: str, *, size_bytes: int | None = None) -> bytes:
+        """The content of controller file ``name``: #30 in chunks ≤ 64512 bytes, or the share.
+
+        The server loads the whole file before it answers Begin, so Begin's deadline is sized by the file's bytes
+        (``size_bytes``, else the size #26 reports). The read buffer lives on the server only as long as the
+        connection: if the link drops mid-transfer, the read starts again from Begin on a fresh connection (up to
+        :data:`FILE_READ_ATTEMPTS` times). The bytes returned number exactly the size Begin reported, and that
+        size must equal ``size_bytes`` when given; anything else is a ``ProtocolError``.
+        """
         if self._use_share():
             return await asyncio.to_thread(_share_read, self._share_path(name))
+        name = await self._c3_name(name)
+        if size_bytes is None:
+            size_bytes = await self.file_size(name)
+        last: LinkError | None = None
+        for attempt in range(1, FILE_READ_ATTEMPTS + 1):
+            try:
+                return await self._read_once(name, size_bytes)
+            except LinkError as exc:  # the buffer is gone with the connection: from Begin again
+                last = exc
+                log.warning("get %s: attempt %d of %d lost the link (%s); starting again from Begin", name,
+                            attempt, FILE_READ_ATTEMPTS, exc)
+        assert last is not None
+        raise last
+
+    async def _read_once(self, name: str, size_bytes: int) -> bytes:
         what = f"get {name}"
         async with self.pool.connection() as conn:
-            rsp = await conn.request(fr.ReadContentBegin(0, name))
+            rsp = await conn.request(fr.ReadContentBegin(0, name), timeout_s=self.file_timeout_s(size_bytes),
+                                     file_work=True)
             _expect(rsp, fr.ReadContentBeginReply, what)
             assert isinstance(rsp, fr.ReadContentBeginReply)
             size = rsp.file_size
+            if size != size_bytes:
+                raise ProtocolError(f"{what}: the controller loaded {size} bytes, {size_bytes} expected")
             out = bytearray()
             try:
                 while len(out) < size:
@@ -405,15 +472,39 @@ class Controller:
                 raise ProtocolError(f"{what}: {len(out)} bytes received, file has {size}")
             return bytes(out)
 
+    async def file_size(self, name: str) -> int:
+        """The size in bytes of controller file ``name`` (#26, or the share)."""
+        if self._use_share(fr.MsgType.GET_PROPERTIES):
+            path = self._share_path(name)
+            try:
+                return (await asyncio.to_thread(path.stat)).st_size
+            except OSError as exc:
+                raise CommandError(f"size of {name}", exc.strerror or "cannot stat") from exc
+        name = await self._c3_name(name)
+        rsp = await self._file_command(fr.GetProperties(0xFF, name), fr.GetPropertiesReply, f"properties of {name}")
+        assert isinstance(rsp, fr.GetPropertiesReply)
+        if rsp.item_type & fr.ItemType.DIR:
+            raise CommandError(f"size of {name}", "is a folder")
+        return rsp.size_bytes
+
     async def list_dir(self, path: str) -> list[DirEntry]:
         """Entries of a controller directory or mask (#21), e.g. ``C:\\KRC\\ROBOTER\\TRACE\\``."""
         if self._use_share():
             return await asyncio.to_thread(_share_list, self._share_path(path), path)
+        shown = path
+        layout = await self.trace_layout() if is_trace_name(path) else None
+        if layout is not None:
+            path = layout.folder(layout.trace_name(path))
         rsp = await self.pool.request(fr.NameList(0, 0, path))
         _expect(rsp, fr.NameListReply, f"list {path}")
         assert isinstance(rsp, fr.NameListReply)
         infos = list(rsp.infos) + [""] * max(0, len(rsp.items) - len(rsp.infos))
-        return [DirEntry(n, i) for n, i in zip(rsp.items, infos, strict=False)]
+        # a server may list entries by their own name only: make them full names, in the caller's form
+        folder = re.sub(r"[\\/][^\\/]*[*?][^\\/]*$", "", shown)  # a mask (…\\*.SRC) lists its folder
+        sep = "/" if "/" in folder and "\\" not in folder else "\\"
+        folder = folder.rstrip("\\/") + sep
+        return [DirEntry(n, i) if re.search(r"[\\/]", n.rstrip("\\/")) else DirEntry(folder + n, i, n)
+                for n, i in zip(rsp.items, infos, strict=False)]
 
     async def delete_file(self, name: str, *, always: bool = False) -> None:
         """Delete controller file (or empty directory) ``name``: #23, or unlink on the share.
@@ -424,6 +515,7 @@ class Controller:
         if self._use_share(fr.MsgType.DELETE):
             await asyncio.to_thread(_share_delete, self._share_path(name), name)
             return
+        name = await self._c3_name(name)
         await self._file_command(fr.Delete(always, name), fr.DeleteReply, f"delete {name}")
 
     async def copy_file(self, source: str, destination: str, *, overwrite: bool = False) -> None:
@@ -433,8 +525,10 @@ class Controller:
             src, dst = self._share_path(source), self._share_path(destination)
             await asyncio.to_thread(_share_copy, src, dst, overwrite, False, f"copy {source}")
             return
+        source, destination = await self._c3_name(source), await self._c3_name(destination)
         req = fr.Copy(fr.CopyFlag.OVERWRITE_EXISTS if overwrite else 0, source, destination)
-        await self._file_command(req, fr.CopyReply, f"copy {source} to {destination}")
+        await self._file_command(req, fr.CopyReply, f"copy {source} to {destination}",
+                                 await self._copy_timeout_s(source))
 
     async def move_file(self, source: str, destination: str, *, overwrite: bool = False) -> None:
         """Move (rename) ``source`` to ``destination`` (#25, or on the share); ``overwrite`` as in :meth:`copy_file`."""
@@ -442,8 +536,10 @@ class Controller:
             src, dst = self._share_path(source), self._share_path(destination)
             await asyncio.to_thread(_share_copy, src, dst, overwrite, True, f"move {source}")
             return
+        source, destination = await self._c3_name(source), await self._c3_name(destination)
         req = fr.Move(fr.CopyFlag.OVERWRITE_EXISTS if overwrite else 0, source, destination)
-        await self._file_command(req, fr.MoveReply, f"move {source} to {destination}")
+        await self._file_command(req, fr.MoveReply, f"move {source} to {destination}",
+                                 await self._copy_timeout_s(source))
 
     async def create_file(
         self,
@@ -456,17 +552,20 @@ class Controller:
     ) -> None:
         """Create ``name`` with #22 (C3 Bridge only): ``item_type`` e.g. ``ItemType.DIR``; ``always`` replaces."""
         self._require(fr.MsgType.CREATE, f"create {name}")
+        name = await self._c3_name(name)
         req = fr.Create(item_type, module_part, always, name, template)
         await self._file_command(req, fr.CreateReply, f"create {name}")
 
     async def set_attribute(self, name: str, attributes: int, mask: int) -> None:
         """Set the ``mask`` bits of ``name``'s attributes to those of ``attributes`` (#20, C3 Bridge only)."""
         self._require(fr.MsgType.SET_ATTRIBUTE, f"set attributes of {name}")
+        name = await self._c3_name(name)
         await self._file_command(fr.SetAttribute(attributes, mask, name), fr.SetAttributeReply, f"attributes {name}")
 
     async def get_full_name(self, path: str) -> str:
         """The controller's full name of ``path`` (#27): ``/R1/TEST.SRC`` → ``KRC:\\R1\\PROGRAM\\TEST.SRC``."""
         self._require(fr.MsgType.GET_FULL_NAME, f"full name of {path}")
+        path = await self._c3_name(path)
         rsp = await self._file_command(fr.GetFullName(path), fr.GetFullNameReply, f"full name of {path}")
         assert isinstance(rsp, fr.GetFullNameReply)
         return rsp.path
@@ -474,6 +573,7 @@ class Controller:
     async def get_krc_name(self, path: str) -> str:
         """The KRC name of ``path`` (#28): ``KRC:\\R1\\PROGRAM\\TEST.SRC`` → ``/R1/TEST.SRC``."""
         self._require(fr.MsgType.GET_KRC_NAME, f"KRC name of {path}")
+        path = await self._c3_name(path)
         rsp = await self._file_command(fr.GetKrcName(path), fr.GetKrcNameReply, f"KRC name of {path}")
         assert isinstance(rsp, fr.GetKrcNameReply)
         return rsp.path
@@ -482,10 +582,50 @@ class Controller:
         if not self.pool.supports(msg_type):
             raise NotSupportedError(f"{what}: needs C3 Bridge #{int(msg_type)} (server is {self.protocol.value})")
 
-    async def _file_command(self, req: fr.Request, kind: type[fr.Reply], what: str) -> fr.Reply:
-        rsp = await self.pool.request(req)
+    async def _file_command(
+        self, req: fr.Request, kind: type[fr.Reply], what: str, timeout_s: float | None = None
+    ) -> fr.Reply:
+        if timeout_s is None:
+            rsp = await self.pool.request(req)
+        else:  # file work that moves bytes: others wait behind it
+            async with self.pool.connection() as conn:
+                rsp = await conn.request(req, timeout_s=timeout_s, file_work=True)
         _expect(rsp, kind, what)
         return rsp
+
+    async def _copy_timeout_s(self, source: str) -> float:
+        try:
+            return self.file_timeout_s(await self.file_size(source))
+        except CommandError:  # a folder or a missing source: the copy itself says what is wrong
+            return self.file_timeout_s(0)
+
+    async def _c3_name(self, name: str) -> str:
+        """``name`` with a TRACE-folder prefix in the form this controller accepts (:class:`FileLayout`)."""
+        if not is_trace_name(name):
+            return name
+        layout = await self.trace_layout()
+        return name if layout is None else layout.trace_name(name)
+
+    async def trace_layout(self) -> FileLayout | None:
+        """The TRACE folder's working form: ``rgse doctor``'s record, else found once by listing each candidate
+        (:data:`~rgse_daemon.filelayout.TRACE_DIR_CANDIDATES`, with and without the trailing ``\\``). ``None`` if
+        every form is refused (no TRACE folder yet): names are then sent as the caller wrote them."""
+        if self.layout is not None:
+            return self.layout
+        tried = []
+        for trace_dir in TRACE_DIR_CANDIDATES:
+            for trailing in (True, False):
+                layout = FileLayout(trace_dir, trailing)
+                folder = layout.folder(trace_dir)
+                rsp = await self.pool.request(fr.NameList(0, 0, folder))
+                if rsp.success:
+                    log.info("controller lists its TRACE folder as %r (no doctor record; probed)", folder)
+                    self.layout = layout
+                    return layout
+                tried.append(f"{folder} (code {rsp.code})")
+        log.warning("no form of the TRACE folder could be listed (%s); names go out as written (run rgse doctor)",
+                    ", ".join(tried))
+        return None
 
     def _share_path(self, name: str) -> Path:
         if self.cfg.share_dir is None:

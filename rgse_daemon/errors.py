@@ -6,7 +6,7 @@ react by kind (retry a link timeout, stop on an interlock trip, exit 2 on bad in
 
 from __future__ import annotations
 
-#: Exit statuses of the ``rgse`` command (contracts §1), shared by every sub-command.
+#: Exit statuses of the ``rgse`` command (interfaces §1), shared by every sub-command.
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2

@@ -1,4 +1,4 @@
-"""Campaign and measurement directories (contracts §2): ``manifest.toml`` plus KUKA trace file sets → arrays.
+"""Campaign and measurement directories (interfaces §2): ``manifest.toml`` plus KUKA trace file sets → arrays.
 
 This is the I/O side of the pipeline: it reads and validates, the numbers are computed in
 :mod:`rgse_daemon.pipeline`. Every problem is a :class:`~rgse_daemon.errors.DataError` naming the file.

@@ -1,4 +1,5 @@
-"""Shared test fixtures: paths to the shared docs/paper, and a guard that fails tests leaking asyncio tasks."""
+"""Common test fixtures: the paper's tables shipped in ``data/paper/``, and a guard that fails tests leaking asyncio
+tasks."""
 
 from __future__ import annotations
 
@@ -13,14 +14,13 @@ from tests.support.mqtt import MosquittoProcess
 pytest_plugins = ["pytester"]
 
 REPO = Path(__file__).resolve().parent.parent
-SHARED = REPO.parent / "shared"
-PAPER = SHARED / "paper"
+PAPER = REPO / "data" / "paper"
 
 
 @pytest.fixture
 def paper_dir() -> Path:
     if not PAPER.is_dir():
-        pytest.fail(f"the seed paper's tables are expected at {PAPER} (shared/ beside the checkout)")
+        pytest.fail(f"the paper's tables are expected at {PAPER} (they ship with the checkout)")
     return PAPER
 
 

@@ -19,6 +19,7 @@ from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import CalibrationPoints
+from rgse_daemon.pipeline.envelope import Envelope
 
 #: Robot named in a calibration fitted from a bare points CSV (the paper's robot type; the CSV names none).
 POINTS_ROBOT = "KR500R2830"
@@ -94,28 +95,51 @@ def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float
 
 def plausible_alternatives(points: CalibrationPoints, chosen: cal_mod.Evaluation,
                            evaluations: list[cal_mod.Evaluation], g: float, dr: float) -> list[dict]:
-    """The other models whose LOO error is within ``PLAUSIBLE_LOO_FACTOR`` of the chosen one's, fitted on all
-    points (CAL.json ``fit.alternatives``: the model-form term of the uncertainty)."""
+    """The other admissible models whose held-out error is within ``PLAUSIBLE_LOO_FACTOR`` of the chosen one's,
+    fitted on all points, each with its own uncertainty data (CAL.json ``fit.alternatives``: the model-form term,
+    and the fallback where the chosen model's U is unusable)."""
     limit = unc.PLAUSIBLE_LOO_FACTOR * chosen.loo_mean_abs_err_pct
     return [{"method": e.method, "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct,
-             "models": cal_mod.fit(points, e.method, g, dr).models_dict()}
-            for e in evaluations if e.method != chosen.method and e.loo_mean_abs_err_pct <= limit]
+             "models": cal_mod.fit(points, e.method, g, dr).models_dict(),
+             "uncertainty": unc.calibration_uncertainty(points, e.method, g, dr, e.heldout_residual_nm).to_dict()}
+            for e in evaluations if e.method != chosen.method and e.admissible and e.loo_mean_abs_err_pct <= limit]
+
+
+def validation_record(points: CalibrationPoints, chosen: cal_mod.Evaluation, nested_pct: float | None
+                      ) -> dict[str, Any]:
+    """CAL.json ``fit.validation``: the scheme, the chosen model's held-out per-axis residuals, the nested figure."""
+    rms = chosen.axis_rms_nm
+    return {"scheme": cal_mod.VALIDATION_SCHEME,
+            "heldout_axis_rms_nm": {"A3": float(rms[0]), "A5": float(rms[1])},
+            "heldout_residual_nm": {"A3": chosen.heldout_residual_nm[:, 0].tolist(),
+                                    "A5": chosen.heldout_residual_nm[:, 1].tolist()},
+            "lever_group_mean_abs_err_pct": (None if not np.isfinite(chosen.lever_mean_abs_err_pct)
+                                             else chosen.lever_mean_abs_err_pct),
+            "nested_mean_abs_err_pct": nested_pct}
 
 
 def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, robot: str,
               pre: pp.Preprocessing | None, bias3: float, bias5: float, g_u: float,
               sources: dict[str, str], where: Path,
-              thermal: dict[str, float] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+              thermal: dict[str, float] | None = None, nested: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit and describe a calibration: (CAL.json document, the ``--json`` summary). One code path for the CLI and
-    the daemon's campaign, so a stored calibration is always reproducible from its campaign directory."""
+    the daemon's campaign, so a stored calibration is always reproducible from its campaign directory.
+    ``nested``: also the nested held-out figure of ``auto`` (selection repeated inside every fold; seconds)."""
     try:
         cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
+        nested_pct = (cal_mod.mean_abs_pct(points.mass_kg, cal_mod.nested_loo_auto_mass_kg(points, g, dr))
+                      if nested else None)
+        cu = unc.calibration_uncertainty(points, chosen.method, g, dr, chosen.heldout_residual_nm)
     except DataError as exc:
         raise DataError(f"{where}: {exc}") from exc
     doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
                         in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
                         loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
                         extra_fit={"n_points": len(points), "loo_residual_rms_rel": loo_rms_rel(points, chosen),
+                                   "validation": validation_record(points, chosen, nested_pct),
+                                   "uncertainty": cu.to_dict(),
+                                   "envelope": Envelope.from_torques(points.torque_a3_nm,
+                                                                     points.torque_a5_nm).to_dict(),
                                    "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr)},
                         g_u_m_s2=g_u, thermal_state_k=thermal)
     summary = {
@@ -124,10 +148,16 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
         "in_sample_mean_abs_err_pct": chosen.in_sample_mean_abs_err_pct,
         "loo_mean_abs_err_pct": chosen.loo_mean_abs_err_pct,
         "loo_max_abs_err_kg": chosen.loo_max_abs_err_kg,
+        "nested_mean_abs_err_pct": nested_pct,
+        "heldout_axis_rms_nm": doc["fit"]["validation"]["heldout_axis_rms_nm"],
+        "u_reproducibility_kg": cu.reproducibility.u_kg(g, dr),
         "points": len(points),
         "r2": cal.r2,
         "models": [{"method": e.method, "in_sample_mean_abs_err_pct": e.in_sample_mean_abs_err_pct,
                     "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg,
+                    "lever_group_mean_abs_err_pct": (e.lever_mean_abs_err_pct
+                                                     if np.isfinite(e.lever_mean_abs_err_pct) else None),
+                    "joint": e.joint, "admissible": e.admissible, "note": e.note,
                     "n_params": e.n_params} for e in evaluations],
     }
     return doc, summary

@@ -38,6 +38,7 @@ class MassResult:
     warnings: list[str] = field(default_factory=list)
     u_components_kg: dict[str, float] = field(default_factory=dict)
     motor_temp_k: dict[str, float] | None = None
+    operating_point: str = "inside"
 
     def to_json(self) -> dict[str, Any]:
         return {"mass_kg": self.mass_kg, "u_kg": self.u_kg, "U_kg": self.U_kg, "k": int(unc.COVERAGE_K),
@@ -45,25 +46,29 @@ class MassResult:
                 "samples_used": self.samples_used, "samples_total": self.samples_total,
                 "calibration_id": self.calibration_id, "method": self.method, "cog_m": None,
                 "warnings": self.warnings, "u_components_kg": self.u_components_kg,
-                "motor_temp_k": self.motor_temp_k}
+                "motor_temp_k": self.motor_temp_k, "operating_point": self.operating_point}
 
 
 def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: pp.Preprocessing,
             fixture_mass_kg: float, g_measurement_m_s2: float | None = None,
-            g_u_measurement_m_s2: float = 0.0, alternatives: list[Calibration] = ()) -> MassResult:
+            g_u_measurement_m_s2: float = 0.0, alternatives: list[Calibration] = (),
+            envelope_limit: float = inline.env_mod.DEFAULT_LIMIT) -> MassResult:
     """Pre-process every loop, average (eq. 16), normalise with the calibration's M_0, apply eq. 21, budget U."""
     fit = cal_doc["fit"]
     r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in loops], cal,
                             float(cal_doc["bias_nm"]["A3"]), float(cal_doc["bias_nm"]["A5"]), pre, fixture_mass_kg,
                             float(fit.get("loo_residual_rms_rel", 0.0)), float(cal_doc.get("g_u_m_s2", 0.0)),
-                            g_measurement_m_s2, g_u_measurement_m_s2, alternatives)
+                            g_measurement_m_s2, g_u_measurement_m_s2, alternatives,
+                            **calfile.uncertainty_inputs("CAL.json", cal_doc, cal, alternatives),
+                            envelope_limit=envelope_limit)
     return MassResult(r.mass_kg, r.uncertainty.u_kg, r.uncertainty.expanded_kg, r.gross_mass_kg, fixture_mass_kg,
-                      len(loops), r.samples_used, r.samples_total, str(cal_doc["calibration_id"]), cal.method,
-                      r.warnings, r.uncertainty.components())
+                      len(loops), r.samples_used, r.samples_total, str(cal_doc["calibration_id"]), r.method,
+                      r.warnings, r.uncertainty.components(), operating_point=r.operating_point)
 
 
-def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None):
-    """The in-line mass of a measurement directory (contracts §2) with a calibration file: what ``rgse mass`` prints,
+def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None,
+            envelope_limit: float = inline.env_mod.DEFAULT_LIMIT):
+    """The in-line mass of a measurement directory (interfaces §2) with a calibration file: what ``rgse mass`` prints,
     and what the daemon stores — one code path, so a stored result is always reproducible from its raw files."""
     man = load_manifest(directory)
     if not man.measurement_traces:
@@ -75,7 +80,7 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
         raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")
     loops = read_loops(directory, man.measurement_traces)
     result = measure(loops, cal, doc, pre or pp.PAPER, fixture, man.setup.g_m_s2, man.setup.g_u_m_s2 or 0.0,
-                     calfile.alternatives(calibration_path, doc, cal))
+                     calfile.alternatives(calibration_path, doc, cal), envelope_limit)
     if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
         result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
     result.motor_temp_k = thermal_state_k(loops)

@@ -1,7 +1,7 @@
 """``rgse abort --config FILE [--reason TEXT] [--run RUN_ID] [--timeout S]``: stop the running daemon's run now
 and leave the robot safe.
 
-Publishes an ``abort`` command (contracts §4; schema :class:`~rgse_daemon.io.commands.AbortCommand`) on the
+Publishes an ``abort`` command (interfaces §4; schema :class:`~rgse_daemon.io.commands.AbortCommand`) on the
 daemon's broker, as configured in FILE, and waits for the daemon's reply to it. Without ``--run`` the daemon
 aborts whatever run is in progress; with it, only that run. Prints the reply (one JSON line on stdout). Exit 0
 when the daemon accepted; 1 when it refused (its reason on stderr); 2 on a bad configuration or command, an

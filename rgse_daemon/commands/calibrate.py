@@ -27,10 +27,20 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary))
     else:
         print(f"calibration {doc['calibration_id']} ({summary['method']}) written to {args.out}")
-        print(f"{'method':18s} {'params':>6s} {'in-sample %':>12s} {'LOO %':>8s} {'LOO max kg':>11s}")
+        print(f"{'method':18s} {'params':>6s} {'in-sample %':>12s} {'held-out %':>10s} {'max kg':>8s} "
+              f"{'lever %':>8s}  admissible")
         for e in summary["models"]:
             mark = " *" if e["method"] == summary["method"] else ""
+            lever = e["lever_group_mean_abs_err_pct"]
+            adm = "yes" if e["admissible"] else f"no: {e['note']}"
             print(f"{e['method']:18s} {e['n_params']:6d} {e['in_sample_mean_abs_err_pct']:12.4f} "
-                  f"{e['loo_mean_abs_err_pct']:8.4f} {e['loo_max_abs_err_kg']:11.3f}{mark}")
+                  f"{e['loo_mean_abs_err_pct']:10.4f} {e['loo_max_abs_err_kg']:8.3f} "
+                  f"{'-' if lever is None else f'{lever:.3f}':>8s}  {adm}{mark}")
+        rms = summary["heldout_axis_rms_nm"]
+        if summary["nested_mean_abs_err_pct"] is not None:
+            print(f"out of sample (nested: selection repeated without each configuration): mean |error| "
+                  f"{summary['nested_mean_abs_err_pct']:.3f} %")
+        print(f"held-out per-axis scatter A3 {rms['A3']:.1f} Nm, A5 {rms['A5']:.1f} Nm: reproducibility "
+              f"u = {summary['u_reproducibility_kg']:.3f} kg")
         sys.stdout.flush()
     return 0

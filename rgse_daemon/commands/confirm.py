@@ -2,7 +2,7 @@
 daemon that the step its run waits for is done (e.g. the calibration load of a campaign point is mounted); the
 message is recorded with the confirmation in the run's events.
 
-Publishes a ``confirm`` command (contracts §4; schema :class:`~rgse_daemon.io.commands.ConfirmCommand`) on the
+Publishes a ``confirm`` command (interfaces §4; schema :class:`~rgse_daemon.io.commands.ConfirmCommand`) on the
 daemon's broker, as configured in FILE, and waits for the daemon's reply to it. Without ``--run`` the run is the
 one the daemon's retained ``state`` names; the daemon itself checks that this run is the one waiting. Prints the
 reply (one JSON line on stdout). Exit 0 when the daemon accepted; 1 when it refused (its reason on stderr) or its

@@ -1,4 +1,4 @@
-"""``rgse krl check`` and ``rgse krl render`` (contracts §1): the interlock's static check and the template renderer.
+"""``rgse krl check`` and ``rgse krl render`` (interfaces §1): the interlock's static check and the template renderer.
 
 ``rgse krl check FILE.src [--config FILE]`` reads ``FILE.dat`` beside it if there is one and checks the program in the
 *default context* (:func:`default_context`), which stands for the situation the daemon pushes programs in:

@@ -1,4 +1,4 @@
-"""``rgse mass``: offline in-line mass of a DuT from a measurement directory and a CAL.json (contracts §1)."""
+"""``rgse mass``: offline in-line mass of a DuT from a measurement directory and a CAL.json (interfaces §1)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,12 @@ import json
 from pathlib import Path
 
 from rgse_daemon.analysis.mass import compute
+from rgse_daemon.pipeline.envelope import DEFAULT_LIMIT
 
 
 def run(args: argparse.Namespace) -> int:
-    result = compute(Path(args.traces), Path(args.calibration), args.fixture_mass)
+    result = compute(Path(args.traces), Path(args.calibration), args.fixture_mass,
+                     getattr(args, "envelope_limit", DEFAULT_LIMIT))
     if args.json:
         print(json.dumps(result.to_json()))
     else:

@@ -1,4 +1,4 @@
-"""Schemas of the commands that arrive over MQTT on ``<prefix>/cmd/<verb>`` (contracts §4).
+"""Schemas of the commands that arrive over MQTT on ``<prefix>/cmd/<verb>`` (interfaces §4).
 
 Why a schema: a command moves a 500 kg robot, so anything that is not exactly one of these shapes is refused
 before it reaches the daemon — unknown fields are an error (a misspelt ``dry_run`` must not silently become a
@@ -85,7 +85,7 @@ class MeasureCommand(_Command):
 
 
 class CalibrationPoint(BaseModel):
-    """One load configuration of a calibration campaign (contracts §2 ``[[point]]``, without the traces)."""
+    """One load configuration of a calibration campaign (interfaces §2 ``[[point]]``, without the traces)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 

@@ -1,4 +1,4 @@
-"""The daemon's MQTT face (contracts §4): status, state, progress, results, alarms out; commands in.
+"""The daemon's MQTT face (interfaces §4): status, state, progress, results, alarms out; commands in.
 
 Why it is shaped like this: the broker is another machine on a plant network. It goes away, restarts and comes
 back, and none of that may lose a measurement result, block a procedure or execute a stale command. So:

@@ -23,7 +23,7 @@ from typing import Any, TypeVar
 
 import aiomqtt
 
-from rgse_daemon.config import load_config
+from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.io.commands import parse_command
 from rgse_daemon.io.mqtt import _tls_context
@@ -65,7 +65,11 @@ class Endpoint:
 
 def endpoint(path: Path) -> Endpoint:
     """The daemon's MQTT endpoint from its configuration file; :class:`ConfigError` when it has none."""
-    cfg = load_config(path)
+    return endpoint_of(load_config(path), path)
+
+
+def endpoint_of(cfg: Config, path: Path | str = "<config>") -> Endpoint:
+    """The MQTT endpoint of the daemon configured by ``cfg`` (``path`` names it in errors)."""
     m = cfg.mqtt
     if not m.enabled:
         raise ConfigError(f"{path}: mqtt.enabled is false: the daemon of this configuration is not on a broker")
@@ -122,6 +126,31 @@ def describe_status(status: Any) -> str:
     return text
 
 
+def new_client(ep: Endpoint, purpose: str, timeout_s: float) -> aiomqtt.Client:
+    """An operator's connection: a fresh client id (never the daemon's), a clean session, no will."""
+    return aiomqtt.Client(
+        ep.host,
+        ep.port,
+        username=ep.username,
+        password=ep.password,
+        identifier=f"rgse-cli-{purpose}-{secrets.token_hex(6)}",
+        logger=log.getChild("client"),
+        clean_session=True,
+        keepalive=ep.keepalive_s,
+        timeout=timeout_s,
+        tls_context=ep.tls,
+    )
+
+
+async def subscribe_checked(client: aiomqtt.Client, ep: Endpoint, filters: Iterable[str]) -> None:
+    """Subscribe (QoS 1) to ``filters``; :class:`Unreachable` when the broker refuses one (ACL)."""
+    wanted = list(filters)
+    granted = await client.subscribe([(f, 1) for f in wanted])
+    refused = [f for f, g in zip(wanted, granted, strict=False) if int(getattr(g, "value", g)) >= 0x80]
+    if refused:
+        raise Unreachable(f"{ep.broker}: subscription refused (broker ACL?): {', '.join(refused)}")
+
+
 class Conversation:
     """One short connection to the daemon's broker under one deadline.
 
@@ -134,18 +163,7 @@ class Conversation:
         self.timeout_s = timeout_s
         self.doing = "connecting"
         self.latest: dict[str, aiomqtt.Message] = {}
-        self._client = aiomqtt.Client(
-            ep.host,
-            ep.port,
-            username=ep.username,
-            password=ep.password,
-            identifier=f"rgse-cli-{purpose}-{secrets.token_hex(6)}",
-            logger=log.getChild("client"),
-            clean_session=True,
-            keepalive=ep.keepalive_s,
-            timeout=timeout_s,  # aiomqtt's own per-call bound; the deadline below ends first
-            tls_context=ep.tls,
-        )
+        self._client = new_client(ep, purpose, timeout_s)  # its per-call bound; the deadline below ends first
 
     async def run(self, body: Callable[[Conversation], Awaitable[T]]) -> T:
         """Connect, run ``body``, disconnect; :class:`Unreachable` on any broker problem or at the deadline.
@@ -186,10 +204,7 @@ class Conversation:
     async def subscribe(self, filters: Iterable[str]) -> None:
         wanted = list(filters)
         self.doing = f"subscribing to {', '.join(wanted)}"
-        granted = await self._client.subscribe([(f, 1) for f in wanted])
-        refused = [f for f, g in zip(wanted, granted, strict=False) if int(getattr(g, "value", g)) >= 0x80]
-        if refused:
-            raise Unreachable(f"{self.ep.broker}: subscription refused (broker ACL?): {', '.join(refused)}")
+        await subscribe_checked(self._client, self.ep, wanted)
 
     def _keep(self, message: aiomqtt.Message) -> None:
         if message.payload not in (None, b"", ""):  # an empty retained payload is a cleared topic
@@ -232,6 +247,103 @@ class Conversation:
             if isinstance(doc, dict) and doc.get("request_id") == request_id:
                 return doc
         raise aiomqtt.MqttError("message stream ended")  # aiomqtt ends it only by raising; for the type checker
+
+
+class Session:
+    """A long-lived operator connection (for scripts and the Python client): one connect, the subscriptions held,
+    every message handed to ``on_message(topic, payload, retained)`` as it arrives, and commands whose replies are
+    matched by ``request_id``. Every wait has its own deadline; a lost connection ends the session (the reader's
+    error is raised to whoever waits next) — a script should fail loudly rather than silently miss a prompt.
+    """
+
+    def __init__(self, ep: Endpoint, purpose: str, filters: Iterable[str],
+                 on_message: Callable[[str, Any, bool], None], timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
+        self.ep = ep
+        self.timeout_s = check_timeout(timeout_s)
+        self._filters = list(filters)
+        self._on_message = on_message
+        self._purpose = purpose
+        self._mqtt: aiomqtt.Client | None = None  # made on entering: an aiomqtt client belongs to the running loop
+        self._replies: dict[str, asyncio.Future[dict[str, Any]]] = {}
+        self._reader: asyncio.Task[None] | None = None
+        self.failure: BaseException | None = None
+
+    @property
+    def _client(self) -> aiomqtt.Client:
+        if self._mqtt is None:
+            raise RuntimeError("Session: use it as `async with`")
+        return self._mqtt
+
+    async def __aenter__(self) -> Session:
+        self._mqtt = new_client(self.ep, self._purpose, self.timeout_s)
+        try:
+            async with asyncio.timeout(self.timeout_s):
+                await self._client.__aenter__()
+                try:
+                    replies = f"{self.ep.topics.prefix}/cmd/+/reply"
+                    await subscribe_checked(self._client, self.ep, [*self._filters, replies])
+                except BaseException:
+                    await self._client.__aexit__(None, None, None)
+                    raise
+        except TimeoutError:
+            raise Unreachable(f"{self.ep.broker}: no connection within {self.timeout_s:g} s") from None
+        except aiomqtt.MqttError as exc:
+            raise Unreachable(f"{self.ep.broker}: cannot connect: {exc}") from None
+        self._reader = asyncio.create_task(self._read(), name="rgse-operator-session")
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        if self._reader is not None:
+            self._reader.cancel()
+            await asyncio.gather(self._reader, return_exceptions=True)
+        self._client.timeout = min(self.timeout_s, DISCONNECT_S)
+        try:
+            async with asyncio.timeout(DISCONNECT_S + 1.0):
+                await self._client.__aexit__(None, None, None)
+        except (aiomqtt.MqttError, TimeoutError) as exc:
+            log.debug("%s: disconnect: %s", self.ep.broker, exc)
+
+    async def _read(self) -> None:
+        try:
+            async for message in self._client.messages:
+                if message.payload in (None, b"", ""):
+                    continue  # a cleared retained topic
+                topic = message.topic.value
+                doc = payload_json(message)
+                if topic.endswith("/reply") and isinstance(doc, dict):
+                    waiter = self._replies.pop(str(doc.get("request_id")), None)
+                    if waiter is not None and not waiter.done():
+                        waiter.set_result(doc)
+                        continue
+                self._on_message(topic, doc, bool(message.retain))
+        except aiomqtt.MqttError as exc:
+            self.failure = Unreachable(f"{self.ep.broker}: connection lost: {exc}")
+            for waiter in self._replies.values():
+                if not waiter.done():
+                    waiter.set_exception(self.failure)
+            self._on_message("", None, False)  # wakes the waiters, who find ``failure``
+
+    async def command(self, verb: str, fields: dict[str, Any], timeout_s: float | None = None) -> dict[str, Any]:
+        """Send one command (validated first: :class:`CommandRefused`) and return the daemon's reply to it;
+        :class:`Unreachable` when no reply comes within ``timeout_s`` (default: the session's)."""
+        if self.failure is not None:
+            raise self.failure
+        request_id, raw = build_command(verb, fields, self.ep.token)
+        waiter: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._replies[request_id] = waiter
+        wait_s = self.timeout_s if timeout_s is None else timeout_s
+        try:
+            async with asyncio.timeout(wait_s):
+                await self._client.publish(self.ep.topics.command(verb), raw, qos=1)
+                return await waiter
+        except TimeoutError:
+            raise Unreachable(
+                f"{self.ep.broker}: no reply to cmd/{verb} within {wait_s:g} s on {self.ep.topics.reply(verb)}"
+            ) from None
+        except aiomqtt.MqttError as exc:
+            raise Unreachable(f"{self.ep.broker}: cmd/{verb} not sent: {exc}") from None
+        finally:
+            self._replies.pop(request_id, None)
 
 
 def build_command(verb: str, fields: dict[str, Any], token: str | None) -> tuple[str, bytes]:

@@ -1,4 +1,4 @@
-"""The daemon's MQTT topics (contracts §4) under one prefix: the one place a topic name is built.
+"""The daemon's MQTT topics (interfaces §4) under one prefix: the one place a topic name is built.
 
 The bridge publishes under them, the store recorder stores a result's outbox message under :meth:`Topics.result`,
 the operator's client (``rgse status``/``confirm``/``abort``) reads them. :meth:`Topics.of` derives the prefix from

@@ -31,6 +31,7 @@ import random
 import socket
 import time
 from bisect import bisect_left
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any
@@ -54,6 +55,35 @@ log = logging.getLogger(__name__)
 
 #: Upper edges of the latency histogram buckets in milliseconds; the last bucket is everything above.
 LATENCY_BUCKETS_MS: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 2000.0)
+
+
+class ServerLoad:
+    """File work in flight on one controller. The real C3 Bridge server does file work on its one thread, so every
+    other request, on every connection, waits behind it (c3bridge-real-server.md). Each file operation registers
+    the end of its own deadline here; a request sent meanwhile gets that much more time (:meth:`busy_until`), so a
+    keep-alive or a status read queued behind a long pull is late, not lost."""
+
+    def __init__(self) -> None:
+        self._ends: dict[int, float] = {}
+        self._ids = itertools.count()
+
+    @contextlib.contextmanager
+    def file_work(self, deadline_s: float) -> Iterator[None]:
+        """Mark a file operation in flight whose deadline is ``deadline_s`` from now."""
+        key = next(self._ids)
+        self._ends[key] = time.monotonic() + deadline_s
+        try:
+            yield
+        finally:
+            del self._ends[key]
+
+    def busy_until(self) -> float:
+        """Monotonic time by which the file work in flight must have ended (its deadlines); 0.0 if none."""
+        return max(self._ends.values(), default=0.0)
+
+    def pending_s(self) -> float:
+        """Seconds a request sent now may have to wait behind file work in flight."""
+        return max(0.0, self.busy_until() - time.monotonic())
 
 
 class ConnectionState(Enum):
@@ -117,6 +147,7 @@ class Connection:
         reconnect_max_s: float = 10.0,
         name: str = "link",
         seed: int | None = None,
+        load: ServerLoad | None = None,
     ) -> None:
         if not (0 < reconnect_min_s <= reconnect_max_s):
             raise ValueError("need 0 < reconnect_min_s <= reconnect_max_s")
@@ -128,6 +159,7 @@ class Connection:
         self.reconnect_min_s = reconnect_min_s
         self.reconnect_max_s = reconnect_max_s
         self.name = name
+        self.load = load if load is not None else ServerLoad()
         self.stats = LinkStats()
         self._state = ConnectionState.DISCONNECTED
         self._rng = random.Random(seed)
@@ -145,7 +177,9 @@ class Connection:
         self._wake = asyncio.Event()  # set on a drop, so the maintainer reconnects at once
 
     @classmethod
-    def from_config(cls, cfg: ControllerConfig, *, name: str = "link", seed: int | None = None) -> Connection:
+    def from_config(
+        cls, cfg: ControllerConfig, *, name: str = "link", seed: int | None = None, load: ServerLoad | None = None
+    ) -> Connection:
         return cls(
             cfg.host,
             cfg.port,
@@ -156,6 +190,7 @@ class Connection:
             reconnect_max_s=cfg.reconnect_max_s,
             name=name,
             seed=seed,
+            load=load,
         )
 
     # --- lifecycle ----------------------------------------------------------------------------------------------
@@ -194,15 +229,24 @@ class Connection:
         await self.close()
 
     # --- requests -----------------------------------------------------------------------------------------------
-    async def request(self, req: Request, *, timeout_s: float | None = None) -> Reply:
+    async def request(self, req: Request, *, timeout_s: float | None = None, file_work: bool = False) -> Reply:
         """Send ``req``, wait for its reply (same tag, same type) and return it; the footer is not judged here.
 
-        Raises ``LinkTimeout`` (no whole reply within ``timeout_s``), ``LinkClosed`` (no connection, peer
+        ``timeout_s`` (default ``request_timeout_s``) is the request's own deadline; file work already in flight on
+        the server (:class:`ServerLoad`) adds its remaining time. ``file_work`` marks ``req`` itself as file work
+        (a #30 Begin, a #29 End: the caller sizes ``timeout_s`` by the bytes), so that others wait for it.
+
+        Raises ``LinkTimeout`` (no whole reply within the deadline), ``LinkClosed`` (no connection, peer
         closed), ``ProtocolError`` (malformed reply, tag or type mismatch). On each of these, and on
         cancellation, the socket is dropped.
         """
         async with self._lock:
-            return await self._exchange(req, self.request_timeout_s if timeout_s is None else timeout_s)
+            own_s = self.request_timeout_s if timeout_s is None else timeout_s
+            deadline_s = own_s + self.load.pending_s()
+            if not file_work:
+                return await self._exchange(req, deadline_s)
+            with self.load.file_work(deadline_s):
+                return await self._exchange(req, deadline_s)
 
     async def read_var(self, name: str, *, timeout_s: float | None = None) -> str:
         """Read one variable with #0 (understood by KVP and C3 Bridge); returns the raw KRL value text."""
@@ -365,8 +409,8 @@ class Connection:
                         if self._state is ConnectionState.CONNECTED and (
                             time.monotonic() - self._last_used >= self.keepalive_s
                         ):
-                            self.stats.keepalives += 1
-                            await self._exchange(ReadVarAscii("PING"), self.request_timeout_s)
+                            self.stats.keepalives += 1  # behind file work in flight: late, not lost
+                            await self._exchange(ReadVarAscii("PING"), self.request_timeout_s + self.load.pending_s())
                 except LinkError:
                     pass  # counted and dropped in _exchange; the next loop reconnects
             else:

@@ -30,7 +30,7 @@ from collections.abc import AsyncIterator, Sequence
 
 from rgse_daemon.config import ControllerConfig, Protocol
 from rgse_daemon.errors import LinkClosed, LinkError, LinkTimeout, ProtocolError, VariableError
-from rgse_daemon.link.connection import Connection, ConnectionState, LinkStats
+from rgse_daemon.link.connection import Connection, ConnectionState, LinkStats, ServerLoad
 from rgse_daemon.link.frames import (
     MAX_MULTI,
     ErrorCode,
@@ -54,8 +54,9 @@ class LinkPool:
 
     def __init__(self, cfg: ControllerConfig, *, seed: int | None = None) -> None:
         self.cfg = cfg
+        self.load = ServerLoad()  # one controller, one single-threaded server: shared by every connection
         self._conns = [
-            Connection.from_config(cfg, name=f"link{i}", seed=None if seed is None else seed + i)
+            Connection.from_config(cfg, name=f"link{i}", seed=None if seed is None else seed + i, load=self.load)
             for i in range(cfg.pool_size)
         ]
         self._idle: asyncio.Queue[Connection] = asyncio.Queue()
@@ -125,7 +126,8 @@ class LinkPool:
         if self._closed:
             raise LinkClosed("link pool is closed")
         try:
-            async with asyncio.timeout(self.cfg.connect_timeout_s + self.cfg.request_timeout_s * len(self._conns)):
+            wait_s = self.cfg.connect_timeout_s + self.cfg.request_timeout_s * len(self._conns) + self.load.pending_s()
+            async with asyncio.timeout(wait_s):
                 conn = await self._idle.get()
         except TimeoutError as exc:
             raise LinkTimeout("no free connection in the link pool") from exc

@@ -8,9 +8,13 @@ Two families of models are offered:
 * ``paper`` / ``ratio-*``: as in the paper, K of each axis is fitted on its own to the calibration factor
   samples ``K_i = M_expected / M_measured`` (eq. 19: 2nd-order polynomial for A3, eq. 20: double exponential
   for A5).
-* ``gain-*``: one monotone drive gain curve ``G(M) = K(M)·M`` per axis, linear in its parameters, both axes
-  fitted *jointly* so that the mass of eq. 21 matches the calibration masses (relative errors, the paper's
-  error measure). These models need no per-axis expected torque and therefore no lever offsets.
+* ``axis-*``: one monotone drive gain curve ``G(M) = K(M)·M`` per axis, linear in its parameters, each axis
+  least-squares fitted on its own to its expected torque (eq. 17/18): identifiable per axis like the paper's.
+* ``gain-*``: the same gain curves, both axes fitted *jointly* so that the mass of eq. 21 matches the calibration
+  masses (relative errors, the paper's error measure). They need no per-axis expected torque, but how the
+  correction splits between A3 and A5 is only identifiable where the campaign's A3/A5 torque ratio varies: they
+  are admitted only when their per-axis corrected torques match the expected ones on held-out configurations
+  (:func:`admissibility`).
 
 Every torque function is odd in the torque (``K`` is evaluated at ``|M|``): the sign of ``Istmoment`` depends
 on pose and axis direction and nothing here assumes positive torques.
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -31,6 +35,9 @@ from rgse_daemon.pipeline import mass as mass_eq
 
 #: Scale of the gain basis functions, Nm: keeps the coefficients of order one.
 GAIN_SCALE_NM = 1000.0
+#: Evaluations of the bounded least-squares polish of eq. 20 from the grid's best start (the grid start is close; on
+#: near-exact data the valley is flat and the polish would creep on for hundreds of steps without changing K).
+MAX_NFEV_DOUBLE_EXP = 40
 
 
 class CalibrationError(DataError):
@@ -351,7 +358,7 @@ def fit_poly_k(x: np.ndarray, y: np.ndarray, degree: int) -> tuple[PolyK, np.nda
     return PolyK(coef), cov, r_squared(y, a @ coef)
 
 
-def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: int = 3
+def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: int = 1
                      ) -> tuple[DoubleExpK, np.ndarray, float]:
     """Eq. 20 fitted robustly: variable projection on a grid of rates, then bounded least squares from the best starts.
 
@@ -395,7 +402,8 @@ def fit_double_exp_k(x: np.ndarray, y: np.ndarray, n_grid: int = 48, n_starts: i
         if not np.isfinite(cost[i, j]):
             continue
         p0 = np.array([b1[i, j], rates[i], b3[i, j], rates[j]])
-        r = least_squares(resid, np.clip(p0, lower, upper), jac=jac, bounds=(lower, upper), x_scale="jac")
+        r = least_squares(resid, np.clip(p0, lower, upper), jac=jac, bounds=(lower, upper), x_scale="jac",
+                          max_nfev=MAX_NFEV_DOUBLE_EXP)
         if best is None or r.cost < best.cost:
             best = r
     if best is None:
@@ -419,6 +427,36 @@ def _fit_ratio(points: CalibrationPoints, method: str, g_m_s2: float, lever_diff
     return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[points.mass_kg > 0]),
                        _torque_range(points.torque_a5_nm[points.mass_kg > 0]), g_m_s2, lever_difference_m,
                        {"A3": r3, "A5": r5})
+
+
+# ------------------------------------------------------------------------------------------------------------
+# per-axis drive-gain fits (each axis' corrected torque to its own expected torque, eq. 17/18)
+# ------------------------------------------------------------------------------------------------------------
+def fit_axis_gain(torque_nm: np.ndarray, expected_nm: np.ndarray, terms: tuple[str, ...]
+                  ) -> tuple[GainK, np.ndarray, float]:
+    """Least-squares ``G(M) = Σ c_k·φ_k(M)`` of one axis to its expected torques (Nm residuals); K, cov, R²."""
+    if len(torque_nm) < len(terms) + 1:
+        raise CalibrationError(f"gain curve {'+'.join(terms)} needs at least {len(terms) + 1} points, "
+                               f"got {len(torque_nm)}")
+    base = GainK(terms, np.zeros(len(terms)))
+    a = base.design(torque_nm)
+    coef, *_ = np.linalg.lstsq(a, expected_nm, rcond=None)
+    resid = expected_nm - a @ coef
+    dof = max(len(torque_nm) - len(terms), 1)
+    cov = float(resid @ resid) / dof * np.linalg.pinv(a.T @ a)
+    return GainK(terms, coef), cov, r_squared(expected_nm, a @ coef)
+
+
+def _fit_axis(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
+              terms_a3: tuple[str, ...], terms_a5: tuple[str, ...]) -> Calibration:
+    k3, c3, r3 = fit_axis_gain(points.torque_a3_nm, points.expected_a3_nm, terms_a3)
+    k5, c5, r5 = fit_axis_gain(points.torque_a5_nm, points.expected_a5_nm, terms_a5)
+    cov = np.zeros((len(terms_a3) + len(terms_a5),) * 2)
+    cov[: len(terms_a3), : len(terms_a3)] = c3
+    cov[len(terms_a3):, len(terms_a3):] = c5
+    loaded = points.mass_kg > 0
+    return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[loaded]),
+                       _torque_range(points.torque_a5_nm[loaded]), g_m_s2, lever_difference_m, {"A3": r3, "A5": r5})
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -468,11 +506,21 @@ def _gain_model(name: str, t3: tuple[str, ...], t5: tuple[str, ...], loss: str =
     return lambda p, g, dr: _fit_gain(p, name, g, dr, t3, t5, loss)
 
 
+def _axis_model(name: str, t3: tuple[str, ...], t5: tuple[str, ...]) -> FitFn:
+    return lambda p, g, dr: _fit_axis(p, name, g, dr, t3, t5)
+
+
 MODELS: dict[str, tuple[FitFn, str]] = {
     "paper": (_ratio_model("paper", lambda x, y: fit_poly_k(x, y, 2), fit_double_exp_k),
               "K_A3 2nd-order polynomial (eq. 19), K_A5 double exponential (eq. 20), per-axis ratio fits"),
     "ratio-linear": (_ratio_model("ratio-linear", lambda x, y: fit_poly_k(x, y, 1), lambda x, y: fit_poly_k(x, y, 1)),
                      "K linear in torque per axis, per-axis ratio fits"),
+    "axis-linear": (_axis_model("axis-linear", ("lin",), ("lin",)),
+                    "constant drive gain per axis, each axis fitted to its expected torque"),
+    "axis-quad": (_axis_model("axis-quad", ("lin", "quad"), ("lin", "quad")),
+                  "quadratic drive gain per axis (odd in torque), each axis fitted to its expected torque"),
+    "axis-log": (_axis_model("axis-log", ("lin", "log"), ("lin", "sqrt")),
+                 "A3 gain with a saturating log term, A5 with a square-root term, each axis fitted on its own"),
     "gain-linear": (_gain_model("gain-linear", ("lin",), ("lin",)),
                     "constant drive gain per axis, fitted jointly to the masses"),
     "gain-sqrt": (_gain_model("gain-sqrt", ("lin", "sqrt"), ("lin",)),
@@ -484,6 +532,10 @@ MODELS: dict[str, tuple[FitFn, str]] = {
     "gain-sqrt-huber": (_gain_model("gain-sqrt-huber", ("lin", "sqrt"), ("lin", "sqrt"), "huber"),
                         "square-root gain terms on both axes, Huber-robust fit to the masses"),
 }
+
+
+#: Models fitted jointly to the masses: their A3/A5 split must be shown on held-out configurations.
+JOINT_MODELS = frozenset(name for name in MODELS if name.startswith("gain-"))
 
 
 def reference_mass_param_covariance(points: CalibrationPoints, method: str, g_m_s2: float,
@@ -512,9 +564,33 @@ def fit(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_
     return MODELS[method][0](points, g_m_s2, lever_difference_m)
 
 
+#: How the models are validated (recorded in CAL.json): every load configuration (all loops of a calibration point
+#: together) held out in turn, then the lever group of the torque-based points held out together.
+VALIDATION_SCHEME = {"configurations": "leave-one-configuration-out (all loops of a point together)",
+                     "lever_group": "leave-lever-group-out (the torque-based points together)",
+                     "selection": "lowest score = configuration mean |error| % + 0.01 x lever-group mean |error| % "
+                                  "among admissible models; per-axis models preferred"}
+#: A joint model is admissible only if, on every axis, its held-out corrected torques scatter around the expected
+#: torques (eq. 17/18) by at most this factor times the best per-axis model's.
+JOINT_AXIS_FACTOR = 1.5
+#: ... with this floor (Nm): a split error below it is immaterial (0.1 kg at Δr = 1.025 m).
+JOINT_AXIS_FLOOR_NM = 1.0
+#: A joint model replaces the best per-axis model only if its selection score is lower by more than this (%).
+PREFER_AXIS_MARGIN_PCT = 0.02
+#: Weight of the lever-group (extrapolation to other levers) error in the selection score.
+LEVER_WEIGHT = 0.01
+
+
 @dataclass(frozen=True)
 class Evaluation:
-    """In-sample and leave-one-out mass errors of one method on one set of calibration points."""
+    """In-sample and held-out mass errors of one method on one set of calibration points.
+
+    ``loo_*``: every configuration (point) predicted by the fit on all others. ``heldout_residual_nm`` (n, 2): the
+    held-out corrected torque ``K(M)·M`` minus the expected torque, A3 and A5 (the identifiability check of a
+    joint model, and the reproducibility of the uncertainty). ``lever_*``: the torque-based points predicted by
+    the fit on the others (NaN where there are none or the rest cannot carry the model): the selection's
+    extrapolation check.
+    """
 
     method: str
     in_sample_mass_kg: np.ndarray
@@ -523,32 +599,78 @@ class Evaluation:
     loo_mean_abs_err_pct: float
     loo_max_abs_err_kg: float
     n_params: int
+    heldout_residual_nm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    lever_mass_kg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lever_mean_abs_err_pct: float = float("nan")
+    admissible: bool = True
+    note: str = ""
+
+    @property
+    def joint(self) -> bool:
+        return self.method in JOINT_MODELS
+
+    @property
+    def axis_rms_nm(self) -> np.ndarray:
+        """RMS of the held-out per-axis residuals (A3, A5), Nm."""
+        r = np.asarray(self.heldout_residual_nm, float)
+        return np.sqrt(np.mean(r**2, axis=0)) if r.size else np.full(2, np.nan)
+
+
+def _axis_residual_nm(cal: Calibration, points: CalibrationPoints, index: np.ndarray) -> np.ndarray:
+    c3 = cal.k_a3.corrected_torque_nm(points.torque_a3_nm[index])
+    c5 = cal.k_a5.corrected_torque_nm(points.torque_a5_nm[index])
+    return np.stack([c3 - points.expected_a3_nm[index], c5 - points.expected_a5_nm[index]], axis=-1)
 
 
 def leave_one_out_mass_kg(points: CalibrationPoints, method: str, g_m_s2: float,
                           lever_difference_m: float) -> np.ndarray:
-    """Mass of each point predicted by the method fitted on all other points."""
+    """Mass of each point (configuration) predicted by the method fitted on all other points."""
+    return _held_out(points, method, g_m_s2, lever_difference_m)[0]
+
+
+def _held_out(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float
+              ) -> tuple[np.ndarray, np.ndarray]:
     n = len(points)
-    out = np.empty(n)
+    mass, resid = np.empty(n), np.empty((n, 2))
     for i in range(n):
         keep = np.arange(n) != i
         cal = fit(points.subset(keep), method, g_m_s2, lever_difference_m)
-        out[i] = float(cal.mass_kg(points.torque_a3_nm[i], points.torque_a5_nm[i]))
-    return out
+        mass[i] = float(cal.mass_kg(points.torque_a3_nm[i], points.torque_a5_nm[i]))
+        resid[i] = _axis_residual_nm(cal, points, np.array([i]))[0]
+    return mass, resid
+
+
+def _lever_group_out(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float
+                     ) -> np.ndarray:
+    """The torque-based points predicted together by the fit on the other points (NaN elsewhere / if unfittable)."""
+    mass = np.full(len(points), np.nan)
+    group = np.asarray(points.kind) == "torque"
+    if not group.any() or group.all():
+        return mass
+    try:
+        cal = fit(points.subset(~group), method, g_m_s2, lever_difference_m)
+    except CalibrationError:
+        return mass
+    idx = np.flatnonzero(group)
+    mass[idx] = cal.mass_kg(points.torque_a3_nm[idx], points.torque_a5_nm[idx])
+    return mass
 
 
 def evaluate(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Evaluation:
     cal = fit(points, method, g_m_s2, lever_difference_m)
     ins = cal.mass_kg(points.torque_a3_nm, points.torque_a5_nm)
-    loo = leave_one_out_mass_kg(points, method, g_m_s2, lever_difference_m)
+    loo, resid = _held_out(points, method, g_m_s2, lever_difference_m)
+    lever = _lever_group_out(points, method, g_m_s2, lever_difference_m)
+    held = np.isfinite(lever)
+    lever_pct = mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else float("nan")
     return Evaluation(method, ins, loo, mean_abs_pct(points.mass_kg, ins), mean_abs_pct(points.mass_kg, loo),
-                      float(np.max(np.abs(loo - points.mass_kg))), len(cal.params))
+                      float(np.max(np.abs(loo - points.mass_kg))), len(cal.params), resid, lever, lever_pct)
 
 
 def evaluate_all(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float,
                  progress: Callable[[int, int], None] | None = None) -> list[Evaluation]:
-    """Every model of the catalogue that can be fitted to these points, in catalogue order; ``progress(done,
-    total)`` after each model (the leave-one-out fits take seconds)."""
+    """Every model of the catalogue that can be fitted to these points, in catalogue order, with its admissibility
+    (:func:`admissibility`); ``progress(done, total)`` after each model (the held-out fits take seconds)."""
     out = []
     for done, name in enumerate(MODELS, 1):
         try:
@@ -559,12 +681,63 @@ def evaluate_all(points: CalibrationPoints, g_m_s2: float, lever_difference_m: f
             progress(done, len(MODELS))
     if not out:
         raise CalibrationError("no calibration model can be fitted to these points (too few loaded points)")
+    return admissibility(out)
+
+
+def admissibility(evaluations: list[Evaluation]) -> list[Evaluation]:
+    """Mark the joint models whose A3/A5 split is not borne out by held-out configurations as inadmissible.
+
+    On points where M_A3 and M_A5 rise together (a mass stack) a joint fit can move any part of the correction
+    from one axis to the other without changing eq. 21's mass there; the wrong split shows as soon as a DuT's A3/A5
+    torque ratio differs. It also shows in the held-out corrected torques per axis, which then miss the expected
+    torques (eq. 17/18) by much more than a per-axis model's do.
+    """
+    axis = [e for e in evaluations if not e.joint]
+    if not axis:
+        return [replace(e, admissible=False, note="no per-axis model to check the A3/A5 split against")
+                if e.joint else e for e in evaluations]
+    best = np.min([e.axis_rms_nm for e in axis], axis=0)
+    out = []
+    for e in evaluations:
+        if not e.joint:
+            out.append(e)
+            continue
+        # (the lever-group fold cannot judge the split: without the torque points no joint fit can find it)
+        bad = [f"{ax} held-out {v:.1f} Nm vs per-axis {b:.1f} Nm" for ax, v, b in
+               zip(("A3", "A5"), e.axis_rms_nm, best, strict=True)
+               if v > JOINT_AXIS_FACTOR * max(b, JOINT_AXIS_FLOOR_NM)]
+        out.append(replace(e, admissible=not bad, note="; ".join(bad)))
     return out
 
 
-def nested_loo_auto_mass_kg(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float) -> np.ndarray:
-    """Honest out-of-sample figure of ``--method auto``: in each fold the model is *selected* by LOO on the
-    remaining points only, then fitted there and used to predict the left-out point."""
+def selection_score(evaluations: list[Evaluation]) -> dict[str, float]:
+    """Per method: held-out configuration mean |error| % + :data:`LEVER_WEIGHT` × lever-group mean |error| % (a
+    model that cannot be validated on the lever group gets the worst lever figure of the others)."""
+    levers = [e.lever_mean_abs_err_pct for e in evaluations if np.isfinite(e.lever_mean_abs_err_pct)]
+    worst = max(levers, default=0.0)
+    return {e.method: e.loo_mean_abs_err_pct + LEVER_WEIGHT * (e.lever_mean_abs_err_pct if np.isfinite(
+        e.lever_mean_abs_err_pct) else worst) for e in evaluations}
+
+
+def select_auto(evaluations: list[Evaluation]) -> Evaluation:
+    """The admissible model with the lowest :func:`selection_score`. A joint model must beat the best per-axis model
+    by more than :data:`PREFER_AXIS_MARGIN_PCT`; near-ties (< 0.01 %) go to fewer parameters."""
+    score = selection_score(evaluations)
+    pool = [e for e in evaluations if e.admissible] or list(evaluations)
+    axis = [e for e in pool if not e.joint]
+    joint = [e for e in pool if e.joint]
+    best_axis = min((score[e.method] for e in axis), default=float("inf"))
+    best_joint = min((score[e.method] for e in joint), default=float("inf"))
+    group = joint if best_joint < best_axis - PREFER_AXIS_MARGIN_PCT else (axis or joint)
+    best = min(score[e.method] for e in group)
+    close = [e for e in group if score[e.method] <= best + 0.01]
+    return min(close, key=lambda e: (e.n_params, score[e.method]))
+
+
+def nested_loo_auto_mass_kg(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float,
+                            progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+    """Honest out-of-sample figure of ``--method auto``: in each fold (one configuration held out) the model is
+    *selected* on the remaining points only, then fitted there and used to predict the held-out configuration."""
     n = len(points)
     out = np.empty(n)
     for i in range(n):
@@ -573,11 +746,6 @@ def nested_loo_auto_mass_kg(points: CalibrationPoints, g_m_s2: float, lever_diff
         chosen = select_auto(evaluate_all(sub, g_m_s2, lever_difference_m))
         cal = fit(sub, chosen.method, g_m_s2, lever_difference_m)
         out[i] = float(cal.mass_kg(points.torque_a3_nm[i], points.torque_a5_nm[i]))
+        if progress is not None:
+            progress(i + 1, n)
     return out
-
-
-def select_auto(evaluations: list[Evaluation]) -> Evaluation:
-    """The model with the lowest leave-one-out mean error; near-ties (< 0.01 %) go to fewer parameters."""
-    best = min(e.loo_mean_abs_err_pct for e in evaluations)
-    close = [e for e in evaluations if e.loo_mean_abs_err_pct <= best + 0.01]
-    return min(close, key=lambda e: (e.n_params, e.loo_mean_abs_err_pct))

@@ -1,6 +1,6 @@
 """The in-line mass of a DuT from its measurement loops (paper §2.4.7): pre-process every loop, eq. 16 double
-average, bias normalisation with the calibration's M_0, eq. 21, and the uncertainty budget of
-:mod:`rgse_daemon.pipeline.uncertainty`.
+average, bias normalisation with the calibration's M_0, the operating-point check of
+:mod:`rgse_daemon.pipeline.envelope`, eq. 21, and the uncertainty budget of :mod:`rgse_daemon.pipeline.uncertainty`.
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rgse_daemon.pipeline import envelope as env_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import Calibration
@@ -32,6 +33,10 @@ class InlineMass:
     samples_used: int
     samples_total: int
     warnings: list[str] = field(default_factory=list)
+    method: str = ""
+    """The model the mass comes from (another admissible one if the calibration's own is unusable at this DuT)."""
+    operating_point: str = "inside"
+    """``inside`` or ``outside`` the calibrated envelope (far outside is refused)."""
 
 
 def slope_kg_per_nm(cal: Calibration, torque_a3_nm: float, torque_a5_nm: float, h_nm: float = 1.0
@@ -45,10 +50,18 @@ def slope_kg_per_nm(cal: Calibration, torque_a3_nm: float, torque_a5_nm: float, 
 def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: float, bias_a5_nm: float,
                  pre: pp.Preprocessing, fixture_mass_kg: float = 0.0, model_rms_rel: float = 0.0,
                  g_u_calibration_m_s2: float = 0.0, g_measurement_m_s2: float | None = None,
-                 g_u_measurement_m_s2: float = 0.0, alternatives: Sequence[Calibration] = ()) -> InlineMass:
-    """Mass of the DuT and its uncertainty from its loops (contracts §1 ``rgse mass``).
+                 g_u_measurement_m_s2: float = 0.0, alternatives: Sequence[Calibration] = (),
+                 uncertainty: unc.CalibrationUncertainty | None = None,
+                 alternative_uncertainty: Sequence[unc.CalibrationUncertainty | None] = (),
+                 envelope: env_mod.Envelope | None = None,
+                 envelope_limit: float = env_mod.DEFAULT_LIMIT) -> InlineMass:
+    """Mass of the DuT and its uncertainty from its loops (interfaces §1 ``rgse mass``).
 
-    ``alternatives``: the other plausible calibration models (same points), for the model-form spread.
+    ``alternatives``: the other admissible calibration models (same points), for the model-form spread, with their
+    own ``alternative_uncertainty`` (same order; None where a file has none). ``uncertainty``: the calibration's
+    :class:`~rgse_daemon.pipeline.uncertainty.CalibrationUncertainty`; None (an older calibration file) gives the
+    former budget with ``model_rms_rel``. ``envelope``: what the campaign covered; far outside (beyond
+    ``envelope_limit``) raises :class:`~rgse_daemon.pipeline.envelope.OperatingPointError`.
     """
     t3, t5, se3, se5, used, total = [], [], [], [], 0, 0
     warnings: list[str] = []
@@ -65,20 +78,69 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
         if n_used < MIN_SAMPLES_PER_LOOP:
             warnings.append(f"loop {name}: only {n_used} valid samples")
     n3, n5 = pp.normalise(np.array(t3), bias_a3_nm), pp.normalise(np.array(t5), bias_a5_nm)
-    loop_mass = np.asarray(cal.mass_kg(n3, n5), float)
     m3, m5 = pp.double_average_nm(n3), pp.double_average_nm(n5)  # eq. 16 over loops
+    where = "inside"
+    if envelope is not None:
+        check = env_mod.check(envelope, m3, m5, envelope_limit)
+        if check.status == "refused":
+            raise env_mod.OperatingPointError(f"measurement refused: the DuT lies far outside the calibrated "
+                                              f"envelope: {check.detail}; calibrate with loads that cover it")
+        if check.status == "outside":
+            where = "outside"
+            warnings.append(f"operating point outside the calibrated envelope ({check.detail}): U widened by the "
+                            f"spread of the admissible models there")
+    if uncertainty is not None:
+        cal, uncertainty, alternatives, note = _usable_model(cal, uncertainty, alternatives, alternative_uncertainty,
+                                                             m3, m5)
+        if note:
+            warnings.append(note)
+    loop_mass = np.asarray(cal.mass_kg(n3, n5), float)
     gross = float(cal.mass_kg(m3, m5))
     s3, s5 = slope_kg_per_nm(cal, m3, m5)
     loop_se = np.hypot(s3 * np.array(se3), s5 * np.array(se5))  # A3 and A5 noise independent
-    warnings += cal.out_of_range(m3, m5)
+    if envelope is None:
+        warnings += cal.out_of_range(m3, m5)
     if unc.loops_disagree(loop_mass, loop_se):
         warnings.append("loops disagree beyond their own spread (drift or a disturbed loop)")
     g_meas = cal.g_m_s2 if g_measurement_m_s2 is None else g_measurement_m_s2
-    u = unc.MassUncertainty(
-        u_loops_kg=unc.loop_spread_kg(loop_mass, loop_se),
-        u_calibration_kg=unc.calibration_mc_kg(cal, m3, m5),
-        u_model_kg=unc.model_kg(gross, model_rms_rel, np.array([float(a.mass_kg(m3, m5)) for a in alternatives])),
-        u_reference_kg=unc.reference_mc_kg(cal, m3, m5),
-        u_g_kg=unc.g_kg(gross, cal.g_m_s2, g_u_calibration_m_s2, g_meas, g_u_measurement_m_s2),
-    )
-    return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings)
+    alt_mass = np.array([float(a.mass_kg(m3, m5)) for a in alternatives])
+    u_loops = unc.loop_spread_kg(loop_mass, loop_se)
+    u_g = unc.g_kg(gross, cal.g_m_s2, g_u_calibration_m_s2, g_meas, g_u_measurement_m_s2)
+    if uncertainty is None:  # a calibration file without held-out residuals: the former budget
+        u = unc.MassUncertainty(
+            u_loops_kg=u_loops,
+            u_calibration_kg=unc.calibration_mc_kg(cal, m3, m5),
+            u_model_kg=unc.model_kg(gross, model_rms_rel, alt_mass),
+            u_reference_kg=unc.reference_mc_kg(cal, m3, m5),
+            u_g_kg=u_g,
+        )
+    else:
+        spread = unc.model_spread_kg(gross, alt_mass) if where == "outside" else unc.model_form_kg(gross, alt_mass)
+        u = unc.MassUncertainty(
+            u_loops_kg=u_loops,
+            u_calibration_kg=uncertainty.u_calibration_kg(cal, m3, m5),
+            u_model_kg=spread,
+            u_reference_kg=uncertainty.u_reference_kg(cal, m3, m5),
+            u_g_kg=u_g,
+            u_reproducibility_kg=uncertainty.reproducibility.u_kg(cal.g_m_s2, cal.lever_difference_m),
+        )
+    return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings, cal.method,
+                      where)
+
+
+def _usable_model(cal: Calibration, cu: unc.CalibrationUncertainty, alternatives: Sequence[Calibration],
+                  alternative_cu: Sequence[unc.CalibrationUncertainty | None], torque_a3_nm: float,
+                  torque_a5_nm: float) -> tuple[Calibration, unc.CalibrationUncertainty, list[Calibration], str]:
+    """The calibration's own model if its curve uncertainty at the DuT is usable, else the first admissible
+    alternative whose is (the others stay alternatives); with a note for the result's warnings."""
+    candidates = [(cal, cu)] + [(a, c) for a, c in zip(alternatives, alternative_cu, strict=False) if c is not None]
+    for i, (c, u) in enumerate(candidates):
+        u_cal = u.u_calibration_kg(c, torque_a3_nm, torque_a5_nm)
+        if not unc.unusable(u_cal, u.reproducibility.u_kg(c.g_m_s2, c.lever_difference_m)):
+            if i == 0:
+                return cal, cu, list(alternatives), ""
+            rest = [a for a in [cal, *alternatives] if a is not c]
+            return c, u, rest, (f"model {cal.method}'s prediction uncertainty at this DuT is unusable; "
+                                f"the admissible model {c.method} gives the mass")
+    return cal, cu, list(alternatives), (f"no calibration model has a usable prediction uncertainty at this DuT "
+                                         f"({cal.method} kept, its U is wide)")

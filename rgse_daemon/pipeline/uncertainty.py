@@ -1,6 +1,23 @@
 """Measurement uncertainty of the in-line mass (GUM style), coverage factor k = 2.
 
-Five uncorrelated components, combined in quadrature:
+A calibration written by this version carries a :class:`CalibrationUncertainty` (CAL.json ``fit.uncertainty``) and
+the budget is:
+
+* ``loops``: as below.
+* ``reproducibility``: what a new load configuration (a new mounting) does that the loops cannot see, estimated per
+  axis from the calibration's *held-out* per-axis residuals (corrected minus expected torque, eq. 17/18, each
+  configuration predicted by the fit without it: Table 1's scatter) and propagated through eq. 21 with their
+  correlation: ``u = √(s_A3² + s_A5² − 2ρ·s_A3·s_A5) / (g·Δr)``.
+* ``calibration``: the uncertainty of the fitted *curve* at the operating point: the spread of the DuT's mass over
+  refits of the calibration to resampled points (residual-pair bootstrap: each refit is a curve through plausible
+  data, so an ill-determined eq. 20 stays finite where its points are). Never parameter draws pushed through the
+  exponentials.
+* ``reference``: likewise, the spread over refits with the reference masses drawn from their covariance.
+* ``model``: the model-form spread of the admissible alternatives at the DuT's torques (the held-out lack of fit is
+  in ``reproducibility`` now); outside the campaign's envelope their full spread.
+* ``g``: as below.
+
+A calibration file without ``fit.uncertainty`` (written before) keeps the former budget of five components:
 
 * ``loops``: the standard error of the eq. 16 mean over the loops. The larger of (a) the spread of the per-loop
   masses, ``s/√n``, and (b) the within-loop standard errors from *batch means* (the samples are autocorrelated:
@@ -26,13 +43,23 @@ Five uncorrelated components, combined in quadrature:
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
+from scipy import stats
 
-from rgse_daemon.pipeline.calibration import Calibration
+from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline import calibration as cal_mod
+from rgse_daemon.pipeline.calibration import Calibration, CalibrationError, CalibrationPoints
 
 COVERAGE_K = 2.0
 MC_DRAWS = 2000
+#: Refits of the residual-pair bootstrap (calibration component) and of the reference-mass draws.
+BOOTSTRAP_N = 60
+REFERENCE_N = 30
+#: A model's curve uncertainty at the DuT beyond this many times its reproducibility (its scatter at calibration-like
+#: points) makes it unusable for that DuT.
+UNUSABLE_FACTOR = 3.0
 #: Models whose leave-one-out mean error is within this factor of the chosen model's count as plausible.
 PLAUSIBLE_LOO_FACTOR = 2.0
 
@@ -44,11 +71,12 @@ class MassUncertainty:
     u_model_kg: float
     u_reference_kg: float = 0.0
     u_g_kg: float = 0.0
+    u_reproducibility_kg: float | None = None
+    """None: a calibration file without held-out residuals (the former budget, no such component)."""
 
     @property
     def u_kg(self) -> float:
-        return float(np.sqrt(self.u_loops_kg**2 + self.u_calibration_kg**2 + self.u_model_kg**2
-                             + self.u_reference_kg**2 + self.u_g_kg**2))
+        return float(np.sqrt(sum(v**2 for v in self.components().values())))
 
     @property
     def expanded_kg(self) -> float:
@@ -56,7 +84,171 @@ class MassUncertainty:
         return COVERAGE_K * self.u_kg
 
     def components(self) -> dict[str, float]:
-        return {k.removeprefix("u_").removesuffix("_kg"): float(v) for k, v in asdict(self).items()}
+        return {k.removeprefix("u_").removesuffix("_kg"): float(v) for k, v in asdict(self).items() if v is not None}
+
+
+@dataclass(frozen=True)
+class Reproducibility:
+    """Held-out per-axis residual scatter of a calibration (Nm), the correlation of A3's with A5's, and how many
+    configurations it rests on (``n``; None: unknown, taken as many)."""
+
+    rms_a3_nm: float
+    rms_a5_nm: float
+    corr: float
+    n: int | None = None
+
+    @property
+    def small_sample_factor(self) -> float:
+        """t₀.₉₇₅(n − 1)/t₀.₉₇₅(∞): a scatter estimated from few configurations is itself uncertain (GUM G.3);
+        folding the Student factor into u keeps k = 2 for the whole budget."""
+        if self.n is None or self.n > 200:
+            return 1.0
+        return float(stats.t.ppf(0.975, max(self.n - 1, 1)) / stats.norm.ppf(0.975))
+
+    @classmethod
+    def from_residuals(cls, residual_nm: np.ndarray) -> Reproducibility:
+        r = np.asarray(residual_nm, float)
+        r = r[np.all(np.isfinite(r), axis=1)]
+        if len(r) < 2:
+            raise CalibrationError("reproducibility needs held-out residuals of at least two configurations")
+        s3, s5 = np.sqrt(np.mean(r**2, axis=0))
+        corr = float(np.mean(r[:, 0] * r[:, 1]) / (s3 * s5)) if s3 > 0 and s5 > 0 else 0.0
+        return cls(float(s3), float(s5), float(np.clip(corr, -1.0, 1.0)), len(r))
+
+    def u_kg(self, g_m_s2: float, lever_difference_m: float) -> float:
+        """Eq. 21 propagation: ∂m/∂(K·M)_A3 = 1/(g·Δr), ∂m/∂(K·M)_A5 = −1/(g·Δr), with the axes' correlation,
+        times :attr:`small_sample_factor`."""
+        var = self.rms_a3_nm**2 + self.rms_a5_nm**2 - 2.0 * self.corr * self.rms_a3_nm * self.rms_a5_nm
+        return float(np.sqrt(max(var, 0.0)) / abs(g_m_s2 * lever_difference_m)) * self.small_sample_factor
+
+    def to_dict(self) -> dict[str, float]:
+        return {"rms_a3_nm": self.rms_a3_nm, "rms_a5_nm": self.rms_a5_nm, "corr": self.corr,
+                **({} if self.n is None else {"n": self.n})}
+
+
+@dataclass(frozen=True)
+class CalibrationUncertainty:
+    """What a fitted model carries for its uncertainty at any operating point (CAL.json ``fit.uncertainty``)."""
+
+    reproducibility: Reproducibility
+    fit_params: np.ndarray
+    """(B, p) parameter sets of the residual-pair bootstrap refits."""
+    reference_params: np.ndarray
+    """(R, p) parameter sets of the refits with reference masses drawn from their covariance (may be empty)."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"reproducibility": self.reproducibility.to_dict(),
+                "scheme": f"residual-pair bootstrap ({len(self.fit_params)} refits), reference-mass draws "
+                          f"({len(self.reference_params)} refits), evaluated at the operating point",
+                "bootstrap_params": np.asarray(self.fit_params, float).tolist(),
+                "reference_params": np.asarray(self.reference_params, float).tolist()}
+
+    @classmethod
+    def from_dict(cls, d: Any, n_params: int) -> CalibrationUncertainty:
+        try:
+            n = d["reproducibility"].get("n")
+            rep = Reproducibility(float(d["reproducibility"]["rms_a3_nm"]), float(d["reproducibility"]["rms_a5_nm"]),
+                                  float(d["reproducibility"]["corr"]), None if n is None else int(n))
+            boot = np.asarray(d["bootstrap_params"], float).reshape(-1, n_params)
+            ref = np.asarray(d.get("reference_params") or [], float).reshape(-1, n_params)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"fit.uncertainty: malformed: {exc}") from exc
+        if not (np.all(np.isfinite(boot)) and np.all(np.isfinite(ref)) and len(boot) >= 2
+                and all(np.isfinite([rep.rms_a3_nm, rep.rms_a5_nm, rep.corr]))):
+            raise DataError("fit.uncertainty: needs finite reproducibility and at least two bootstrap parameter sets")
+        return cls(rep, boot, ref)
+
+    def u_calibration_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
+        return refit_spread_kg(cal, self.fit_params, torque_a3_nm, torque_a5_nm)
+
+    def u_reference_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
+        return refit_spread_kg(cal, self.reference_params, torque_a3_nm, torque_a5_nm)
+
+
+def residual_pairs_nm(cal: Calibration, points: CalibrationPoints) -> np.ndarray:
+    """In-sample residuals (expected − corrected torque) of the loaded points, A3 and A5 side by side (n, 2)."""
+    c3 = cal.k_a3.corrected_torque_nm(points.torque_a3_nm)
+    c5 = cal.k_a5.corrected_torque_nm(points.torque_a5_nm)
+    return np.stack([points.expected_a3_nm - c3, points.expected_a5_nm - c5], axis=1)
+
+
+def bootstrap_params(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
+                     n: int = BOOTSTRAP_N, seed: int = 0) -> np.ndarray:
+    """Residual-pair bootstrap: each refit sees the fitted corrected torques plus a resampled (A3, A5) residual pair
+    per loaded point (pairs keep the axes' correlation; centred, inflated by √(n/(n − p/2)) for the fitted
+    parameters); the calibration masses follow from eq. 21 so joint and per-axis models see the same data."""
+    cal = cal_mod.fit(points, method, g_m_s2, lever_difference_m)
+    loaded = np.flatnonzero(points.mass_kg > 0)
+    fitted = np.stack([cal.k_a3.corrected_torque_nm(points.torque_a3_nm),
+                       cal.k_a5.corrected_torque_nm(points.torque_a5_nm)], axis=1)
+    resid = residual_pairs_nm(cal, points)[loaded]
+    resid = resid - resid.mean(axis=0)  # centred: the refits scatter around the fit, not around its mean residual
+    inflate = np.sqrt(len(loaded) / max(len(loaded) - len(cal.params) / 2, 1.0))
+    rng = np.random.default_rng(seed)
+    denom = g_m_s2 * lever_difference_m
+    out = []
+    for _ in range(n):
+        e3, e5 = points.expected_a3_nm.copy(), points.expected_a5_nm.copy()
+        draw = resid[rng.integers(0, len(loaded), len(loaded))] * inflate
+        e3[loaded] = fitted[loaded, 0] + draw[:, 0]
+        e5[loaded] = fitted[loaded, 1] + draw[:, 1]
+        mass = points.mass_kg.copy()
+        mass[loaded] = np.maximum((e3[loaded] - e5[loaded]) / denom, 1e-6)
+        star = CalibrationPoints(points.kind, mass, points.torque_a3_nm, points.torque_a5_nm, e3, e5,
+                                 points.mass_cov_kg2)
+        try:
+            out.append(cal_mod.fit(star, method, g_m_s2, lever_difference_m).params)
+        except CalibrationError:
+            continue  # a degenerate resample: the others still estimate the spread
+    return np.asarray(out, float).reshape(-1, len(cal.params))
+
+
+def reference_params(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
+                     n: int = REFERENCE_N, seed: int = 1) -> np.ndarray:
+    """Refits with the reference masses drawn from their covariance (empty if they are taken as exact)."""
+    n_par = len(cal_mod.fit(points, method, g_m_s2, lever_difference_m).params)
+    if points.mass_cov_kg2 is None or not np.any(points.mass_cov_kg2):
+        return np.zeros((0, n_par))
+    rng = np.random.default_rng(seed)
+    draws = rng.multivariate_normal(points.mass_kg, points.mass_cov_kg2, size=n, check_valid="ignore", method="eigh")
+    return np.array([cal_mod.fit(points.with_masses(np.maximum(d, 0.0)), method, g_m_s2, lever_difference_m).params
+                     for d in draws]).reshape(-1, n_par)
+
+
+def refit_spread_kg(cal: Calibration, params: np.ndarray, torque_a3_nm: float, torque_a5_nm: float) -> float:
+    """Standard deviation of the mass at the operating point over refitted parameter sets (∞ if one diverges)."""
+    params = np.asarray(params, float)
+    if len(params) < 2:
+        return 0.0
+    with np.errstate(over="ignore", invalid="ignore"):
+        masses = np.array([float(cal.with_params(p).mass_kg(torque_a3_nm, torque_a5_nm)) for p in params])
+    return float(np.std(masses, ddof=1)) if np.all(np.isfinite(masses)) else float("inf")
+
+
+def calibration_uncertainty(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
+                            heldout_residual_nm: np.ndarray) -> CalibrationUncertainty:
+    """Everything :class:`CalibrationUncertainty` needs, from the calibration points and the method's held-out
+    per-axis residuals (:attr:`calibration.Evaluation.heldout_residual_nm`). The reproducibility counts the loaded
+    *interior* configurations only: holding out the heaviest point on an axis is an extrapolation, which the
+    operating-point check (:mod:`rgse_daemon.pipeline.envelope`) treats, not the reproducibility."""
+    return CalibrationUncertainty(Reproducibility.from_residuals(np.asarray(heldout_residual_nm)[interior(points)]),
+                                  bootstrap_params(points, method, g_m_s2, lever_difference_m),
+                                  reference_params(points, method, g_m_s2, lever_difference_m))
+
+
+def interior(points: CalibrationPoints) -> np.ndarray:
+    """Loaded points whose |M_A3| and |M_A5| both lie below the largest of the other points' (bool mask)."""
+    a3, a5 = np.abs(points.torque_a3_nm), np.abs(points.torque_a5_nm)
+    out = points.mass_kg > 0
+    for i in np.flatnonzero(out):
+        others = np.arange(len(points)) != i
+        out[i] = a3[i] < a3[others].max() and a5[i] < a5[others].max()
+    return out
+
+
+def unusable(u_calibration_kg: float, u_reproducibility_kg: float) -> bool:
+    """A model whose curve uncertainty at the DuT dwarfs its own scatter at calibration-like points is unusable."""
+    return not np.isfinite(u_calibration_kg) or u_calibration_kg > UNUSABLE_FACTOR * max(u_reproducibility_kg, 1e-9)
 
 
 def batch_means_se(x: np.ndarray, n_batches: int = 10) -> float:
@@ -120,6 +312,12 @@ def model_form_kg(mass_kg: float, alternative_mass_kg: np.ndarray) -> float:
     """RMS deviation of the plausible alternative models' masses from the chosen model's mass."""
     alt = np.asarray(alternative_mass_kg, float)
     return float(np.sqrt(np.mean((alt - mass_kg) ** 2))) if alt.size else 0.0
+
+
+def model_spread_kg(mass_kg: float, alternative_mass_kg: np.ndarray) -> float:
+    """The full spread of the alternatives around the chosen model: the largest deviation (outside the envelope)."""
+    alt = np.asarray(alternative_mass_kg, float)
+    return float(np.max(np.abs(alt - mass_kg))) if alt.size else 0.0
 
 
 def model_kg(mass_kg: float, loo_rms_rel: float, alternative_mass_kg: np.ndarray) -> float:

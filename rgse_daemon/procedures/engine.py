@@ -33,6 +33,7 @@ lessons 1–3):
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from collections.abc import Callable, Coroutine
@@ -373,11 +374,18 @@ class RunEngine:
         prog = msg.program
         await self._check(prog)
         src_name = msg.dry_reply()
-        if prog.dat_text is not None:
-            await self._bounded(f"put {prog.name}.DAT", self.krc.put_file(PROGRAM_DIR + prog.name.upper() + ".DAT",
-                                                                          prog.dat_text.encode("latin-1")))
-        await self._bounded(f"put {src_name}", self.krc.put_file(src_name, prog.src_text.encode("latin-1")))
+        async with self._file_window(f"push {prog.name}"):
+            if prog.dat_text is not None:
+                await self._bounded(f"put {prog.name}.DAT", self.krc.put_file(
+                    PROGRAM_DIR + prog.name.upper() + ".DAT", prog.dat_text.encode("latin-1")))
+            await self._bounded(f"put {src_name}", self.krc.put_file(src_name, prog.src_text.encode("latin-1")))
         return src_name
+
+    def _file_window(self, what: str) -> contextlib.AbstractAsyncContextManager[Any]:
+        """File work blocks the controller's status reads: only under the monitor's file-window rule."""
+        if self.monitor is None or self.dry_run:
+            return contextlib.nullcontext()
+        return self.monitor.file_window(what)
 
     async def _do_Select(self, msg: m.Select) -> None:
         self._expect(Expect.IDLE)
@@ -431,7 +439,9 @@ class RunEngine:
         await self._bounded(f"write {msg.name}", self.krc.write_raw(msg.name, msg.text))
 
     async def _do_PutFile(self, msg: m.PutFile) -> None:
-        await self._bounded(f"put {msg.name}", self.krc.put_file(msg.name, msg.data))
+        async with self._file_window(f"put {msg.name}"):
+            await self._bounded(f"put {msg.name}", self.krc.put_file(msg.name, msg.data),
+                                REQUEST_TIMEOUT_S + self.krc.file_timeout_s(len(msg.data)))
 
     async def _do_TraceStart(self, msg: m.TraceStart) -> float:
         await self._bounded("write $TRACE.CONFIG[]", self.krc.write("$TRACE.CONFIG[]", msg.config))
@@ -461,9 +471,12 @@ class RunEngine:
         self._trace_armed = False
 
     async def _do_Pull(self, msg: m.Pull) -> Any:
-        return await self._bounded(f"pull {msg.trace}", pull_trace(self.krc, msg.trace, msg.dest_dir,
-                                                                   trace_dir=self.trace_dir,
-                                                                   share_dir=self.share_dir), msg.timeout_s)
+        # every step of a pull has its own deadline, a file's sized by its bytes (Controller.get_file); the whole
+        # pull is bounded by those, not by msg.timeout_s (a large trace set at the controller's slow file rate
+        # may need longer than a trace takes to record)
+        async with self._file_window(f"pull {msg.trace}"):
+            return await pull_trace(self.krc, msg.trace, msg.dest_dir, trace_dir=self.trace_dir,
+                                    share_dir=self.share_dir)
 
     async def _do_DeleteTraceCopies(self, msg: m.DeleteTraceCopies) -> tuple[bool, str]:
         return await self._bounded(f"delete {msg.pulled.trace} on the controller", msg.pulled.delete_copies(),

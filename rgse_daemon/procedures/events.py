@@ -43,7 +43,7 @@ class Event:
     time_s: float = field(default_factory=time.time)  # wall clock
 
     def to_json(self) -> dict[str, Any]:
-        """The event as the MQTT payload (contracts §4: step, loop i/n, eta)."""
+        """The event as the MQTT payload (interfaces §4: step, loop i/n, eta)."""
         out: dict[str, Any] = {"kind": self.kind, "time": iso_utc(self.time_s)}
         for key in ("message", "run_id", "step", "loop_index", "loop_count", "eta_s"):
             value = getattr(self, key)

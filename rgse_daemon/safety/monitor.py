@@ -23,6 +23,25 @@ confirmed, or latched. A plan that ended normally costs one read of three variab
 
 The plan tells the monitor what to expect through :attr:`Monitor.context` (allowed modes, program expected
 running or idle, safety inputs): the engine updates it as it starts and ends programs.
+
+**File transfers** (:meth:`Monitor.file_window`). The real C3 Bridge server does file work on its single thread: while
+it loads a trace file for a pull (seconds for a large one), every status read waits behind it, so a snapshot cannot
+be fresh. The rule, which keeps "doubt = stop" intact:
+
+1. *Only at standstill.* A window opens only on a fresh, complete snapshot that shows no program running
+   (``$PRO_STATE1`` not ``#P_ACTIVE``), ``$ROB_STOPPED`` TRUE and ``$VEL_ACT`` ≈ 0, and the engine sends no motion
+   command while it is open (a plan is sequential). Moving the robot then needs a person at the smartPAD (T1:
+   enabling switch and start or jog keys), which the controller's own T1 speed monitoring covers.
+2. *Late, not lost, and bounded.* Inside the window a snapshot may be late by exactly the file work in flight: its
+   deadline is the end of that work's own deadline (bytes at ``controller.file_rate_bytes_s``, see
+   :class:`~rgse_daemon.link.connection.ServerLoad`) plus the normal limit. Later than that is link loss: trip.
+3. *Every snapshot that does arrive is judged fully*, by every watcher and by the standstill check: a program
+   running, ``$ROB_STOPPED`` FALSE, a speed, or any axis more than :data:`WINDOW_AXIS_TOLERANCE_DEG` away from where it
+   stood when the window opened trips the interlock at once (program stop, trace stop).
+4. *Doubt holds the next motion.* A snapshot later than the normal limit is doubt (counted in
+   ``stats.window_late_polls``). The window closes only after a snapshot taken *after* the last file byte arrives
+   within the normal limit and passes the same checks, pose unchanged; until then nothing else runs, so the next
+   motion command waits. If no such snapshot comes, the monitor trips as for any stale link.
 """
 
 from __future__ import annotations
@@ -50,6 +69,12 @@ DEFAULT_POLL_PERIOD_S = 0.05
 STALE_PERIODS = 2.0
 #: Deadline of each stop step after a trip (s).
 STOP_TIMEOUT_S = 2.0
+#: An axis further than this from where it stood when a file window opened has moved: trip (deg).
+WINDOW_AXIS_TOLERANCE_DEG = 0.01
+#: Above this $VEL_ACT (m/s) the robot is not standing still.
+STANDSTILL_SPEED_M_S = 0.001
+#: How long opening or closing a file window waits for the fresh snapshot it needs, beyond the file work (s).
+WINDOW_SNAPSHOT_WAIT_S = 5.0
 
 
 class InterlockTrip(InterlockError):
@@ -232,10 +257,47 @@ DEFAULT_WATCHERS: tuple[Watcher, ...] = (
 )
 
 
+def standstill_problem(snap: Snapshot | None, axes_deg: tuple[float, ...] | None = None) -> str | None:
+    """Why ``snap`` does not show the robot standing idle (at ``axes_deg`` if given), or ``None`` if it does.
+    An unreadable field is a reason: doubt."""
+    if snap is None:
+        return "no snapshot"
+    if snap.pro_state1 is None or snap.rob_stopped is None or snap.vel_act_m_s is None or snap.axes_deg is None:
+        return "standstill unknown ($PRO_STATE1, $ROB_STOPPED, $VEL_ACT or $AXIS_ACT unreadable)"
+    if snap.pro_state1 == "P_ACTIVE":
+        return f"program {snap.pro_name1 or '?'} is running"
+    if not snap.rob_stopped:
+        return "$ROB_STOPPED is FALSE"
+    if abs(snap.vel_act_m_s) > STANDSTILL_SPEED_M_S:
+        return f"$VEL_ACT is {snap.vel_act_m_s * 1000.0:.1f} mm/s"
+    if axes_deg is not None:
+        for i, (was, now) in enumerate(zip(axes_deg, snap.axes_deg, strict=True), 1):
+            if abs(now - was) > WINDOW_AXIS_TOLERANCE_DEG:
+                return f"A{i} moved from {was:.3f} to {now:.3f} deg during the file transfer"
+    return None
+
+
+#: Names a trip seen by the file-window rule (it is evaluated in the poll loop, not as one of the watchers).
+_FILE_WINDOW_WATCHER = Watcher("file_window", "robot not standing still during a file transfer", lambda o, c: None)
+
+
+@dataclass
+class _FileWindow:
+    what: str
+    axes_deg: tuple[float, ...] | None
+    closed_at: float | None = None
+
+
 @dataclass
 class MonitorStats:
     polls: int = 0
     snapshot_s_max: float = 0.0
+    window_polls: int = 0
+    """Polls taken while a file window was open."""
+    window_late_polls: int = 0
+    """... of which later than the normal staleness limit (doubt that the window's close had to clear)."""
+    window_snapshot_s_max: float = 0.0
+    """Longest snapshot while a file window was open (s): the status-poll latency during a pull."""
     trip_latency_s: float | None = None
     """Time from the start of the poll that saw the trip until the program stop was acknowledged."""
     stop_errors: list[str] = field(default_factory=list)
@@ -285,6 +347,50 @@ class Monitor:
         self.trip: InterlockTrip | None = None
         self._task: asyncio.Task[None] | None = None
         self._confirming = False
+        self._window: _FileWindow | None = None
+        self._cleared_at = 0.0  # start of the last poll that passed every check on time
+        self._polled = asyncio.Event()  # set after every poll
+
+    @contextlib.asynccontextmanager
+    async def file_window(self, what: str):  # type: ignore[no-untyped-def]
+        """Run a file transfer under the file-window rule (module docstring). Raises :class:`InterlockError` if
+        the robot does not stand idle at the start, and the trip if one happens meanwhile or before the close is
+        cleared. Without a running monitor (tools, dry runs) it only runs the block."""
+        if self._task is None or self._task.done():
+            yield
+            return
+        snap = await self._fresh_after(time.monotonic(), f"{what}: opening the file window")
+        problem = standstill_problem(snap)
+        if problem is not None:
+            raise InterlockError(f"{what}: refused: the robot must stand still with no program running ({problem})")
+        self._window = _FileWindow(what, snap.axes_deg if snap is not None else None)
+        try:
+            yield
+        finally:
+            self._window.closed_at = time.monotonic()
+            try:
+                await self._fresh_after(self._window.closed_at, f"{what}: closing the file window")
+            finally:
+                self._window = None
+
+    async def _fresh_after(self, t: float, what: str) -> Snapshot | None:
+        """Wait for a poll that started after ``t`` and passed every check on time; raise the trip if one comes."""
+        wait_s = WINDOW_SNAPSHOT_WAIT_S + max(0.0, self.krc.busy_until() - time.monotonic())
+        try:
+            async with asyncio.timeout(wait_s):
+                while self._cleared_at <= t:
+                    if self.trip is not None:
+                        raise self.trip
+                    if self._task is None or self._task.done():
+                        raise InterlockError(f"{what}: the interlock monitor is not running")
+                    self._polled.clear()
+                    await self._polled.wait()
+        except TimeoutError as exc:
+            raise InterlockError(f"{what}: no fresh, complete snapshot within {wait_s:.1f} s (doubt: nothing moves)"
+                                 ) from exc
+        if self.trip is not None:
+            raise self.trip
+        return self.latest
 
     def expect(self, expect: Expect) -> None:
         self.context = replace(self.context, expect=expect)
@@ -318,22 +424,52 @@ class Monitor:
                 if not self._confirming:
                     await self._confirm_idle()
 
+    def _allowed_s(self, t0: float) -> float:
+        """How long the poll that started at ``t0`` may take: the normal limit, or, inside a file window, until the
+        end of the file work in flight (its deadline) plus the normal limit."""
+        if self._window is None:
+            return self.stale_after_s
+        return max(t0, self.krc.busy_until()) + self.stale_after_s - t0
+
+    async def _timed_snapshot(self, t0: float) -> Snapshot:
+        """The snapshot, within :meth:`_allowed_s` (re-evaluated as file work starts behind it); TimeoutError."""
+        task = asyncio.get_running_loop().create_task(self.krc.snapshot(), name="rgse-interlock-snapshot")
+        try:
+            while True:
+                remaining = t0 + self._allowed_s(t0) - time.monotonic()
+                if remaining <= 0:
+                    raise TimeoutError
+                done, _ = await asyncio.wait({task}, timeout=remaining)
+                if done:
+                    return task.result()
+        finally:
+            if not task.done():
+                task.cancel()
+                await asyncio.wait({task})
+
     async def _poll(self, on_trip: TripHandler) -> None:
         last_good = time.monotonic()
         while True:
             t0 = time.monotonic()
             ctx = self.context
+            window = self._window
             snap: Snapshot | None = None
             error: str | None = None
             try:
-                snap = await within(self.krc.snapshot(), self.stale_after_s)
+                snap = await self._timed_snapshot(t0)
             except TimeoutError:
-                error = f"no snapshot within {self.stale_after_s * 1e3:.0f} ms"
+                error = f"no snapshot within {self._allowed_s(t0) * 1e3:.0f} ms"
             except (LinkError, RgseError) as exc:
                 error = f"{type(exc).__name__}: {exc}"
             now = time.monotonic()
+            took_s = now - t0
             self.stats.polls += 1
-            self.stats.snapshot_s_max = max(self.stats.snapshot_s_max, now - t0)
+            self.stats.snapshot_s_max = max(self.stats.snapshot_s_max, took_s)
+            if window is not None:
+                self.stats.window_polls += 1
+                self.stats.window_snapshot_s_max = max(self.stats.window_snapshot_s_max, took_s)
+                if took_s > self.stale_after_s:
+                    self.stats.window_late_polls += 1  # doubt: the window's close needs a fresh snapshot
             if snap is not None:
                 last_good = now
                 self.latest = snap
@@ -341,14 +477,21 @@ class Monitor:
                 # the plan changed its expectation while this snapshot was in flight: judge the program state
                 # by neither (the next poll, < one period away, sees the new state)
                 ctx = replace(ctx, expect=Expect.ANY)
-            obs = Observation(
-                snap, error, now - last_good, self.stale_after_s, self.inputs() if self.inputs is not None else None
-            )
+            stale_after_s = max(self.stale_after_s, self._allowed_s(t0)) if window is not None else self.stale_after_s
+            obs = Observation(snap, error, now - last_good, stale_after_s,
+                              self.inputs() if self.inputs is not None else None)
             found = self.check_once(obs, ctx)
+            if found is None and window is not None and snap is not None:
+                problem = standstill_problem(snap, window.axes_deg)
+                if problem is not None:
+                    found = (_FILE_WINDOW_WATCHER, f"{window.what}: {problem}")
+            if found is None and snap is not None and took_s <= self.stale_after_s:
+                self._cleared_at = t0
             if found is not None:
                 watcher, detail = found
                 trip = InterlockTrip(watcher.name, watcher.message, detail)
                 self.trip = trip
+                self._polled.set()
                 _log.error("%s", trip, extra={"watcher": watcher.name, "detail": detail})
                 await self.make_safe(snap)
                 self.stats.trip_latency_s = time.monotonic() - t0
@@ -356,6 +499,7 @@ class Monitor:
                 on_trip(trip)
                 await self._confirm_stop(trip)
                 return
+            self._polled.set()
             await asyncio.sleep(max(0.0, self.poll_period_s - (time.monotonic() - t0)))
 
     async def _confirm_stop(self, trip: InterlockTrip) -> None:

@@ -14,11 +14,13 @@ import logging
 import random
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 from rgse_daemon.aio import within
 from rgse_daemon.config import ControllerConfig
 from rgse_daemon.controller import Controller
 from rgse_daemon.errors import LinkError, VariableError
+from rgse_daemon.filelayout import load_layout
 from rgse_daemon.services.signals import Alarms
 
 log = logging.getLogger("rgse_daemon.app")
@@ -53,8 +55,9 @@ class ControllerLink:
     """
 
     def __init__(self, cfg: ControllerConfig, counters: DaemonCounters, alarms: Alarms,
-                 busy: Callable[[], bool]) -> None:
+                 busy: Callable[[], bool], data_dir: Path | None = None) -> None:
         self.cfg = cfg
+        self.data_dir = data_dir  # where `rgse doctor` recorded the controller's file layout
         self.counters = counters
         self.alarms = alarms
         self.busy = busy
@@ -82,7 +85,9 @@ class ControllerLink:
         while not stop.is_set():
             self.connecting = True
             try:
-                async with Controller.connect(self.cfg) as krc:
+                # the TRACE path form and listing format `rgse doctor` found on this controller (probed if none)
+                layout = load_layout(self.data_dir) if self.data_dir is not None else None
+                async with Controller.connect(self.cfg, layout=layout) as krc:
                     self.connecting = False
                     attempt = 0
                     if prepare is not None:

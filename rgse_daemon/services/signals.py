@@ -34,6 +34,11 @@ class StackLight:
         self._wanted: str | None = None
         self._wake = asyncio.Event()
 
+    @property
+    def color(self) -> str | None:
+        """The colour last asked for (``None`` without a module or before any)."""
+        return self._wanted
+
     def want(self, color: str) -> None:
         if self.io is None:
             return

@@ -135,7 +135,7 @@ class CalibrationRecord:
     created_utc: datetime
     method: str
     document: dict[str, Any]
-    """The CAL.json document (contracts §3) exactly as added."""
+    """The CAL.json document (interfaces §3) exactly as added."""
     active: bool
     added_utc: datetime
     activated_utc: datetime | None

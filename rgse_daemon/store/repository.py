@@ -387,7 +387,7 @@ class Repository:
     def add_calibration(
         self, document: dict[str, Any], *, run_id: str | None = None, activate: bool = False
     ) -> CalibrationRecord:
-        """Store a CAL.json document (contracts §3) under its ``calibration_id``.
+        """Store a CAL.json document (interfaces §3) under its ``calibration_id``.
 
         It becomes the robot's active calibration if ``activate`` or if the robot has none yet, so a robot with any
         calibration always has exactly one active. Adding the identical document again is a no-op (plus activation
@@ -471,7 +471,7 @@ class Repository:
         *,
         publish: OutboxMessage | None = None,
     ) -> ResultRecord:
-        """Store a result (contracts §1 ``rgse mass --json``) computed from the run's archived raw files.
+        """Store a result (interfaces §1 ``rgse mass --json``) computed from the run's archived raw files.
 
         Every hash in ``trace_sha256`` must be an archived trace file of this run, so no result exists that its raw
         files cannot reproduce. The result id is derived from run, result and inputs: recording the same result

@@ -40,10 +40,11 @@ import os
 import re
 import shutil
 import stat
-import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import RgseError
 
 # C3 Bridge error codes (c3bridge-protocol §1).
@@ -71,6 +72,18 @@ EDIT_FULL = 0
 MAX_CHUNK_BYTES = 64512
 #: Largest file a #29 Begin may allocate in this simulator (answers code 4 above it, as a failed allocation).
 MAX_BUFFER_BYTES = 64 * 1024 * 1024
+
+#: #21 answer formats the simulator can give (the real info text is not known, c3bridge-real-server.md):
+#: ``fields``: full names, info ``<itemType>;<sizeBytes>;<attributes>;<modifiedFILETIME>``;
+#: ``bare``: names without their folder, no info strings at all;
+#: ``text``: full names, info as free text ``<sizeBytes> <dd.mm.yyyy hh:mm:ss> <attribute letters>``.
+LISTING_VARIANTS = ("fields", "bare", "text")
+#: Path forms the file messages accept (the real Cross3's are not known):
+#: ``any``: ``KRC:\...``, ``C:\KRC\ROBOTER\...`` and KRC names ``/R1/...``, a folder with or without a trailing ``\``;
+#: ``disk``: outside ``R1`` only ``C:\KRC\ROBOTER\...``, and a folder to list must end with ``\``;
+#: ``krc``: only ``KRC:\...`` and ``/R1/...`` (the TRACE folder is ``KRC:\TRACE``), a folder to list must not end
+#: with ``\``.
+PATH_FORM_VARIANTS = ("any", "disk", "krc")
 
 _MODULE_SUFFIXES = {".SRC", ".DAT", ".SUB"}
 _TEXT_SUFFIXES = {".TXT", ".XML", ".INI", ".CONFIG", ".LOG", ".CSV"}
@@ -120,9 +133,37 @@ class ShareFiles:
         The local directory standing for the ``roboter`` share; created if missing.
     """
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, *, listing: str = "fields", path_forms: str = "any") -> None:
         root.mkdir(parents=True, exist_ok=True)
         self.root = root.resolve()
+        self.listing = listing
+        self.path_forms = path_forms
+
+    def check_form(self, name: str, *, folder: bool = False) -> None:
+        """Refuse (code 3) a name whose form this controller variant does not accept (``path_forms``)."""
+        if self.path_forms == "any":
+            return
+        upper = name.upper().replace("/", "\\")
+        is_krc_name = name.startswith("/") and not name.startswith("//")
+        in_r1 = upper.startswith("KRC:\\R1") or (is_krc_name and upper[1:3] == "R1")
+        if self.path_forms == "disk":
+            if (upper.startswith("KRC:") or is_krc_name) and not in_r1:
+                raise FileOpError(name, "this controller wants C:\\KRC\\ROBOTER\\... outside R1", CODE_ARGUMENT)
+            if folder and not name.endswith(("\\", "/")) and not any(c in name for c in "*?"):
+                raise FileOpError(name, "a folder to list must end with \\", CODE_ARGUMENT)
+        elif self.path_forms == "krc":
+            if upper.startswith("C:"):
+                raise FileOpError(name, "this controller wants KRC:\\... names", CODE_ARGUMENT)
+            if folder and name.endswith(("\\", "/")):
+                raise FileOpError(name, "a folder to list must not end with \\", CODE_ARGUMENT)
+
+    def size_or_zero(self, name: str) -> int:
+        """The size of file ``name`` in bytes, 0 if it is no readable file (the operation then fails anyway)."""
+        try:
+            path = self.resolve(name)
+            return path.stat().st_size if path.is_file() else 0
+        except (FileOpError, OSError):
+            return 0
 
     # --- names ---------------------------------------------------------------------------------------------------
     def _parts(self, name: str) -> list[str]:
@@ -200,8 +241,8 @@ class ShareFiles:
     def name_list(self, path: str, item_type: int = 0, list_flags: int = 0) -> tuple[list[str], list[str]]:
         """Entries of a directory (or matching a mask like ``KRC:\\R1\\PROGRAM\\*.SRC``).
 
-        Returns the full names (directories end with ``\\``) and one info string per entry,
-        ``"<itemType>;<sizeBytes>;<attributes>;<modifiedFILETIME>"`` (the spec leaves the info format open).
+        Returns the names (directories end with ``\\``) and the info strings, in the ``listing`` variant's format
+        (:data:`LISTING_VARIANTS`; the spec leaves the info format open).
         ``item_type`` 0 lists everything, otherwise entries whose type shares a bit with it.
         """
         mask = "*"
@@ -223,8 +264,14 @@ class ShareFiles:
                 continue
             if item_type and not props.item_type & item_type:
                 continue
-            items.append(self._display(entry) + ("\\" if entry.is_dir() else ""))
-            infos.append(f"{props.item_type};{props.size_bytes};{props.attributes};{props.modified_ft}")
+            shown = entry.name if self.listing == "bare" else self._display(entry)
+            items.append(shown + ("\\" if entry.is_dir() else ""))
+            if self.listing == "fields":
+                infos.append(f"{props.item_type};{props.size_bytes};{props.attributes};{props.modified_ft}")
+            elif self.listing == "text":
+                when = time.strftime("%d.%m.%Y %H:%M:%S", time.gmtime(entry.stat().st_mtime))
+                letters = ("D" if entry.is_dir() else "A") + ("R" if props.attributes & ATTR_READONLY else "")
+                infos.append(f"{props.size_bytes} {when} {letters}")
         total = sum(2 + 2 * len(s) for s in items + infos)
         if total > MAX_CHUNK_BYTES or len(items) > 65535:
             raise FileOpError(path, f"list of {len(items)} entries does not fit one reply", CODE_LONG_ANSWER)
@@ -362,17 +409,7 @@ class ShareFiles:
             raise FileOpError(name, "is a directory", CODE_ACCESS)
         if path.exists() and not path.stat().st_mode & stat.S_IWUSR:
             raise FileOpError(name, "is read-only", CODE_ACCESS)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(content)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        write_atomic(path, content)
 
 
 def _read_only(path: Path) -> bool:

@@ -10,6 +10,7 @@ API (small on purpose; the KUKA Trace engine and the KRL interpreter use only th
                                                         # restarts the settling/release clock at its end
     model.brake_release_move(q_deg)                     # the paper's ±35° A3/A5 brake-release move (§2.4.4)
     model.hold(duration_s); model.apply_brakes(duration_s)   # standing with brakes open / closed (cooling)
+    model.new_mounting()                                # a load (re-)mounted: a new per-mounting offset δ
     trace = model.sample_trace(q_deg, payload, n_samples=1000, period_s=0.012)
     trace[3]["Istmoment"]                               # ndarray, Nm; axes 1..6, channels in CHANNELS
     model.last_truth                                    # TraceTruth: true mass/CoG/torques and every error term
@@ -22,6 +23,7 @@ call sequence (one ``np.random.Generator``).
 Torque estimate of axis i at sample k (all Nm, holding-torque sign of ``rgse_daemon.kinematics``)::
 
     static    = τ_arm(q) + M0_i + G_i(|τ_pay|) · τ_pay           # M0: residual (eq. 17–18), G: Table 1 gain
+              + δ_i                                              # offset of this mounting (new_mounting())
     Istmoment = static · (1 + β_i (T_k − T_amb))                  # slow drift with motor temperature
               + ε_i · static · exp(−t_k/τ_rel)                    # transient after each brake release
               − sign(last approach) · h_i                         # friction hysteresis
@@ -235,7 +237,8 @@ class TraceTruth:
     """Ground truth of one simulated trace, for tests: nothing here is visible to the daemon.
 
     ``terms`` holds every additive error term per axis and sample (Nm, shape (6, n)): ``static`` (true torque
-    through the gain, plus residual), ``thermal``, ``release``, ``hysteresis``, ``settle``, ``noise``, ``spikes``;
+    through the gain, plus residual), ``mount`` (this mounting's offset), ``thermal``, ``release``, ``hysteresis``,
+    ``settle``, ``noise``, ``spikes``;
     their sum is Istmoment.
     """
 
@@ -283,6 +286,18 @@ class RobotModel:
         self.ambient_k = self.scenario.thermal.ambient_k
         self.state = RobotState(motor_temp_k=np.full(6, self.ambient_k))
         self.last_truth: TraceTruth | None = None
+        # mountings draw from their own stream: the noise of every trace stays the same whatever is mounted; the
+        # robot as built has none (the first mounting draws)
+        self._mount_rng = np.random.default_rng(None if seed is None else [seed, 0x6D6F756E74])
+        self.mount_offset_nm = np.zeros(6)
+        self.mount_cog_shift_m = 0.0
+
+    def new_mounting(self) -> None:
+        """A load was (re-)mounted: draw this mounting's reading offset δ_i ~ N(0, mount_offset_nm_i) and the shift
+        of the load's CoG along the flange axis (``mounting.cog_shift_m``), both fixed until the next mounting."""
+        sigma = np.array([a.mount_offset_nm for a in self._axes])
+        self.mount_offset_nm = self._mount_rng.normal(0.0, 1.0, 6) * sigma
+        self.mount_cog_shift_m = float(self._mount_rng.normal(0.0, self.scenario.mounting.cog_shift_m))
 
     # --- statics -------------------------------------------------------------------------------------------------
     def arm_torques_nm(self, q_deg: Sequence[float]) -> np.ndarray:
@@ -290,8 +305,9 @@ class RobotModel:
         return kin.link_gravity_torques_nm(q_deg, self._links, self.g_m_s2)
 
     def payload_torques_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
-        """Gravity holding torques of the payload (Nm)."""
-        return kin.gravity_regressor(q_deg, self.g_m_s2) @ payload.theta
+        """Gravity holding torques of the payload as mounted now (its CoG shifted by this mounting's shift, Nm)."""
+        theta = payload.theta + np.array([0.0, 0.0, 0.0, payload.mass_kg * self.mount_cog_shift_m])
+        return kin.gravity_regressor(q_deg, self.g_m_s2) @ theta
 
     def true_torques_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
         """Static gravity holding torques of arm plus payload at every axis (Nm, A1..A6)."""
@@ -309,9 +325,9 @@ class RobotModel:
         )
 
     def static_reading_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
-        """Noise-free, cold, settled reading (Nm): τ_arm + M0 + G(|τ_pay|)·τ_pay."""
+        """Noise-free, cold, settled reading (Nm) of the load as mounted now: τ_arm + M0 + G(|τ_pay|)·τ_pay + δ."""
         tau_p = self.payload_torques_nm(q_deg, payload)
-        return self.arm_torques_nm(q_deg) + self.residual_nm + self.gains(tau_p) * tau_p
+        return self.arm_torques_nm(q_deg) + self.residual_nm + self.gains(tau_p) * tau_p + self.mount_offset_nm
 
     # --- state ---------------------------------------------------------------------------------------------------
     def _temps_after(self, t0_k: np.ndarray, dt_s: np.ndarray | float, released: bool) -> np.ndarray:
@@ -393,6 +409,7 @@ class RobotModel:
         gain = self.gains(tau_pay)
         static = tau_arm + self.residual_nm + gain * tau_pay
         ax = self._axes
+        mount = self.mount_offset_nm
         beta = np.array([a.thermal_coeff_per_k for a in ax])
         eps = np.array([a.release_transient_frac for a in ax])
         hyst = np.array([a.hysteresis_nm for a in ax])
@@ -401,6 +418,7 @@ class RobotModel:
         sc = self.scenario
         terms = {
             "static": np.repeat(static[:, None], n_samples, axis=1),
+            "mount": np.repeat(mount[:, None], n_samples, axis=1),
             "thermal": static[:, None] * beta[:, None] * (temps - self.ambient_k),
             "release": static[:, None] * eps[:, None] * np.exp(-t / sc.release.time_constant_s)[None, :],
             "hysteresis": np.repeat((-approach * hyst)[:, None], n_samples, axis=1),
@@ -428,7 +446,7 @@ class RobotModel:
         self.last_truth = TraceTruth(
             q_deg=q.copy(),
             payload_mass_kg=payload.mass_kg,
-            payload_cog_flange_m=payload.cog_flange_m,
+            payload_cog_flange_m=payload.cog_flange_m + np.array([0.0, 0.0, self.mount_cog_shift_m]),
             true_torque_nm=tau_arm + tau_pay,
             payload_torque_nm=tau_pay,
             arm_torque_nm=tau_arm,

@@ -47,6 +47,10 @@ class AxisErrors(_Model):
     """Gear friction that stays locked in: reading offset −sign(last approach) · hysteresis_nm."""
     settle_amplitude_nm: float = Field(0.0, ge=0.0, le=2000.0)
     """Amplitude of the damped oscillation after the brake-release move (Nm)."""
+    mount_offset_nm: float = Field(0.0, ge=0.0, le=200.0)
+    """σ of a reading offset fixed for one mounting of a load and new at every re-mount (Nm): how the load seats
+    on the flange, preload of the bolts, the gear's contact pattern. Table 1's points scatter about ±1 kg around any
+    smooth K; loops of one mounting cannot see it."""
     hold_temperature_rise_k: float = Field(40.0, ge=0.0, le=120.0)
     """Motor temperature rise above ambient at thermal equilibrium while holding with brakes released (K)."""
     torque_constant_nm_a: float = Field(2.0, gt=0.0, le=50.0)
@@ -110,8 +114,29 @@ class Spikes(_Model):
     amplitude_nm: float = Field(100.0, ge=0.0, le=5000.0)
 
 
+class Mounting(_Model):
+    """How a load seats on the flange, new at every (re-)mount."""
+
+    cog_shift_m: float = Field(0.0, ge=0.0, le=0.05)
+    """σ of the load's CoG shift along the flange axis per mounting (m): a real torque change on every axis, equal
+    on A3 and A5 (it cancels in eq. 3/4's mass, not in the per-axis torques of eq. 17/18)."""
+
+
+class ServerBehaviour(_Model):
+    """How the controller's C3 Bridge server behaves where the real one is slow or unknown (``[server]``); a key
+    left out takes the server's default (``simulators.krc4.server.ServerConfig``, the environment variables
+    ``RGSE_SIM_LISTING`` / ``RGSE_SIM_PATHS`` for the variants)."""
+
+    file_rate_bytes_s: float | None = Field(None, gt=0.0, le=1e10)
+    """Bytes per second of the controller's file work (a #30 Begin loads the whole file before it answers)."""
+    listing: str | None = Field(None, pattern="^(fields|bare|text)$")
+    """#21 answer format: ``fields``, ``bare`` or ``text`` (simulators.krc4.files.LISTING_VARIANTS)."""
+    path_forms: str | None = Field(None, pattern="^(any|disk|krc)$")
+    """Accepted path forms: ``any``, ``disk`` or ``krc`` (simulators.krc4.files.PATH_FORM_VARIANTS)."""
+
+
 class Scenario(_Model):
-    """All error sources of the simulated torque estimate."""
+    """All error sources of the simulated torque estimate, and the server's behaviour (``server``)."""
 
     axes: dict[str, AxisErrors] = Field(default_factory=lambda: {k: AxisErrors() for k in AXIS_KEYS})
     arm: ArmModel = ArmModel()
@@ -119,6 +144,8 @@ class Scenario(_Model):
     release: Release = Release()
     settle: Settle = Settle()
     spikes: Spikes = Spikes()
+    mounting: Mounting = Mounting()
+    server: ServerBehaviour = ServerBehaviour()
     g_m_s2: float = Field(9.81, ge=9.7, le=9.9)
     """Gravity of the simulated world (the paper uses 9.81; Bremen is 9.8134)."""
 

@@ -6,12 +6,27 @@ real servers that a client has to live with (kuka-facts §3, c3bridge-protocol �
 
 * requests are **serialised across all clients** (one lock: the real server is single-threaded) and each one
   takes ``latency_s`` (≈ 2 ms on a real KR C4);
-* bytes that arrive on a connection while its request is being served are **discarded** (C3 Bridge drops input
-  while a reply is in flight; a second request pipelined behind the first is lost);
-* at most ``max_clients`` connections (KUKAVARPROXY: 10; the 11th is closed at once); idle connections are
-  dropped after ``idle_timeout_s`` (KUKAVARPROXY: ~30 s);
-* an unknown message type or a length of 0 closes the connection without a reply; a malformed payload of a
-  known type gets error code 9.
+* **file work takes time in proportion to its bytes** and blocks every other request meanwhile: a #30 Begin loads
+  the whole file (``CopyFile2Mem``) before it answers, a #29 End writes the whole buffer (``CopyMem2File``), a
+  #24/#25 copy or move reads and writes the file, all at ``file_rate_bytes_s`` (default
+  :data:`DEFAULT_FILE_RATE_BYTES_S`, a conservative guess: the real rate is unknown and measured by ``rgse doctor``);
+* requests pipelined on one connection are **queued and answered in order**; input is discarded only while a
+  reply's send is incomplete (the transport still holds unsent reply bytes), as the real ``client.cpp`` does
+  (``discard_while_busy`` restores the stricter old model, where everything arriving while busy is dropped);
+* writes (#1, #5, #7) echo **the value text of the request**, not a read-back; ``PING`` and ``@PROXY_*`` are matched
+  **exact-case**; the version is **1.4**; #11 (motion) and #12 (KCP keys) are answered (refused with code 7: this
+  simulator never moves the robot on a protocol command), not closed;
+* an unknown message type or a length of 0 closes the connection without a reply; #0/#1 with a malformed body
+  fail with code 0 and an empty value, other malformed requests get code 9; trailing bytes after a well-formed
+  body are ignored;
+* the variants that the public source does not settle (c3bridge-real-server.md: listing info text, accepted path
+  forms) are switched by ``listing`` and ``path_forms`` (see :data:`LISTING_VARIANTS`, :data:`PATH_FORM_VARIANTS`;
+  defaults from the environment variables ``RGSE_SIM_LISTING`` / ``RGSE_SIM_PATHS``, so a whole test suite can be
+  run against each variant);
+* UDP discovery in standard mode (``udp_port``: reply to the sender's port) and legacy mode (``legacy_udp_port``,
+  KUKAVARPROXY's 6999: reply to the sender's address on ``legacy_reply_port``, 7000);
+* connections are not limited by default and never dropped for idleness (C3 Bridge's ``settings.h``); the
+  KUKAVARPROXY limits (``max_clients`` 10, ``idle_timeout_s`` ~30 s) can be switched on.
 
 Faults for tests are set at runtime on ``server.faults`` (see :class:`Faults`); what happened is counted in
 ``server.counters`` (see :class:`Counters`).
@@ -28,6 +43,8 @@ import asyncio
 import contextlib
 import datetime as dt
 import logging
+import os
+import re
 import tempfile
 import time
 from collections import Counter
@@ -38,7 +55,14 @@ from typing import Any
 
 from rgse_daemon.errors import ConfigError, ProtocolError, VariableError
 from rgse_daemon.link import frames as fr
-from simulators.krc4.files import MAX_BUFFER_BYTES, FileOpError, FileSession, ShareFiles
+from simulators.krc4.files import (
+    LISTING_VARIANTS,
+    MAX_BUFFER_BYTES,
+    PATH_FORM_VARIANTS,
+    FileOpError,
+    FileSession,
+    ShareFiles,
+)
 from simulators.krc4.variables import (
     ProgramControlError,
     ProgramHost,
@@ -52,8 +76,18 @@ log = logging.getLogger(__name__)
 PROXY_TYPE = "C3 BRIDGE INTERFACE"
 _BUILD_NAMES = {0: "OPEN SOURCE", 1: "PROPRIETARY", 2: "FREEWARE", 3: "INTERNAL BUILD"}
 #: Message types this server answers; every other type closes the connection (as the real server does for types
-#: it has no handler for). Not here: #11/#12 (motion, KCP keys: need the physics).
-HANDLED_TYPES: frozenset[int] = frozenset({0, 1, 4, 5, 6, 7, 10, 13, 14, 17, *range(20, 31), 63})
+#: it has no handler for). #11/#12 (motion, KCP keys) are answered with code 7 and move nothing.
+HANDLED_TYPES: frozenset[int] = frozenset({0, 1, 4, 5, 6, 7, 10, 11, 12, 13, 14, 17, *range(20, 31), 63})
+#: Motion (#11) and KCP keys (#12): answered with the echoed subtype byte and code 7, never executed here.
+MSG_MOTION = 11
+MSG_KCP_KEYS = 12
+#: Bytes per second of the controller's file work (Cross3 ``CopyFile2Mem``/``CopyMem2File``) unless configured: a
+#: conservative guess (no measurement of a real KR C4 is public); ``rgse doctor`` measures the real one.
+DEFAULT_FILE_RATE_BYTES_S = 100_000.0
+#: Time of one NameList / GetProperties / Delete / Create on the controller's file system (s), besides latency_s.
+FILE_META_S = 0.005
+#: Where a legacy-mode discovery answer goes (KUKAVARPROXY's clients listen there).
+LEGACY_REPLY_PORT = 7000
 #: [src] a response payload is at most 65531 bytes; longer multi-variable replies get code 10.
 MAX_REPLY_PAYLOAD = 65531
 #: A deterministic reply that is no frame at all (type 0xFF, length 0), sent by the ``garbage_next`` fault.
@@ -70,14 +104,21 @@ class ServerConfig:
     host, port:
         Where to listen; port 0 picks a free port (read it back from ``KrcServer.port``).
     max_clients:
-        KUKAVARPROXY serves at most 10 clients; further connections are closed at once.
+        Connections beyond this many are closed at once (``None``: no limit, as C3 Bridge; KUKAVARPROXY: 10).
     idle_timeout_s:
-        A connection that sends nothing for this long is dropped (KUKAVARPROXY: ~30 s).
+        A connection that sends nothing for this long is dropped (``None``: never, as C3 Bridge; KUKAVARPROXY ~30 s).
     latency_s:
         Service time of every request; requests of all clients are served one at a time.
     discard_while_busy:
-        Drop bytes that arrive on a connection while its request is being served (C3 Bridge behaviour).
-        When false, such requests are queued and answered in order instead.
+        Drop every byte that arrives on a connection while its request is being served (an older, stricter model).
+        When false (the real server), such requests are queued and answered in order; only input that arrives
+        while a reply's send is incomplete is dropped.
+    file_rate_bytes_s:
+        Speed of the controller's file work: a #30 Begin takes size / rate before it answers, and so on.
+    listing:
+        #21's answer format, one of :data:`LISTING_VARIANTS`.
+    path_forms:
+        Which path forms the file messages accept, one of :data:`PATH_FORM_VARIANTS`.
     version:
         (major, minor, build type) as reported by #13 and ``@PROXY_VERSION``; build type 0 = open source.
     hostname:
@@ -87,29 +128,49 @@ class ServerConfig:
         (which blocks every client, as on the real server) from running for hours.
     udp_port:
         Answer ``WHEREAREYOU?`` and ``@PROXY_*`` datagrams on this UDP port (0 = any free port; ``None`` = off).
+    legacy_udp_port, legacy_reply_port:
+        Legacy discovery: listen on ``legacy_udp_port`` (6999 on a real one; 0 = any, ``None`` = off) and answer
+        to the sender's address on ``legacy_reply_port``.
     max_file_buffer_bytes:
         Largest #29 buffer; a bigger Begin fails with code 4 (out of memory).
     """
 
     host: str = "127.0.0.1"
     port: int = 0
-    max_clients: int = 10
-    idle_timeout_s: float | None = 30.0
+    max_clients: int | None = None
+    idle_timeout_s: float | None = None
     latency_s: float = 0.002
-    discard_while_busy: bool = True
-    version: tuple[int, int, int] = (1, 5, 0)
+    discard_while_busy: bool = False
+    file_rate_bytes_s: float = DEFAULT_FILE_RATE_BYTES_S
+    listing: str = field(default_factory=lambda: os.environ.get("RGSE_SIM_LISTING", "fields"))
+    path_forms: str = field(default_factory=lambda: os.environ.get("RGSE_SIM_PATHS", "any"))
+    version: tuple[int, int, int] = (1, 4, 0)
     hostname: str = "KRC4-SIM"
     benchmark_max_count: int = 10
     benchmark_max_iterations: int = 100_000
     udp_port: int | None = None
+    legacy_udp_port: int | None = None
+    legacy_reply_port: int = LEGACY_REPLY_PORT
     max_file_buffer_bytes: int = MAX_BUFFER_BYTES
 
     def __post_init__(self) -> None:
         if not 0 <= self.port <= 65535:
             raise ConfigError(f"sim server port {self.port} is not 0..65535")
-        if self.udp_port is not None and not 0 <= self.udp_port <= 65535:
-            raise ConfigError(f"sim server udp_port {self.udp_port} is not 0..65535")
-        if self.max_clients < 1:
+        for key in ("udp_port", "legacy_udp_port"):
+            value = getattr(self, key)
+            if value is not None and not 0 <= value <= 65535:
+                raise ConfigError(f"sim server {key} {value} is not 0..65535")
+        if not 1 <= self.legacy_reply_port <= 65535:
+            raise ConfigError(f"sim server legacy_reply_port {self.legacy_reply_port} is not 1..65535")
+        if not self.file_rate_bytes_s > 0:
+            raise ConfigError(f"sim server file_rate_bytes_s {self.file_rate_bytes_s} must be positive")
+        if self.listing not in LISTING_VARIANTS:
+            raise ConfigError(f"sim server listing {self.listing!r} is not one of {', '.join(LISTING_VARIANTS)}"
+                              " (RGSE_SIM_LISTING)")
+        if self.path_forms not in PATH_FORM_VARIANTS:
+            raise ConfigError(f"sim server path_forms {self.path_forms!r} is not one of "
+                              f"{', '.join(PATH_FORM_VARIANTS)} (RGSE_SIM_PATHS)")
+        if self.max_clients is not None and self.max_clients < 1:
             raise ConfigError(f"sim server max_clients {self.max_clients} must be at least 1")
         if self.idle_timeout_s is not None and self.idle_timeout_s <= 0:
             raise ConfigError(f"sim server idle_timeout_s {self.idle_timeout_s} must be positive or None")
@@ -163,6 +224,7 @@ class Counters:
     bytes_discarded: int = 0
     bad_frame_closes: int = 0
     malformed_requests: int = 0
+    file_work_s: float = 0.0
     faults_fired: Counter[str] = field(default_factory=Counter)
 
 
@@ -202,7 +264,9 @@ class _Connection(asyncio.Protocol):
         if self.closed:
             return
         self._arm_idle()
-        if self.muted or (self.busy and self.server.config.discard_while_busy):
+        sending = self.transport is not None and self.transport.get_write_buffer_size() > 0
+        if self.muted or sending or (self.busy and self.server.config.discard_while_busy):
+            # [src] client.cpp: input is dropped while a reply's send is incomplete
             self.server.counters.bytes_discarded += len(data)
             return
         try:
@@ -275,10 +339,12 @@ class _Connection(asyncio.Protocol):
 
 
 class _Discovery(asyncio.DatagramProtocol):
-    """UDP discovery (c3bridge-protocol §4, standard mode): answers the sender's address and port."""
+    """UDP discovery (c3bridge-protocol §4). Standard mode answers the sender's address and port; legacy mode
+    (``reply_port`` set: KUKAVARPROXY's 6999 → 7000) answers the sender's address on ``reply_port``."""
 
-    def __init__(self, server: KrcServer) -> None:
+    def __init__(self, server: KrcServer, reply_port: int | None = None) -> None:
         self.server = server
+        self.reply_port = reply_port
         self.transport: asyncio.DatagramTransport | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
@@ -295,7 +361,8 @@ class _Discovery(asyncio.DatagramProtocol):
         else:
             answer = self.server._internal(text) if text.startswith("@") else None
         if answer is not None and self.transport is not None:
-            self.transport.sendto(answer.encode("latin-1"), addr)
+            to = addr if self.reply_port is None else (addr[0], self.reply_port)
+            self.transport.sendto(answer.encode("latin-1"), to)
 
 
 class KrcServer:
@@ -329,7 +396,9 @@ class KrcServer:
         if share_dir is None:
             self._tmp = tempfile.TemporaryDirectory(prefix="krc4-share-")
             share_dir = Path(self._tmp.name)
-        self.files = ShareFiles(share_dir)
+        self.files = ShareFiles(share_dir, listing=self.config.listing, path_forms=self.config.path_forms)
+        for folder in ("TRACE", "R1/PROGRAM"):  # every KR C4 has them
+            (self.files.root / folder).mkdir(parents=True, exist_ok=True)
         self.store = store if store is not None else VariableStore()
         self.program_host: ProgramHost = program_host or StateOnlyProgramHost(self.store, exists=self.files.exists)
         self.on_confirm_all = on_confirm_all or (lambda: self.store.update("$STOPMESS", "FALSE"))
@@ -342,6 +411,8 @@ class KrcServer:
         self._tasks: set[asyncio.Task[None]] = set()
         self._server: asyncio.Server | None = None
         self._udp: asyncio.DatagramTransport | None = None
+        self._legacy_udp: asyncio.DatagramTransport | None = None
+        self.legacy_udp_port: int | None = None
         self._stopped = asyncio.Event()
 
     # --- lifecycle ---------------------------------------------------------------------------------------------------
@@ -355,14 +426,21 @@ class KrcServer:
                 lambda: _Discovery(self), local_addr=(self.config.host, self.config.udp_port)
             )
             self.udp_port = self._udp.get_extra_info("sockname")[1]
+        if self.config.legacy_udp_port is not None:
+            reply_port = self.config.legacy_reply_port
+            self._legacy_udp, _ = await loop.create_datagram_endpoint(
+                lambda: _Discovery(self, reply_port), local_addr=(self.config.host, self.config.legacy_udp_port)
+            )
+            self.legacy_udp_port = self._legacy_udp.get_extra_info("sockname")[1]
         log.info("simulated KR C4 listening on %s:%d (share %s)", self.config.host, self.port, self.files.root)
 
     async def close(self) -> None:
         """Stop listening, drop every client, end every task (bounded: 5 s), free the temporary share."""
         if self._server is not None:
             self._server.close()
-        if self._udp is not None:
-            self._udp.close()
+        for udp in (self._udp, self._legacy_udp):
+            if udp is not None:
+                udp.close()
         for conn in list(self._connections):
             if conn.transport is not None:
                 conn.transport.abort()
@@ -404,7 +482,7 @@ class KrcServer:
 
     # --- connection bookkeeping --------------------------------------------------------------------------------------
     def _admit(self, conn: _Connection) -> bool:
-        if len(self._connections) >= self.config.max_clients:
+        if self.config.max_clients is not None and len(self._connections) >= self.config.max_clients:
             self.counters.connections_refused += 1
             log.info("refusing %s: %d clients already connected", conn.peer, len(self._connections))
             return False
@@ -438,12 +516,19 @@ class KrcServer:
                 conn.close()
                 return
             tag = (frame[0] << 8) | frame[1]
+            if msg_type in (MSG_MOTION, MSG_KCP_KEYS):
+                self._send(conn, tag, msg_type, _motion_or_key(msg_type, frame))
+                return
             try:
-                tag, req = fr.decode_request(frame)
+                req = _decode_lenient(frame)
             except ProtocolError as exc:
                 log.info("malformed request type %d from %s: %s", msg_type, conn.peer, exc)
                 self.counters.malformed_requests += 1
-                reply: fr.Reply = _failure(msg_type, _ERR.PROTOCOL)
+                # [src] #0/#1 never map a code: a malformed body fails with code 0 and an empty value; the wide
+                # messages (#4/#5 ...) answer code 9
+                ascii_types = (fr.MsgType.READ_VAR_ASCII, fr.MsgType.WRITE_VAR_ASCII)
+                code = _ERR.GENERAL if msg_type in ascii_types else _ERR.PROTOCOL
+                reply: fr.Reply = _failure(msg_type, code)
             else:
                 if self._names_trip_drop(req):
                     self.counters.faults_fired["drop_on_variable"] += 1
@@ -456,8 +541,27 @@ class KrcServer:
                     if isinstance(reply, fr.FailureReply):  # not a file operation: the generic failure layout
                         reply = _failure(msg_type, refused)
                 else:
+                    work_s = self._file_work_s(conn, req)
+                    if work_s > 0.0:
+                        self.counters.file_work_s += work_s
+                        await asyncio.sleep(work_s)  # every other request, on every connection, waits behind it
+                        if conn.closed:  # the client gave up meanwhile: its buffers are gone with it
+                            return
                     reply = self._dispatch(conn, req)
             self._send(conn, tag, msg_type, reply)
+
+    def _file_work_s(self, conn: _Connection, req: fr.Request) -> float:
+        """How long the controller's file system works on ``req`` (s): bytes moved / ``file_rate_bytes_s``."""
+        rate = self.config.file_rate_bytes_s
+        match req:
+            case fr.ReadContentBegin(file_name=name) | fr.Copy(source=name) | fr.Move(source=name):
+                return FILE_META_S + self.files.size_or_zero(name) / rate
+            case fr.WriteContentEnd():
+                assert conn.files is not None
+                return FILE_META_S + conn.files.write_size() / rate
+            case fr.NameList() | fr.GetProperties() | fr.Delete() | fr.Create() | fr.SetAttribute():
+                return FILE_META_S
+        return 0.0
 
     def _send(self, conn: _Connection, tag: int, msg_type: int, reply: fr.Reply) -> None:
         faults = self.faults
@@ -510,7 +614,8 @@ class KrcServer:
                     return fr.ReadVarAsciiReply("", code=_ERR.GENERAL, success=False)  # [src] #0 never maps
             case fr.WriteVarAscii(name=name, value=value):
                 try:
-                    return fr.WriteVarAsciiReply(self.store.write(name, value))
+                    self.store.write(name, value)
+                    return fr.WriteVarAsciiReply(value)  # [src] the request's text, not a read-back
                 except VariableError:
                     return fr.WriteVarAsciiReply("", code=_ERR.GENERAL, success=False)
             case fr.ReadVar(name=name):
@@ -520,7 +625,8 @@ class KrcServer:
                     return fr.ReadVarReply("", code=_code(exc), success=False)
             case fr.WriteVar(name=name, value=value):
                 try:
-                    return fr.WriteVarReply(self.store.write(name, value))
+                    self.store.write(name, value)
+                    return fr.WriteVarReply(value)
                 except VariableError as exc:
                     return fr.WriteVarReply("", code=_code(exc), success=False)
             case fr.ReadMulti(names=names):
@@ -529,7 +635,8 @@ class KrcServer:
                 entries = []
                 for name, value in items:
                     try:
-                        entries.append(fr.MultiEntry(_ERR.SUCCESS, self.store.write(name, value)))
+                        self.store.write(name, value)
+                        entries.append(fr.MultiEntry(_ERR.SUCCESS, value))
                     except VariableError as exc:
                         entries.append(fr.MultiEntry(_code(exc), value))  # [src] the requested value, own code
                 return self._multi(fr.WriteMultiReply, entries)
@@ -561,7 +668,7 @@ class KrcServer:
             return internal
 
     def _internal(self, name: str) -> str | None:
-        key = name.strip().upper()
+        key = name  # [src] client_variables.cpp / proxy.cpp compare exact-case: "ping" is a KRL name, not PING
         major, minor, build = self.config.version
         if key == "PING":
             return "PONG"
@@ -639,6 +746,8 @@ class KrcServer:
 
     def _file_op(self, session: FileSession, req: fr.Request) -> fr.Reply:
         try:
+            for name, folder in _file_names_of(req):
+                self.files.check_form(name, folder=folder)
             return self._file_op_unchecked(session, req)
         except FileOpError as exc:
             log.info("file operation %s refused: %s", type(req).__name__, exc)
@@ -696,8 +805,46 @@ class KrcServer:
         return fr.FailureReply(req.TYPE, code=_ERR.NOT_IMPLEMENTED)
 
 
+_TRAILING = re.compile(r"(\d+) unexpected trailing byte")
+
+
+def _decode_lenient(frame: bytes) -> fr.Request:
+    """Decode a request as the real server does: bytes after a well-formed body are ignored, not refused."""
+    try:
+        return fr.decode_request(frame)[1]
+    except ProtocolError as exc:
+        m = _TRAILING.search(str(exc))
+        if m is None or not 0 < int(m.group(1)) < len(frame) - 4:
+            raise
+        body = bytearray(frame[: len(frame) - int(m.group(1))])
+        body[2:4] = (len(body) - 4).to_bytes(2, "big")
+        return fr.decode_request(bytes(body))[1]
+
+
+def _motion_or_key(msg_type: int, frame: bytes) -> fr.Reply:
+    """#11 / #12: the reply echoes the subtype byte. This simulator moves nothing on a protocol command: code 7
+    (NotImplemented) for every subtype; a body too short for the subtype byte gets code 9."""
+    if len(frame) < 6:
+        return fr.FailureReply(msg_type, b"\x00", code=_ERR.PROTOCOL)
+    return fr.FailureReply(msg_type, frame[5:6], code=_ERR.NOT_IMPLEMENTED)
+
+
 def _code(exc: VariableError) -> int:
     return exc.code if exc.code is not None else int(_ERR.GENERAL)
+
+
+def _file_names_of(req: fr.Request) -> list[tuple[str, bool]]:
+    """The controller names a file request carries, each with whether it designates a folder to list."""
+    match req:
+        case fr.NameList(path=path):
+            return [(path, True)]
+        case fr.Copy(source=a, destination=b) | fr.Move(source=a, destination=b):
+            return [(a, False), (b, False)]
+        case (fr.SetAttribute(name=n) | fr.Create(name=n) | fr.Delete(name=n) | fr.GetProperties(name=n)
+              | fr.GetFullName(path=n) | fr.GetKrcName(path=n) | fr.WriteContentEnd(file_name=n)
+              | fr.ReadContentBegin(file_name=n)):
+            return [(n, False)]
+    return []
 
 
 def _names_of(req: fr.Request) -> Iterable[str]:

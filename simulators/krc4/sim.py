@@ -155,8 +155,9 @@ class SimulatedKrc4:
         self.model = RobotModel(_scenario(scenario), seed=seed)
         self.clock = SimClock(time_scale)
         self.store = VariableStore()
+        behaviour = {k: v for k, v in self.model.scenario.server.model_dump().items() if v is not None}
         self.server = KrcServer(
-            ServerConfig(host=host, port=port, latency_s=latency_s),
+            ServerConfig(host=host, port=port, latency_s=latency_s, **behaviour),
             Path(share_dir) if share_dir is not None else None,
             store=self.store,
         )
@@ -231,8 +232,10 @@ class SimulatedKrc4:
         return names
 
     def mount(self, payload: Payload) -> None:
-        """What is bolted onto the flange from now on (builders in ``simulators.krc4.physics``)."""
+        """What is bolted onto the flange from now on (builders in ``simulators.krc4.physics``); every mounting seats
+        a little differently (:meth:`RobotModel.new_mounting`)."""
         self.payload = payload
+        self.model.new_mounting()
 
     @property
     def truth(self) -> TraceTruth | None:

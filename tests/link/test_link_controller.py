@@ -209,7 +209,7 @@ async def test_krc_name_and_full_name_round_trip(sim: KrcServer) -> None:
 
 async def test_delete_copy_move_over_kvp_use_the_mounted_share(sim: KrcServer) -> None:
     root = sim.files.root
-    (root / "TRACE").mkdir()
+    (root / "TRACE").mkdir(exist_ok=True)
     (root / "TRACE" / "t1_KRCIpo.dat").write_bytes(b"samples")
     async with Controller.connect(cfg_for(sim, protocol="kvp", share_dir=root)) as krc:
         before = sim.counters.requests

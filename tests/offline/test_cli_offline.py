@@ -80,11 +80,25 @@ def expect_error(capsys, argv: list[str], needle: str) -> str:
     return err
 
 
-def test_out_of_range_warning(tmp_path, capsys, dirs):
-    write_measurement(tmp_path / "big", 600.0, seed=7, n_samples=600, n_loops=2)
-    res = run_json(capsys, ["mass", "--traces", str(tmp_path / "big"), "--calibration", str(dirs / "CAL.json"),
+def test_operating_point_outside_widens_u_and_far_outside_is_refused(tmp_path, capsys, dirs):
+    """A DuT a little heavier than every calibration load: a warning, U widened by the admissible models' spread;
+    far heavier: refused with the reason, unless the limit is raised."""
+    inside = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(dirs / "CAL.json"),
+                               "--json"])
+    assert inside["operating_point"] == "inside"
+    assert not any("envelope" in w for w in inside["warnings"])
+    write_measurement(tmp_path / "heavy", 420.0, seed=7, n_samples=600, n_loops=2)
+    res = run_json(capsys, ["mass", "--traces", str(tmp_path / "heavy"), "--calibration", str(dirs / "CAL.json"),
                             "--json"])
-    assert any("outside the calibrated range" in w for w in res["warnings"])
+    assert res["operating_point"] == "outside"
+    assert any("outside the calibrated envelope" in w and "A3 torque" in w for w in res["warnings"])
+    assert abs(res["mass_kg"] - 420.0) <= res["U_kg"]
+    write_measurement(tmp_path / "big", 600.0, seed=7, n_samples=600, n_loops=2)
+    expect_error(capsys, ["mass", "--traces", str(tmp_path / "big"), "--calibration", str(dirs / "CAL.json")],
+                 "far outside the calibrated envelope")
+    res = run_json(capsys, ["mass", "--traces", str(tmp_path / "big"), "--calibration", str(dirs / "CAL.json"),
+                            "--envelope-limit", "2", "--json"])
+    assert res["operating_point"] == "outside" and res["U_kg"] > 0
 
 
 def test_missing_trace(tmp_path, capsys, dirs):
@@ -200,3 +214,23 @@ def test_calibrate_refuses_a_bad_preprocessing_spec(tmp_path, capsys, dirs, spec
     expect_error(capsys, ["calibrate", "--campaign", str(dirs / "cal"), "--out", str(tmp_path / "o.json"),
                           "--preprocessing", spec], needle)
     assert not (tmp_path / "o.json").exists()
+
+
+def test_calibration_file_of_the_former_schema_still_reads(tmp_path, capsys, dirs):
+    """A CAL.json written before held-out validation, bootstrap and envelope existed: the former five-term budget."""
+    doc = json.loads((dirs / "CAL.json").read_text())
+    for key in ("validation", "uncertainty", "envelope"):
+        del doc["fit"][key]
+    for alt in doc["fit"]["alternatives"]:
+        alt.pop("uncertainty", None)
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(doc))
+    res = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(old), "--json"])
+    assert set(res["u_components_kg"]) == {"loops", "calibration", "model", "reference", "g"}
+    new = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(dirs / "CAL.json"),
+                            "--json"])
+    assert "reproducibility" in new["u_components_kg"]
+    assert res["mass_kg"] == pytest.approx(new["mass_kg"])
+    doc["fit"]["uncertainty"] = {"reproducibility": {"rms_a3_nm": 1.0}}
+    old.write_text(json.dumps(doc))
+    expect_error(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(old)], "fit.uncertainty")

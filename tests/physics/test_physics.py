@@ -164,7 +164,7 @@ def test_truth_record():
     t = model.last_truth
     assert t.payload_mass_kg == pytest.approx(100.0 + ph.MPA_MASS_KG + ph.FIXTURE_MASS_KG)
     np.testing.assert_allclose(t.true_torque_nm, model.true_torques_nm(Q, dut))
-    assert set(t.terms) == {"static", "thermal", "release", "hysteresis", "settle", "noise", "spikes"}
+    assert set(t.terms) == {"static", "mount", "thermal", "release", "hysteresis", "settle", "noise", "spikes"}
 
 
 def test_scenario_validation(tmp_path):
@@ -197,7 +197,9 @@ def test_bench_reproduces_table1():
     result = bench.run(seed=7)
     assert len(result["points"]) == 14
     assert result["mean_abs_ratio_diff"]["a3"] < 0.015
-    assert result["mean_abs_ratio_diff"]["a5"] < 0.035
+    # every point is a new mounting with its offsets (Table 1's ±1 kg scatter): at A5's small torques a few Nm
+    assert result["mean_abs_ratio_diff"]["a5"] < 0.06
+    assert 0.3 < result["scatter"]["sim"]["paper_in_sample_pct"] < 1.2
     for p in result["points"][1:]:
         assert 5.0 <= p["a3"]["sim_sigma_nm"] <= 25.0
         assert 5.0 <= p["a5"]["sim_sigma_nm"] <= 25.0

@@ -1,4 +1,4 @@
-"""``rgse demo`` as a user runs it (contracts §1): the installed CLI, a simulated KR C4 in its own process, the whole
+"""``rgse demo`` as a user runs it (interfaces §1): the installed CLI, a simulated KR C4 in its own process, the whole
 daemon; a campaign, then a 10-loop in-line measurement whose mass must agree with the simulator's truth within U."""
 
 from __future__ import annotations
@@ -36,8 +36,10 @@ def test_demo_json_agrees_with_truth_within_u(tmp_path: Path) -> None:
     err = out["mass_kg"] - out["true_mass_kg"]
     assert abs(err) <= out["U_kg"], f"measured {out['mass_kg']:.3f} ± {out['U_kg']:.3f} kg, true 107.3 kg"
     assert out["within_U"] is True
-    # U is a real uncertainty, not a blanket: at most 1 % of the mass (the paper's in-line error was 0.27 %)
-    assert 0.0 < out["U_kg"] < 0.01 * out["true_mass_kg"]
+    # U is a real uncertainty, not a blanket: at most 5 % of the mass. The simulated robot scatters per mounting as
+    # Table 1 does (about ±1 kg around any smooth K); an 11-point campaign supports U ≈ 2.5-4 kg (k = 2), the
+    # paper's own 1σ of 0.7 kg gives 1.4 kg
+    assert 0.0 < out["U_kg"] < 0.05 * out["true_mass_kg"]
     # the campaign warmed the robot to a steady thermal state, so nothing was flagged
     assert out["warnings"] == []
     assert out["overhead_s"] > 0 and out["robot_time_s"] > out["overhead_s"]

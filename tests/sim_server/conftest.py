@@ -78,3 +78,11 @@ async def client(server: KrcServer) -> AsyncIterator[RawClient]:
     c = await RawClient.open(server.port)
     yield c
     await c.close()
+
+
+@pytest.fixture(autouse=True)
+def _default_server_variant(monkeypatch: pytest.MonkeyPatch) -> None:
+    """These tests pin the simulated server's own behaviour: its default listing and path forms (a suite run with
+    RGSE_SIM_LISTING / RGSE_SIM_PATHS set exercises the clients on a variant; tests here set variants explicitly)."""
+    monkeypatch.delenv("RGSE_SIM_LISTING", raising=False)
+    monkeypatch.delenv("RGSE_SIM_PATHS", raising=False)

@@ -19,8 +19,8 @@ PING = fr.encode_request(1, fr.ReadVarAscii("PING"))
 
 
 
-async def test_eleventh_client_is_closed_at_once(share: Path) -> None:
-    async with KrcServer(ServerConfig(latency_s=0.0), share) as srv:
+async def test_kvp_client_limit_when_configured_closes_the_eleventh(share: Path) -> None:
+    async with KrcServer(ServerConfig(latency_s=0.0, max_clients=10), share) as srv:
         clients = [await RawClient.open(srv.port) for _ in range(10)]
         try:
             for c in clients:
@@ -48,12 +48,12 @@ async def test_idle_client_is_dropped(share: Path) -> None:
         assert srv.counters.idle_drops == 1
 
 
-async def test_bytes_arriving_while_busy_are_discarded(share: Path) -> None:
-    async with KrcServer(ServerConfig(latency_s=0.3), share) as srv:
+async def test_strict_model_discards_bytes_arriving_while_busy(share: Path) -> None:
+    async with KrcServer(ServerConfig(latency_s=0.3, discard_while_busy=True), share) as srv:
         c = await RawClient.open(srv.port)
         try:
             second = fr.encode_request(2, fr.ReadVarAscii("$MODE_OP"))
-            await c.send(PING + second)  # a pipelined second request: lost, as on the real server
+            await c.send(PING + second)  # a pipelined second request: lost in the strict model
             tag, rsp = fr.decode_response(await c.frame())
             assert (tag, rsp) == (1, fr.ReadVarAsciiReply("PONG"))
             assert srv.counters.bytes_discarded == len(second)
@@ -64,8 +64,8 @@ async def test_bytes_arriving_while_busy_are_discarded(share: Path) -> None:
             await c.close()
 
 
-async def test_queueing_instead_of_discarding_when_configured(share: Path) -> None:
-    async with KrcServer(ServerConfig(latency_s=0.05, discard_while_busy=False), share) as srv:
+async def test_pipelined_requests_are_queued_and_answered_in_order(share: Path) -> None:
+    async with KrcServer(ServerConfig(latency_s=0.05), share) as srv:  # the real server's default
         c = await RawClient.open(srv.port)
         try:
             await c.send(PING + fr.encode_request(2, fr.ReadVarAscii("$MODE_OP")))

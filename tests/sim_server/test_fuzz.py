@@ -53,9 +53,14 @@ async def test_every_whole_frame_of_a_handled_type_gets_one_reply(share, frame: 
     async with KrcServer(ServerConfig(**_CONFIG), share) as srv:
         c = await RawClient.open(srv.port)
         try:
-            tag, rsp = fr.decode_response(await c.raw(frame))
+            raw = await c.raw(frame)
         finally:
             await c.close()
+        if frame[4] in (11, 12):  # motion / KCP keys: refused, the subtype echoed (frames has no layout for them)
+            assert raw[:2] == frame[:2] and raw[4] == frame[4] and raw[-1] == 0
+            await _still_serving(srv)
+            return
+        tag, rsp = fr.decode_response(raw)
         assert tag == struct.unpack(">H", frame[:2])[0]
         msg_type = rsp.msg_type if isinstance(rsp, fr.FailureReply) else rsp.TYPE
         assert msg_type == frame[4]

@@ -61,7 +61,7 @@ async def test_internal_variables_answer_over_0_4_and_6(server: KrcServer, clien
     assert await client.call(fr.ReadVarAscii("PING")) == fr.ReadVarAsciiReply("PONG")
     assert await client.call(fr.ReadVar("@PROXY_TYPE")) == fr.ReadVarReply(PROXY_TYPE)
     version = await client.call(fr.ReadVarAscii("@PROXY_VERSION"))
-    assert version == fr.ReadVarAsciiReply("1.5 (OPEN SOURCE)")
+    assert version == fr.ReadVarAsciiReply("1.4 (OPEN SOURCE)")
     multi = await client.call(fr.ReadMulti(("@PROXY_HOSTNAME", "@PROXY_ADDRESS", "@PROXY_ENABLED", "@PROXY_TIME")))
     assert isinstance(multi, fr.ReadMultiReply) and multi.ok
     host, addr, enabled, utc = (e.value for e in multi.entries)
@@ -77,14 +77,14 @@ async def test_internal_variables_answer_over_0_4_and_6(server: KrcServer, clien
 async def test_proxy_info_and_features(client: RawClient) -> None:
     info = await client.call(fr.ProxyInfo())
     assert isinstance(info, fr.ProxyInfoReply) and info.ok
-    assert (info.major, info.minor, info.build_type, info.computer_name) == (1, 5, 0, "KRC4-SIM")
+    assert (info.major, info.minor, info.build_type, info.computer_name) == (1, 4, 0, "KRC4-SIM")
     year, month, weekday, day, hour, minute, second, ms = info.utc
     assert year >= 2024 and 1 <= month <= 12 and 0 <= weekday <= 6 and 1 <= day <= 31
     assert hour < 24 and minute < 60 and second < 61 and ms < 1000
     features = await client.call(fr.ProxyFeatures())
     assert isinstance(features, fr.ProxyFeaturesReply)
     assert features.types == HANDLED_TYPES
-    assert {0, 1, 4, 5, 6, 7, 10, 13, 14, 17, *range(20, 31), 63} == features.types  # [src] minus #11/#12
+    assert {0, 1, 4, 5, 6, 7, 10, 11, 12, 13, 14, 17, *range(20, 31), 63} == features.types  # [src]
 
 
 async def test_failed_reads_and_writes_follow_the_real_server(server: KrcServer, client: RawClient) -> None:
@@ -113,11 +113,11 @@ async def test_read_multiple_too_long_is_code_10(server: KrcServer, client: RawC
     assert rsp == fr.ReadMultiReply((), code=10, success=False)
 
 
-async def test_write_multiple_reads_back_the_value(server: KrcServer, client: RawClient) -> None:
+async def test_write_multiple_echoes_the_request_text(server: KrcServer, client: RawClient) -> None:
     server.store.declare_global("RGSE_SPEED", Kind.REAL, "0.0")
     rsp = await client.call(fr.WriteMulti((("$OV_PRO", "50"), ("rgse_speed", "2"), ("$MODE_OP", "#AUT"))))
-    assert rsp == fr.WriteMultiReply(
-        (fr.MultiEntry(1, "50"), fr.MultiEntry(1, "2.0"), fr.MultiEntry(2, "#AUT")), code=0, success=False
+    assert rsp == fr.WriteMultiReply(  # [src] the request's text, not the controller's "2.0"
+        (fr.MultiEntry(1, "50"), fr.MultiEntry(1, "2"), fr.MultiEntry(2, "#AUT")), code=0, success=False
     )
     assert server.store.read("RGSE_SPEED") == "2.0"
 
@@ -166,7 +166,7 @@ async def test_confirm_all_clears_the_stop_message(server: KrcServer, client: Ra
 
 
 async def test_unknown_type_closes_the_connection_without_reply(server: KrcServer) -> None:
-    for frame in (hx("00 01 00 01 02"), hx("00 01 00 01 63"), hx("00 01 00 03 0B 01 00")):
+    for frame in (hx("00 01 00 01 02"), hx("00 01 00 01 63"), hx("00 01 00 03 08 01 00")):
         c = await RawClient.open(server.port)
         await c.send(frame)
         assert await c.at_eof()
@@ -179,9 +179,9 @@ async def test_length_zero_closes_the_connection(server: KrcServer, client: RawC
     assert await client.at_eof()
 
 
-async def test_malformed_payload_of_a_known_type_is_code_9(server: KrcServer, client: RawClient) -> None:
+async def test_malformed_read_is_code_0_with_an_empty_value(server: KrcServer, client: RawClient) -> None:
     rsp = await client.raw(hx("00 05 00 03 00 00 09"))  # #0 announcing a 9-byte name it does not carry
-    assert rsp == hx("00 05 00 06 00 00 00 00 09 00")
+    assert rsp == hx("00 05 00 06 00 00 00 00 00 00")
     assert await client.call(fr.ReadVarAscii("PING")) == fr.ReadVarAsciiReply("PONG")  # connection still usable
     assert server.counters.malformed_requests == 1
 

@@ -20,6 +20,7 @@ import numpy as np
 from rgse_daemon import kinematics as kin
 from rgse_daemon.manifest import Loop, Manifest, PointSpec, Setup
 from simulators.krc4 import physics as ph
+from simulators.krc4.scenario import Scenario
 from simulators.krc4.tracefiles import write_trace_set
 
 ROBOT = "KR500R2830-SIM"
@@ -47,9 +48,13 @@ class SimMeasurement:
 
 
 def _measure(model: ph.RobotModel, payload: ph.Payload, n_loops: int, n_samples: int, period_s: float,
-             prefix: str) -> list[Loop]:
+             prefix: str, warm_s: float = 0.0) -> list[Loop]:
+    """One mounting of ``payload`` and its loops; ``warm_s``: the drives hold (and heat) that long first."""
     q = kin.measurement_pose()
     model.apply_brakes(CHANGE_BODIES_S)
+    model.new_mounting()
+    if warm_s > 0:
+        model.hold(warm_s)
     out = []
     for k in range(n_loops):
         model.brake_release_move(q)
@@ -66,9 +71,11 @@ def _bodies(masses_kg: np.ndarray, template: tuple[ph.RigidBody, ...]) -> tuple[
 
 
 def simulate_campaign(seed: int, n_loops: int = 3, n_samples: int = 250, period_s: float = 0.012,
-                      body_mass_u_kg: float = 0.01) -> tuple[SimCampaign, ph.RobotModel]:
-    """A Table-1-like campaign: MPA, MPA + 1..10 bodies, three torque rows (10 bodies on the test adapter)."""
-    model = ph.RobotModel(seed=seed)
+                      body_mass_u_kg: float = 0.01, scenario: Scenario | None = None
+                      ) -> tuple[SimCampaign, ph.RobotModel]:
+    """A Table-1-like campaign: MPA, MPA + 1..10 bodies, three torque rows (10 bodies on the test adapter); every
+    point a new mounting."""
+    model = ph.RobotModel(scenario, seed=seed)
     rng = np.random.default_rng(10_000 + seed)
     true_cb = ph.CB_MASS_KG + rng.normal(0.0, body_mass_u_kg, ph.N_CB_MAX)
     true_ta = ph.TA_MASS_KG + rng.normal(0.0, body_mass_u_kg)
@@ -96,10 +103,11 @@ def simulate_campaign(seed: int, n_loops: int = 3, n_samples: int = 250, period_
 
 
 def simulate_measurement(model: ph.RobotModel, dut_mass_kg: float, dut_cog_z_m: float = 0.25, n_loops: int = 3,
-                         n_samples: int = 250, period_s: float = 0.012) -> SimMeasurement:
-    """A DuT on the ReFEx fixture on the MPA, measured after the campaign on the same simulated robot."""
+                         n_samples: int = 250, period_s: float = 0.012, warm_s: float = 0.0) -> SimMeasurement:
+    """A DuT on the ReFEx fixture on the MPA, measured after the campaign on the same simulated robot; ``warm_s``:
+    the drives hold that long before the loops (a warmer robot than during the campaign)."""
     payload = ph.dut_payload(dut_mass_kg, (0.0, 0.0, dut_cog_z_m))
-    return SimMeasurement(_measure(model, payload, n_loops, n_samples, period_s, "dut"), dut_mass_kg,
+    return SimMeasurement(_measure(model, payload, n_loops, n_samples, period_s, "dut", warm_s), dut_mass_kg,
                           ph.FIXTURE_MASS_KG)
 
 

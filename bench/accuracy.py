@@ -1,0 +1,148 @@
+"""Accuracy of the in-line mass over seeds and scenarios: one table (issue #18).
+
+Each repetition is a whole story on the simulated KR 500 (``simulators.krc4.physics``, default scenario: Table 1's
+gains, thermal drift, settling, noise, spikes, per-mounting offsets): a Table-1-like campaign (every point a new
+mounting), the calibration, one DuT of random mass (20-230 kg) on the fixture, a new mounting, its loops. The same
+code path as ``rgse calibrate --campaign`` / ``rgse mass`` after reading the trace files (offline, no socket).
+
+Scenarios: ``12ms`` (the paper's trace rate, DuT near the mass-stack pose), ``4ms`` (the same at 4 ms), ``lever``
+(DuT CoG out to the torque points' levers), ``no-mount`` (no per-mounting scatter), ``warm`` (DuT measured after
+15 min of holding: a thermal mismatch with the campaign). Rows: ``paper`` (eq. 19/20), ``auto`` (the selection of
+``--method auto``) and the best single catalogue model of the scenario. Columns: mean |err| %, max |err| kg,
+coverage of ±U (k = 2), mean U kg, refused (far outside the envelope), and the loop-and-mount noise floor.
+
+Goals: mean |err| ≤ 0.3 % without per-mount scatter; ≤ 1.2 × the noise floor with it; coverage 90-99 %.
+
+Run: ``.venv/bin/python bench/accuracy.py [--seeds N] [--json]`` (about 3 min for 12 seeds on 2 cores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' simulated campaigns
+
+from rgse_daemon.analysis.calibration import CampaignData, campaign_points
+from rgse_daemon.pipeline import calibration as cal_mod
+from rgse_daemon.pipeline import inline
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import uncertainty as unc
+from rgse_daemon.pipeline.envelope import Envelope, OperatingPointError
+from simulators.krc4.scenario import default_scenario
+from tests.support.simcampaign import G, simulate_campaign, simulate_measurement
+
+SINGLE = ("axis-linear", "axis-quad", "axis-log", "ratio-linear")
+SCENARIOS = {
+    "12ms": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35)},
+    "4ms": {"period_s": 0.004, "n_samples": 750, "cog": (0.05, 0.35)},
+    "lever": {"period_s": 0.012, "n_samples": 250, "cog": (0.35, 0.95)},
+    "no-mount": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35), "no_mount": True},
+    "warm": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35), "warm_s": 900.0},
+}
+
+
+def _scenario(no_mount: bool):
+    sc = default_scenario()
+    if not no_mount:
+        return sc
+    axes = {k: a.model_copy(update={"mount_offset_nm": 0.0}) for k, a in sc.axes.items()}
+    return sc.model_copy(update={"axes": axes, "mounting": sc.mounting.model_copy(update={"cog_shift_m": 0.0})})
+
+
+def repetition(name: str, seed: int) -> dict:
+    spec = SCENARIOS[name]
+    sc = _scenario(spec.get("no_mount", False))
+    camp, model = simulate_campaign(seed, period_s=spec["period_s"], n_samples=spec["n_samples"], scenario=sc)
+    dr = camp.manifest.setup.lever_difference_m
+    data = CampaignData(camp.manifest, [[(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point]
+                                        for point in camp.loops], [])
+    points, bias3, bias5 = campaign_points(data, pp.PAPER)
+    evaluations = cal_mod.evaluate_all(points, G, dr)
+    by = {e.method: e for e in evaluations}
+    chosen = cal_mod.select_auto(evaluations)
+    rng = np.random.default_rng(900 + seed)
+    dut_kg, cog = float(rng.uniform(20.0, 230.0)), float(rng.uniform(*spec["cog"]))
+    meas = simulate_measurement(model, dut_kg, cog, period_s=spec["period_s"], n_samples=spec["n_samples"],
+                                warm_s=spec.get("warm_s", 0.0))
+    loops = [(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in meas.loops]
+    env = Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm)
+    cache: dict[str, tuple] = {}
+
+    def model_of(method: str):
+        if method not in cache:
+            cache[method] = (cal_mod.fit(points, method, G, dr),
+                             unc.calibration_uncertainty(points, method, G, dr, by[method].heldout_residual_nm))
+        return cache[method]
+
+    limit = unc.PLAUSIBLE_LOO_FACTOR * chosen.loo_mean_abs_err_pct
+    alts = [e.method for e in evaluations if e.method != chosen.method and e.admissible
+            and e.loo_mean_abs_err_pct <= limit]
+    out = {"dut_kg": dut_kg}
+    for row, method, alternatives in (("paper", "paper", []), ("auto", chosen.method, alts),
+                                      *((m, m, []) for m in SINGLE)):
+        cal, cu = model_of(method)
+        try:
+            r = inline.in_line_mass(loops, cal, bias3, bias5, pp.PAPER, meas.fixture_mass_kg,
+                                    alternatives=[model_of(a)[0] for a in alternatives], uncertainty=cu,
+                                    alternative_uncertainty=[model_of(a)[1] for a in alternatives], envelope=env)
+        except OperatingPointError:
+            out[row] = None
+            continue
+        out[row] = {"err_kg": r.mass_kg - dut_kg, "U_kg": r.uncertainty.expanded_kg,
+                    "u_loops_kg": r.uncertainty.u_loops_kg}
+    return out
+
+
+def summarise(runs: list[dict], row: str, mount_sigma_kg: float) -> dict:
+    ok = [(r[row], r["dut_kg"]) for r in runs if r.get(row) is not None]
+    err = np.array([o["err_kg"] for o, _ in ok])
+    pct = np.array([abs(o["err_kg"]) / m * 100 for o, m in ok])
+    big_u = np.array([o["U_kg"] for o, _ in ok])
+    loops = np.array([o["u_loops_kg"] for o, _ in ok])
+    floor = float(np.sqrt(2 / np.pi) * np.sqrt(mount_sigma_kg**2 + np.mean(loops**2))) if ok else float("nan")
+    return {"n": len(ok), "refused": len(runs) - len(ok),
+            "mean_abs_err_pct": float(pct.mean()) if ok else float("nan"),
+            "mean_abs_err_kg": float(np.abs(err).mean()) if ok else float("nan"),
+            "max_abs_err_kg": float(np.abs(err).max()) if ok else float("nan"),
+            "coverage": float(np.mean(np.abs(err) <= big_u)) if ok else float("nan"),
+            "mean_U_kg": float(big_u.mean()) if ok else float("nan"), "noise_floor_kg": floor}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=12)
+    ap.add_argument("--scenario", action="append", choices=sorted(SCENARIOS))
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    t0 = time.monotonic()
+    table = {}
+    for name in args.scenario or list(SCENARIOS):
+        runs = [repetition(name, seed) for seed in range(args.seeds)]
+        sc = _scenario(SCENARIOS[name].get("no_mount", False))
+        mount_sigma_kg = float(np.hypot(sc.axis(3).mount_offset_nm, sc.axis(5).mount_offset_nm) / (G * 1.025))
+        rows = {row: summarise(runs, row, mount_sigma_kg) for row in ("paper", "auto", *SINGLE)}
+        best = min(SINGLE, key=lambda m: rows[m]["mean_abs_err_pct"])
+        table[name] = {"paper": rows["paper"], "auto": rows["auto"], f"best single ({best})": rows[best]}
+    if args.json:
+        print(json.dumps({"bench": "accuracy", "seeds": args.seeds, "table": table,
+                          "seconds": round(time.monotonic() - t0, 1)}))
+        return 0
+    print(f"{'scenario':9s} {'row':26s} {'n':>3s} {'mean|err|%':>10s} {'max|err|kg':>10s} {'cover ±U':>8s} "
+          f"{'mean U kg':>9s} {'refused':>7s} {'floor kg':>8s} {'|err|/floor':>11s}")
+    for name, rows in table.items():
+        for row, s in rows.items():
+            print(f"{name:9s} {row:26s} {s['n']:3d} {s['mean_abs_err_pct']:10.3f} {s['max_abs_err_kg']:10.3f} "
+                  f"{100 * s['coverage']:7.0f}% {s['mean_U_kg']:9.3f} {s['refused']:7d} {s['noise_floor_kg']:8.3f} "
+                  f"{s['mean_abs_err_kg'] / s['noise_floor_kg']:11.2f}")
+    print(f"{args.seeds} seeds per scenario, {time.monotonic() - t0:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

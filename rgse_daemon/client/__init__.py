@@ -1,0 +1,24 @@
+"""The daemon's Python client for scripted campaigns: :class:`RgseClient` (asyncio) and :class:`SyncClient` (for
+notebooks and plain scripts), over the daemon's MQTT commands."""
+
+from rgse_daemon.client.client import PromptHandler, RgseClient, Run
+from rgse_daemon.client.sync import SyncClient, SyncRun
+from rgse_daemon.client.types import (
+    CalibrationResult,
+    CampaignPoint,
+    DaemonState,
+    MeasurementResult,
+    ProgressEvent,
+    Prompt,
+    Refused,
+    Result,
+    RunFailed,
+    WaitTimeout,
+    load_points,
+)
+
+__all__ = [
+    "CalibrationResult", "CampaignPoint", "DaemonState", "MeasurementResult", "ProgressEvent", "Prompt",
+    "PromptHandler", "Refused", "Result", "RgseClient", "Run", "RunFailed", "SyncClient", "SyncRun", "WaitTimeout",
+    "load_points",
+]

@@ -1,0 +1,245 @@
+"""What the Python client hands back: the daemon's messages (docs/interfaces.md §4.2) as typed, frozen records.
+
+Each record keeps the daemon's whole JSON object in ``raw``: the payloads are open (fields may be added), the
+typed fields are the stable (S) ones a script relies on.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import ValidationError
+
+from rgse_daemon.errors import DataError, RgseError
+from rgse_daemon.io.commands import CalibrationPoint
+
+#: Engine states after which a run is over (the state persists until the next run).
+TERMINAL = frozenset({"done", "failed", "aborted"})
+
+
+class Refused(RgseError):
+    """The daemon answered a command with ``ok: false``; ``reason`` is its words (exit status 1)."""
+
+    def __init__(self, verb: str, reason: str) -> None:
+        super().__init__(f"cmd/{verb} refused by the daemon: {reason}")
+        self.verb = verb
+        self.reason = reason
+
+
+class RunFailed(RgseError):
+    """A run ended ``failed`` or ``aborted``; ``reason`` says why as far as the daemon said it (exit status 1)."""
+
+    def __init__(self, run_id: str, state: str, reason: str) -> None:
+        super().__init__(f"run {run_id} {state}: {reason}")
+        self.run_id = run_id
+        self.state = state
+        self.reason = reason
+
+
+class WaitTimeout(RgseError):
+    """What a wait was for did not happen within its deadline (exit status 1: the work did not finish)."""
+
+
+def _f(doc: dict[str, Any], key: str) -> float | None:
+    value = doc.get(key)
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else None
+
+
+def _i(doc: dict[str, Any], key: str) -> int | None:
+    value = doc.get(key)
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def _s(doc: dict[str, Any], key: str) -> str | None:
+    value = doc.get(key)
+    return value if isinstance(value, str) else None
+
+
+@dataclass(frozen=True)
+class DaemonState:
+    """The daemon's retained ``state`` (§4.2)."""
+
+    engine: str
+    run_id: str | None
+    run_kind: str | None
+    connected: bool
+    time: str | None
+    mode_op: str | None
+    motor_temps_k: tuple[float, ...] | None
+    raw: dict[str, Any] = field(repr=False)
+
+    @classmethod
+    def of(cls, doc: dict[str, Any]) -> DaemonState:
+        ctl = doc.get("controller") if isinstance(doc.get("controller"), dict) else {}
+        temps = ctl.get("motor_temps_k")
+        return cls(
+            engine=str(doc.get("engine", "?")),
+            run_id=_s(doc, "run_id"),
+            run_kind=_s(doc, "run_kind"),
+            connected=doc.get("connected") is True,
+            time=_s(doc, "time"),
+            mode_op=_s(ctl, "mode_op"),
+            motor_temps_k=tuple(float(t) for t in temps if isinstance(t, int | float)) if isinstance(temps, list)
+            else None,
+            raw=doc,
+        )
+
+
+@dataclass(frozen=True)
+class ProgressEvent:
+    """One engine event of a run (§4.2 ``progress``)."""
+
+    kind: str
+    time: float
+    run_id: str
+    message: str = ""
+    step: str | None = None
+    loop_index: int | None = None
+    loop_count: int | None = None
+    eta_s: float | None = None
+    data: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, run_id: str, doc: dict[str, Any]) -> ProgressEvent:
+        data = doc.get("data")
+        return cls(kind=str(doc.get("kind", "?")), time=_f(doc, "time") or 0.0, run_id=run_id,
+                   message=_s(doc, "message") or "", step=_s(doc, "step"), loop_index=_i(doc, "loop_index"),
+                   loop_count=_i(doc, "loop_count"), eta_s=_f(doc, "eta_s"),
+                   data=data if isinstance(data, dict) else {})
+
+    @property
+    def state(self) -> str | None:
+        """The new engine state of a ``state`` event."""
+        return str(self.data.get("state")) if self.kind == "state" else None
+
+
+@dataclass(frozen=True)
+class Prompt:
+    """The daemon waits for the operator: mount this load of campaign point ``point_index`` (0-based), confirm."""
+
+    run_id: str
+    point_index: int
+    kind: str
+    mass_kg: float | None
+    lever_a3_m: float | None
+    lever_a5_m: float | None
+    n_cb: int | None
+    cb_lever_a5_m: float | None
+    message: str
+
+    @classmethod
+    def of(cls, ev: ProgressEvent) -> Prompt:
+        d = ev.data
+        return cls(run_id=ev.run_id, point_index=_i(d, "point_index") or 0, kind=str(d.get("kind", "?")),
+                   mass_kg=_f(d, "mass_kg"), lever_a3_m=_f(d, "lever_a3_m"), lever_a5_m=_f(d, "lever_a5_m"),
+                   n_cb=_i(d, "n_cb"), cb_lever_a5_m=_f(d, "cb_lever_a5_m"), message=ev.message)
+
+
+@dataclass(frozen=True)
+class MeasurementResult:
+    """The result of a measurement run (§4.2 ``result``; the fields of ``rgse mass --json``)."""
+
+    run_id: str
+    robot: str | None
+    mass_kg: float
+    u_kg: float | None
+    U_kg: float | None
+    k: float | None
+    gross_mass_kg: float | None
+    fixture_mass_kg: float | None
+    loops: int | None
+    calibration_id: str | None
+    method: str | None
+    warnings: tuple[str, ...]
+    raw: dict[str, Any] = field(repr=False)
+
+    @classmethod
+    def of(cls, run_id: str, doc: dict[str, Any]) -> MeasurementResult:
+        mass = _f(doc, "mass_kg")
+        if mass is None:
+            raise DataError(f"run {run_id}: result without a numeric mass_kg: {sorted(doc)}")
+        return cls(run_id=run_id, robot=_s(doc, "robot"), mass_kg=mass, u_kg=_f(doc, "u_kg"), U_kg=_f(doc, "U_kg"),
+                   k=_f(doc, "k"), gross_mass_kg=_f(doc, "gross_mass_kg"), fixture_mass_kg=_f(doc, "fixture_mass_kg"),
+                   loops=_i(doc, "loops"), calibration_id=_s(doc, "calibration_id"), method=_s(doc, "method"),
+                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc)
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """The result of a calibration campaign (§4.2 ``result``; the object of ``rgse calibrate --json``)."""
+
+    run_id: str
+    robot: str | None
+    calibration_id: str
+    method: str | None
+    points: int | None
+    in_sample_mean_abs_err_pct: float | None
+    loo_mean_abs_err_pct: float | None
+    loo_max_abs_err_kg: float | None
+    warnings: tuple[str, ...]
+    raw: dict[str, Any] = field(repr=False)
+
+    @classmethod
+    def of(cls, run_id: str, doc: dict[str, Any]) -> CalibrationResult:
+        cal = _s(doc, "calibration_id")
+        if cal is None:
+            raise DataError(f"run {run_id}: calibration result without a calibration_id: {sorted(doc)}")
+        return cls(run_id=run_id, robot=_s(doc, "robot"), calibration_id=cal, method=_s(doc, "method"),
+                   points=_i(doc, "points"), in_sample_mean_abs_err_pct=_f(doc, "in_sample_mean_abs_err_pct"),
+                   loo_mean_abs_err_pct=_f(doc, "loo_mean_abs_err_pct"),
+                   loo_max_abs_err_kg=_f(doc, "loo_max_abs_err_kg"),
+                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc)
+
+
+Result = MeasurementResult | CalibrationResult
+RunKind = Literal["measurement", "calibration"]
+
+
+@dataclass(frozen=True)
+class CampaignPoint:
+    """One load configuration of a campaign, as the ``calibrate`` command takes it."""
+
+    kind: Literal["zero", "mass", "torque"]
+    mass_kg: float
+    lever_a3_m: float
+    lever_a5_m: float
+
+    def as_command(self) -> dict[str, Any]:
+        return {"kind": self.kind, "mass_kg": self.mass_kg, "lever_a3_m": self.lever_a3_m,
+                "lever_a5_m": self.lever_a5_m}
+
+
+#: Keys of a ``[[point]]`` in a points file; a manifest's per-point trace keys are allowed and ignored.
+POINT_KEYS = ("kind", "mass_kg", "lever_a3_m", "lever_a5_m")
+IGNORED_KEYS = ("traces", "trace", "bodies", "name")
+
+
+def load_points(path: Path) -> list[CampaignPoint]:
+    """The campaign of a TOML points file: ``[[point]]`` tables with ``kind``, ``mass_kg``, ``lever_a3_m``,
+    ``lever_a5_m`` (a campaign ``manifest.toml`` also qualifies: its trace keys are ignored). Each point is checked
+    with the daemon's own schema; :class:`DataError` names the file, the point and the problem."""
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise DataError(f"{path}: cannot read the points file: {exc}") from exc
+    raw = doc.get("point")
+    if not isinstance(raw, list) or not raw:
+        raise DataError(f"{path}: no [[point]] tables")
+    points = []
+    for i, p in enumerate(raw, start=1):
+        where = f"{path} [[point]] #{i}"
+        if not isinstance(p, dict):
+            raise DataError(f"{where}: not a table")
+        unknown = sorted(set(p) - set(POINT_KEYS) - set(IGNORED_KEYS))
+        if unknown:
+            raise DataError(f"{where}: unknown key(s) {', '.join(unknown)}; expected {', '.join(POINT_KEYS)}")
+        try:
+            cp = CalibrationPoint.model_validate({k: p[k] for k in POINT_KEYS if k in p}, strict=False)
+        except ValidationError as exc:
+            problems = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in exc.errors())
+            raise DataError(f"{where}: {problems}") from None
+        points.append(CampaignPoint(cp.kind, cp.mass_kg, cp.lever_a3_m, cp.lever_a5_m))
+    return points

@@ -1,0 +1,176 @@
+"""``rgse run measure|calibrate --config FILE [...]``: start a run on the running daemon and follow it to its
+result, for shell scripts (on :mod:`rgse_daemon.client`).
+
+``rgse run measure --config FILE [--loops N] [--fixture-mass KG] [--dry-run]``
+``rgse run calibrate --config FILE [--points FILE.toml] [--method M]``
+common: ``[--on-prompt stdin|wait] [--timeout S] [--report DIR] [--json]``
+
+Progress goes to stderr, one line per event; the result to stdout (``--json``: the daemon's result object, one
+line). A prompt ("mount 5 calibration bodies") is printed on stderr; with ``--on-prompt stdin`` (the default) one
+line read from stdin confirms it (a non-empty line is the note recorded with the confirmation, end of input aborts
+the run); with ``wait`` the prompt is answered elsewhere (``rgse confirm``, the console). The run is aborted when
+``--timeout`` (default 3600 s, the whole run) passes or the command is interrupted: a script that stops following
+does not leave the robot running unwatched.
+
+Exit 0 when the run is done; 1 when the daemon refused it, it failed or was aborted, or the deadline passed; 2 on
+a bad configuration, points file or option, or when the broker is unreachable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import os
+import sys
+from collections.abc import Awaitable, Callable
+
+from rgse_daemon.client import (
+    Prompt,
+    Refused,
+    RgseClient,
+    Run,
+    RunFailed,
+    WaitTimeout,
+    load_points,
+)
+from rgse_daemon.commands.operator_cli import run_operator
+from rgse_daemon.errors import EXIT_FAILED, EXIT_OK, ConfigError
+
+DEFAULT_RUN_TIMEOUT_S = 3600.0
+#: Bound of the abort sent when the command gives up on a run.
+ABORT_S = 5.0
+
+
+def _say(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+class StdinLines:
+    """Lines of stdin, read without blocking the loop (one reader for the whole command: none is lost between
+    prompts); ``None`` at the end of input."""
+
+    def __init__(self) -> None:
+        self._reader: asyncio.StreamReader | None = None
+        self._transport: asyncio.BaseTransport | None = None
+
+    async def line(self) -> str | None:
+        if self._reader is None:
+            reader = asyncio.StreamReader()
+            pipe = os.fdopen(os.dup(sys.stdin.fileno()), "rb", buffering=0)  # closing it leaves fd 0 open
+            try:
+                self._transport, _ = await asyncio.get_running_loop().connect_read_pipe(
+                    lambda: asyncio.StreamReaderProtocol(reader), pipe)
+            except ValueError:  # a regular file (or /dev/null): reading it never blocks
+                pipe.close()
+                text = sys.stdin.readline()
+                return text or None
+            self._reader = reader
+        raw = await self._reader.readline()
+        return raw.decode(errors="replace") if raw else None
+
+    def close(self) -> None:
+        if self._transport is not None:
+            self._transport.close()
+
+
+def answer_on(stdin: StdinLines) -> Callable[[Prompt], Awaitable[str | None]]:
+    async def answer(prompt: Prompt) -> str | None:
+        _say(f"rgse run: point {prompt.point_index}: {prompt.message} (press Enter when done; a note may be typed)")
+        line = await stdin.line()
+        if line is None:
+            raise RunFailed(prompt.run_id, "aborted", "end of input on stdin: nobody to confirm the prompt")
+        return line.strip() or None
+
+    return answer
+
+
+def tell(prompt: Prompt) -> None:
+    _say(f"rgse run: point {prompt.point_index}: {prompt.message} (waiting for the operator's confirmation)")
+
+
+async def follow(rgse: RgseClient, run: Run, args: argparse.Namespace, timeout_s: float) -> int:
+    """Follow ``run`` to its end (printing progress), answer its prompts, print the result."""
+    assert run.run_id is not None
+    _say(f"rgse run: {run.kind} run {run.run_id} started")
+
+    async def printer() -> None:
+        async for ev in run.events(timeout_s):
+            detail = ev.message or ev.step or ev.state or ""
+            if ev.kind == "loop" and ev.loop_index is not None:
+                detail = f"{ev.loop_index}/{ev.loop_count}" + (f", eta {ev.eta_s:.0f} s" if ev.eta_s else "")
+            _say(f"rgse run: {ev.kind}: {detail}")
+
+    stdin = StdinLines()
+    printing = asyncio.create_task(printer(), name="rgse-run-progress")
+    try:
+        if args.on_prompt == "stdin":
+            result = await run.wait(timeout_s, answer_on(stdin))
+        else:
+            result = await run.wait(timeout_s, tell, confirm=False)
+    finally:
+        stdin.close()
+        printing.cancel()
+        await asyncio.gather(printing, return_exceptions=True)
+    assert result is not None
+    if args.json:
+        print(json.dumps(result.raw))
+    elif run.kind == "measurement":
+        r = result.raw
+        print(f"run {run.run_id}: mass {r.get('mass_kg', float('nan')):.3f} kg, U {r.get('U_kg', float('nan')):.3f}"
+              f" kg (k = {r.get('k', 2)})")
+    else:
+        print(f"run {run.run_id}: calibration {result.raw.get('calibration_id')}, LOO mean |error| "
+              f"{result.raw.get('loo_mean_abs_err_pct', float('nan')):.2f} %")
+    if args.report is not None:
+        calibration_id = result.raw.get("calibration_id") if run.kind == "calibration" else None
+        path = await rgse.report(None if calibration_id else run.run_id, calibration_id=calibration_id,
+                                 out_dir=args.report)
+        _say(f"rgse run: report {path}")
+    return EXIT_OK
+
+
+def run(args: argparse.Namespace) -> int:
+    timeout_s = DEFAULT_RUN_TIMEOUT_S if args.timeout is None else float(args.timeout)
+    if not (math.isfinite(timeout_s) and timeout_s > 0):
+        raise ConfigError(f"--timeout {args.timeout!r}: must be a finite number of seconds > 0")
+    points = load_points(args.points) if getattr(args, "points", None) is not None else None
+    rgse = RgseClient.from_config(args.config)
+
+    async def main() -> int:
+        async with rgse:
+            try:
+                if args.run_kind == "measure":
+                    run_ = await rgse.measure(loops=args.loops, fixture_mass_kg=args.fixture_mass,
+                                              dry_run=args.dry_run)
+                else:
+                    run_ = await rgse.calibrate(points, method=args.method)
+            except Refused as exc:
+                _say(f"rgse run: refused by the daemon: {exc.reason}")
+                return EXIT_FAILED
+            if run_.run_id is None:
+                _say("rgse run: accepted without a run id (a dry run moves nothing and stores nothing)")
+                return EXIT_OK
+            try:
+                return await follow(rgse, run_, args, timeout_s)
+            except (RunFailed, WaitTimeout, Refused) as exc:
+                _say(f"rgse run: failed: {exc}")
+                if run_.end_state() is None:
+                    await _abort(run_, f"rgse run gave up: {exc}")
+                return EXIT_FAILED
+            except asyncio.CancelledError:
+                await _abort(run_, "rgse run interrupted")
+                raise
+
+    return run_operator("run", args, main)
+
+
+async def _abort(run_: Run, reason: str) -> None:
+    """Abort the run this command gave up on (bounded; a failure to abort is said, not hidden)."""
+    try:
+        async with asyncio.timeout(ABORT_S):
+            await run_.abort(reason[:500])
+        _say(f"rgse run: run {run_.run_id} aborted")
+    except Exception as exc:  # reported: the operator must know the run may still go on
+        _say(f"rgse run: could not abort run {run_.run_id}: {exc}; abort it with rgse abort")

@@ -1,0 +1,422 @@
+"""``rgse doctor``: the commissioning check of a controller and its surroundings, run first on a new KR C4 and after
+any change. It never moves the robot: it reads, writes only values a variable already has, and does one small file
+round trip in the TRACE folder.
+
+:func:`run_doctor` returns a :class:`DoctorReport`: one :class:`Check` per line, in this order, each failed one with
+the fix. Checks that need the controller are not run (and fail) when it cannot be reached.
+
+1. ``controller``: reachable; the protocol (C3 Bridge or plain KUKAVARPROXY), the version and the round-trip time.
+2. ``protocol``: C3 Bridge ≥ 1.2 (multi-read #6, file messages) or, for plain KVP, the mounted share.
+3. ``mode and safety``: ``$MODE_OP`` T1, no stop message, operator safety closed, no program running.
+4. ``variables``: every variable the daemon reads answers and parses.
+5. ``handshake globals``: every global of ``krl/rgse_globals.dat`` is declared; an installed data list matches it.
+6. ``resident program``: ``KRC:\\R1\\PROGRAM\\RGSE_RESIDENT.SRC`` is the one ``rgse krl render`` makes (SHA-256).
+7. ``trace configuration``: the daemon's trace configuration file can be written into TRACE and reads back.
+8. ``file round trip``: write, list, read back, delete a file in TRACE; this finds the path form and listing format
+   that work and measures the file rate; the result is recorded in ``<data_dir>/controller_layout.json``
+   (:mod:`rgse_daemon.filelayout`), which the daemon then uses.
+9. ``allowed writes``: every variable on the write allow-list (and the handshake globals) accepts the value it has.
+10. ``safety I/O`` / 11. ``scale``: answer, if configured.
+12. ``broker`` (if MQTT is enabled) and 13. ``store``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hashlib
+import re
+import statistics
+import time
+from collections.abc import Awaitable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rgse_daemon.config import Config, Protocol
+from rgse_daemon.controller import SNAPSHOT_VARIABLES, WRITABLE_VARIABLES, Controller, DirEntry
+from rgse_daemon.errors import RgseError
+from rgse_daemon.filelayout import TRACE_DIR_CANDIDATES, FileLayout, save_layout
+from rgse_daemon.krl import ast as k
+from rgse_daemon.krl.parser import parse_dat
+from rgse_daemon.krl.render import TemplateDefaults, default_params, globals_dat_text, render
+from rgse_daemon.link import frames as fr
+from rgse_daemon.link.krlvalue import parse_value
+
+#: Where the KRL of krl/README.md is installed on the controller.
+PROGRAM_DIR = "KRC:\\R1\\PROGRAM\\"
+RESIDENT = "rgse_resident"
+GLOBALS_FILE = PROGRAM_DIR + "RGSE_GLOBALS.DAT"
+#: The round trip's file: big enough to measure the controller's file rate, small enough to be quick.
+ROUND_TRIP_NAME = "RGSE_DOCTOR.TXT"
+ROUND_TRIP_BYTES = 32 * 1024
+#: Variables the daemon reads besides the snapshot (trace control).
+READ_VARIABLES: tuple[str, ...] = (*SNAPSHOT_VARIABLES, "$TRACE.MODE", "$TRACE.CONFIG[]", "$TRACE.NAME[]")
+#: C3 Bridge version the daemon needs: #6 multi-read and the file messages (1.2.0).
+MIN_VERSION = (1, 2)
+PING_SAMPLES = 10
+#: Deadline of each external check (s) besides the controller's own request deadlines.
+CHECK_TIMEOUT_S = 30.0
+
+
+@dataclass(frozen=True)
+class Check:
+    """One line of the checklist: ``ok`` None means not applicable (not configured)."""
+
+    name: str
+    ok: bool | None
+    detail: str
+    fix: str = ""
+
+    def line(self) -> str:
+        mark = {True: "PASS", False: "FAIL", None: "skip"}[self.ok]
+        text = f"[{mark}] {self.name}: {self.detail}"
+        return text + (f"\n       fix: {self.fix}" if self.ok is False and self.fix else "")
+
+
+@dataclass
+class DoctorReport:
+    checks: list[Check] = field(default_factory=list)
+    layout: FileLayout | None = None
+    layout_file: Path | None = None
+
+    @property
+    def ok(self) -> bool:
+        return all(c.ok is not False for c in self.checks)
+
+    def text(self) -> str:
+        lines = [c.line() for c in self.checks]
+        if self.layout_file is not None:
+            lines.append(f"recorded the controller's file layout in {self.layout_file}")
+        lines.append("all checks passed" if self.ok else
+                     f"{sum(c.ok is False for c in self.checks)} check(s) failed")
+        return "\n".join(lines)
+
+
+def handshake_globals() -> list[str]:
+    """Names of the GLOBALs declared in ``krl/rgse_globals.dat``."""
+    data = parse_dat(globals_dat_text(), "rgse_globals.dat")
+    return [dn.name for d in data.decls if isinstance(d, k.Decl) and d.is_global for dn in d.names]
+
+
+def krl_bytes(text: str) -> bytes:
+    """KRL as it lies on the controller: ISO-8859-1, CRLF line ends (as ``rgse krl render`` writes it)."""
+    return text.replace("\r\n", "\n").replace("\n", "\r\n").encode("latin-1")
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+async def run_doctor(cfg: Config, krl_defaults: TemplateDefaults, *, record: bool = True) -> DoctorReport:
+    """Run every check (module docstring); ``record`` saves the file layout found into the data directory."""
+    report = DoctorReport()
+    add = report.checks.append
+    try:
+        async with Controller.connect(cfg.controller) as krc:
+            add(await _reachable(krc))
+            add(await _protocol(krc, cfg))
+            add(await _guarded("mode and safety", _mode_and_safety(krc)))
+            add(await _guarded("variables", _variables(krc)))
+            add(await _guarded("handshake globals", _globals(krc)))
+            add(await _guarded("resident program", _resident(krc, krl_defaults)))
+            add(await _guarded("trace configuration", _trace_config(krc, cfg)))
+            check, layout = await _round_trip(krc, cfg)
+            add(check)
+            if layout is not None and record:
+                report.layout, report.layout_file = layout, save_layout(cfg.paths.data_dir, layout)
+            add(await _guarded("allowed writes", _allowed_writes(krc)))
+    except (RgseError, OSError) as exc:
+        where = f"{cfg.controller.host}:{cfg.controller.port}"
+        add(Check("controller", False, f"cannot talk to {where}: {type(exc).__name__}: {exc}",
+                  "check the controller's address and port (controller.host/port), the network and the firewall, "
+                  "and that C3 Bridge (or KUKAVARPROXY) runs on the KR C4 (Windows side, port 7000)"))
+        for name in ("protocol", "mode and safety", "variables", "handshake globals", "resident program",
+                     "trace configuration", "file round trip", "allowed writes"):
+            add(Check(name, False, "not checked: the controller is not reachable", "fix the controller line first"))
+    add(await _guarded("safety I/O", _modbus(cfg)))
+    add(await _guarded("scale", _scale(cfg)))
+    add(await _guarded("broker", _broker(cfg)))
+    add(await _guarded("store", _store(cfg)))
+    return report
+
+
+async def _guarded(name: str, aw: Awaitable[Check]) -> Check:
+    """A check with a deadline; an unexpected failure becomes a failed line, never a crash of the checklist."""
+    try:
+        async with asyncio.timeout(CHECK_TIMEOUT_S):
+            return await aw
+    except TimeoutError:
+        return Check(name, False, f"no answer within {CHECK_TIMEOUT_S:g} s", "see the lines above; retry")
+    except (RgseError, OSError) as exc:
+        return Check(name, False, f"{type(exc).__name__}: {exc}", "see the message; retry after fixing it")
+
+
+# --- the controller ---------------------------------------------------------------------------------------------------
+async def _reachable(krc: Controller) -> Check:
+    rtts = []
+    for _ in range(PING_SAMPLES):
+        t0 = time.monotonic()
+        await krc.read_raw("PING")
+        rtts.append(time.monotonic() - t0)
+    what = "C3 Bridge" if krc.protocol is Protocol.C3BRIDGE else "plain KUKAVARPROXY"
+    return Check("controller", True, f"{krc.cfg.host}:{krc.cfg.port} answers ({what}); PING round trip median "
+                 f"{statistics.median(rtts) * 1e3:.1f} ms, max {max(rtts) * 1e3:.1f} ms")
+
+
+async def _protocol(krc: Controller, cfg: Config) -> Check:
+    if krc.protocol is Protocol.KVP:
+        if cfg.controller.share_dir is None:
+            return Check("protocol", False, "plain KUKAVARPROXY: no program control, and files only over the share",
+                         "install C3 Bridge on the KR C4, or mount its roboter share and set controller.share_dir")
+        return Check("protocol", True, f"plain KUKAVARPROXY; files over the share {cfg.controller.share_dir}")
+    rsp = await krc.pool.request(fr.ProxyInfo())
+    if not isinstance(rsp, fr.ProxyInfoReply) or not rsp.success:
+        return Check("protocol", False, f"C3 Bridge does not answer #13 (code {rsp.code})",
+                     "update C3 Bridge on the KR C4 to 1.2 or later")
+    version = f"{rsp.major}.{rsp.minor} on {rsp.computer_name}"
+    missing = [t for t in (fr.MsgType.READ_MULTI, fr.MsgType.PROGRAM_CONTROL, fr.MsgType.READ_CONTENT,
+                           fr.MsgType.WRITE_CONTENT, fr.MsgType.NAME_LIST, fr.MsgType.DELETE)
+               if not krc.pool.supports(t)]
+    if (rsp.major, rsp.minor) < MIN_VERSION or missing:
+        return Check("protocol", False, f"C3 Bridge {version}: too old (missing message types "
+                     f"{', '.join(str(int(t)) for t in missing) or 'none'})",
+                     f"update C3 Bridge on the KR C4 to {MIN_VERSION[0]}.{MIN_VERSION[1]} or later")
+    return Check("protocol", True, f"C3 Bridge {version}")
+
+
+async def _mode_and_safety(krc: Controller) -> Check:
+    snap = await krc.snapshot()
+    problems, fixes = [], []
+    if snap.mode_op != "T1":
+        problems.append(f"$MODE_OP is #{snap.mode_op}")
+        fixes.append("turn the mode selector (key switch) to T1")
+    if snap.stopmess is not False:
+        problems.append(f"$STOPMESS is {snap.stopmess}")
+        fixes.append("acknowledge the stop messages on the smartPAD")
+    if snap.user_saf is not True:
+        problems.append(f"$USER_SAF is {snap.user_saf}")
+        fixes.append("close the safety gate / operator safety")
+    if snap.pro_state1 == "P_ACTIVE":
+        problems.append(f"program {snap.pro_name1} is running")
+        fixes.append("stop and cancel the running program before commissioning")
+    if problems:
+        return Check("mode and safety", False, "; ".join(problems), "; ".join(fixes))
+    return Check("mode and safety", True, f"T1, no stop message, operator safety closed, interpreter "
+                 f"#{snap.pro_state1}")
+
+
+async def _variables(krc: Controller) -> Check:
+    values = await krc.pool.read_many(READ_VARIABLES)
+    bad = []
+    for name in READ_VARIABLES:
+        got = values.get(name)
+        if not isinstance(got, str):
+            bad.append(f"{name} ({got})")
+            continue
+        try:
+            parse_value(got)
+        except RgseError as exc:
+            bad.append(f"{name} (not a KRL value: {exc})")
+    if bad:
+        return Check("variables", False, f"{len(bad)} of {len(READ_VARIABLES)} unreadable: {'; '.join(bad)}",
+                     "these system variables must be readable over the link: check the KSS version and that "
+                     "C3 Bridge runs with the controller's Cross3 interface")
+    return Check("variables", True, f"all {len(READ_VARIABLES)} variables the daemon reads answer")
+
+
+async def _globals(krc: Controller) -> Check:
+    names = handshake_globals()
+    values = await krc.pool.read_many(names)
+    missing = [n for n in names if not isinstance(values.get(n), str)]
+    if missing:
+        return Check("handshake globals", False, f"not declared on the controller: {', '.join(missing)}",
+                     "install krl/rgse_globals.dat in KRC:\\R1\\Program (or its globals in $CONFIG.DAT), see "
+                     "krl/README.md")
+    detail = f"all {len(names)} declared"
+    try:
+        installed = await krc.get_file(GLOBALS_FILE)
+    except RgseError:
+        return Check("handshake globals", True, detail + " (no RGSE_GLOBALS.DAT: declared elsewhere)")
+    if _sha(krl_bytes(installed.decode("latin-1"))) != _sha(krl_bytes(globals_dat_text())):
+        return Check("handshake globals", False, f"{GLOBALS_FILE} differs from krl/rgse_globals.dat",
+                     "install the current krl/rgse_globals.dat (rgse krl render) and re-select it")
+    return Check("handshake globals", True, detail + f"; {GLOBALS_FILE} is current")
+
+
+async def _resident(krc: Controller, defaults: TemplateDefaults) -> Check:
+    name = PROGRAM_DIR + RESIDENT.upper() + ".SRC"
+    expected = krl_bytes(render(RESIDENT, default_params(RESIDENT, defaults)).src_text)
+    fix = "rgse krl render --out build/krl --config FILE, then copy build/krl/rgse_resident.src to KRC:\\R1\\Program"
+    try:
+        installed = await krc.get_file(name)
+    except RgseError as exc:
+        return Check("resident program", False, f"{name} not readable ({exc})", fix)
+    got, want = _sha(krl_bytes(installed.decode("latin-1"))), _sha(expected)
+    if got != want:
+        return Check("resident program", False, f"{name} is not the current rendering (sha256 {got[:12]}…, "
+                     f"expected {want[:12]}…)", fix)
+    return Check("resident program", True, f"{name} current (sha256 {want[:12]}…)")
+
+
+async def _trace_config(krc: Controller, cfg: Config) -> Check:
+    from rgse_daemon.procedures.programs import TRACE_CONFIG_NAME, trace_config_xml
+    from rgse_daemon.procedures.settings import RunSettings
+
+    data = trace_config_xml(RunSettings.from_config(cfg)).encode("utf-8")
+    name = TRACE_DIR_CANDIDATES[0] + TRACE_CONFIG_NAME
+    await krc.put_file(name, data)
+    if await krc.get_file(name, size_bytes=len(data)) != data:
+        return Check("trace configuration", False, f"{name} reads back different", "check the controller's disk")
+    return Check("trace configuration", True, f"{name} written and read back ({len(data)} bytes)")
+
+
+def _listing_kind(entry: DirEntry, size: int) -> str:
+    if entry.size_bytes == size:
+        return "fields"
+    if entry.listed_as:
+        return "bare"
+    return "text"
+
+
+async def _round_trip(krc: Controller, cfg: Config) -> tuple[Check, FileLayout | None]:
+    """Write, list, read back and delete a file in TRACE with each path form until one works."""
+    data = bytes((i * 7 + 3) % 251 for i in range(ROUND_TRIP_BYTES))
+    if krc.protocol is Protocol.KVP:
+        try:
+            await _one_round_trip(krc, TRACE_DIR_CANDIDATES[0], data)
+        except (RgseError, OSError) as exc:
+            return Check("file round trip", False, f"on the share: {exc}", "check controller.share_dir's mount "
+                         "(read and write access to the roboter share)"), None
+        return Check("file round trip", True, "write, list, read, delete on the share"), None
+    tried = []
+    for trace_dir in TRACE_DIR_CANDIDATES:
+        for trailing in (True, False):
+            krc.layout = FileLayout(trace_dir, trailing)
+            try:
+                async with asyncio.timeout(CHECK_TIMEOUT_S):
+                    entry, rate = await _one_round_trip(krc, trace_dir, data)
+            except (RgseError, OSError, TimeoutError) as exc:
+                tried.append(f"{krc.layout.folder(trace_dir)}: {exc}")
+                continue
+            layout = FileLayout(trace_dir, trailing, _listing_kind(entry, len(data)), round(rate))
+            detail = (f"{trace_dir}{ROUND_TRIP_NAME}: written, listed as {entry.listed_as or entry.name!r} (info "
+                      f"{entry.info!r}: {layout.listing}), read back, deleted; folder listed as "
+                      f"{layout.folder(trace_dir)!r}; file rate ≈ {rate / 1000:.0f} kB/s")
+            if cfg.controller.file_rate_bytes_s > rate:
+                return Check("file round trip", False, detail + " — slower than the file deadlines assume",
+                             f"file deadlines are sized with controller.file_rate_bytes_s = "
+                             f"{cfg.controller.file_rate_bytes_s:g}: set it to about {rate / 2:.0f} (half the "
+                             f"measured rate)"), layout
+            return Check("file round trip", True, detail), layout
+    krc.layout = None
+    return Check("file round trip", False, "no path form worked: " + " | ".join(tried),
+                 "check that C:\\KRC\\ROBOTER\\TRACE exists and C3 Bridge may write there; then rerun"), None
+
+
+async def _one_round_trip(krc: Controller, trace_dir: str, data: bytes) -> tuple[DirEntry, float]:
+    name = trace_dir + ROUND_TRIP_NAME
+    await krc.put_file(name, data)
+    try:
+        entries = [e for e in await krc.list_dir(trace_dir) if e.base_name.upper() == ROUND_TRIP_NAME]
+        if not entries:
+            raise RgseError(f"{ROUND_TRIP_NAME} written but not listed")
+        t0 = time.monotonic()
+        back = await krc.get_file(name, size_bytes=len(data))
+        rate = len(data) / max(time.monotonic() - t0, 1e-6)
+        if back != data:
+            raise RgseError(f"{ROUND_TRIP_NAME} reads back different ({len(back)} bytes)")
+    finally:
+        await krc.delete_file(name)
+    if any(e.base_name.upper() == ROUND_TRIP_NAME for e in await krc.list_dir(trace_dir)):
+        raise RgseError(f"{ROUND_TRIP_NAME} still listed after delete")
+    return entries[0], rate
+
+
+async def _allowed_writes(krc: Controller) -> Check:
+    names = [*sorted(WRITABLE_VARIABLES), *handshake_globals()]
+    refused, skipped = [], []
+    for name in names:
+        try:
+            value = await krc.read_raw(name)
+        except RgseError as exc:
+            refused.append(f"{name} (unreadable: {exc})")
+            continue
+        if name == "$TRACE.MODE" and value.strip().upper() != "#T_STOP":
+            skipped.append(f"{name} (is {value}: a trace is running, not touched)")
+            continue
+        try:
+            await krc.write_raw(name, value)  # the value it has: nothing changes, nothing moves
+        except RgseError as exc:
+            refused.append(f"{name} ({exc})")
+    if refused:
+        return Check("allowed writes", False, f"refused: {'; '.join(refused)}",
+                     "the daemon must write these (trace control, override, handshake): check C3 Bridge's write "
+                     "access and that the variables are declared and not write-protected")
+    extra = f"; not tried: {'; '.join(skipped)}" if skipped else ""
+    return Check("allowed writes", True, f"all {len(names) - len(skipped)} accept their own value{extra}")
+
+
+# --- around the controller -------------------------------------------------------------------------------------------
+async def _modbus(cfg: Config) -> Check:
+    if cfg.modbus is None:
+        return Check("safety I/O", None, "no Modbus I/O configured (AUT is then refused)")
+    from rgse_daemon.io.modbus import SafetyIo
+
+    where = f"{cfg.modbus.host}:{cfg.modbus.port}"
+    async with SafetyIo(cfg.modbus) as io:
+        if not io.inputs.valid:
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(cfg.modbus.connect_timeout_s + 10 * cfg.modbus.poll_period_s), \
+                        io.changes() as changes:
+                    async for seen in changes:
+                        if seen.valid:
+                            break
+        inputs = io.inputs
+    if not inputs.valid:
+        return Check("safety I/O", False, f"{where}: no valid reading ({inputs.reason})",
+                     "check the I/O module's address, power and network (modbus.host/port/unit_id)")
+    return Check("safety I/O", True, f"{where}: E-stop {'OK' if inputs.estop_ok else 'OPEN'}, area cleared "
+                 f"{inputs.area_cleared}, AUT key {inputs.aut_permitted}")
+
+
+async def _scale(cfg: Config) -> Check:
+    if cfg.scale is None:
+        return Check("scale", None, "no crane scale configured")
+    from rgse_daemon.io.scale import CraneScale
+
+    async with CraneScale(cfg.scale) as scale:
+        w = await scale.read_frame(timeout_s=10.0)
+    return Check("scale", True, f"{cfg.scale.port}: {w!r}"[:200])
+
+
+async def _broker(cfg: Config) -> Check:
+    if not cfg.mqtt.enabled:
+        return Check("broker", None, "MQTT disabled")
+    import aiomqtt
+
+    where = f"{cfg.mqtt.host}:{cfg.mqtt.port}"
+    tls = aiomqtt.TLSParameters(ca_certs=str(cfg.mqtt.tls_ca_file) if cfg.mqtt.tls_ca_file else None) \
+        if cfg.mqtt.tls else None
+    try:
+        async with aiomqtt.Client(cfg.mqtt.host, cfg.mqtt.port, username=cfg.mqtt.username,
+                                  password=cfg.mqtt.password, identifier=f"rgse-doctor-{time.time_ns()}",
+                                  tls_params=tls, timeout=5.0):
+            pass
+    except aiomqtt.MqttError as exc:
+        return Check("broker", False, f"{where}: {exc}", "check mqtt.host/port, the credentials and that the "
+                     "broker runs (systemctl status mosquitto)")
+    return Check("broker", True, f"{where} accepts the daemon's credentials")
+
+
+async def _store(cfg: Config) -> Check:
+    from rgse_daemon.store import Store
+
+    where = re.sub(r"//[^@/]*@", "//", cfg.store.url) if cfg.store.url else f"SQLite in {cfg.paths.data_dir}"
+    try:
+        async with await Store.open(cfg.store.url, cfg.paths.data_dir, timeout_s=5.0):
+            pass
+    except RgseError as exc:
+        return Check("store", False, f"{where}: {exc}", "check store.url (server running, database and user "
+                     "exist) or that paths.data_dir is writable")
+    return Check("store", True, f"{where} opens, schema current")
+

@@ -1,0 +1,275 @@
+"""The operator's web console, served by the daemon inside its own event loop (aiohttp; ``[console] enabled``).
+
+One page (``console.html``) and a small HTTP API beside it:
+
+``GET /``                  the page
+``GET /events``            server-sent events: ``hello`` (everything the page needs to find its place: the state, the
+                           current run with its events so far and the pending prompt, whether a token is needed),
+                           then ``state`` at the state rate and ``progress`` for every engine event as it happens
+``POST /api/confirm``      ``{run_id, point?, message?, token?}``: the ``confirm`` command
+``POST /api/abort``        ``{run_id?, reason, token?}``: the ``abort`` command
+``GET /api/history``       the robot's latest runs with their results and report links
+``GET /report/run/ID``     the HTML report of a run (``/report/calibration/ID`` of a calibration), from the store
+
+The actions are the MQTT commands: checked by the same :func:`~rgse_daemon.io.commands.parse_command` (schema and
+``mqtt.command_tokens``) and answered by the same handler, so the console can confirm only what the daemon asks
+for. Without ``command_tokens`` the console acts only with ``command_auth = "open_lab_bench"``: the broker's ACL
+(``broker_acl``) does not see this page. Each action, accepted or refused, is recorded in the store as an event
+``console_action`` with ``source: "console"``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import math
+import secrets
+import time
+from collections import deque
+from collections.abc import Awaitable, Callable, Sequence
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from aiohttp import web
+
+from rgse_daemon.config import ConsoleConfig
+from rgse_daemon.errors import RgseError
+from rgse_daemon.io.commands import CommandRefused, parse_command
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.report import build_report
+from rgse_daemon.services.signals import STATE_LIGHT
+from rgse_daemon.store import Repository, Store
+
+log = logging.getLogger(__name__)
+
+#: Engine events kept for a page that (re)connects mid-run.
+RUN_EVENTS_KEPT = 500
+#: Messages queued per page; a page that falls this far behind is disconnected (it reconnects and resyncs).
+CLIENT_QUEUE = 1000
+#: Runs listed in the history.
+HISTORY_RUNS = 30
+TERMINAL = ("done", "failed", "aborted")
+#: Torque history the page's plot shows (s).
+TORQUE_WINDOW_S = 60.0
+
+Handler = Any  # rgse_daemon.io.mqtt.CommandHandler: measure, calibrate, abort, confirm
+
+
+class Console:
+    """The web console of one daemon; :meth:`event` is fed every engine event, :meth:`start`/:meth:`stop` bound
+    its life to the daemon's."""
+
+    def __init__(self, cfg: ConsoleConfig, *, robot: str, handler: Handler, state: Callable[[], Awaitable[dict]],
+                 light: Callable[[], str | None], store: Store, store_url: str | None, data_dir: Path,
+                 tokens: Sequence[str], open_bench: bool, rate_hz: float) -> None:
+        self.cfg = cfg
+        self.robot = robot
+        self._handler = handler
+        self._state = state
+        self._light = light
+        self._store = store
+        self._store_url = store_url
+        self._data_dir = data_dir
+        self._tokens = tuple(tokens)
+        self._open_bench = open_bench
+        self.period_s = 1.0 / rate_hz
+        self.port: int | None = None
+        self.run: dict[str, Any] | None = None  # {run_id, kind?, events, prompt, state}
+        self.last_state: dict[str, Any] | None = None
+        self.torque: deque[tuple[float, float, float]] = deque(maxlen=int(TORQUE_WINDOW_S * rate_hz) + 1)
+        """(Unix time s, A3 N·m, A5 N·m) of the live state, for the plot of a page that (re)connects."""
+        self._clients: set[asyncio.Queue[tuple[str, Any] | None]] = set()
+        self._runner: web.AppRunner | None = None
+        self._task: asyncio.Task[None] | None = None
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.cfg.host}:{self.port}/"
+
+    # --- life ----------------------------------------------------------------------------------------------------
+    async def start(self) -> None:
+        app = web.Application()
+        app.add_routes([web.get("/", self._page), web.get("/events", self._events),
+                        web.post("/api/confirm", self._confirm), web.post("/api/abort", self._abort),
+                        web.get("/api/history", self._history),
+                        web.get(r"/report/{what:run|calibration}/{id:[A-Za-z0-9_.\-]+}", self._report)])
+        self._runner = web.AppRunner(app, handle_signals=False, access_log=None)
+        await self._runner.setup()
+        site = web.TCPSite(self._runner, self.cfg.host, self.cfg.port)
+        await site.start()
+        sockets = site._server.sockets if site._server is not None else ()  # type: ignore[union-attr]
+        self.port = sockets[0].getsockname()[1] if sockets else self.cfg.port
+        self._task = asyncio.create_task(self._state_loop(), name="rgse-console-state")
+        log.info("console on %s", self.url)
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.gather(self._task, return_exceptions=True)
+        for q in list(self._clients):
+            self._offer(q, None)  # ends the page's stream
+        if self._runner is not None:
+            await self._runner.cleanup()
+
+    # --- what goes out -------------------------------------------------------------------------------------------
+    def _offer(self, q: asyncio.Queue[tuple[str, Any] | None], item: tuple[str, Any] | None) -> None:
+        try:
+            q.put_nowait(item)
+        except asyncio.QueueFull:
+            self._clients.discard(q)
+            with contextlib.suppress(asyncio.QueueFull):
+                q.get_nowait()
+                q.put_nowait(None)
+
+    def _send(self, kind: str, doc: Any) -> None:
+        for q in list(self._clients):
+            self._offer(q, (kind, doc))
+
+    def event(self, ev: Event) -> None:
+        """An engine event: kept for the run's page and sent to every open page."""
+        if ev.run_id is None:
+            return
+        doc = ev.to_json()
+        if self.run is None or self.run["run_id"] != ev.run_id:
+            self.run = {"run_id": ev.run_id, "events": [], "prompt": None, "state": "running"}
+        self.run["events"] = [*self.run["events"], doc][-RUN_EVENTS_KEPT:]
+        if ev.kind == "confirm":
+            self.run["prompt"] = doc
+        elif ev.kind == "state":
+            self.run["state"] = ev.data.get("state")
+            if ev.data.get("state") != "confirm":
+                self.run["prompt"] = None
+        self._send("progress", doc)
+
+    def _view(self, state: dict[str, Any]) -> dict[str, Any]:
+        """The state document with the stack light: the module's, or without one what it would show."""
+        color = self._light()
+        if color is None:
+            color = STATE_LIGHT.get(str(state.get("engine")), "green" if state.get("connected") else "off")
+            return {**state, "stack_light": color, "stack_light_module": False}
+        return {**state, "stack_light": color, "stack_light_module": True}
+
+    async def _state_loop(self) -> None:
+        while True:
+            await asyncio.sleep(self.period_s)
+            if not self._clients:
+                continue
+            try:
+                self.last_state = self._view(await self._state())
+            except RgseError as exc:
+                log.warning("console: state not read: %s", exc)
+                continue
+            self._keep_torque(self.last_state)
+            self._send("state", self.last_state)
+
+    def _keep_torque(self, state: dict[str, Any]) -> None:
+        ctl = state.get("controller") or {}
+        tq = ctl.get("torques_nm") if isinstance(ctl, dict) else None
+        if isinstance(tq, list) and len(tq) >= 5 and all(isinstance(tq[i], int | float) for i in (2, 4)):
+            self.torque.append((time.time(), float(tq[2]), float(tq[4])))
+
+    # --- routes --------------------------------------------------------------------------------------------------
+    async def _page(self, request: web.Request) -> web.Response:
+        html = resources.files(__package__).joinpath("console.html").read_text(encoding="utf-8")
+        return web.Response(text=html, content_type="text/html", charset="utf-8")
+
+    async def _events(self, request: web.Request) -> web.StreamResponse:
+        resp = web.StreamResponse(headers={"Content-Type": "text/event-stream", "Cache-Control": "no-store"})
+        await resp.prepare(request)
+        q: asyncio.Queue[tuple[str, Any] | None] = asyncio.Queue(CLIENT_QUEUE)
+        hello = {"robot": self.robot, "token_required": bool(self._tokens), "run": self.run,
+                 "state": self._view(await self._state()), "torque": list(self.torque)}
+        self._clients.add(q)
+        try:
+            await resp.write(_sse("hello", hello))
+            while (item := await q.get()) is not None:
+                await resp.write(_sse(*item))
+        except (ConnectionResetError, RuntimeError):  # the page went away
+            pass
+        finally:
+            self._clients.discard(q)
+        return resp
+
+    async def _act(self, verb: str, request: web.Request) -> web.Response:
+        try:
+            body = await request.json()
+        except ValueError:
+            body = None
+        if not isinstance(body, dict):
+            return web.json_response({"ok": False, "error": "a JSON object expected"}, status=400)
+        doc = {**{k: v for k, v in body.items() if v is not None}, "request_id": f"console-{secrets.token_hex(6)}"}
+        record = {"source": "console", "verb": verb, "run_id": body.get("run_id"), "point": body.get("point"),
+                  "peer": request.remote}
+        try:
+            if not self._tokens and not self._open_bench:
+                raise RgseError("the console needs mqtt.command_tokens (broker_acl authenticates MQTT clients only, "
+                                "not this page): nothing done")
+            cmd = parse_command(verb, json.dumps(doc), self._tokens)
+            reply = await getattr(self._handler, verb)(cmd)
+        except (CommandRefused, RgseError) as exc:
+            error = exc.problem if isinstance(exc, CommandRefused) else str(exc)
+            await self._record(f"console {verb} refused: {error}", {**record, "ok": False, "error": error})
+            return web.json_response({"ok": False, "error": error}, status=409)
+        await self._record(f"console {verb}", {**record, "ok": True})
+        return web.json_response({"ok": True, **reply})
+
+    async def _record(self, message: str, data: dict[str, Any]) -> None:
+        try:
+            await self._store.add_event("info", "console_action", message, run_id=data.get("run_id") or None,
+                                        data=data)
+        except RgseError as exc:
+            log.error("console action not recorded: %s (%s)", message, exc)
+
+    async def _confirm(self, request: web.Request) -> web.Response:
+        return await self._act("confirm", request)
+
+    async def _abort(self, request: web.Request) -> web.Response:
+        return await self._act("abort", request)
+
+    async def _history(self, request: web.Request) -> web.Response:
+        runs = (await self._store.list_runs(robot=self.robot))[-HISTORY_RUNS:]
+        rows = []
+        for r in reversed(runs):
+            results = await self._store.results(r.id)
+            res = results[-1].result if results else None
+            kind = str(r.kind)
+            link = None
+            if res is not None:
+                link = f"/report/calibration/{res['calibration_id']}" if kind == "calibration" and \
+                    res.get("calibration_id") else f"/report/run/{r.id}"
+            rows.append({"run_id": r.id, "kind": kind, "state": str(r.state), "result": res, "report": link})
+        return web.json_response({"robot": self.robot, "runs": rows})
+
+    async def _report(self, request: web.Request) -> web.StreamResponse:
+        what, ident = request.match_info["what"], request.match_info["id"]
+
+        def write() -> Path:
+            with Repository.open(self._store_url, self._data_dir) as repo:
+                return build_report(repo, self._data_dir, self._data_dir / "reports",
+                                    run_id=ident if what == "run" else None,
+                                    calibration_id=ident if what == "calibration" else None)
+
+        try:
+            path = await asyncio.to_thread(write)
+        except RgseError as exc:
+            raise web.HTTPNotFound(text=f"no report of {what} {ident}: {exc}") from None
+        return web.FileResponse(path, headers={"Content-Type": "text/html; charset=utf-8"})
+
+
+def _finite(v: Any) -> Any:
+    """NaN and infinities as ``null`` (the browser's JSON has none)."""
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _finite(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_finite(x) for x in v]
+    return v
+
+
+def _sse(kind: str, doc: Any) -> bytes:
+    text = json.dumps(_finite(doc), separators=(",", ":"), allow_nan=False, default=str)
+    return f"event: {kind}\ndata: {text}\n\n".encode()
