@@ -401,7 +401,7 @@ async def _broker(cfg: Config) -> Check:
         async with aiomqtt.Client(cfg.mqtt.host, cfg.mqtt.port, username=cfg.mqtt.username,
                                   password=cfg.mqtt.password, identifier=f"rgse-doctor-{time.time_ns()}",
                                   tls_params=tls, timeout=5.0):
-            pass
+            pass  # connecting (and the login it carries) is the check
     except aiomqtt.MqttError as exc:
         return Check("broker", False, f"{where}: {exc}", "check mqtt.host/port, the credentials and that the "
                      "broker runs (systemctl status mosquitto)")
@@ -414,7 +414,7 @@ async def _store(cfg: Config) -> Check:
     where = re.sub(r"//[^@/]*@", "//", cfg.store.url) if cfg.store.url else f"SQLite in {cfg.paths.data_dir}"
     try:
         async with await Store.open(cfg.store.url, cfg.paths.data_dir, timeout_s=5.0):
-            pass
+            pass  # opening (connect, migrations current) is the check
     except RgseError as exc:
         return Check("store", False, f"{where}: {exc}", "check store.url (server running, database and user "
                      "exist) or that paths.data_dir is writable")

@@ -22,6 +22,7 @@ Anything the interpreter cannot decide with certainty becomes UNKNOWN or a refus
 from __future__ import annotations
 
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -170,7 +171,7 @@ def read_names(expr: k.Expr) -> set[str]:
     return {e.name for e in iter_exprs(expr) if isinstance(e, k.Name)}
 
 
-class AbstractInterpreter:
+class AbstractInterpreter(ABC):
     """Interprets a main routine abstractly; subclasses supply the rules (the hooks below) and :meth:`report`."""
 
     def __init__(self, time_budget_s: float = 20.0, max_steps: int = MAX_STEPS) -> None:
@@ -185,27 +186,34 @@ class AbstractInterpreter:
         self.time_budget_s = time_budget_s
 
     # --- hooks ---
+    @abstractmethod
     def report(self, rule: str, pos: k.Pos, message: str) -> None:
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def writable(self, target: k.Expr, pos: k.Pos) -> bool:
         """Whether the program may write ``target`` (a variable that is not its own); report if not."""
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def system_write(self, name: str, target: k.Expr, value: Value, st: State, pos: k.Pos) -> State:
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def check_target(self, q: Pose, pos: k.Pos) -> bool:
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def check_relative(self, delta: Sequence[float], pos: k.Pos) -> None:
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def check_path(self, start: Pose, target: Pose, st: State, pos: k.Pos) -> None:
-        raise NotImplementedError
+        ...
 
+    @abstractmethod
     def start_unknown(self, stmt: k.Motion) -> None:
-        raise NotImplementedError
+        ...
 
     # --- declarations ---
     def declare(self, decl: k.Decl, st: State) -> State:
