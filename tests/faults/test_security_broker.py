@@ -129,7 +129,7 @@ async def test_broker_refuses_clients_without_a_valid_login_over_tls(broker, use
     b, ca = broker
     with pytest.raises(aiomqtt.MqttError):
         async with client(b.port, ca if tls else None, user, password):
-            pass
+            pass  # the connect itself must be refused
 
 
 def test_mqtt_without_tokens_is_refused_unless_explicitly_opened():

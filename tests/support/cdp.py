@@ -76,7 +76,7 @@ class Page:
 
     async def _load(self) -> None:
         while (await self._events.get()).get("method") != "Page.loadEventFired":
-            pass
+            pass  # drain the page's other events until the load
 
     async def goto(self, url: str) -> None:
         await self.call("Page.enable")
