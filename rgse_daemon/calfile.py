@@ -5,6 +5,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -14,6 +15,7 @@ import numpy as np
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.calibration import AxisK, Calibration
+from rgse_daemon.pipeline.cog import AxisGain
 from rgse_daemon.pipeline.envelope import Envelope
 from rgse_daemon.pipeline.preprocess import Preprocessing
 from rgse_daemon.pipeline.uncertainty import CalibrationUncertainty
@@ -55,6 +57,11 @@ def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, 
     }
     if thermal_state_k is not None:
         doc["thermal_state_k"] = {k: float(v) for k, v in thermal_state_k.items()}
+    return seal(doc)
+
+
+def seal(doc: dict[str, Any]) -> dict[str, Any]:
+    """Set ``calibration_id``: a hash of the document's content (everything but the id and the creation time)."""
     body = json.dumps({k: v for k, v in doc.items() if k not in ("calibration_id", "created_utc")}, sort_keys=True)
     doc["calibration_id"] = hashlib.sha256(body.encode()).hexdigest()[:16]
     return doc
@@ -200,3 +207,86 @@ def check_robot(path: Path | str, doc: dict[str, Any], robot: str) -> None:
     """A calibration is only ever used for the robot it names (interfaces §3)."""
     if doc.get("robot") != robot:
         raise DataError(f"{path}: calibration belongs to robot {doc.get('robot')!r}, the measurement to {robot!r}")
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The optional torsional section: the CoG calibration (interfaces §3)
+# ---------------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class TorsionalPose:
+    """The bare reading (MPA only, eq. 13–14's bias idea) of one pose of the CoG scheme: A1..A6 in deg, the
+    bias per axis and its standard uncertainty (Nm, NaN where the campaign did not trace the axis)."""
+
+    name: str
+    q_deg: tuple[float, ...]
+    bias_nm: tuple[float, ...]
+    u_bias_nm: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Torsional:
+    """CAL.json ``torsional``: the scheme, the bias per pose and the per-axis gain K (A3..A6)."""
+
+    scheme: str
+    poses: dict[str, TorsionalPose]
+    gains: dict[int, AxisGain]
+
+
+def _six(v: Any, what: str, where: str) -> tuple[float, ...]:
+    if not isinstance(v, list) or len(v) != 6:
+        raise DataError(f"{where}: {what} must be a list of six numbers (A1..A6; null where not traced)")
+    out = []
+    for x in v:
+        if x is None:
+            out.append(float("nan"))
+        elif isinstance(x, bool) or not isinstance(x, int | float) or not math.isfinite(x):
+            raise DataError(f"{where}: {what} holds {x!r}, not a finite number or null")
+        else:
+            out.append(float(x))
+    return tuple(out)
+
+
+def torsional_section(scheme: str, poses: list[TorsionalPose], gains: dict[int, AxisGain],
+                      evaluations: dict[int, dict], n_points: int) -> dict[str, Any]:
+    """The ``torsional`` section of CAL.json (JSON null for an axis the campaign did not trace)."""
+    def js(values: tuple[float, ...]) -> list[float | None]:
+        return [float(v) if math.isfinite(v) else None for v in values]
+    return {"scheme": scheme,
+            "poses": {p.name: {"q_deg": list(p.q_deg), "bias_nm": js(p.bias_nm), "u_bias_nm": js(p.u_bias_nm)}
+                      for p in poses},
+            "axes": {f"A{ax}": {**g.to_dict(), "evaluation": evaluations.get(ax, {})} for ax, g in gains.items()},
+            "validation": {"scheme": "leave-one-point-out (all poses of a point held out together)",
+                           "u_point_nm": {f"A{ax}": g.u_point_nm for ax, g in gains.items()}},
+            "n_points": n_points}
+
+
+def torsional(doc: dict[str, Any], where: Path | str = "CAL.json") -> Torsional | None:
+    """The CoG calibration of a CAL.json document, validated; None when the file has none (written before it
+    existed, or from a campaign without torsional points)."""
+    sec = doc.get("torsional")
+    if sec is None:
+        return None
+    w = f"{where}: torsional"
+    if not isinstance(sec, dict) or not isinstance(sec.get("poses"), dict) or not isinstance(sec.get("axes"), dict):
+        raise DataError(f"{w}: must be an object with 'poses' and 'axes'")
+    poses = {}
+    for name, p in sec["poses"].items():
+        if not isinstance(p, dict):
+            raise DataError(f"{w}.poses.{name}: must be an object")
+        q = _six(p.get("q_deg"), "q_deg", f"{w}.poses.{name}")
+        if not all(math.isfinite(v) for v in q):
+            raise DataError(f"{w}.poses.{name}: q_deg must be six finite angles")
+        bias = _six(p.get("bias_nm"), "bias_nm", f"{w}.poses.{name}")
+        u = _six(p.get("u_bias_nm"), "u_bias_nm", f"{w}.poses.{name}")
+        poses[name] = TorsionalPose(name, q, bias, u)
+    gains = {}
+    for key, d in sec["axes"].items():
+        if key not in ("A1", "A2", "A3", "A4", "A5", "A6") or not isinstance(d, dict):
+            raise DataError(f"{w}.axes: {key!r} is not an axis A1..A6 with an object")
+        try:
+            gains[int(key[1])] = AxisGain.from_dict(int(key[1]), d)
+        except DataError as exc:
+            raise DataError(f"{where}: {exc}") from None
+    if not poses or not gains:
+        raise DataError(f"{w}: no poses or no axis gains")
+    return Torsional(str(sec.get("scheme", "?")), poses, gains)

@@ -115,6 +115,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default 0.5)")
     _add_json(p)
 
+    p = sub.add_parser("cog", help="offline centre of gravity from a properties run directory")
+    p.add_argument("--traces", type=Path, required=True, metavar="DIR")
+    p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
+    _add_json(p)
+
     p = sub.add_parser("study", help="the pre-processing parameter study (paper Table A2), ranked")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--campaign", type=Path, metavar="DIR")

@@ -26,6 +26,9 @@ MODULE_A5 = "NextGenDrive#5"
 TORQUE_CHANNEL = "Istmoment"
 TEMPERATURE_CHANNEL = "Motortemperatur"
 KINDS = ("zero", "mass", "torque")
+#: Point kind of the CoG (torsional) calibration: a load of known mass and position measured in every pose of a
+#: scheme (interfaces §2); kept apart from the mass calibration's points.
+TORSIONAL_KIND = "torsional"
 #: Standard uncertainty of one weighed calibration body, kg, when the manifest states none (optional field).
 DEFAULT_BODY_MASS_U_KG = 0.01
 REFERENCE_CORRELATIONS = ("nested", "independent")
@@ -81,6 +84,25 @@ class Loop:
     motor_temp_a5_k: float | None = None
 
 
+@dataclass(frozen=True)
+class TorsionalPointSpec:
+    """A ``kind = "torsional"`` point: the load beyond the MPA (mass kg, 0 = the bare MPA, i.e. the bias of every
+    pose; CoG in the flange frame m; its standard uncertainty in mass) and its traces per pose name."""
+
+    mass_kg: float
+    cog_flange_m: tuple[float, float, float]
+    traces: dict[str, tuple[str, ...]]
+    mass_u_kg: float = 0.0
+
+
+@dataclass(frozen=True)
+class TorsionalPose:
+    """A pose of the torsional points' scheme (``[[torsional.pose]]``): name and A1..A6 in deg."""
+
+    name: str
+    q_deg: tuple[float, ...]
+
+
 @dataclass
 class Manifest:
     path: Path
@@ -88,6 +110,9 @@ class Manifest:
     points: list[PointSpec] = field(default_factory=list)
     measurement_traces: tuple[str, ...] = ()
     fixture_mass_kg: float | None = None
+    torsional_points: list[TorsionalPointSpec] = field(default_factory=list)
+    torsional_poses: list[TorsionalPose] = field(default_factory=list)
+    torsional_scheme: str | None = None
 
 
 def _num(d: dict[str, Any], key: str, where: str, *, minimum: float | None = None, positive: bool = False) -> float:
@@ -147,6 +172,9 @@ def load_manifest(directory: Path | str) -> Manifest:
         if not isinstance(p, dict):
             raise DataError(f"{where}: must be a table")
         kind = p.get("kind")
+        if kind == TORSIONAL_KIND:
+            man.torsional_points.append(_torsional_point(p, where))
+            continue
         if kind not in KINDS:
             raise DataError(f"{where}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
         bodies = p.get("bodies")
@@ -158,6 +186,7 @@ def load_manifest(directory: Path | str) -> Manifest:
         if (kind == "zero") != (spec.mass_kg == 0.0):
             raise DataError(f"{where}: a 'zero' point has mass_kg = 0 and only a 'zero' point has")
         man.points.append(spec)
+    _torsional_poses(man, doc.get("torsional"), f"{path} [torsional]")
     meas = doc.get("measurement")
     if meas is not None:
         if not isinstance(meas, dict):
@@ -166,6 +195,46 @@ def load_manifest(directory: Path | str) -> Manifest:
         if "fixture_mass_kg" in meas:
             man.fixture_mass_kg = _num(meas, "fixture_mass_kg", f"{path} [measurement]", minimum=0.0)
     return man
+
+
+def _torsional_point(p: dict[str, Any], where: str) -> TorsionalPointSpec:
+    cog = p.get("cog_flange_m")
+    if not isinstance(cog, list) or len(cog) != 3 or not all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in cog):
+        raise DataError(f"{where}: a torsional point needs cog_flange_m = [x, y, z] (m, flange frame)")
+    traces = p.get("poses")
+    if not isinstance(traces, dict) or not traces:
+        raise DataError(f"{where}: a torsional point needs [point.poses] with its trace names per pose")
+    by_pose = {str(name): _traces({"traces": t}, f"{where} poses.{name}") for name, t in traces.items()}
+    return TorsionalPointSpec(_num(p, "mass_kg", where, minimum=0.0), (float(cog[0]), float(cog[1]), float(cog[2])),
+                              by_pose, _opt_num(p, "mass_u_kg", where, 0.0) or 0.0)
+
+
+def _torsional_poses(man: Manifest, table: Any, where: str) -> None:
+    """``[torsional]``: the scheme's name and its ``[[torsional.pose]]`` list; needed when torsional points exist."""
+    if table is None:
+        if man.torsional_points:
+            raise DataError(f"{where}: torsional points need a [torsional] table with their [[torsional.pose]]s")
+        return
+    if not isinstance(table, dict) or not isinstance(table.get("pose"), list) or not table["pose"]:
+        raise DataError(f"{where}: needs [[torsional.pose]] entries (name, q_deg)")
+    man.torsional_scheme = str(table.get("scheme", "custom"))
+    for i, p in enumerate(table["pose"]):
+        pw = f"{where} pose #{i + 1}"
+        q = p.get("q_deg") if isinstance(p, dict) else None
+        if not isinstance(p, dict) or not isinstance(p.get("name"), str) or not isinstance(q, list) or len(q) != 6 \
+                or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in q):
+            raise DataError(f"{pw}: needs a name and q_deg = six finite angles (deg)")
+        man.torsional_poses.append(TorsionalPose(p["name"], tuple(float(v) for v in q)))
+    names = [p.name for p in man.torsional_poses]
+    for k, pt in enumerate(man.torsional_points):
+        missing = sorted(set(names) - set(pt.traces))
+        extra = sorted(set(pt.traces) - set(names))
+        if missing or extra:
+            raise DataError(f"{where}: torsional point #{k + 1} must have traces for exactly the poses "
+                            f"{', '.join(names)} (missing {missing}, unknown {extra})")
+    if man.torsional_points and not any(pt.mass_kg == 0.0 for pt in man.torsional_points):
+        raise DataError(f"{where}: the torsional points need one with mass_kg = 0 (the bare MPA: the bias)")
 
 
 def read_loop(directory: Path | str, trace: str) -> Loop:

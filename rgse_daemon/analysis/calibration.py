@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from rgse_daemon import calfile
+from rgse_daemon.analysis import cog as cog_analysis
 from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import Manifest, load_manifest, read_loops, source_sha256, thermal_state_k
 from rgse_daemon.pipeline import calibration as cal_mod
@@ -202,9 +203,18 @@ def fit_campaign(directory: Path, method: str,
     data = load_campaign(directory)
     points, bias3, bias5 = campaign_points(data, pre)
     setup = data.manifest.setup
-    return calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot, pre=pre,
-                     bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2, sources=source_sha256(data.files),
-                     where=directory, thermal=data.thermal_state_k)
+    doc, summary = calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot,
+                             pre=pre, bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2,
+                             sources=source_sha256(data.files), where=directory, thermal=data.thermal_state_k)
+    if data.manifest.torsional_points:
+        # the CoG calibration (issue #14): bias per pose and K for A3..A6 from the torsional points
+        doc["torsional"] = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre)
+        calfile.seal(doc)
+        summary["calibration_id"] = doc["calibration_id"]
+        summary["torsional"] = {ax: {"model": d["model"], "u_point_nm": d["u_point_nm"],
+                                     "heldout_rms_nm": d["evaluation"]["models"][d["model"]]["heldout_rms_nm"]}
+                                for ax, d in doc["torsional"]["axes"].items()}
+    return doc, summary
 
 
 def loo_rms_rel(points: CalibrationPoints, ev: cal_mod.Evaluation) -> float:

@@ -237,3 +237,479 @@ def axis_gains_from_reference(
     usable = den > 1.0
     gains[usable] = num[usable] / den[usable]
     return gains
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Pose schemes of a mass-properties run
+# ---------------------------------------------------------------------------------------------------------------------
+SCHEMES = ("paper", "full")
+
+#: Tilts of the "full" scheme (deg), relative to the measurement pose: (name, ΔA4, ΔA5, ΔA6).
+#: A6 at 0/90/180/270° puts each flange-transverse CoG coordinate under the A4/A6 torque twice with opposite signs
+#: (a constant per-axis offset separates from it); A5 ±45° changes the lever of the flange-axial coordinate cz on
+#: A5 (cos 45°), and A4 ±90° with A5 +45° puts cz under the torsional axis A4 (sin 45°), whose gain is near 1.
+_FULL_TILTS: tuple[tuple[str, float, float, float], ...] = (
+    ("meas", 0.0, 0.0, 0.0),
+    ("A6+90", 0.0, 0.0, 90.0),
+    ("A6+180", 0.0, 0.0, 180.0),
+    ("A6+270", 0.0, 0.0, 270.0),
+    ("A5+45", 0.0, 45.0, 0.0),
+    ("A5-45", 0.0, -45.0, 0.0),
+    ("A4+90/A5+45", 90.0, 45.0, 0.0),
+    ("A4-90/A5+45", -90.0, 45.0, 0.0),
+)
+_PAPER_TILTS: tuple[tuple[str, float, float, float], ...] = (("meas", 0.0, 0.0, 0.0), ("A6+90", 0.0, 0.0, 90.0))
+
+
+@dataclass(frozen=True)
+class CogPose:
+    """One static pose of a mass-properties run: its name (e.g. ``"meas"``, ``"A6+90"``) and A1..A6 in deg."""
+
+    name: str
+    q_deg: tuple[float, ...]
+    q_approach_deg: tuple[float, ...] = ()
+    """Where the last motion into the pose starts: A4 and A6 ``APPROACH_DEG`` below their target, so that both
+    axes always arrive from the same side (friction hysteresis, see :func:`cog_poses`); () = no such rule."""
+
+
+#: A4 and A6 arrive at every pose from this many degrees below it (A5's last motion is the brake-release move's
+#: way back, the same in every pose).
+APPROACH_DEG = 5.0
+
+
+def cog_poses(measurement_pose_deg: Sequence[float], scheme: str = "full") -> list[CogPose]:
+    """The static poses of a CoG scheme around the measurement pose, in the order they are measured.
+
+    ``"paper"``: eq. 5–7's scheme, the measurement pose (A5 gives the lever a, A6 the offset c) and A6 turned by 90°
+    (A6 gives b). ``"full"``: A6 at 0/90/180/270°, A5 tilted ±45° and A4 ±90° with A5 +45° (see ``_FULL_TILTS``).
+    Every pose lies within the axis ranges (DataError otherwise). A plan moves to ``q_approach_deg`` and then to
+    ``q_deg`` (then the brake-release move), in the calibration campaign as in the properties run: every axis
+    arrives at each pose from the same side in both, so the friction hysteresis cancels in the bias-corrected
+    torque.
+    """
+    tilts = {"paper": _PAPER_TILTS, "full": _FULL_TILTS}.get(scheme)
+    if tilts is None:
+        raise DataError(f"unknown CoG scheme {scheme!r}; use one of {', '.join(SCHEMES)}")
+    base = np.asarray(measurement_pose_deg, dtype=float)
+    if base.shape != (6,) or not np.all(np.isfinite(base)):
+        raise DataError(f"measurement pose must be six finite angles A1..A6 (deg), got {measurement_pose_deg!r}")
+    out = []
+    for name, d4, d5, d6 in tilts:
+        q = base + np.array([0.0, 0.0, 0.0, d4, d5, d6])
+        if not kin.within_limits(q):
+            raise DataError(f"CoG pose {name} {q.tolist()} is outside the axis ranges")
+        approach = q - np.array([0.0, 0.0, 0.0, APPROACH_DEG, 0.0, APPROACH_DEG])
+        if not kin.within_limits(approach):
+            raise DataError(f"CoG pose {name}: its approach {approach.tolist()} is outside the axis ranges")
+        out.append(CogPose(name, tuple(float(v) for v in q), tuple(float(v) for v in approach)))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Per-axis calibration of the payload torque (the torsional section of CAL.json)
+# ---------------------------------------------------------------------------------------------------------------------
+#: Gain models of the bias-corrected reading r of one axis against the true payload torque x (Nm):
+#: r = x · (k0 + k1·|x|/1 kNm + k2·(|x|/1 kNm)²), the first 1, 2 or 3 terms. Like Table 1's K (eq. 19–20): the
+#: reading's gain depends on the load torque; on A5 strongly, on the torsional axes hardly.
+GAIN_MODELS = {"linear": 1, "poly2": 2, "poly3": 3}
+#: Axes whose payload torque the torsional calibration fits (A1 carries none in these poses, A2 is not needed).
+COG_AXES = (3, 4, 5, 6)
+
+
+def gain_basis(x_nm: np.ndarray, n_params: int) -> np.ndarray:
+    """Columns x·(|x|/1000)^j, j < n_params: the reading r = basis @ k."""
+    x = np.asarray(x_nm, dtype=float)
+    return np.stack([x * (np.abs(x) / 1000.0) ** j for j in range(n_params)], axis=-1)
+
+
+@dataclass(frozen=True)
+class AxisGain:
+    """K of one axis for the CoG: reading r (bias-corrected, Nm) = x·(k0 + k1|x|/1000 + …) for payload torque x.
+
+    ``covariance``: of the params (fit). ``u_point_nm``: standard deviation of the held-out residuals of whole points
+    (one mounting each): the scatter a new mounting adds, fixed over the poses of that mounting.
+    ``torque_range_nm``: the payload torques the campaign covered."""
+
+    axis: int
+    model: str
+    params: tuple[float, ...]
+    covariance: tuple[tuple[float, ...], ...]
+    u_point_nm: float
+    torque_range_nm: tuple[float, float]
+
+    def reading_nm(self, x_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
+        k = np.asarray(self.params if params is None else params, dtype=float)
+        return gain_basis(x_nm, len(k)) @ k
+
+    def slope(self, x_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
+        """dr/dx."""
+        k = np.asarray(self.params if params is None else params, dtype=float)
+        xa = np.abs(np.asarray(x_nm, dtype=float)) / 1000.0
+        return sum((j + 1) * k[j] * xa**j for j in range(len(k)))
+
+    def payload_torque_nm(self, reading_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
+        """Invert r(x) by Newton's method (r is odd and monotone over the calibrated range; checked)."""
+        r = np.asarray(reading_nm, dtype=float)
+        k = np.asarray(self.params if params is None else params, dtype=float)
+        x = r / k[0]
+        for _ in range(50):
+            step = (self.reading_nm(x, k) - r) / self.slope(x, k)
+            x = x - step
+            if np.all(np.abs(step) < 1e-9):
+                break
+        if np.any(self.slope(x, k) <= 0):
+            raise DataError(f"A{self.axis}: the torque calibration is not monotone at {x.tolist()} Nm")
+        return x
+
+    def to_dict(self) -> dict:
+        return {"model": self.model, "params": list(self.params), "covariance": [list(r) for r in self.covariance],
+                "u_point_nm": self.u_point_nm, "torque_range_nm": list(self.torque_range_nm)}
+
+    @staticmethod
+    def from_dict(axis: int, d: dict) -> AxisGain:
+        try:
+            model = str(d["model"])
+            params = tuple(float(v) for v in d["params"])
+            cov = tuple(tuple(float(v) for v in row) for row in d["covariance"])
+            u = float(d["u_point_nm"])
+            lo, hi = (float(v) for v in d["torque_range_nm"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"torsional.axes.A{axis}: malformed entry ({exc!r})") from None
+        n = GAIN_MODELS.get(model)
+        if n is None or len(params) != n or np.shape(cov) != (n, n):
+            raise DataError(f"torsional.axes.A{axis}: model {model!r} needs {n} params and an {n}x{n} covariance")
+        if not (np.all(np.isfinite(params)) and np.all(np.isfinite(cov)) and np.isfinite(u) and u >= 0):
+            raise DataError(f"torsional.axes.A{axis}: non-finite parameters")
+        if params[0] <= 0:
+            raise DataError(f"torsional.axes.A{axis}: gain k0 must be > 0, got {params[0]}")
+        return AxisGain(axis, model, params, cov, u, (lo, hi))
+
+
+def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray, group: np.ndarray, model: str
+             ) -> tuple[AxisGain, np.ndarray]:
+    """Fit one gain model on calibration observations (true payload torque x, bias-corrected reading r, its σ,
+    the point each belongs to); returns the gain and the held-out residuals (leave one point out: every pose of
+    that point is predicted by a fit on the other points, Nm)."""
+    n = GAIN_MODELS[model]
+    x, r, s, grp = (np.asarray(v) for v in (x_nm, r_nm, sigma_nm, group))
+    points = np.unique(grp)
+    if len(points) < n + 2:
+        raise DataError(f"A{axis}: {len(points)} loaded torsional points cannot validate a {n}-parameter gain")
+    heldout = np.empty_like(r, dtype=float)
+    k_loo = []
+    for p in points:
+        out = grp == p
+        k, _ = _gain_lsq(x[~out], r[~out], s[~out], n)
+        k_loo.append(k)
+        heldout[out] = r[out] - gain_basis(x[out], n) @ k
+    k, _ = _gain_lsq(x, r, s, n)
+    # jackknife over points: a mounting's error is shared by all its poses, so the points, not the poses, are the
+    # independent samples (the least-squares covariance, which counts poses, would be too small)
+    dk = np.array(k_loo) - np.mean(k_loo, axis=0)
+    cov = (len(points) - 1) / len(points) * dk.T @ dk
+    point_means = np.array([heldout[grp == p].mean() for p in points])
+    u_point = float(np.sqrt(np.mean(point_means**2)))
+    gain = AxisGain(axis, model, tuple(float(v) for v in k), tuple(tuple(float(v) for v in row) for row in cov),
+                    u_point, (float(x.min()), float(x.max())))
+    return gain, heldout
+
+
+def _gain_lsq(x: np.ndarray, r: np.ndarray, s: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares r = basis(x) @ k; covariance scaled by the reduced χ² when it exceeds 1."""
+    a = gain_basis(x, n)
+    w = 1.0 / np.maximum(s, 1e-6)
+    k, *_ = np.linalg.lstsq(a * w[:, None], r * w, rcond=None)
+    cov = np.linalg.inv((a * w[:, None]).T @ (a * w[:, None]))
+    dof = len(r) - n
+    if dof > 0:
+        chi2 = float(np.sum(((r - a @ k) * w) ** 2)) / dof
+        cov = cov * max(chi2, 1.0)
+    return k, cov
+
+
+def select_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray, group: np.ndarray
+                ) -> tuple[AxisGain, dict]:
+    """Every gain model that the points can validate, the one with the smallest held-out RMS chosen (a richer one
+    only if it beats the simpler by 5 %); returns it and the evaluation record."""
+    evaluations = {}
+    best: tuple[AxisGain, float] | None = None
+    for model in GAIN_MODELS:
+        try:
+            gain, heldout = fit_gain(axis, x_nm, r_nm, sigma_nm, group, model)
+        except DataError:
+            continue
+        rms = float(np.sqrt(np.mean(heldout**2)))
+        evaluations[model] = {"heldout_rms_nm": rms, "params": list(gain.params)}
+        if best is None or rms < 0.95 * best[1]:
+            best = (gain, rms)
+    if best is None:
+        raise DataError(f"A{axis}: too few torsional points to fit any gain model")
+    return best[0], {"chosen": best[0].model, "models": evaluations}
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The estimator: weighted least squares over poses, mass fixed, with its full uncertainty budget
+# ---------------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PoseTorques:
+    """Bias-corrected readings of one pose: r = reading − bias (Nm, A1..A6, NaN where absent), their standard
+    uncertainty from the trace (u_reading) and from the bias (u_bias)."""
+
+    name: str
+    q_deg: tuple[float, ...]
+    r_nm: tuple[float, ...]
+    u_reading_nm: tuple[float, ...]
+    u_bias_nm: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class CogFit:
+    """DuT CoG in the flange frame (m), its covariance (m²) split by source, and diagnostics."""
+
+    cog_m: np.ndarray
+    cov_m2: np.ndarray
+    cov_parts_m2: dict[str, np.ndarray]
+    offsets_nm: dict[str, float]
+    residual_nm: np.ndarray
+    chi2_red: float
+    n_equations: int
+    fitted_offsets: bool
+    outside_range: tuple[str, ...]
+
+
+def _design(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], params: dict[int, np.ndarray],
+            offsets_nm: dict[int, float], g_m_s2: float
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Rows of the regressor, payload torques x = K⁻¹(r − o) with the current reading offsets o, their variance,
+    the axis of each row, and dx/do = 1/K'(x)."""
+    rows, xs, var, axis_of, dxdo = [], [], [], [], []
+    for p in poses:
+        y_full = kin.gravity_regressor(p.q_deg, g_m_s2)
+        for ax, gain in gains.items():
+            r = p.r_nm[ax - 1]
+            if not np.isfinite(r):
+                continue
+            x = float(gain.payload_torque_nm(np.array([r - offsets_nm.get(ax, 0.0)]), params[ax])[0])
+            slope = float(gain.slope(np.array([x]), params[ax])[0])
+            rows.append(y_full[ax - 1])
+            xs.append(x)
+            var.append((p.u_reading_nm[ax - 1] ** 2 + p.u_bias_nm[ax - 1] ** 2) / slope**2)
+            axis_of.append(ax)
+            dxdo.append(1.0 / slope)
+    return np.array(rows).reshape(-1, 4), np.array(xs), np.array(var), np.array(axis_of), np.array(dxdo)
+
+
+@dataclass(frozen=True)
+class _Gls:
+    theta: np.ndarray
+    cov_theta: np.ndarray
+    design: np.ndarray
+    b: np.ndarray
+    cov_obs: np.ndarray
+    axis_of: np.ndarray
+    axes: list[int]
+    x_nm: np.ndarray
+    offsets_nm: dict[int, float]
+
+
+def _gls(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], params: dict[int, np.ndarray],
+         total_mass_kg: float, known_moment_kgm: np.ndarray, fit_offsets: bool, g_m_s2: float) -> _Gls:
+    """GLS for the unknown first moment m·c (kg·m) of the DuT, and, when fitted, a reading offset o_i per axis
+    (r = K(x) + o_i: the offset is in the reading, so it enters x-space as o/K'(x); solved by a few Gauss-Newton
+    steps, each re-inverting K at r − o)."""
+    offsets: dict[int, float] = {}
+    for _ in range(4 if fit_offsets else 1):
+        y_mat, x, var, axis_of, dxdo = _design(poses, gains, params, offsets, g_m_s2)
+        if len(x) == 0:
+            raise DataError("CoG: no usable axis torques")
+        axes = sorted(set(axis_of.tolist()))
+        b = x - y_mat[:, 0] * total_mass_kg - y_mat[:, 1:] @ known_moment_kgm
+        design = y_mat[:, 1:]
+        cov_obs = np.diag(var)
+        if fit_offsets:
+            design = np.hstack([design, (axis_of[:, None] == np.array(axes)[None, :]) * dxdo[:, None]])
+        else:
+            # a mounting's offset is the same in every pose: correlated within an axis
+            for ax in axes:
+                sel = axis_of == ax
+                u = gains[ax].u_point_nm * dxdo[sel]
+                cov_obs[np.ix_(sel, sel)] += np.outer(u, u)
+        if design.shape[0] < design.shape[1] or np.linalg.matrix_rank(design) < design.shape[1] \
+                or np.linalg.matrix_rank(design[:, :3]) < 3:
+            rank = np.linalg.matrix_rank(design[:, :3])
+            raise DataError(f"CoG: the poses do not determine all three CoG coordinates (rank {rank} of 3 from "
+                            f"{design.shape[0]} axis torques); use a scheme that turns A6 and tilts A4/A5")
+        w = np.linalg.inv(cov_obs)
+        cov_theta = np.linalg.inv(design.T @ w @ design)
+        theta = cov_theta @ design.T @ w @ b
+        if fit_offsets:
+            step = dict(zip(axes, theta[3:], strict=True))
+            offsets = {ax: offsets.get(ax, 0.0) + float(step[ax]) for ax in axes}
+            if max(abs(v) for v in step.values()) < 1e-9:
+                break
+    if fit_offsets:  # the last step's offsets are increments: report the totals, b and theta at convergence
+        theta = np.concatenate([theta[:3], [offsets[ax] for ax in axes]])
+    return _Gls(theta, cov_theta, design, b, cov_obs, axis_of, axes, x, offsets)
+
+
+def estimate_cog_gls(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], *, dut_mass_kg: float,
+                     u_dut_mass_kg: float, fixture_mass_kg: float, fixture_cog_m: Sequence[float],
+                     fit_offsets: bool | None = None, g_m_s2: float = kin.G_PAPER_M_S2) -> CogFit:
+    """CoG of a DuT (flange frame, m) from bias-corrected readings in several poses, with the mass fixed.
+
+    Model per pose p and axis i (eq. 5–7 generalised to any pose, kuka-facts §7):
+    r_pi = K_i(Y_pi · [m_DuT + m_fix, m_fix·c_fix + m_DuT·c]) (+ o_i, a reading offset of this mounting).
+    Generalised least squares for m_DuT·c with the observation covariance (trace noise, bias, and, when the offsets
+    are not fitted, the calibration's per-mounting scatter, fully correlated over the poses of an axis). The
+    covariance of c adds, by first-order propagation (numerical Jacobians): the K parameters of every axis and the
+    mass. When the fit leaves more scatter than the inputs explain (reduced χ² > 1) the noise part is scaled by it.
+    ``fit_offsets``: None fits them when the poses determine them with at least two equations to spare.
+    """
+    if not dut_mass_kg > 0:
+        raise DataError(f"CoG: DuT mass must be > 0 kg, got {dut_mass_kg}")
+    if not gains:
+        raise DataError("CoG: no axis has a torque calibration")
+    params = {ax: np.asarray(g.params, dtype=float) for ax, g in gains.items()}
+    known = fixture_mass_kg * np.asarray(fixture_cog_m, dtype=float)
+    total = dut_mass_kg + fixture_mass_kg
+    if fit_offsets is None:
+        n_rows = sum(int(np.isfinite(p.r_nm[ax - 1])) for p in poses for ax in gains)
+        n_axes = len({ax for p in poses for ax in gains if np.isfinite(p.r_nm[ax - 1])})
+        fit_offsets = n_rows >= 3 + n_axes + 2
+        if fit_offsets:
+            try:
+                _gls(poses, gains, params, total, known, True, g_m_s2)
+            except DataError:
+                fit_offsets = False
+    sol = _gls(poses, gains, params, total, known, fit_offsets, g_m_s2)
+    resid = sol.b - sol.design[:, :3] @ sol.theta[:3]  # b already has the fitted offsets removed (x = K⁻¹(r − o))
+    dof = len(sol.b) - sol.design.shape[1]
+    w = np.linalg.inv(sol.cov_obs)
+    chi2_red = float(resid @ w @ resid / dof) if dof > 0 else float("nan")
+    scale = max(chi2_red, 1.0) if dof > 0 else 1.0
+    cog = sol.theta[:3] / dut_mass_kg
+    cov_noise = sol.cov_theta[:3, :3] * scale / dut_mass_kg**2
+
+    def cog_with(p: dict[int, np.ndarray], m: float) -> np.ndarray:
+        return _gls(poses, gains, p, m + fixture_mass_kg, known, fit_offsets, g_m_s2).theta[:3] / m
+
+    # calibration (K) term: along the eigenvectors of each axis' parameter covariance
+    cov_k = np.zeros((3, 3))
+    for ax, g in gains.items():
+        vals, vecs = np.linalg.eigh(np.asarray(g.covariance, dtype=float))
+        for val, vec in zip(vals, vecs.T, strict=True):
+            if val <= 0:
+                continue
+            step = np.sqrt(val) * vec
+            col = (cog_with({**params, ax: params[ax] + step}, dut_mass_kg)
+                   - cog_with({**params, ax: params[ax] - step}, dut_mass_kg)) / 2.0
+            cov_k += np.outer(col, col)
+    cov_m = np.zeros((3, 3))
+    if u_dut_mass_kg > 0:
+        col = (cog_with(params, dut_mass_kg + u_dut_mass_kg) - cog_with(params, dut_mass_kg - u_dut_mass_kg)) / 2.0
+        cov_m = np.outer(col, col)
+    outside = []
+    for ax in sol.axes:
+        lo, hi = gains[ax].torque_range_nm
+        xs = sol.x_nm[sol.axis_of == ax]
+        margin = 0.1 * (hi - lo)
+        if np.any(xs < lo - margin) or np.any(xs > hi + margin):
+            outside.append(f"A{ax}")
+    offsets = {f"A{ax}": v for ax, v in sol.offsets_nm.items()}
+    parts = {"noise": cov_noise, "calibration": cov_k, "mass": cov_m}
+    return CogFit(cog, cov_noise + cov_k + cov_m, parts, offsets, resid, chi2_red, len(sol.b), fit_offsets,
+                  tuple(outside))
+
+
+def kuka_rotation(abc_deg: Sequence[float]) -> np.ndarray:
+    """R = Rz(A)·Ry(B)·Rx(C) of KUKA angles (deg): the columns are the frame's axes in the parent frame."""
+    a, b, c = np.deg2rad(np.asarray(abc_deg, dtype=float))
+    rz = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    ry = np.array([[np.cos(b), 0.0, np.sin(b)], [0.0, 1.0, 0.0], [-np.sin(b), 0.0, np.cos(b)]])
+    rx = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(c), -np.sin(c)], [0.0, np.sin(c), np.cos(c)]])
+    return rz @ ry @ rx
+
+
+def to_dut_frame(cog_flange_m: np.ndarray, cov_flange_m2: np.ndarray, origin_flange_m: Sequence[float],
+                 abc_deg: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+    """CoG and its covariance in the DuT frame: c_DuT = Rᵀ (c − o), Σ_DuT = Rᵀ Σ R."""
+    rot = kuka_rotation(abc_deg)
+    c = rot.T @ (np.asarray(cog_flange_m, dtype=float) - np.asarray(origin_flange_m, dtype=float))
+    return c, rot.T @ cov_flange_m2 @ rot
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The torsional calibration campaign: bias per pose and K per axis from loads of known position
+# ---------------------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class PoseMean:
+    """Mean torque A1..A6 of one pose (Nm, NaN where not traced) and the standard error of each mean."""
+
+    torque_nm: tuple[float, ...]
+    sigma_nm: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class TorsionalPoint:
+    """One loaded point of the campaign: the load beyond the MPA (mass kg, CoG in the flange frame m) and its mean
+    torques in every pose of the scheme (by pose name)."""
+
+    mass_kg: float
+    cog_flange_m: tuple[float, float, float]
+    poses: dict[str, PoseMean]
+
+
+@dataclass(frozen=True)
+class TorsionalFit:
+    """Result of the torsional calibration: bias per pose (Nm, standard uncertainty), K per axis with the
+    evaluation of every gain model, and the held-out residuals (Nm) of the chosen ones."""
+
+    bias: dict[str, PoseMean]
+    gains: dict[int, AxisGain]
+    evaluations: dict[int, dict]
+    heldout_nm: dict[int, np.ndarray]
+
+
+def fit_torsional(poses: Sequence[CogPose], bias: dict[str, PoseMean], points: Sequence[TorsionalPoint],
+                  axes: Sequence[int] = COG_AXES, g_m_s2: float = kin.G_PAPER_M_S2) -> TorsionalFit:
+    """Per-axis K from loads of known mass and position measured in every pose, against the bare reading (MPA
+    only) of the same pose: r = reading − bias, x = Y(q)·[m, m·c] (the gravity regressor), r = K(x) fitted per axis
+    over all points and poses, the gain model chosen by leave-one-point-out error (:func:`select_gain`)."""
+    names = [p.name for p in poses]
+    missing = [n for n in names if n not in bias]
+    if missing:
+        raise DataError(f"torsional calibration: no bare (MPA only) reading in pose(s) {', '.join(missing)}")
+    xs: dict[int, list[float]] = {ax: [] for ax in axes}
+    rs: dict[int, list[float]] = {ax: [] for ax in axes}
+    ss: dict[int, list[float]] = {ax: [] for ax in axes}
+    grp: dict[int, list[int]] = {ax: [] for ax in axes}
+    for k, pt in enumerate(points):
+        if not pt.mass_kg > 0:
+            raise DataError(f"torsional point #{k + 1}: mass must be > 0 kg (the bias point is separate)")
+        theta = pt.mass_kg * np.array([1.0, *pt.cog_flange_m])
+        for pose in poses:
+            if pose.name not in pt.poses:
+                raise DataError(f"torsional point #{k + 1}: not measured in pose {pose.name}")
+            x = kin.gravity_regressor(pose.q_deg, g_m_s2) @ theta
+            m, b = pt.poses[pose.name], bias[pose.name]
+            for ax in axes:
+                r = m.torque_nm[ax - 1] - b.torque_nm[ax - 1]
+                if not np.isfinite(r):
+                    continue
+                xs[ax].append(float(x[ax - 1]))
+                rs[ax].append(float(r))
+                s = np.hypot(m.sigma_nm[ax - 1], b.sigma_nm[ax - 1])
+                ss[ax].append(float(s) if np.isfinite(s) and s > 0 else 1.0)
+                grp[ax].append(k)
+    gains, evaluations, heldout = {}, {}, {}
+    for ax in axes:
+        if not xs[ax]:
+            continue
+        x, r, s, g = (np.array(v) for v in (xs[ax], rs[ax], ss[ax], grp[ax]))
+        gain, ev = select_gain(ax, x, r, s, g)
+        gains[ax] = gain
+        evaluations[ax] = ev
+        heldout[ax] = fit_gain(ax, x, r, s, g, gain.model)[1]
+    if not gains:
+        raise DataError("torsional calibration: no axis A3..A6 was traced")
+    return TorsionalFit(dict(bias), gains, evaluations, heldout)

@@ -59,6 +59,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from rgse_daemon import kinematics as kin
 from simulators.krc4.scenario import AXIS_KEYS, Scenario, default_scenario
@@ -196,6 +197,9 @@ def campaign_point_payload(point: Mapping[str, Any]) -> Payload:
     torque point, ``cb_lever_a5_m``; :class:`rgse_daemon.procedures.calibration.CampaignPoint`)."""
     if point["kind"] == "torque":
         return torque_calibration_payload(int(point["n_cb"]), float(point["cb_lever_a5_m"]))
+    if point["kind"] == "torsional":
+        x, y, z = (float(v) for v in point["cb_cog_flange_m"])
+        return torsional_point_payload(int(point["n_cb"]), x, y, z)
     return mass_calibration_payload(int(point["n_cb"]))
 
 
@@ -218,6 +222,74 @@ def dut_payload(
         RigidBody("DuT", dut_mass_kg, tuple(float(c) for c in dut_cog_m), tuple(float(i) for i in dut_inertia_kgm2))
     )
     return Payload(tuple(bodies))
+
+
+# --- asymmetric DuTs and the torsional calibration (issue #14) -----------------------------------------------------
+def fixture_cog_flange_m(with_mpa: bool = True) -> tuple[float, float, float]:
+    """CoG of the fixture block of :func:`dut_payload` in the flange frame (m)."""
+    base = mpa_front_z_m() if with_mpa else 0.0
+    return (0.0, 0.0, base + FIXTURE_THICKNESS_M / 2)
+
+
+def fixture_front_z_m(with_mpa: bool = True) -> float:
+    """Flange-frame z of the fixture's front face, where a DuT's interface sits (m)."""
+    return (mpa_front_z_m() if with_mpa else 0.0) + FIXTURE_THICKNESS_M
+
+
+@dataclass(frozen=True)
+class AsymmetricDut:
+    """A DuT whose CoG is off the flange axis, with its own frame: origin (m) and KUKA A, B, C (Z-Y-X, deg) in
+    the flange frame, its CoG in that frame (m). ``cog_flange_m`` is the truth the CoG measurement is checked
+    against (before the per-mounting shift the robot model adds)."""
+
+    name: str
+    mass_kg: float
+    cog_dut_m: tuple[float, float, float]
+    dut_origin_flange_m: tuple[float, float, float]
+    dut_abc_deg: tuple[float, float, float]
+    inertia_kgm2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @property
+    def rotation(self) -> np.ndarray:
+        # intrinsic Z-Y-X = Rz(A)·Ry(B)·Rx(C), KUKA's convention (scipy, not the daemon's own helper)
+        return Rotation.from_euler("ZYX", self.dut_abc_deg, degrees=True).as_matrix()
+
+    @property
+    def cog_flange_m(self) -> np.ndarray:
+        return self.rotation @ np.asarray(self.cog_dut_m) + np.asarray(self.dut_origin_flange_m)
+
+    def payload(self, fixture_mass_kg: float = FIXTURE_MASS_KG, with_mpa: bool = True) -> Payload:
+        """MPA, fixture and this DuT, as mounted for a mass and a properties run."""
+        return dut_payload(self.mass_kg, self.cog_flange_m, self.inertia_kgm2, fixture_mass_kg, with_mpa)
+
+
+def refex_wing_box() -> AsymmetricDut:
+    """A ReFEx-like wing box (paper §2.4.7: the DuT on the 10.288 kg fixture): 107.3 kg, its frame at the centre of
+    the fixture's front face turned 90° about the flange axis (its x along the flange's y), its CoG 310 mm out from
+    the interface and 28/41 mm off the flange axis. Invented numbers of the right size, not ReFEx data."""
+    return AsymmetricDut("ReFEx wing box", 107.3, (-0.028, 0.041, 0.310), (0.0, 0.0, fixture_front_z_m()),
+                         (90.0, 0.0, 0.0), (6.0, 9.0, 4.5))
+
+
+#: The torsional calibration (interfaces §2): up to six calibration bodies on a bracket on the MPA whose CoG sits at
+#: a known point up to 0.20 m off the flange axis and 0.10..0.60 m along it (the guide rail of Fig. 18 turned
+#: across the MPA).
+TORSIONAL_BRACKET_Z_M = 0.30
+"""Default flange z (m) of the bodies' CoG on the torsional bracket (it slides 0.10..0.60 m)."""
+TORSIONAL_N_CB_MAX = 6
+
+
+def torsional_point_payload(n_cb: int, offset_x_m: float, offset_y_m: float,
+                            z_m: float = TORSIONAL_BRACKET_Z_M) -> Payload:
+    """A torsional calibration point: MPA plus ``n_cb`` bodies whose common CoG is at (x, y, z) in the flange frame
+    (m); n_cb = 0 is the MPA alone (the bias of every pose)."""
+    if not 0 <= n_cb <= TORSIONAL_N_CB_MAX:
+        raise ValueError(f"n_cb {n_cb} must be 0..{TORSIONAL_N_CB_MAX} on the torsional bracket")
+    if max(abs(offset_x_m), abs(offset_y_m)) > 0.20 or not 0.10 <= z_m <= 0.60:
+        raise ValueError("the torsional bracket reaches 0.20 m off the flange axis and 0.10..0.60 m along it")
+    bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (offset_x_m, offset_y_m, z_m), (0.34, 0.34, 0.68))
+                   for k in range(1, n_cb + 1))
+    return Payload((mpa(), *bodies))
 
 
 # --- the robot --------------------------------------------------------------------------------------------------

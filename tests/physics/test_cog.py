@@ -113,3 +113,107 @@ def test_cog_within_ecss_on_the_simulated_robot(seed):
     assert np.all(np.abs(err_mm) < 2.5), err_mm
     assert est.mass_kg == pytest.approx(100.0, rel=0.01)
     assert np.all(est.u_cog_m * 1000.0 < 2.5)
+
+
+# --- the mass-properties run: poses, K, the estimator, compute_cog -------------------------------------------------
+def test_cog_poses_schemes_within_limits_with_approach():
+    base = kin.measurement_pose()
+    paper = cog.cog_poses(base, "paper")
+    assert [p.name for p in paper] == ["meas", "A6+90"]
+    full = cog.cog_poses(base, "full")
+    assert len(full) == 8 and len({p.name for p in full}) == 8
+    for p in full:
+        assert kin.within_limits(p.q_deg) and kin.within_limits(p.q_approach_deg)
+        dq = np.array(p.q_deg) - np.array(p.q_approach_deg)
+        assert dq.tolist() == [0.0, 0.0, 0.0, cog.APPROACH_DEG, 0.0, cog.APPROACH_DEG]
+    assert sorted(p.q_deg[5] for p in full[:4]) == [0.0, 90.0, 180.0, 270.0]
+    with pytest.raises(DataError, match="unknown CoG scheme"):
+        cog.cog_poses(base, "fancy")
+    near_limit = base.copy()
+    near_limit[4] = 100.0
+    with pytest.raises(DataError, match="outside the axis ranges"):
+        cog.cog_poses(near_limit, "full")
+
+
+def _gain(axis: int, params: tuple[float, ...], u_point: float = 0.0) -> cog.AxisGain:
+    n = len(params)
+    return cog.AxisGain(axis, {1: "linear", 2: "poly2", 3: "poly3"}[n], params,
+                        tuple(tuple(1e-8 if i == j else 0.0 for j in range(n)) for i in range(n)), u_point,
+                        (-2000.0, 2000.0))
+
+
+def test_axis_gain_inverts_its_reading():
+    g = _gain(5, (0.92, 0.31, -0.05))
+    x = np.array([-1500.0, -300.0, -1.0, 0.0, 2.0, 450.0, 1800.0])
+    np.testing.assert_allclose(g.payload_torque_nm(g.reading_nm(x)), x, atol=1e-9)
+    assert cog.AxisGain.from_dict(5, g.to_dict()) == g
+    with pytest.raises(DataError, match="A5"):
+        cog.AxisGain.from_dict(5, {**g.to_dict(), "params": [0.9, 0.1]})
+
+
+def test_fit_gain_recovers_a_known_curve_and_validates_held_out():
+    rng = np.random.default_rng(3)
+    true = (0.95, 0.2)
+    x = rng.uniform(-800.0, 800.0, 60)
+    group = np.repeat(np.arange(10), 6)
+    r = x * (true[0] + true[1] * np.abs(x) / 1000.0) + rng.normal(0.0, 0.5, 60)
+    gain, ev = cog.select_gain(4, x, r, np.full(60, 0.5), group)
+    assert gain.model in ("poly2", "poly3")
+    grid = np.linspace(-800.0, 800.0, 9)
+    np.testing.assert_allclose(gain.reading_nm(grid), grid * (true[0] + true[1] * np.abs(grid) / 1000.0), atol=1.5)
+    assert ev["models"]["linear"]["heldout_rms_nm"] > 5 * ev["models"]["poly2"]["heldout_rms_nm"]
+    with pytest.raises(DataError, match="cannot validate"):
+        cog.fit_gain(4, x[:12], r[:12], np.ones(12), group[:12], "poly3")
+
+
+def _exact_poses(c_dut, m_dut, gains, offsets, scheme="full", fixture=(10.0, (0.0, 0.0, 0.005))):
+    m_fix, c_fix = fixture
+    theta = np.array([m_dut + m_fix, *(m_dut * np.asarray(c_dut) + m_fix * np.asarray(c_fix))])
+    out = []
+    for p in cog.cog_poses(kin.measurement_pose(), scheme):
+        x = kin.gravity_regressor(p.q_deg) @ theta
+        r = np.full(6, np.nan)
+        for ax, g in gains.items():
+            r[ax - 1] = g.reading_nm(np.array([x[ax - 1]]))[0] + offsets.get(ax, 0.0)
+        out.append(cog.PoseTorques(p.name, p.q_deg, tuple(r), (0.1,) * 6, (0.1,) * 6))
+    return out
+
+
+def test_gls_recovers_the_cog_through_nonlinear_gains_and_mount_offsets():
+    gains = {3: _gain(3, (0.92, -0.01)), 4: _gain(4, (0.96,)), 5: _gain(5, (0.91, 0.28, -0.1)), 6: _gain(6, (1.04,))}
+    c_dut, m = np.array([-0.041, -0.028, 0.335]), 107.3
+    poses = _exact_poses(c_dut, m, gains, {3: 7.0, 4: -2.0, 5: -9.0, 6: 1.5})
+    fit = cog.estimate_cog_gls(poses, gains, dut_mass_kg=m, u_dut_mass_kg=0.0, fixture_mass_kg=10.0,
+                               fixture_cog_m=(0.0, 0.0, 0.005))
+    assert fit.fitted_offsets
+    np.testing.assert_allclose(fit.cog_m, c_dut, atol=1e-7)
+    assert fit.offsets_nm == pytest.approx({"A3": 7.0, "A4": -2.0, "A5": -9.0, "A6": 1.5})  # in the reading, Nm
+    # the paper's two poses: no offsets can be fitted; with none present the CoG is still exact
+    paper = _exact_poses(c_dut, m, gains, {}, "paper")
+    fit2 = cog.estimate_cog_gls(paper, gains, dut_mass_kg=m, u_dut_mass_kg=0.1, fixture_mass_kg=10.0,
+                                fixture_cog_m=(0.0, 0.0, 0.005))
+    assert not fit2.fitted_offsets
+    np.testing.assert_allclose(fit2.cog_m, c_dut, atol=1e-7)
+    assert np.all(np.sqrt(np.diag(fit2.cov_parts_m2["mass"])) > 0)
+
+
+def test_gls_refuses_pose_sets_that_cannot_determine_the_cog():
+    gains = {4: _gain(4, (0.96,)), 5: _gain(5, (1.1,)), 6: _gain(6, (1.04,))}
+    meas_only = _exact_poses((0.01, 0.02, 0.3), 50.0, gains, {})[:1]
+    with pytest.raises(DataError, match="do not determine all three CoG coordinates"):
+        cog.estimate_cog_gls(meas_only, gains, dut_mass_kg=50.0, u_dut_mass_kg=0.0, fixture_mass_kg=0.0,
+                             fixture_cog_m=(0, 0, 0))
+    with pytest.raises(DataError, match="mass must be > 0"):
+        cog.estimate_cog_gls(meas_only, gains, dut_mass_kg=0.0, u_dut_mass_kg=0.0, fixture_mass_kg=0.0,
+                             fixture_cog_m=(0, 0, 0))
+
+
+def test_dut_frame_transform_matches_the_simulators_frame():
+    dut = ph.AsymmetricDut("box", 50.0, (0.01, -0.02, 0.30), (0.005, 0.01, 0.025), (30.0, -10.0, 5.0))
+    cov = np.diag([1e-6, 4e-6, 9e-6])
+    c, cov_dut = cog.to_dut_frame(dut.cog_flange_m, cov, dut.dut_origin_flange_m, dut.dut_abc_deg)
+    np.testing.assert_allclose(c, dut.cog_dut_m, atol=1e-12)
+    np.testing.assert_allclose(kin.kuka_abc_deg(cog.kuka_rotation(dut.dut_abc_deg)), dut.dut_abc_deg, atol=1e-9)
+    assert np.trace(cov_dut) == pytest.approx(np.trace(cov))  # a rotation keeps the total variance
+    wing = ph.refex_wing_box()
+    assert wing.mass_kg == 107.3 and 0.02 < np.hypot(*wing.cog_flange_m[:2]) < 0.1

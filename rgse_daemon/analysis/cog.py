@@ -1,0 +1,375 @@
+"""The centre of gravity of a DuT from a mass-properties run (issue #14): bias-corrected torques in the poses of a
+scheme, the per-axis K of CAL.json's ``torsional`` section, the mass from the mass run, the fixture frame.
+
+One code path for ``rgse cog`` and the daemon's properties run, so a stored CoG is always reproducible from its
+raw files (``compute_cog_dir``). The numbers are computed in :mod:`rgse_daemon.pipeline.cog`.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon import calfile
+from rgse_daemon import kinematics as kin
+from rgse_daemon.errors import DataError
+from rgse_daemon.manifest import TORQUE_CHANNEL, Manifest, TorsionalPointSpec, load_manifest
+from rgse_daemon.pipeline import cog as cog_mod
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline.uncertainty import COVERAGE_K
+from rgse_daemon.trace.diadem import read_trace_set
+from rgse_daemon.trace.names import plain_name
+
+#: Largest difference (deg) between a reading's pose and the calibration's pose of the same name.
+POSE_TOLERANCE_DEG = 0.5
+DRIVE_MODULE = "NextGenDrive#{}"
+
+
+@dataclass(frozen=True)
+class PoseReading:
+    """Mean torques of one pose of a properties run: A1..A6 in deg (as commanded or measured), the mean
+    ``Istmoment`` A1..A6 over its traces (Nm, NaN where not traced) and the standard error of each mean."""
+
+    pose: str
+    q_deg: tuple[float, ...]
+    torque_nm: tuple[float, ...]
+    sigma_nm: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class FixtureFrame:
+    """The fixture between MPA and DuT, and where the DuT's own frame sits: fixture mass (kg) and CoG in the
+    flange frame (m), the DuT frame's origin in the flange frame (m) and its KUKA A, B, C (Z-Y-X, deg)."""
+
+    mass_kg: float
+    cog_flange_m: tuple[float, float, float]
+    dut_origin_flange_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    dut_abc_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        values = [self.mass_kg, *self.cog_flange_m, *self.dut_origin_flange_m, *self.dut_abc_deg]
+        if (len(self.cog_flange_m), len(self.dut_origin_flange_m), len(self.dut_abc_deg)) != (3, 3, 3) or not all(
+                isinstance(v, int | float) and math.isfinite(v) for v in values):
+            raise DataError(f"fixture frame: mass, CoG, DuT origin and A, B, C must be finite numbers (three each), "
+                            f"got {self!r}")
+        if self.mass_kg < 0:
+            raise DataError(f"fixture frame: mass must be >= 0 kg, got {self.mass_kg}")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"mass_kg": self.mass_kg, "cog_flange_m": list(self.cog_flange_m),
+                "dut_origin_flange_m": list(self.dut_origin_flange_m), "dut_abc_deg": list(self.dut_abc_deg)}
+
+    @staticmethod
+    def from_json(d: dict[str, Any], where: str = "fixture") -> FixtureFrame:
+        if not isinstance(d, dict):
+            raise DataError(f"{where}: must be a table/object")
+        try:
+            return FixtureFrame(float(d["mass_kg"]), tuple(float(v) for v in d["cog_flange_m"]),
+                                tuple(float(v) for v in d.get("dut_origin_flange_m", (0.0, 0.0, 0.0))),
+                                tuple(float(v) for v in d.get("dut_abc_deg", (0.0, 0.0, 0.0))))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"{where}: needs mass_kg and cog_flange_m [x, y, z] (and optionally dut_origin_flange_m,"
+                            f" dut_abc_deg): {exc!r}") from None
+
+
+@dataclass(frozen=True)
+class CogResult:
+    """The DuT's CoG in the flange and DuT frames (m) with U (k = 2) per coordinate, the mass it used, warnings and
+    the uncertainty budget (standard uncertainties per source, the fit's diagnostics)."""
+
+    cog_flange_m: tuple[float, float, float]
+    U_cog_flange_m: tuple[float, float, float]
+    cog_dut_m: tuple[float, float, float]
+    U_cog_dut_m: tuple[float, float, float]
+    mass_kg: float
+    U_mass_kg: float
+    scheme: str
+    n_poses: int
+    warnings: tuple[str, ...]
+    budget: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"cog_flange_m": list(self.cog_flange_m), "U_cog_flange_m": list(self.U_cog_flange_m),
+                "cog_dut_m": list(self.cog_dut_m), "U_cog_dut_m": list(self.U_cog_dut_m), "k": int(COVERAGE_K),
+                "mass_kg": self.mass_kg, "U_mass_kg": self.U_mass_kg, "scheme": self.scheme,
+                "n_poses": self.n_poses, "warnings": list(self.warnings), "budget": self.budget}
+
+
+def _three(v: np.ndarray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def compute_cog(readings: Sequence[PoseReading], cal_doc: dict, *, mass_kg: float, u_mass_kg: float,
+                fixture: FixtureFrame, g_m_s2: float | None = None) -> CogResult:
+    """The DuT's CoG from its pose readings and a calibration document.
+
+    ``mass_kg``: the DuT's mass from the mass run (fixture excluded), ``u_mass_kg`` its *standard* uncertainty
+    (the mass result's ``u_kg``). Each reading is bias-corrected with the calibration's bare reading of the pose of
+    the same name (the MPA stays on; fixture and DuT are what the torques carry beyond it), converted to payload
+    torque with the axis' K, and fitted by :func:`rgse_daemon.pipeline.cog.estimate_cog_gls`.
+    DataError naming CAL.json when the calibration has no torsional section or lacks a pose's bias.
+    """
+    where = "CAL.json"
+    tors = calfile.torsional(cal_doc, where)
+    if tors is None:
+        raise DataError(f"{where}: the calibration has no 'torsional' section (no CoG calibration: run a campaign "
+                        f"with torsional points, then rgse calibrate); the CoG cannot be computed")
+    if not readings:
+        raise DataError("CoG: no pose readings")
+    if not (math.isfinite(mass_kg) and mass_kg > 0):
+        raise DataError(f"CoG: DuT mass must be a finite mass > 0 kg, got {mass_kg}")
+    if not (math.isfinite(u_mass_kg) and u_mass_kg >= 0):
+        raise DataError(f"CoG: u_mass_kg must be finite and >= 0, got {u_mass_kg}")
+    g = float(cal_doc.get("g", kin.G_PAPER_M_S2)) if g_m_s2 is None else g_m_s2
+    warnings: list[str] = []
+    poses = []
+    names = [r.pose for r in readings]
+    if len(set(names)) != len(names):
+        raise DataError(f"CoG: pose names repeat: {names}")
+    for r in readings:
+        cal_pose = tors.poses.get(r.pose)
+        if cal_pose is None:
+            raise DataError(f"{where}: torsional section has no bias for pose {r.pose!r} "
+                            f"(it has {', '.join(tors.poses)})")
+        q = np.asarray(r.q_deg, dtype=float)
+        if q.shape != (6,) or len(r.torque_nm) != 6 or len(r.sigma_nm) != 6:
+            raise DataError(f"CoG: pose {r.pose}: q_deg, torque_nm and sigma_nm need six entries (A1..A6)")
+        dq = float(np.max(np.abs(q - np.asarray(cal_pose.q_deg))))
+        if dq > POSE_TOLERANCE_DEG:
+            raise DataError(f"CoG: pose {r.pose} at {q.tolist()} deg differs from the calibration's "
+                            f"{list(cal_pose.q_deg)} by {dq:.2f} deg (limit {POSE_TOLERANCE_DEG} deg)")
+        tau, sig = np.asarray(r.torque_nm, float), np.asarray(r.sigma_nm, float)
+        bias, u_bias = np.asarray(cal_pose.bias_nm), np.asarray(cal_pose.u_bias_nm)
+        usable = [ax for ax in tors.gains if np.isfinite(tau[ax - 1]) and np.isfinite(bias[ax - 1])]
+        if not usable:
+            raise DataError(f"CoG: pose {r.pose}: no calibrated axis (A{', A'.join(map(str, tors.gains))}) has both "
+                            f"a torque and a bias")
+        poses.append(cog_mod.PoseTorques(r.pose, tuple(q.tolist()), tuple((tau - bias).tolist()),
+                                         tuple(np.where(np.isfinite(sig), sig, 0.0).tolist()),
+                                         tuple(np.where(np.isfinite(u_bias), u_bias, 0.0).tolist())))
+    fit = cog_mod.estimate_cog_gls(poses, tors.gains, dut_mass_kg=mass_kg, u_dut_mass_kg=u_mass_kg,
+                                   fixture_mass_kg=fixture.mass_kg, fixture_cog_m=fixture.cog_flange_m, g_m_s2=g)
+    for ax in fit.outside_range:
+        warnings.append(f"{ax}: payload torques outside what the torsional calibration covered; U does not cover "
+                        f"the extrapolation")
+    if np.isfinite(fit.chi2_red) and fit.chi2_red > 4.0:
+        warnings.append(f"the poses disagree more than their noise explains (reduced chi2 {fit.chi2_red:.1f}); "
+                        f"U is scaled by it")
+    c_dut, cov_dut = cog_mod.to_dut_frame(fit.cog_m, fit.cov_m2, fixture.dut_origin_flange_m, fixture.dut_abc_deg)
+    u_flange = np.sqrt(np.diag(fit.cov_m2))
+    budget: dict[str, Any] = {
+        "u_flange_m": {k: np.sqrt(np.diag(v)).tolist() for k, v in fit.cov_parts_m2.items()},
+        "covariance_flange_m2": fit.cov_m2.tolist(),
+        "covariance_dut_m2": cov_dut.tolist(),
+        "chi2_red": None if not np.isfinite(fit.chi2_red) else fit.chi2_red,
+        "n_equations": fit.n_equations,
+        "fitted_offsets_nm": fit.offsets_nm,
+        "axes": [f"A{ax}" for ax in sorted(tors.gains)],
+        "calibration_id": cal_doc.get("calibration_id"),
+    }
+    if tors.scheme != "?" and {r.pose for r in readings} - set(tors.poses):
+        warnings.append("poses outside the calibration's scheme")
+    paper = _eq5_7(readings, tors, mass_kg + fixture.mass_kg)
+    if paper is not None:
+        budget["eq5_7_levers_m"] = paper
+    scheme = _scheme_of(names)
+    return CogResult(_three(fit.cog_m), _three(COVERAGE_K * u_flange), _three(c_dut),
+                     _three(COVERAGE_K * np.sqrt(np.diag(cov_dut))), float(mass_kg), COVERAGE_K * float(u_mass_kg),
+                     scheme, len(readings), tuple(warnings), budget)
+
+
+def _scheme_of(names: Sequence[str]) -> str:
+    for scheme in ("full", "paper"):
+        if set(names) == {p.name for p in cog_mod.cog_poses(kin.measurement_pose(), scheme)}:
+            return scheme
+    return "custom"
+
+
+def _eq5_7(readings: Sequence[PoseReading], tors: calfile.Torsional, total_mass_kg: float) -> dict | None:
+    """The paper's levers a, b, c (eq. 5–7) of fixture + DuT, from A5 at 0° and A6 at 0°/90° (K applied), for
+    comparison with the least-squares estimate; None without those poses."""
+    by_name = {r.pose: r for r in readings}
+    if "meas" not in by_name or "A6+90" not in by_name or 5 not in tors.gains or 6 not in tors.gains:
+        return None
+
+    def x(pose: str, ax: int) -> float:
+        r = by_name[pose].torque_nm[ax - 1] - tors.poses[pose].bias_nm[ax - 1]
+        return float(tors.gains[ax].payload_torque_nm(np.array([r]))[0])
+
+    try:
+        a, b, c = cog_mod.cog_paper(total_mass_kg, -x("meas", 5), x("meas", 6), x("A6+90", 6))
+    except DataError:
+        return None
+    return {"a": float(a), "b": float(b), "c": float(c)}
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The run directory of a properties run (interfaces §2)
+# ---------------------------------------------------------------------------------------------------------------------
+def _toml_str(s: str) -> str:
+    return '"' + s.replace("\\", "\\\\").replace('"', '\\"') + '"'
+
+
+def _toml_list(values: Sequence[float]) -> str:
+    return "[" + ", ".join(repr(float(v)) for v in values) + "]"
+
+
+def properties_manifest_toml(*, robot: str, g_m_s2: float, lever_difference_m: float, scheme: str,
+                             mass_kg: float, u_mass_kg: float, fixture: FixtureFrame,
+                             poses: Sequence[tuple[str, Sequence[float], Sequence[str]]]) -> str:
+    """``manifest.toml`` of a properties run: ``[setup]`` as for a measurement, ``[properties]`` with the scheme,
+    the DuT mass (kg) and its standard uncertainty from the mass run, the fixture frame, and one
+    ``[[properties.pose]]`` per pose: name, A1..A6 (deg) and its trace names (loops)."""
+    for name, q, traces in poses:
+        if len(q) != 6 or not traces:
+            raise DataError(f"properties manifest: pose {name!r} needs six angles and at least one trace")
+        for t in traces:
+            plain_name(t, f"properties manifest: pose {name!r}")
+    lines = ["[setup]", f"robot = {_toml_str(robot)}", f"g = {float(g_m_s2)!r}",
+             f"lever_difference_m = {float(lever_difference_m)!r}", "", "[properties]",
+             f"scheme = {_toml_str(scheme)}", f"mass_kg = {float(mass_kg)!r}", f"u_mass_kg = {float(u_mass_kg)!r}",
+             "", "[properties.fixture]", f"mass_kg = {float(fixture.mass_kg)!r}",
+             f"cog_flange_m = {_toml_list(fixture.cog_flange_m)}",
+             f"dut_origin_flange_m = {_toml_list(fixture.dut_origin_flange_m)}",
+             f"dut_abc_deg = {_toml_list(fixture.dut_abc_deg)}"]
+    for name, q, traces in poses:
+        lines += ["", "[[properties.pose]]", f"name = {_toml_str(name)}", f"q_deg = {_toml_list(q)}",
+                  "traces = [" + ", ".join(_toml_str(t) for t in traces) + "]"]
+    return "\n".join(lines) + "\n"
+
+
+@dataclass(frozen=True)
+class PropertiesRun:
+    """A properties run directory, read: robot, g, scheme, mass (kg) and its standard uncertainty, the fixture
+    frame and one reading per pose."""
+
+    robot: str
+    g_m_s2: float
+    scheme: str
+    mass_kg: float
+    u_mass_kg: float
+    fixture: FixtureFrame
+    readings: list[PoseReading]
+
+
+def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequence[str],
+                  pre: pp.Preprocessing) -> PoseReading:
+    """Mean torque per axis over the pose's loops (eq. 16's double average), its standard error: the loops'
+    scatter with two or more loops, else the within-loop standard error of the kept samples."""
+    per_axis: dict[int, list[tuple[float, float]]] = {}
+    for t in traces:
+        ts = read_trace_set(directory, t)
+        for ax in range(1, 7):
+            module = DRIVE_MODULE.format(ax)
+            if module not in ts.files:
+                continue
+            tf = ts.files[module]
+            values = np.asarray(ts.channel(module, TORQUE_CHANNEL).values, float)
+            if values.size < 3 or not np.all(np.isfinite(values)):
+                raise DataError(f"{tf.dat_path}: torque channel {TORQUE_CHANNEL!r} is too short or not finite")
+            loop = pp.process_loop(values, float(tf.period_s), pre)
+            kept = pp.kept_samples(values, float(tf.period_s), pre)
+            per_axis.setdefault(ax, []).append((loop.torque_nm, float(np.std(kept) / np.sqrt(max(kept.size, 1)))))
+    torque = np.full(6, np.nan)
+    sigma = np.full(6, np.nan)
+    for ax, loops in per_axis.items():
+        if len(loops) != len(traces):
+            raise DataError(f"{directory}: pose {name!r}: A{ax} is traced in only {len(loops)} of {len(traces)} "
+                            f"loops")
+        means = np.array([m for m, _ in loops])
+        torque[ax - 1] = pp.double_average_nm(means)
+        within = float(np.sqrt(np.sum(np.array([s for _, s in loops]) ** 2))) / len(loops)
+        between = float(np.std(means, ddof=1) / np.sqrt(len(means))) if len(means) > 1 else 0.0
+        sigma[ax - 1] = max(within, between)
+    return PoseReading(name, q, tuple(torque.tolist()), tuple(sigma.tolist()))
+
+
+def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER) -> PropertiesRun:
+    """Read a properties run directory (``manifest.toml`` with ``[properties]``, trace files)."""
+    directory = Path(directory)
+    man = load_manifest(directory)
+    doc = tomllib.loads(man.path.read_text(encoding="utf-8"))
+    where = f"{man.path} [properties]"
+    props = doc.get("properties")
+    if not isinstance(props, dict):
+        raise DataError(f"{man.path}: no [properties] table (is this a properties run?)")
+    try:
+        mass = float(props["mass_kg"])
+        u_mass = float(props.get("u_mass_kg", 0.0))
+    except (KeyError, TypeError, ValueError):
+        raise DataError(f"{where}: needs mass_kg (and u_mass_kg) as numbers") from None
+    if not (math.isfinite(mass) and mass > 0 and math.isfinite(u_mass) and u_mass >= 0):
+        raise DataError(f"{where}: mass_kg must be > 0 and u_mass_kg >= 0, got {mass}, {u_mass}")
+    fixture = FixtureFrame.from_json(props.get("fixture", {}), f"{where} fixture")
+    poses = props.get("pose")
+    if not isinstance(poses, list) or not poses:
+        raise DataError(f"{where}: needs [[properties.pose]] entries")
+    readings = []
+    for i, p in enumerate(poses):
+        pw = f"{where} pose #{i + 1}"
+        if not isinstance(p, dict) or not isinstance(p.get("name"), str):
+            raise DataError(f"{pw}: needs a name")
+        q = p.get("q_deg")
+        if not isinstance(q, list) or len(q) != 6 or not all(
+                isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in q):
+            raise DataError(f"{pw}: q_deg must be six finite angles (deg)")
+        traces = p.get("traces")
+        if not isinstance(traces, list) or not traces or not all(isinstance(t, str) for t in traces):
+            raise DataError(f"{pw}: traces must be a non-empty list of trace names")
+        for t in traces:
+            plain_name(t, f"{pw}: traces")
+        readings.append(_pose_reading(directory, p["name"], tuple(float(v) for v in q), traces, pre))
+    return PropertiesRun(man.setup.robot, man.setup.g_m_s2, str(props.get("scheme", "custom")), mass, u_mass,
+                         fixture, readings)
+
+
+def compute_cog_dir(directory: Path | str, calibration_path: Path | str) -> CogResult:
+    """The CoG of a properties run directory with a calibration file: what ``rgse cog`` prints and what the daemon
+    stores — one code path, so a stored CoG is always reproducible from its raw files."""
+    doc, _cal, pre = calfile.read(calibration_path)
+    run = read_properties_dir(directory, pre or pp.PAPER)
+    calfile.check_robot(calibration_path, doc, run.robot)
+    try:
+        return compute_cog(run.readings, doc, mass_kg=run.mass_kg, u_mass_kg=run.u_mass_kg, fixture=run.fixture,
+                           g_m_s2=run.g_m_s2)
+    except DataError as exc:
+        raise DataError(str(exc).replace("CAL.json", str(calibration_path))) from None
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The torsional calibration of a campaign directory (CAL.json ``torsional``)
+# ---------------------------------------------------------------------------------------------------------------------
+def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing = pp.PAPER) -> dict[str, Any]:
+    """The ``torsional`` section of CAL.json from a campaign's ``kind = "torsional"`` points: the bare MPA's mean
+    torques per pose (the bias, with its standard error) and K per axis A3..A6 (:func:`pipeline.cog.fit_torsional`,
+    leave-one-point-out validation)."""
+    poses = [cog_mod.CogPose(p.name, p.q_deg) for p in man.torsional_poses]
+    bias_specs = [pt for pt in man.torsional_points if pt.mass_kg == 0.0]
+    if len(bias_specs) != 1:
+        raise DataError(f"{man.path}: exactly one torsional point with mass_kg = 0 (the bias), found "
+                        f"{len(bias_specs)}")
+
+    def means(spec: TorsionalPointSpec) -> dict[str, cog_mod.PoseMean]:
+        out = {}
+        for p in poses:
+            r = _pose_reading(directory, p.name, p.q_deg, spec.traces[p.name], pre)
+            out[p.name] = cog_mod.PoseMean(r.torque_nm, r.sigma_nm)
+        return out
+
+    bias = means(bias_specs[0])
+    loaded = [cog_mod.TorsionalPoint(pt.mass_kg, pt.cog_flange_m, means(pt))
+              for pt in man.torsional_points if pt.mass_kg > 0]
+    try:
+        fit = cog_mod.fit_torsional(poses, bias, loaded, g_m_s2=man.setup.g_m_s2)
+    except DataError as exc:
+        raise DataError(f"{man.path}: {exc}") from None
+    cal_poses = [calfile.TorsionalPose(p.name, p.q_deg, bias[p.name].torque_nm, bias[p.name].sigma_nm)
+                 for p in poses]
+    return calfile.torsional_section(man.torsional_scheme or "custom", cal_poses, fit.gains, fit.evaluations,
+                                     len(loaded))

@@ -1,0 +1,80 @@
+"""compute_cog and the torsional calibration on the simulated KR C4: refusals, and the CoG of an asymmetric DuT."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rgse_daemon import calfile
+from rgse_daemon.analysis import cog as acog
+from rgse_daemon.errors import DataError
+from simulators.krc4 import physics as ph
+from tests.support import cogcampaign as cc
+
+
+def _doc(campaign: cc.TorsionalCampaign) -> dict:
+    fit = campaign.fit()
+    poses = [calfile.TorsionalPose(t.name, t.q_deg, t.reading().torque_nm, t.reading().sigma_nm)
+             for t in campaign.bias]
+    return {"g": 9.81, "calibration_id": "sim",
+            "torsional": calfile.torsional_section(campaign.scheme, poses, fit.gains, fit.evaluations,
+                                                   len(campaign.points))}
+
+
+@pytest.fixture(scope="module")
+def measured():
+    model = ph.RobotModel(seed=5)
+    model.hold(1500.0)  # warm-up
+    campaign = cc.simulate_torsional(model, "full", seed=5)
+    run = cc.simulate_properties(model, ph.refex_wing_box(), "full")
+    return campaign, run
+
+
+def test_old_calibration_without_torsional_section_is_refused(measured):
+    _, run = measured
+    with pytest.raises(DataError, match=r"CAL.json: the calibration has no 'torsional' section"):
+        acog.compute_cog([t.reading() for t in run.poses], {"g": 9.81}, mass_kg=107.3, u_mass_kg=0.1,
+                         fixture=run.fixture)
+
+
+def test_missing_pose_bias_is_named(measured):
+    campaign, run = measured
+    doc = _doc(campaign)
+    del doc["torsional"]["poses"]["A5-45"]
+    with pytest.raises(DataError, match=r"CAL.json: torsional section has no bias for pose 'A5-45'"):
+        acog.compute_cog([t.reading() for t in run.poses], doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+
+
+def test_bad_inputs_are_refused(measured):
+    campaign, run = measured
+    doc = _doc(campaign)
+    readings = [t.reading() for t in run.poses]
+    with pytest.raises(DataError, match="mass"):
+        acog.compute_cog(readings, doc, mass_kg=float("nan"), u_mass_kg=0.1, fixture=run.fixture)
+    moved = [acog.PoseReading(readings[0].pose, (0.0, -90.0, 90.0, 0.0, 3.0, 0.0), readings[0].torque_nm,
+                              readings[0].sigma_nm), *readings[1:]]
+    with pytest.raises(DataError, match="differs from the calibration's"):
+        acog.compute_cog(moved, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+    with pytest.raises(DataError, match="fixture frame"):
+        acog.FixtureFrame(-1.0, (0.0, 0.0, 0.0))
+    with pytest.raises(DataError, match="do not determine"):
+        acog.compute_cog(readings[:1], doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+
+
+def test_cog_of_the_wing_box_across_the_launch_axis(measured):
+    """Across the flange axis (x, y) the CoG is within the ECSS ±1 mm and U covers it; along it (z) see bench/cog.py:
+    the calibration bodies' seating scatter limits z to several mm."""
+    campaign, run = measured
+    res = acog.compute_cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=107.3, u_mass_kg=0.15,
+                           fixture=run.fixture)
+    err_mm = (np.array(res.cog_flange_m) - run.true_cog_flange_m) * 1000.0
+    U_mm = np.array(res.U_cog_flange_m) * 1000.0
+    assert np.all(np.abs(err_mm[:2]) < 1.0), err_mm
+    assert np.all(np.abs(err_mm) <= U_mm), (err_mm, U_mm)
+    assert np.all(U_mm[:2] < 2.0) and U_mm[2] < 15.0
+    # the DuT frame: the same point, rotated 90° about the flange axis
+    dut = run.dut
+    true_dut = dut.rotation.T @ (run.true_cog_flange_m - np.array(dut.dut_origin_flange_m))
+    np.testing.assert_allclose(res.cog_dut_m, true_dut, atol=np.max(U_mm) / 1000.0)
+    assert res.U_cog_dut_m[0] == pytest.approx(res.U_cog_flange_m[1]) and res.scheme == "full"
+    assert res.to_json()["k"] == 2 and res.n_poses == 8
