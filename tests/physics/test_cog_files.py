@@ -1,0 +1,62 @@
+"""The CoG end to end offline, on real KUKA trace files written by the simulator's trace writer: a campaign with
+mass and torsional points → ``rgse calibrate`` (CAL.json with a torsional section) → ``rgse mass`` and
+``rgse cog`` on a properties run of the asymmetric wing box."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from rgse_daemon.cli import main
+from simulators.krc4 import physics as ph
+from tests.support import cogcampaign as cc
+from tests.support import simcampaign as sc
+
+
+def _json(capsys, argv: list[str]) -> dict:
+    assert main(argv) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.slow
+def test_calibrate_mass_and_cog_from_trace_files(tmp_path, capsys):
+    campaign, model = sc.simulate_campaign(3, n_loops=2)
+    sc.write_dirs(campaign, sc.simulate_measurement(model, 50.0), tmp_path / "cal", tmp_path / "unused")
+    torsional = cc.simulate_torsional(model, "full", seed=3)
+    lines = cc.torsional_manifest_lines(tmp_path / "cal", torsional)
+    with (tmp_path / "cal" / "manifest.toml").open("a", encoding="utf-8") as f:
+        f.write("\n" + "\n".join(lines))
+    cal_json = tmp_path / "CAL.json"
+    cal = _json(capsys, ["calibrate", "--campaign", str(tmp_path / "cal"), "--out", str(cal_json), "--json"])
+    assert set(cal["torsional"]) == {"A3", "A4", "A5", "A6"}
+    doc = json.loads(cal_json.read_text())
+    assert doc["calibration_id"] == cal["calibration_id"] and len(doc["torsional"]["poses"]) == 8
+
+    # the properties run of the wing box; its measurement-pose loops double as the mass run's
+    run = cc.simulate_properties(model, ph.refex_wing_box(), "full")
+    prop = tmp_path / "prop"
+    cc.write_properties_dir(prop, run, robot=sc.ROBOT, mass_kg=1.0, u_mass_kg=0.0)
+    meas_traces = next(line.split("=", 1)[1].strip() for line in (prop / "manifest.toml").read_text().splitlines()
+                       if line.startswith("traces"))
+    (prop / "manifest.toml").write_text((prop / "manifest.toml").read_text()
+                                        + f"\n[measurement]\nfixture_mass_kg = {ph.FIXTURE_MASS_KG!r}\n"
+                                          f"traces = {meas_traces}\n", encoding="utf-8")
+    mass = _json(capsys, ["mass", "--traces", str(prop), "--calibration", str(cal_json), "--json"])
+    assert abs(mass["mass_kg"] - 107.3) <= mass["U_kg"]
+    cc.write_properties_dir(prop, run, robot=sc.ROBOT, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
+    res = _json(capsys, ["cog", "--traces", str(prop), "--calibration", str(cal_json), "--json"])
+    err_mm = (np.array(res["cog_flange_m"]) - run.true_cog_flange_m) * 1000.0
+    assert np.all(np.abs(err_mm[:2]) < 1.0), err_mm
+    assert np.all(np.abs(err_mm) <= np.array(res["U_cog_flange_m"]) * 1000.0), (err_mm, res["U_cog_flange_m"])
+    assert res["scheme"] == "full" and res["n_poses"] == 8 and res["budget"]["calibration_id"] == cal["calibration_id"]
+
+    # the human form, and a calibration without the torsional section refused with the reason
+    assert main(["cog", "--traces", str(prop), "--calibration", str(cal_json)]) == 0
+    assert "CoG (flange)" in capsys.readouterr().out
+    del doc["torsional"]
+    old = tmp_path / "OLD.json"
+    old.write_text(json.dumps(doc))
+    assert main(["cog", "--traces", str(prop), "--calibration", str(old)]) == 2
+    assert "no 'torsional' section" in capsys.readouterr().err
