@@ -18,16 +18,20 @@ import numpy as np
 
 from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
+from rgse_daemon.analysis import mass as mass_analysis
 from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import TORQUE_CHANNEL, Manifest, TorsionalPointSpec, load_manifest
 from rgse_daemon.pipeline import cog as cog_mod
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline.cog import CogPose, cog_poses
 from rgse_daemon.pipeline.uncertainty import COVERAGE_K
 from rgse_daemon.trace.diadem import read_trace_set
 from rgse_daemon.trace.names import plain_name
 
 #: Largest difference (deg) between a reading's pose and the calibration's pose of the same name.
 POSE_TOLERANCE_DEG = 0.5
+__all__ = ["CogPose", "CogResult", "FixtureFrame", "PoseReading", "cog_poses", "compute_cog", "compute_cog_dir",
+           "properties_manifest_toml", "read_properties_dir", "torsional_calibration"]
 DRIVE_MODULE = "NextGenDrive#{}"
 
 
@@ -220,24 +224,25 @@ def _toml_list(values: Sequence[float]) -> str:
     return "[" + ", ".join(repr(float(v)) for v in values) + "]"
 
 
-def properties_manifest_toml(*, robot: str, g_m_s2: float, lever_difference_m: float, scheme: str,
-                             mass_kg: float, u_mass_kg: float, fixture: FixtureFrame,
-                             poses: Sequence[tuple[str, Sequence[float], Sequence[str]]]) -> str:
-    """``manifest.toml`` of a properties run: ``[setup]`` as for a measurement, ``[properties]`` with the scheme,
-    the DuT mass (kg) and its standard uncertainty from the mass run, the fixture frame, and one
-    ``[[properties.pose]]`` per pose: name, A1..A6 (deg) and its trace names (loops)."""
+def properties_manifest_toml(scheme: str, fixture: FixtureFrame,
+                             poses: Sequence[tuple[str, Sequence[float], Sequence[str]]], *,
+                             mass_kg: float | None = None, u_mass_kg: float | None = None) -> str:
+    """The ``[properties]`` tables of a properties run's ``manifest.toml`` (after ``[setup]`` and, usually, the
+    ``[measurement]`` of the mass loops): the scheme, the fixture frame and one ``[[properties.pose]]`` per pose
+    (name, A1..A6 in deg, its trace names). ``mass_kg``/``u_mass_kg`` (standard uncertainty): the DuT's mass when it
+    does not come from the directory's own ``[measurement]`` loops."""
     for name, q, traces in poses:
         if len(q) != 6 or not traces:
             raise DataError(f"properties manifest: pose {name!r} needs six angles and at least one trace")
         for t in traces:
             plain_name(t, f"properties manifest: pose {name!r}")
-    lines = ["[setup]", f"robot = {_toml_str(robot)}", f"g = {float(g_m_s2)!r}",
-             f"lever_difference_m = {float(lever_difference_m)!r}", "", "[properties]",
-             f"scheme = {_toml_str(scheme)}", f"mass_kg = {float(mass_kg)!r}", f"u_mass_kg = {float(u_mass_kg)!r}",
-             "", "[properties.fixture]", f"mass_kg = {float(fixture.mass_kg)!r}",
-             f"cog_flange_m = {_toml_list(fixture.cog_flange_m)}",
-             f"dut_origin_flange_m = {_toml_list(fixture.dut_origin_flange_m)}",
-             f"dut_abc_deg = {_toml_list(fixture.dut_abc_deg)}"]
+    lines = ["[properties]", f"scheme = {_toml_str(scheme)}"]
+    if mass_kg is not None:
+        lines += [f"mass_kg = {float(mass_kg)!r}", f"u_mass_kg = {float(u_mass_kg or 0.0)!r}"]
+    lines += ["", "[properties.fixture]", f"mass_kg = {float(fixture.mass_kg)!r}",
+              f"cog_flange_m = {_toml_list(fixture.cog_flange_m)}",
+              f"dut_origin_flange_m = {_toml_list(fixture.dut_origin_flange_m)}",
+              f"dut_abc_deg = {_toml_list(fixture.dut_abc_deg)}"]
     for name, q, traces in poses:
         lines += ["", "[[properties.pose]]", f"name = {_toml_str(name)}", f"q_deg = {_toml_list(q)}",
                   "traces = [" + ", ".join(_toml_str(t) for t in traces) + "]"]
@@ -246,14 +251,14 @@ def properties_manifest_toml(*, robot: str, g_m_s2: float, lever_difference_m: f
 
 @dataclass(frozen=True)
 class PropertiesRun:
-    """A properties run directory, read: robot, g, scheme, mass (kg) and its standard uncertainty, the fixture
-    frame and one reading per pose."""
+    """A properties run directory, read: robot, g, scheme, the mass (kg) and its standard uncertainty stated in
+    ``[properties]`` (None: from the directory's ``[measurement]`` loops), the fixture frame, one reading per pose."""
 
     robot: str
     g_m_s2: float
     scheme: str
-    mass_kg: float
-    u_mass_kg: float
+    mass_kg: float | None
+    u_mass_kg: float | None
     fixture: FixtureFrame
     readings: list[PoseReading]
 
@@ -299,13 +304,17 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
     props = doc.get("properties")
     if not isinstance(props, dict):
         raise DataError(f"{man.path}: no [properties] table (is this a properties run?)")
-    try:
-        mass = float(props["mass_kg"])
-        u_mass = float(props.get("u_mass_kg", 0.0))
-    except (KeyError, TypeError, ValueError):
-        raise DataError(f"{where}: needs mass_kg (and u_mass_kg) as numbers") from None
-    if not (math.isfinite(mass) and mass > 0 and math.isfinite(u_mass) and u_mass >= 0):
-        raise DataError(f"{where}: mass_kg must be > 0 and u_mass_kg >= 0, got {mass}, {u_mass}")
+    mass = u_mass = None
+    if "mass_kg" in props:
+        try:
+            mass = float(props["mass_kg"])
+            u_mass = float(props.get("u_mass_kg", 0.0))
+        except (TypeError, ValueError):
+            raise DataError(f"{where}: mass_kg and u_mass_kg must be numbers") from None
+        if not (math.isfinite(mass) and mass > 0 and math.isfinite(u_mass) and u_mass >= 0):
+            raise DataError(f"{where}: mass_kg must be > 0 and u_mass_kg >= 0, got {mass}, {u_mass}")
+    elif not man.measurement_traces:
+        raise DataError(f"{where}: no mass_kg and no [measurement] loops to measure the mass from")
     fixture = FixtureFrame.from_json(props.get("fixture", {}), f"{where} fixture")
     poses = props.get("pose")
     if not isinstance(poses, list) or not poses:
@@ -329,14 +338,24 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
                          fixture, readings)
 
 
-def compute_cog_dir(directory: Path | str, calibration_path: Path | str) -> CogResult:
+def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass_kg: float | None = None,
+                    u_mass_kg: float | None = None) -> CogResult:
     """The CoG of a properties run directory with a calibration file: what ``rgse cog`` prints and what the daemon
-    stores — one code path, so a stored CoG is always reproducible from its raw files."""
+    stores — one code path, so a stored CoG is always reproducible from its raw files.
+
+    The DuT's mass (and its standard uncertainty): ``mass_kg``/``u_mass_kg`` when given, else ``[properties]
+    mass_kg``/``u_mass_kg``, else the in-line mass of the directory's ``[measurement]`` loops (as ``rgse mass``)."""
     doc, _cal, pre = calfile.read(calibration_path)
     run = read_properties_dir(directory, pre or pp.PAPER)
     calfile.check_robot(calibration_path, doc, run.robot)
+    if mass_kg is None:
+        if run.mass_kg is not None:
+            mass_kg, u_mass_kg = run.mass_kg, run.u_mass_kg
+        else:
+            mass = mass_analysis.compute(Path(directory), Path(calibration_path))
+            mass_kg, u_mass_kg = mass.mass_kg, mass.u_kg
     try:
-        return compute_cog(run.readings, doc, mass_kg=run.mass_kg, u_mass_kg=run.u_mass_kg, fixture=run.fixture,
+        return compute_cog(run.readings, doc, mass_kg=mass_kg, u_mass_kg=u_mass_kg or 0.0, fixture=run.fixture,
                            g_m_s2=run.g_m_s2)
     except DataError as exc:
         raise DataError(str(exc).replace("CAL.json", str(calibration_path))) from None

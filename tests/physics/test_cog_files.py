@@ -37,20 +37,15 @@ def test_calibrate_mass_and_cog_from_trace_files(tmp_path, capsys):
     # the properties run of the wing box; its measurement-pose loops double as the mass run's
     run = cc.simulate_properties(model, ph.refex_wing_box(), "full")
     prop = tmp_path / "prop"
-    cc.write_properties_dir(prop, run, robot=sc.ROBOT, mass_kg=1.0, u_mass_kg=0.0)
-    meas_traces = next(line.split("=", 1)[1].strip() for line in (prop / "manifest.toml").read_text().splitlines()
-                       if line.startswith("traces"))
-    (prop / "manifest.toml").write_text((prop / "manifest.toml").read_text()
-                                        + f"\n[measurement]\nfixture_mass_kg = {ph.FIXTURE_MASS_KG!r}\n"
-                                          f"traces = {meas_traces}\n", encoding="utf-8")
+    cc.write_properties_dir(prop, run, robot=sc.ROBOT, measurement_pose_traces=True)
     mass = _json(capsys, ["mass", "--traces", str(prop), "--calibration", str(cal_json), "--json"])
     assert abs(mass["mass_kg"] - 107.3) <= mass["U_kg"]
-    cc.write_properties_dir(prop, run, robot=sc.ROBOT, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
     res = _json(capsys, ["cog", "--traces", str(prop), "--calibration", str(cal_json), "--json"])
     err_mm = (np.array(res["cog_flange_m"]) - run.true_cog_flange_m) * 1000.0
     assert np.all(np.abs(err_mm[:2]) < 1.0), err_mm
     assert np.all(np.abs(err_mm) <= np.array(res["U_cog_flange_m"]) * 1000.0), (err_mm, res["U_cog_flange_m"])
     assert res["scheme"] == "full" and res["n_poses"] == 8 and res["budget"]["calibration_id"] == cal["calibration_id"]
+    assert res["mass_kg"] == pytest.approx(mass["mass_kg"]) and res["U_mass_kg"] == pytest.approx(mass["U_kg"])
 
     # the human form, and a calibration without the torsional section refused with the reason
     assert main(["cog", "--traces", str(prop), "--calibration", str(cal_json)]) == 0

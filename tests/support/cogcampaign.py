@@ -159,11 +159,18 @@ def torsional_manifest_lines(directory: Path, campaign: TorsionalCampaign) -> li
     return lines
 
 
-def write_properties_dir(directory: Path, run: PropertiesRun, *, robot: str, mass_kg: float, u_mass_kg: float,
-                         scheme: str = "full") -> None:
+def write_properties_dir(directory: Path, run: PropertiesRun, *, robot: str, mass_kg: float | None = None,
+                         u_mass_kg: float | None = None, scheme: str = "full",
+                         measurement_pose_traces: bool = False) -> None:
+    """The run as a properties run directory; without ``mass_kg`` the mass comes from the measurement pose's loops
+    (``measurement_pose_traces``), as ``rgse mass`` measures it."""
     directory.mkdir(parents=True, exist_ok=True)
     poses = [(t.name, t.q_deg, _write_pose(directory, "prop", t)) for t in run.poses]
-    text = properties_manifest_toml(robot=robot, g_m_s2=kin.G_PAPER_M_S2, lever_difference_m=kin.D4_M,
-                                    scheme=scheme, mass_kg=mass_kg, u_mass_kg=u_mass_kg, fixture=run.fixture,
-                                    poses=poses)
+    setup = ["[setup]", f'robot = "{robot}"', f"g = {kin.G_PAPER_M_S2!r}", f"lever_difference_m = {kin.D4_M!r}", ""]
+    if measurement_pose_traces:  # the measurement pose's loops double as the mass run's
+        meas = next(names for name, _, names in poses if name == "meas")
+        setup += ["[measurement]", f"fixture_mass_kg = {ph.FIXTURE_MASS_KG!r}",
+                  "traces = [" + ", ".join(f'"{n}"' for n in meas) + "]", ""]
+    text = "\n".join(setup) + "\n" + properties_manifest_toml(scheme, run.fixture, poses, mass_kg=mass_kg,
+                                                              u_mass_kg=u_mass_kg)
     (directory / "manifest.toml").write_text(text, encoding="utf-8")
