@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import secrets
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass
+from collections.abc import Callable, Generator, Sequence
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +29,10 @@ from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import calibration as campaign_analysis
 from rgse_daemon.config import Config
 from rgse_daemon.durable import write_atomic
+from rgse_daemon.errors import DataError
 from rgse_daemon.io.topics import Topics
+from rgse_daemon.manifest import TORSIONAL_KIND
+from rgse_daemon.pipeline.cog import cog_poses
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.directory import setup_toml, traces_toml
@@ -37,8 +40,17 @@ from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.loop import LoopOutcome, loop
 from rgse_daemon.procedures.preconditions import verify_start
-from rgse_daemon.procedures.programs import render_program, run_checked
+from rgse_daemon.procedures.programs import (
+    COG_TRACE_CONFIG_NAME,
+    COG_TRACE_MODULES,
+    axes_of,
+    program,
+    render_program,
+    run_checked,
+    trace_config_xml,
+)
 from rgse_daemon.procedures.recorder import StoreRecorder
+from rgse_daemon.procedures.retrieval import TRACE_DIR
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import motor_temps_k, prepare, warm_up
 from rgse_daemon.safety.inputs import SafetyInputs
@@ -72,6 +84,10 @@ class CampaignPoint:
     lever_a5_m: float
     n_cb: int
     cb_lever_a5_m: float | None = None
+    cb_cog_flange_m: tuple[float, float, float] | None = None
+    """A torsional point: the bodies' common CoG on the torsional bracket, flange frame (m)."""
+    scheme: str | None = None
+    """A torsional point: the CoG scheme whose poses it is measured in (:func:`~rgse_daemon.pipeline.cog.cog_poses`)."""
 
     @property
     def label(self) -> str:
@@ -79,6 +95,12 @@ class CampaignPoint:
             return "empty MPA"
         if self.kind == "mass":
             return f"{self.n_cb} calibration bod{'y' if self.n_cb == 1 else 'ies'} on the MPA"
+        if self.kind == TORSIONAL_KIND:
+            if self.n_cb == 0:
+                return "empty MPA (torsional bias, every CoG pose)"
+            x, y, z = (1000.0 * v for v in self.cb_cog_flange_m or (0.0, 0.0, 0.0))
+            return (f"torsional bracket with {self.n_cb} calibration bodies at flange x {x:.0f} mm, y {y:.0f} mm, "
+                    f"z {z:.0f} mm (every CoG pose)")
         return f"test adapter with {self.n_cb} calibration bodies at {self.cb_lever_a5_m:.3f} m from A5"
 
     def spec(self) -> dict[str, Any]:
@@ -86,6 +108,9 @@ class CampaignPoint:
 
     @classmethod
     def from_spec(cls, spec: dict[str, Any]) -> CampaignPoint:
+        spec = dict(spec)
+        if spec.get("cb_cog_flange_m") is not None:
+            spec["cb_cog_flange_m"] = tuple(float(v) for v in spec["cb_cog_flange_m"])
         return cls(**spec)
 
 
@@ -106,6 +131,31 @@ def torque_point(cb_lever_a5_m: float, n_cb: int = 10, g_m_s2: float = kin.G_PAP
     return CampaignPoint("torque", mass, lever_a5 + dr_m, lever_a5, n_cb, cb_lever_a5_m)
 
 
+#: The torsional points (issue #14): bodies on a bracket on the MPA whose common CoG sits off the flange axis at a
+#: known point (flange frame, m): two, four and six bodies, both signs of x and y, 0.30..0.50 m out, so that the
+#: payload torques of A3..A6 span those of a 100-130 kg DuT in every CoG pose (interfaces §2).
+TORSIONAL_POINTS: tuple[tuple[int, tuple[float, float, float]], ...] = (
+    (2, (0.10, 0.0, 0.30)), (2, (0.0, -0.10, 0.30)), (4, (-0.10, 0.05, 0.40)), (4, (0.05, 0.10, 0.40)),
+    (6, (0.10, -0.05, 0.45)), (6, (-0.05, -0.10, 0.50)),
+)
+
+
+def torsional_point(n_cb: int, cb_cog_flange_m: Sequence[float], scheme: str = "full") -> CampaignPoint:
+    """``n_cb`` bodies on the torsional bracket with their CoG at ``cb_cog_flange_m`` (n = 0: the bare MPA, the
+    bias of every pose), measured in every pose of ``scheme``."""
+    c = tuple(float(v) for v in cb_cog_flange_m)
+    if len(c) != 3:
+        raise ValueError("cb_cog_flange_m needs three coordinates (m)")
+    cog_poses(kin.measurement_pose(), scheme)  # an unknown scheme is refused here, not at the robot
+    return CampaignPoint(TORSIONAL_KIND, CB_MASS_KG * n_cb, 0.0, 0.0, n_cb, None, c, scheme)  # type: ignore[arg-type]
+
+
+def torsional_points(scheme: str = "full",
+                     loads: Sequence[tuple[int, Sequence[float]]] = TORSIONAL_POINTS) -> list[CampaignPoint]:
+    """The bare MPA and the loaded torsional points, for the CoG calibration in ``scheme``'s poses."""
+    return [torsional_point(0, (0.0, 0.0, 0.0), scheme), *(torsional_point(n, c, scheme) for n, c in loads)]
+
+
 def table1_points(n_bodies: Sequence[int] = range(0, 11),
                   torque_levers_a5_m: Sequence[float] = TORQUE_LEVERS_A5_M) -> list[CampaignPoint]:
     """The paper's campaign (Table 1): zero, 1…10 bodies, three torque points; pass subsets for short campaigns."""
@@ -124,9 +174,38 @@ def fit_campaign(directory: Path, method: str = "auto") -> tuple[dict[str, Any],
     return doc, summary
 
 
+def pose_trace_name(point_index: int, session: str, pose_number: int, loop_number: int) -> str:
+    """The trace of one loop of a torsional point in its ``pose_number``-th pose (1-based)."""
+    return f"tor{point_index:02d}_{session}_p{pose_number:02d}_l{loop_number:02d}"
+
+
+def _pose_of_trace(trace: str) -> int:
+    """The 1-based pose number of a torsional point's trace (:func:`pose_trace_name`)."""
+    return int(trace.rsplit("_", 2)[-2][1:])
+
+
 def write_campaign_manifest(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, list[str]]]) -> None:
+    """The campaign's manifest.toml: the mass points as ``[[point]]`` tables; the torsional points with their
+    traces per pose (``[point.poses]``) and the scheme's poses (``[torsional]``, interfaces §2)."""
     lines = setup_toml(s)
+    schemes = sorted({p.scheme or "full" for p, _ in points if p.kind == TORSIONAL_KIND})
+    if len(schemes) > 1:
+        raise DataError(f"a campaign's torsional points must share one scheme, got {schemes}")
+    poses = cog_poses(s.meas_pose_deg, schemes[0]) if schemes else []
+    if poses:
+        lines += ["[torsional]", f'scheme = "{schemes[0]}"', ""]
+        for pose in poses:
+            lines += ["[[torsional.pose]]", f'name = "{pose.name}"', f"q_deg = {list(pose.q_deg)!r}", ""]
     for p, traces in points:
+        if p.kind == TORSIONAL_KIND:
+            lines += ["[[point]]", f'kind = "{p.kind}"', f"mass_kg = {p.mass_kg!r}",
+                      f"cog_flange_m = {list(p.cb_cog_flange_m or (0.0, 0.0, 0.0))!r}", f"bodies = {p.n_cb}",
+                      "[point.poses]"]
+            for k, pose in enumerate(poses, 1):
+                lines.append(f'"{pose.name}" = [' + ", ".join(
+                    f'"{t}"' for t in traces if _pose_of_trace(t) == k) + "]")
+            lines.append("")
+            continue
         lines += ["[[point]]", f'kind = "{p.kind}"', f"mass_kg = {p.mass_kg!r}", f"lever_a3_m = {p.lever_a3_m!r}",
                   f"lever_a5_m = {p.lever_a5_m!r}", traces_toml(traces), ""]
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -177,6 +256,11 @@ def campaign_plan(
                 snap, more = yield from warm_up(s, snap)
                 warnings += more
             yield from run_checked((yield from render_program("rgse_meas_pose", s, snap)), s)
+        if point.kind == TORSIONAL_KIND:
+            next_index = yield from _torsional_point(run, s, point, rec.index, n, next_index, session)
+            yield d.PointDone(rec.index)
+            warm_temps = motor_temps_k((yield m.ReadState()))
+            continue
         outcomes: list[LoopOutcome] = []
         for j in range(1, s.loops + 1):
             yield m.Checkpoint(f"point {rec.index} loop {j}")
@@ -208,6 +292,46 @@ def campaign_plan(
     yield m.Emit(Event("result", f"calibration {doc['calibration_id']} ({summary['method']}) active",
                        step="result", data=summary))
     return summary
+
+
+def _move(pose: Sequence[float], s: RunSettings) -> Generator[m.Msg, Any, float]:
+    """PTP to ``pose`` with ``rgse_cal_pose``, rendered for the T1 limit from the live axes; the engine's ``Push``
+    runs the interlock's static check first, as for every program."""
+    snap = yield m.ReadState()
+    prog = yield m.Compute("render rgse_cal_pose", _pose_program, (s, axes_of(snap, s.meas_pose_deg), tuple(pose)),
+                           timeout_s=60.0)
+    return (yield from run_checked(prog, s)) or 0.0
+
+
+def _pose_program(s: RunSettings, start: tuple[float, ...], pose: tuple[float, ...]) -> Any:
+    return program("rgse_cal_pose", s, start, cal_pose_deg=pose)
+
+
+def _torsional_point(run: d.RunContext, s: RunSettings, point: CampaignPoint, index: int, n: int, next_index: int,
+                     session: str) -> Generator[m.Msg, Any, int]:
+    """A torsional point: in every pose of its scheme, approached as :func:`cog_poses` prescribes (A4/A6 from
+    below), ``loops`` × (brake-release move about the pose → settle → trace of the A3–A6 drives), then back to the
+    measurement pose. Returns the next loop index."""
+    yield m.PutFile(TRACE_DIR + COG_TRACE_CONFIG_NAME, trace_config_xml(s, COG_TRACE_MODULES).encode("utf-8"))
+    poses = cog_poses(s.meas_pose_deg, point.scheme or "full")
+    for k, pose in enumerate(poses, 1):
+        yield m.Checkpoint(f"point {index} pose {pose.name}")
+        yield m.Emit(Event("step", f"point {index + 1}/{n}: CoG pose {k}/{len(poses)} ({pose.name})", step="pose",
+                           data={"point_index": index, "pose": pose.name, "pose_index": k,
+                                 "pose_count": len(poses), "q_deg": list(pose.q_deg)}))
+        yield from _move(pose.q_approach_deg, s)
+        yield from _move(pose.q_deg, s)
+        at_pose = replace(s, meas_pose_deg=pose.q_deg)  # the brake-release move turns A3/A5 about this pose
+        for j in range(1, s.loops + 1):
+            trace = pose_trace_name(index, session, k, j)
+            out = yield from loop(next_index, trace, run, at_pose, point_index=index,
+                                  trace_config=COG_TRACE_CONFIG_NAME)
+            next_index += 1
+            yield m.Emit(Event("loop", f"point {index + 1}/{n} pose {pose.name} loop {j}/{s.loops} done",
+                               step="loop", loop_index=j, loop_count=s.loops,
+                               data={"point_index": index, "pose": pose.name, **out.timing.to_json()}))
+    yield from _move(s.meas_pose_deg, s)
+    return next_index
 
 
 async def run_calibration(

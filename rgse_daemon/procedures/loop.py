@@ -55,9 +55,11 @@ class LoopOutcome:
     delete_note: str = ""
 
 
-def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *,
-         point_index: int | None = None) -> Generator[m.Msg, Any, LoopOutcome]:
-    """One measurement loop (see the module docstring): loop ``index`` of the run, its trace named ``trace``."""
+def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *, point_index: int | None = None,
+         trace_config: str = TRACE_CONFIG_NAME) -> Generator[m.Msg, Any, LoopOutcome]:
+    """One measurement loop (see the module docstring): loop ``index`` of the run, its trace named ``trace``,
+    recorded with the trace configuration ``trace_config``. The brake-release move turns A3 and A5 about
+    ``s.meas_pose_deg`` (a CoG pose of the mass-properties run passes its own pose there)."""
     timing = LoopTiming()
     snap = yield m.ReadState()
     brake = yield from render_program("rgse_brake_release", s, snap)
@@ -68,7 +70,7 @@ def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *,
     timing.settle_s = time.monotonic() - t0
     yield d.LoopRecording(index, robot_end_utc=_now(), record_start_utc=_now())
     t0 = time.monotonic()
-    yield m.TraceStart(trace, TRACE_CONFIG_NAME)
+    yield m.TraceStart(trace, trace_config)
     yield m.TraceWait(s.trace_timeout_s)
     timing.record_s = time.monotonic() - t0
     yield d.LoopRecorded(index, _now())

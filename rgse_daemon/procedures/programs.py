@@ -24,15 +24,22 @@ from rgse_daemon.trace.config import TraceConfig, TraceModule, TraceTrigger, ren
 TRACE_CONFIG_NAME = "rgse_meas.xml"
 #: Modules recorded: the interpolator (pose, override) and the drives of A3 and A5 (torque, current, temperature).
 TRACE_MODULES = ("KRCIpo", "NextGenDrive#3", "NextGenDrive#5")
+#: The trace configuration of the CoG poses of a mass-properties run: the drives of A3 to A6 (the linear axes A3/A5
+#: and the torsional axes A4/A6 that see the CoG's offsets, paper eq. 5-7).
+COG_TRACE_CONFIG_NAME = "rgse_cog.xml"
+COG_TRACE_MODULES = ("KRCIpo", "NextGenDrive#3", "NextGenDrive#4", "NextGenDrive#5", "NextGenDrive#6")
 #: Opaque channel IDs requested per module (the ID-to-name mapping is not public; the drive modules record their
 #: seven standard channels).
 TRACE_CHANNELS = (1, 2, 3, 4, 5, 6, 7)
 
 
-def program(name: str, s: RunSettings, start_deg: Sequence[float], **extra: Any) -> RenderedProgram:
+def program(name: str, s: RunSettings, start_deg: Sequence[float], *, cal_pose_deg: Sequence[float] | None = None,
+            **extra: Any) -> RenderedProgram:
     """Render template ``name`` for this run: axis speed chosen for the T1 limit from the current pose, with every
-    point within ``payload_lever_max_m`` of the flange counted (the static check re-verifies it before the push)."""
+    point within ``payload_lever_max_m`` of the flange counted (the static check re-verifies it before the push).
+    ``cal_pose_deg``: the target of ``rgse_cal_pose`` (the speed is chosen for the motion to it)."""
     defaults = TemplateDefaults(
+        **({"cal_pose": tuple(float(v) for v in cal_pose_deg)} if cal_pose_deg is not None else {}),
         limit_mm_s=s.speed_limit_mm_s,
         payload_points_flange_m=cube_corners(s.payload_lever_max_m),
         start_deg=tuple(float(v) for v in start_deg),
@@ -56,14 +63,15 @@ def render_program(name: str, s: RunSettings, snap: Snapshot | None) -> Generato
     return rendered
 
 
-def trace_config_xml(s: RunSettings) -> str:
-    """The KUKA Trace configuration for one loop: ``trace_samples`` at ``trace_period_s``, triggered at once."""
+def trace_config_xml(s: RunSettings, modules: Sequence[str] = TRACE_MODULES) -> str:
+    """The KUKA Trace configuration for one loop: ``trace_samples`` at ``trace_period_s``, triggered at once, of
+    ``modules`` (the mass loops: A3 and A5; the CoG poses: :data:`COG_TRACE_MODULES`)."""
     rate_us = round(s.trace_period_s * 1e6)
     cfg = TraceConfig(
         time_s=s.trace_time_s,
         pretrigger_s=0.0,
         basename="rgse",
-        modules=tuple(TraceModule(name, rate_us, TRACE_CHANNELS) for name in TRACE_MODULES),
+        modules=tuple(TraceModule(name, rate_us, TRACE_CHANNELS) for name in modules),
         trigger=TraceTrigger("KRCIpo", 1),
     )
     return render_trace_config(cfg)

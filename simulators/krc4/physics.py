@@ -285,7 +285,7 @@ def torsional_point_payload(n_cb: int, offset_x_m: float, offset_y_m: float,
     (m); n_cb = 0 is the MPA alone (the bias of every pose)."""
     if not 0 <= n_cb <= TORSIONAL_N_CB_MAX:
         raise ValueError(f"n_cb {n_cb} must be 0..{TORSIONAL_N_CB_MAX} on the torsional bracket")
-    if max(abs(offset_x_m), abs(offset_y_m)) > 0.20 or not 0.10 <= z_m <= 0.60:
+    if n_cb and (max(abs(offset_x_m), abs(offset_y_m)) > 0.20 or not 0.10 <= z_m <= 0.60):
         raise ValueError("the torsional bracket reaches 0.20 m off the flange axis and 0.10..0.60 m along it")
     bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (offset_x_m, offset_y_m, z_m), (0.34, 0.34, 0.68))
                    for k in range(1, n_cb + 1))
