@@ -336,6 +336,9 @@ class AxisGain:
     covariance: tuple[tuple[float, ...], ...]
     u_point_nm: float
     torque_range_nm: tuple[float, float]
+    u_fit_nm: float = 0.0
+    """RMS of the held-out residuals within the points: how far one reading strays from K beyond its noise (model
+    form, seating of the load in a tilted pose, drift); every CoG equation gets it as an independent error."""
 
     def reading_nm(self, x_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
         k = np.asarray(self.params if params is None else params, dtype=float)
@@ -363,7 +366,7 @@ class AxisGain:
 
     def to_dict(self) -> dict:
         return {"model": self.model, "params": list(self.params), "covariance": [list(r) for r in self.covariance],
-                "u_point_nm": self.u_point_nm, "torque_range_nm": list(self.torque_range_nm)}
+                "u_point_nm": self.u_point_nm, "u_fit_nm": self.u_fit_nm, "torque_range_nm": list(self.torque_range_nm)}
 
     @staticmethod
     def from_dict(axis: int, d: dict) -> AxisGain:
@@ -373,23 +376,30 @@ class AxisGain:
             cov = tuple(tuple(float(v) for v in row) for row in d["covariance"])
             u = float(d["u_point_nm"])
             lo, hi = (float(v) for v in d["torque_range_nm"])
+            u_fit = float(d.get("u_fit_nm", 0.0))
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"torsional.axes.A{axis}: malformed entry ({exc!r})") from None
         n = GAIN_MODELS.get(model)
         if n is None or len(params) != n or np.shape(cov) != (n, n):
             raise DataError(f"torsional.axes.A{axis}: model {model!r} needs {n} params and an {n}x{n} covariance")
-        if not (np.all(np.isfinite(params)) and np.all(np.isfinite(cov)) and np.isfinite(u) and u >= 0):
+        if not (np.all(np.isfinite(params)) and np.all(np.isfinite(cov)) and np.isfinite(u) and u >= 0
+                and np.isfinite(u_fit) and u_fit >= 0):
             raise DataError(f"torsional.axes.A{axis}: non-finite parameters")
         if params[0] <= 0:
             raise DataError(f"torsional.axes.A{axis}: gain k0 must be > 0, got {params[0]}")
-        return AxisGain(axis, model, params, cov, u, (lo, hi))
+        return AxisGain(axis, model, params, cov, u, (lo, hi), u_fit)
 
 
-def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray, group: np.ndarray, model: str
-             ) -> tuple[AxisGain, np.ndarray]:
+def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray, group: np.ndarray, model: str,
+             point_offsets: bool = False) -> tuple[AxisGain, np.ndarray]:
     """Fit one gain model on calibration observations (true payload torque x, bias-corrected reading r, its σ,
     the point each belongs to); returns the gain and the held-out residuals (leave one point out: every pose of
-    that point is predicted by a fit on the other points, Nm)."""
+    that point is predicted by a fit on the other points, Nm).
+
+    ``point_offsets``: each point (one mounting) also gets its own reading offset δ_p, r = K(x) + δ_p, so that the
+    seating scatter of the mountings does not tilt K; held-out residuals are then taken about the held-out point's
+    own mean (its offset is not K's business). ``u_point_nm`` is the scatter of the offsets: what a mounting adds
+    when the CoG poses cannot fit one (:func:`estimate_cog_gls`)."""
     n = GAIN_MODELS[model]
     x, r, s, grp = (np.asarray(v) for v in (x_nm, r_nm, sigma_nm, group))
     points = np.unique(grp)
@@ -399,43 +409,55 @@ def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray
     k_loo = []
     for p in points:
         out = grp == p
-        k, _ = _gain_lsq(x[~out], r[~out], s[~out], n)
+        k, _ = _gain_lsq(x[~out], r[~out], s[~out], n, grp[~out] if point_offsets else None)
         k_loo.append(k)
-        heldout[out] = r[out] - gain_basis(x[out], n) @ k
-    k, _ = _gain_lsq(x, r, s, n)
+        res = r[out] - gain_basis(x[out], n) @ k
+        heldout[out] = res - res.mean() if point_offsets else res
+    k, offsets = _gain_lsq(x, r, s, n, grp if point_offsets else None)
     # jackknife over points: a mounting's error is shared by all its poses, so the points, not the poses, are the
     # independent samples (the least-squares covariance, which counts poses, would be too small)
     dk = np.array(k_loo) - np.mean(k_loo, axis=0)
     cov = (len(points) - 1) / len(points) * dk.T @ dk
-    point_means = np.array([heldout[grp == p].mean() for p in points])
-    u_point = float(np.sqrt(np.mean(point_means**2)))
+    if point_offsets:
+        u_point = float(np.sqrt(np.mean(offsets**2)))
+    else:
+        u_point = float(np.sqrt(np.mean(np.array([heldout[grp == p].mean() for p in points]) ** 2)))
+    u_fit = float(np.sqrt(np.mean([np.var(heldout[grp == p]) for p in points])))
     gain = AxisGain(axis, model, tuple(float(v) for v in k), tuple(tuple(float(v) for v in row) for row in cov),
-                    u_point, (float(x.min()), float(x.max())))
+                    u_point, (float(x.min()), float(x.max())), u_fit)
     return gain, heldout
 
 
-def _gain_lsq(x: np.ndarray, r: np.ndarray, s: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Weighted least squares r = basis(x) @ k; covariance scaled by the reduced χ² when it exceeds 1."""
+def _gain_lsq(x: np.ndarray, r: np.ndarray, s: np.ndarray, n: int, group: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least squares r = basis(x) @ k (+ δ_group); returns k and the group offsets (empty without)."""
     a = gain_basis(x, n)
+    groups = np.unique(group) if group is not None else np.empty(0)
+    if group is not None:
+        a = np.hstack([a, (group[:, None] == groups[None, :]).astype(float)])
     w = 1.0 / np.maximum(s, 1e-6)
     k, *_ = np.linalg.lstsq(a * w[:, None], r * w, rcond=None)
-    cov = np.linalg.inv((a * w[:, None]).T @ (a * w[:, None]))
-    dof = len(r) - n
-    if dof > 0:
-        chi2 = float(np.sum(((r - a @ k) * w) ** 2)) / dof
-        cov = cov * max(chi2, 1.0)
-    return k, cov
+    return k[:n], k[n:]
+
+
+def offsets_identifiable(x_nm: np.ndarray, group: np.ndarray) -> bool:
+    """Whether a per-point offset can be told from K: the payload torque must vary within the points (over their
+    poses) by at least a fifth of its spread over all points (not so for A3/A5 in the paper's two poses)."""
+    x, grp = np.asarray(x_nm, dtype=float), np.asarray(group)
+    within = np.sqrt(np.mean([np.var(x[grp == p]) for p in np.unique(grp)]))
+    return bool(within > 0.2 * np.std(x)) and len(x) > len(np.unique(grp)) + 3
 
 
 def select_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray, group: np.ndarray
                 ) -> tuple[AxisGain, dict]:
     """Every gain model that the points can validate, the one with the smallest held-out RMS chosen (a richer one
     only if it beats the simpler by 5 %); returns it and the evaluation record."""
-    evaluations = {}
+    evaluations: dict = {}
     best: tuple[AxisGain, float] | None = None
+    point_offsets = offsets_identifiable(x_nm, group)
     for model in GAIN_MODELS:
         try:
-            gain, heldout = fit_gain(axis, x_nm, r_nm, sigma_nm, group, model)
+            gain, heldout = fit_gain(axis, x_nm, r_nm, sigma_nm, group, model, point_offsets)
         except DataError:
             continue
         rms = float(np.sqrt(np.mean(heldout**2)))
@@ -444,7 +466,7 @@ def select_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndar
             best = (gain, rms)
     if best is None:
         raise DataError(f"A{axis}: too few torsional points to fit any gain model")
-    return best[0], {"chosen": best[0].model, "models": evaluations}
+    return best[0], {"chosen": best[0].model, "point_offsets": point_offsets, "models": evaluations}
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -493,7 +515,7 @@ def _design(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], params: di
             slope = float(gain.slope(np.array([x]), params[ax])[0])
             rows.append(y_full[ax - 1])
             xs.append(x)
-            var.append((p.u_reading_nm[ax - 1] ** 2 + p.u_bias_nm[ax - 1] ** 2) / slope**2)
+            var.append((p.u_reading_nm[ax - 1] ** 2 + p.u_bias_nm[ax - 1] ** 2 + gain.u_fit_nm**2) / slope**2)
             axis_of.append(ax)
             dxdo.append(1.0 / slope)
     return np.array(rows).reshape(-1, 4), np.array(xs), np.array(var), np.array(axis_of), np.array(dxdo)
@@ -709,7 +731,7 @@ def fit_torsional(poses: Sequence[CogPose], bias: dict[str, PoseMean], points: S
         gain, ev = select_gain(ax, x, r, s, g)
         gains[ax] = gain
         evaluations[ax] = ev
-        heldout[ax] = fit_gain(ax, x, r, s, g, gain.model)[1]
+        heldout[ax] = fit_gain(ax, x, r, s, g, gain.model, ev["point_offsets"])[1]
     if not gains:
         raise DataError("torsional calibration: no axis A3..A6 was traced")
     return TorsionalFit(dict(bias), gains, evaluations, heldout)
