@@ -556,11 +556,13 @@ def _gls(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], params: dict[
                 sel = axis_of == ax
                 u = gains[ax].u_point_nm * dxdo[sel]
                 cov_obs[np.ix_(sel, sel)] += np.outer(u, u)
-        if design.shape[0] < design.shape[1] or np.linalg.matrix_rank(design) < design.shape[1] \
-                or np.linalg.matrix_rank(design[:, :3]) < 3:
-            rank = np.linalg.matrix_rank(design[:, :3])
+        if design.shape[0] < 3 or not _well_posed(design[:, :3]):
+            rank = np.linalg.matrix_rank(design[:, :3]) if design.shape[0] else 0
             raise DataError(f"CoG: the poses do not determine all three CoG coordinates (rank {rank} of 3 from "
                             f"{design.shape[0]} axis torques); use a scheme that turns A6 and tilts A4/A5")
+        if fit_offsets and (design.shape[0] < design.shape[1] or not _well_posed(
+                np.hstack([design[:, :3], (axis_of[:, None] == np.array(axes)[None, :]).astype(float)]))):
+            raise DataError("CoG: these poses cannot tell a per-axis reading offset from the CoG")
         w = np.linalg.inv(cov_obs)
         cov_theta = np.linalg.inv(design.T @ w @ design)
         theta = cov_theta @ design.T @ w @ b
@@ -572,6 +574,20 @@ def _gls(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], params: dict[
     if fit_offsets:  # the last step's offsets are increments: report the totals, b and theta at convergence
         theta = np.concatenate([theta[:3], [offsets[ax] for ax in axes]])
     return _Gls(theta, cov_theta, design, b, cov_obs, axis_of, axes, x, offsets)
+
+
+#: Smallest ratio of the smallest to the largest singular value of a (column-normalised) design that counts as
+#: determined: below it the poses leave a combination of the unknowns to the noise (e.g. A6 turns alone and the
+#: flange-axis coordinate against the A3/A5 offsets).
+WELL_POSED_RATIO = 1e-3
+
+
+def _well_posed(design: np.ndarray) -> bool:
+    norms = np.linalg.norm(design, axis=0)
+    if design.shape[0] < design.shape[1] or np.any(norms == 0):
+        return False
+    sv = np.linalg.svd(design / norms, compute_uv=False)
+    return bool(sv[-1] / sv[0] > WELL_POSED_RATIO)
 
 
 def estimate_cog_gls(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], *, dut_mass_kg: float,
