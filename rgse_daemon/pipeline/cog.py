@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from rgse_daemon import kinematics as kin
 from rgse_daemon.errors import DataError
@@ -339,6 +340,14 @@ class AxisGain:
     u_fit_nm: float = 0.0
     """RMS of the held-out residuals within the points: how far one reading strays from K beyond its noise (model
     form, seating of the load in a tilted pose, drift); every CoG equation gets it as an independent error."""
+    n_points: int = 0
+    """Loaded points the jackknife covariance rests on (0: unknown, no Student factor)."""
+
+    def student_factor(self) -> float:
+        """(t₀.₉₇₅(n − 1) / 1.96)²: the jackknife variance of a few points, widened so that k = 2 keeps ~95 %."""
+        if self.n_points < 2:
+            return 1.0
+        return float((stats.t.ppf(0.975, self.n_points - 1) / stats.norm.ppf(0.975)) ** 2)
 
     def reading_nm(self, x_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
         k = np.asarray(self.params if params is None else params, dtype=float)
@@ -366,7 +375,8 @@ class AxisGain:
 
     def to_dict(self) -> dict:
         return {"model": self.model, "params": list(self.params), "covariance": [list(r) for r in self.covariance],
-                "u_point_nm": self.u_point_nm, "u_fit_nm": self.u_fit_nm, "torque_range_nm": list(self.torque_range_nm)}
+                "u_point_nm": self.u_point_nm, "u_fit_nm": self.u_fit_nm, "torque_range_nm": list(self.torque_range_nm),
+                "n_points": self.n_points}
 
     @staticmethod
     def from_dict(axis: int, d: dict) -> AxisGain:
@@ -377,6 +387,7 @@ class AxisGain:
             u = float(d["u_point_nm"])
             lo, hi = (float(v) for v in d["torque_range_nm"])
             u_fit = float(d.get("u_fit_nm", 0.0))
+            n_points = int(d.get("n_points", 0))
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"torsional.axes.A{axis}: malformed entry ({exc!r})") from None
         n = GAIN_MODELS.get(model)
@@ -387,7 +398,7 @@ class AxisGain:
             raise DataError(f"torsional.axes.A{axis}: non-finite parameters")
         if params[0] <= 0:
             raise DataError(f"torsional.axes.A{axis}: gain k0 must be > 0, got {params[0]}")
-        return AxisGain(axis, model, params, cov, u, (lo, hi), u_fit)
+        return AxisGain(axis, model, params, cov, u, (lo, hi), u_fit, n_points)
 
 
 def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray, group: np.ndarray, model: str,
@@ -424,7 +435,7 @@ def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray
         u_point = float(np.sqrt(np.mean(np.array([heldout[grp == p].mean() for p in points]) ** 2)))
     u_fit = float(np.sqrt(np.mean([np.var(heldout[grp == p]) for p in points])))
     gain = AxisGain(axis, model, tuple(float(v) for v in k), tuple(tuple(float(v) for v in row) for row in cov),
-                    u_point, (float(x.min()), float(x.max())), u_fit)
+                    u_point, (float(x.min()), float(x.max())), u_fit, len(points))
     return gain, heldout
 
 
@@ -634,7 +645,7 @@ def estimate_cog_gls(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], *
     # calibration (K) term: along the eigenvectors of each axis' parameter covariance
     cov_k = np.zeros((3, 3))
     for ax, g in gains.items():
-        vals, vecs = np.linalg.eigh(np.asarray(g.covariance, dtype=float))
+        vals, vecs = np.linalg.eigh(np.asarray(g.covariance, dtype=float) * g.student_factor())
         for val, vec in zip(vals, vecs.T, strict=True):
             if val <= 0:
                 continue
