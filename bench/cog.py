@@ -7,8 +7,9 @@ shifts): warm-up, the torsional points of the campaign (the bare MPA and six loa
 mounting, measured in every pose of the scheme), then an asymmetric DuT (the ReFEx-like wing box, 80-130 kg, its CoG
 moved by up to ±30 mm per coordinate from the nominal one) on the fixture, a new mounting, its properties run. The
 DuT's mass is the true one plus a draw of the mass run's error (u = 1.2 kg, k = 1: ``bench/accuracy.py``'s mean
-|error| of about 1 kg today), and its U enters the CoG's. Same code as ``rgse cog`` after reading the trace files (``analysis.cog.compute_cog``). The
-DuT frame's z is the flange axis: the launch axis (ECSS-E-10-03C: ±2.5 mm along it, ±1 mm across).
+|error| of about 1 kg today), and its U enters the CoG's. Same code as ``rgse cog`` after reading the trace files
+(``analysis.cog.compute_cog``). The DuT frame's z is the flange axis: the launch axis (ECSS-E-10-03C: ±2.5 mm along
+it, ±1 mm across).
 
 Rows:
 ``full`` / ``paper``: the two schemes. ``mass known``: the DuT's true mass given (no mass error: what the CoG itself
