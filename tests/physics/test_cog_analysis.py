@@ -6,8 +6,10 @@ import numpy as np
 import pytest
 
 from rgse_daemon import calfile
+from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import cog as acog
 from rgse_daemon.errors import DataError
+from rgse_daemon.manifest import load_manifest
 from simulators.krc4 import physics as ph
 from tests.support import cogcampaign as cc
 
@@ -78,3 +80,65 @@ def test_cog_of_the_wing_box_across_the_launch_axis(measured):
     np.testing.assert_allclose(res.cog_dut_m, true_dut, atol=np.max(U_mm) / 1000.0)
     assert res.U_cog_dut_m[0] == pytest.approx(res.U_cog_flange_m[1]) and res.scheme == "full"
     assert res.to_json()["k"] == 2 and res.n_poses == 8
+
+
+def test_eq5_7_levers_beside_the_least_squares(measured):
+    """The paper's eq. 5–7 (A5 at 0°, A6 at 0° and 90°, K applied) give the levers of fixture + DuT: a to the A5
+    axis, b and c the flange-transverse offsets; within a few mm of the least-squares CoG (they cannot remove the
+    mounting's offsets)."""
+    campaign, run = measured
+    res = acog.compute_cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=107.3, u_mass_kg=0.0,
+                           fixture=run.fixture)
+    lev = res.budget["eq5_7_levers_m"]
+    m_fix, c_fix = ph.FIXTURE_MASS_KG, np.array(ph.fixture_cog_flange_m())
+    total = (107.3 * np.array(res.cog_flange_m) + m_fix * c_fix) / (107.3 + m_fix)
+    assert lev["a"] == pytest.approx(kin.D6_M + total[2], abs=0.01)
+    assert sorted(abs(v) for v in (lev["b"], lev["c"])) == pytest.approx(sorted(abs(v) for v in total[:2]), abs=0.005)
+
+
+def _write(tmp_path, text: str):
+    (tmp_path / "manifest.toml").write_text(text, encoding="utf-8")
+    return tmp_path
+
+
+SETUP = '[setup]\nrobot = "R"\ng = 9.81\nlever_difference_m = 1.025\n'
+
+
+@pytest.mark.parametrize(("body", "message"), [
+    ("", "no \\[properties\\] table"),
+    ('[properties]\nscheme = "full"\n[properties.fixture]\nmass_kg = 1.0\ncog_flange_m = [0, 0, 0]\n',
+     "no mass_kg and no \\[measurement\\] loops"),
+    ('[properties]\nmass_kg = -3.0\n', "mass_kg must be > 0"),
+    ('[properties]\nmass_kg = 10.0\n[properties.fixture]\nmass_kg = 1.0\n', "needs mass_kg and cog_flange_m"),
+    ('[properties]\nmass_kg = 10.0\n[properties.fixture]\nmass_kg = 1.0\ncog_flange_m = [0, 0, 0]\n',
+     "needs \\[\\[properties.pose\\]\\] entries"),
+    ('[properties]\nmass_kg = 10.0\n[properties.fixture]\nmass_kg = 1.0\ncog_flange_m = [0, 0, 0]\n'
+     '[[properties.pose]]\nname = "meas"\nq_deg = [0, -90, 90, 0]\ntraces = ["t1"]\n', "q_deg must be six"),
+    ('[properties]\nmass_kg = 10.0\n[properties.fixture]\nmass_kg = 1.0\ncog_flange_m = [0, 0, 0]\n'
+     '[[properties.pose]]\nname = "meas"\nq_deg = [0, -90, 90, 0, 0, 0]\ntraces = ["../t1"]\n', "t1"),
+    ('[properties]\nmass_kg = 10.0\n[properties.fixture]\nmass_kg = 1.0\ncog_flange_m = [0, 0, 0]\n'
+     '[[properties.pose]]\nname = "meas"\nq_deg = [0, -90, 90, 0, 0, 0]\ntraces = ["t1"]\n', "no trace files"),
+])
+def test_a_bad_properties_directory_is_named(tmp_path, body, message):
+    with pytest.raises(DataError, match=message) as err:
+        acog.read_properties_dir(_write(tmp_path, SETUP + body))
+    assert "manifest.toml" in str(err.value) or "t1" in str(err.value)
+
+
+@pytest.mark.parametrize(("body", "message"), [
+    ('[[point]]\nkind = "torsional"\nmass_kg = 0.0\ncog_flange_m = [0, 0, 0]\n[point.poses]\nmeas = ["a"]\n',
+     "need a \\[torsional\\] table"),
+    ('[torsional]\nscheme = "paper"\n[[torsional.pose]]\nname = "meas"\nq_deg = [0, -90, 90, 0, 0, 0]\n'
+     '[[point]]\nkind = "torsional"\nmass_kg = 0.0\ncog_flange_m = [0, 0]\n[point.poses]\nmeas = ["a"]\n',
+     "cog_flange_m = \\[x, y, z\\]"),
+    ('[torsional]\nscheme = "paper"\n[[torsional.pose]]\nname = "meas"\nq_deg = [0, -90, 90, 0, 0, 0]\n'
+     '[[point]]\nkind = "torsional"\nmass_kg = 0.0\ncog_flange_m = [0, 0, 0]\n[point.poses]\nA6 = ["a"]\n',
+     "exactly the poses meas"),
+    ('[torsional]\nscheme = "paper"\n[[torsional.pose]]\nname = "meas"\nq_deg = [0, -90, 90, 0, 0, 0]\n'
+     '[[point]]\nkind = "torsional"\nmass_kg = 20.0\ncog_flange_m = [0, 0, 0.3]\n[point.poses]\nmeas = ["a"]\n',
+     "one with mass_kg = 0"),
+])
+def test_a_bad_torsional_manifest_is_named(tmp_path, body, message):
+    with pytest.raises(DataError, match=message) as err:
+        load_manifest(_write(tmp_path, SETUP + body))
+    assert "manifest.toml" in str(err.value)
