@@ -80,7 +80,7 @@ def repetition(seed: int) -> dict[str, dict]:
     }
     for name, (scheme, scenario, points) in configs.items():
         model = ph.RobotModel(scenario, seed=seed)
-        model.hold(1500.0)  # warm-up
+        cc.warm_up(model)
         campaign = cc.simulate_torsional(model, scheme, n_loops=N_LOOPS, points=points, seed=seed)
         doc = _doc(campaign)
         run = cc.simulate_properties(model, dut, scheme, n_loops=N_LOOPS)

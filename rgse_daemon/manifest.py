@@ -265,6 +265,10 @@ def _mean_temperature_k(tf: Any) -> float | None:
     return float(values.mean())
 
 
+#: The mean ``Motortemperatur`` of one trace file (K, None if absent): also the CoG's thermal check (analysis.cog).
+mean_temperature_k = _mean_temperature_k
+
+
 def thermal_state_k(loops: list[Loop]) -> dict[str, float] | None:
     """Mean A3 and A5 motor temperature over ``loops`` (K): the thermal state the torques were measured in; None
     when any loop lacks the channel."""

@@ -20,7 +20,7 @@ from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import mass as mass_analysis
 from rgse_daemon.errors import DataError
-from rgse_daemon.manifest import TORQUE_CHANNEL, Manifest, TorsionalPointSpec, load_manifest
+from rgse_daemon.manifest import TORQUE_CHANNEL, Manifest, TorsionalPointSpec, load_manifest, mean_temperature_k
 from rgse_daemon.pipeline import cog as cog_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline.cog import CogPose, cog_poses
@@ -44,6 +44,8 @@ class PoseReading:
     q_deg: tuple[float, ...]
     torque_nm: tuple[float, ...]
     sigma_nm: tuple[float, ...]
+    motor_temp_k: tuple[float, ...] | None = None
+    """Mean ``Motortemperatur`` A1..A6 over the traces (K, NaN where not recorded); None when unknown."""
 
 
 @dataclass(frozen=True)
@@ -165,6 +167,9 @@ def compute_cog(readings: Sequence[PoseReading], cal_doc: dict, *, mass_kg: floa
     if np.isfinite(fit.chi2_red) and fit.chi2_red > 4.0:
         warnings.append(f"the poses disagree more than their noise explains (reduced chi2 {fit.chi2_red:.1f}); "
                         f"U is scaled by it")
+    mismatch = thermal_mismatch(thermal_state_k(readings), (cal_doc.get("torsional") or {}).get("thermal_state_k"))
+    if mismatch is not None:
+        warnings.append(mismatch)
     c_dut, cov_dut = cog_mod.to_dut_frame(fit.cog_m, fit.cov_m2, fixture.dut_origin_flange_m, fixture.dut_abc_deg)
     u_flange = np.sqrt(np.diag(fit.cov_m2))
     budget: dict[str, Any] = {
@@ -268,6 +273,7 @@ def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequ
     """Mean torque per axis over the pose's loops (eq. 16's double average), its standard error: the loops'
     scatter with two or more loops, else the within-loop standard error of the kept samples."""
     per_axis: dict[int, list[tuple[float, float]]] = {}
+    temps: dict[int, list[float]] = {}
     for t in traces:
         ts = read_trace_set(directory, t)
         for ax in range(1, 7):
@@ -281,6 +287,8 @@ def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequ
             loop = pp.process_loop(values, float(tf.period_s), pre)
             kept = pp.kept_samples(values, float(tf.period_s), pre)
             per_axis.setdefault(ax, []).append((loop.torque_nm, float(np.std(kept) / np.sqrt(max(kept.size, 1)))))
+            temp = mean_temperature_k(tf)
+            temps.setdefault(ax, []).append(np.nan if temp is None else temp)
     torque = np.full(6, np.nan)
     sigma = np.full(6, np.nan)
     for ax, loops in per_axis.items():
@@ -292,7 +300,33 @@ def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequ
         within = float(np.sqrt(np.sum(np.array([s for _, s in loops]) ** 2))) / len(loops)
         between = float(np.std(means, ddof=1) / np.sqrt(len(means))) if len(means) > 1 else 0.0
         sigma[ax - 1] = max(within, between)
-    return PoseReading(name, q, tuple(torque.tolist()), tuple(sigma.tolist()))
+    temp_k = tuple(float(np.mean(temps[ax])) if ax in temps else float("nan") for ax in range(1, 7))
+    return PoseReading(name, q, tuple(torque.tolist()), tuple(sigma.tolist()), temp_k)
+
+
+def thermal_state_k(readings: Sequence[PoseReading]) -> dict[str, float] | None:
+    """Mean motor temperature of A3..A6 over the readings (K), None when any of them lacks it."""
+    out = {}
+    for ax in cog_mod.COG_AXES:
+        values = [r.motor_temp_k[ax - 1] for r in readings if r.motor_temp_k is not None]
+        if len(values) != len(readings) or not values or not np.all(np.isfinite(values)):
+            return None
+        out[f"A{ax}"] = float(np.mean(values))
+    return out
+
+
+def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any) -> str | None:
+    """A warning when the A3..A6 motor temperatures of the poses differ from the torsional campaign's by more than
+    ``THERMAL_MISMATCH_K`` (every torque reading drifts with its motor's temperature; U does not model it)."""
+    if measured_k is None or not isinstance(calibration_k, dict):
+        return None
+    off = {ax: measured_k[ax] - float(calibration_k[ax]) for ax in measured_k if ax in calibration_k}
+    off = {ax: d for ax, d in off.items() if abs(d) > mass_analysis.THERMAL_MISMATCH_K}
+    if not off:
+        return None
+    text = ", ".join(f"{ax} {d:+.1f} K" for ax, d in off.items())
+    return (f"motor temperatures in the CoG poses differ from the torsional campaign's ({text}; limit "
+            f"{mass_analysis.THERMAL_MISMATCH_K:g} K): warm up until steady, or re-calibrate")
 
 
 def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER) -> PropertiesRun:
@@ -374,10 +408,13 @@ def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing 
         raise DataError(f"{man.path}: exactly one torsional point with mass_kg = 0 (the bias), found "
                         f"{len(bias_specs)}")
 
+    every: list[PoseReading] = []
+
     def means(spec: TorsionalPointSpec) -> dict[str, cog_mod.PoseMean]:
         out = {}
         for p in poses:
             r = _pose_reading(directory, p.name, p.q_deg, spec.traces[p.name], pre)
+            every.append(r)
             out[p.name] = cog_mod.PoseMean(r.torque_nm, r.sigma_nm)
         return out
 
@@ -390,5 +427,9 @@ def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing 
         raise DataError(f"{man.path}: {exc}") from None
     cal_poses = [calfile.TorsionalPose(p.name, p.q_deg, bias[p.name].torque_nm, bias[p.name].sigma_nm)
                  for p in poses]
-    return calfile.torsional_section(man.torsional_scheme or "custom", cal_poses, fit.gains, fit.evaluations,
-                                     len(loaded))
+    section = calfile.torsional_section(man.torsional_scheme or "custom", cal_poses, fit.gains, fit.evaluations,
+                                        len(loaded))
+    thermal = thermal_state_k(every)
+    if thermal is not None:
+        section["thermal_state_k"] = thermal
+    return section

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -18,15 +20,17 @@ def _doc(campaign: cc.TorsionalCampaign) -> dict:
     fit = campaign.fit()
     poses = [calfile.TorsionalPose(t.name, t.q_deg, t.reading().torque_nm, t.reading().sigma_nm)
              for t in campaign.bias]
+    every = [t.reading() for t in campaign.bias] + [t.reading() for _, _, ts in campaign.points for t in ts]
     return {"g": 9.81, "calibration_id": "sim",
-            "torsional": calfile.torsional_section(campaign.scheme, poses, fit.gains, fit.evaluations,
-                                                   len(campaign.points))}
+            "torsional": {**calfile.torsional_section(campaign.scheme, poses, fit.gains, fit.evaluations,
+                                                      len(campaign.points)),
+                          "thermal_state_k": acog.thermal_state_k(every)}}
 
 
 @pytest.fixture(scope="module")
 def measured():
     model = ph.RobotModel(seed=5)
-    model.hold(1500.0)  # warm-up
+    cc.warm_up(model)
     campaign = cc.simulate_torsional(model, "full", seed=5)
     run = cc.simulate_properties(model, ph.refex_wing_box(), "full")
     return campaign, run
@@ -142,3 +146,14 @@ def test_a_bad_torsional_manifest_is_named(tmp_path, body, message):
     with pytest.raises(DataError, match=message) as err:
         load_manifest(_write(tmp_path, SETUP + body))
     assert "manifest.toml" in str(err.value)
+
+
+def test_a_thermal_mismatch_with_the_torsional_campaign_is_warned(measured):
+    campaign, run = measured
+    doc = _doc(campaign)
+    readings = [t.reading() for t in run.poses]
+    same = acog.compute_cog(readings, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+    assert not any("motor temperatures" in w for w in same.warnings), same.warnings
+    warmer = [dataclasses.replace(r, motor_temp_k=tuple(t + 5.0 for t in r.motor_temp_k)) for r in readings]
+    res = acog.compute_cog(warmer, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+    assert any("motor temperatures in the CoG poses differ" in w and "A5 +5." in w for w in res.warnings)

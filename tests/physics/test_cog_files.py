@@ -33,6 +33,7 @@ def test_calibrate_mass_and_cog_from_trace_files(tmp_path, capsys):
     assert set(cal["torsional"]) == {"A3", "A4", "A5", "A6"}
     doc = json.loads(cal_json.read_text())
     assert doc["calibration_id"] == cal["calibration_id"] and len(doc["torsional"]["poses"]) == 8
+    assert set(doc["torsional"]["thermal_state_k"]) == {"A3", "A4", "A5", "A6"}  # from the traces' Motortemperatur
 
     # the properties run of the wing box; its measurement-pose loops double as the mass run's
     run = cc.simulate_properties(model, ph.refex_wing_box(), "full")

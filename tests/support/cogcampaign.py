@@ -41,13 +41,27 @@ class PoseTraces:
     q_deg: tuple[float, ...]
     loops: list[np.ndarray]
     period_s: float
+    temps_k: list[np.ndarray]
+    """Per loop the ``Motortemperatur`` of A1..A6 (array (6, n), K)."""
 
     def reading(self) -> PoseReading:
         """Mean of the loop means and its standard error (what ``analysis.cog`` computes from the files, without
         the pre-processing's crop and filter)."""
         means = np.array([lp.mean(axis=1) for lp in self.loops])
         within = np.sqrt(sum((lp.std(axis=1) / np.sqrt(lp.shape[1])) ** 2 for lp in self.loops)) / len(self.loops)
-        return PoseReading(self.name, self.q_deg, tuple(means.mean(axis=0)), tuple(within))
+        temps = np.mean([t.mean(axis=1) for t in self.temps_k], axis=0)
+        return PoseReading(self.name, self.q_deg, tuple(means.mean(axis=0)), tuple(within), tuple(temps))
+
+
+def warm_up(model: ph.RobotModel, cycles: int = 60) -> None:
+    """Warm the drives up with the loop's own duty cycle (brake-release move, settle and trace with the brakes open,
+    the rest of the loop braked) until the motor temperatures are steady, as the daemon's warm-up does: a long
+    continuous hold would leave them hotter than the loops keep them, and the first points would drift."""
+    q = kin.measurement_pose()
+    for _ in range(cycles):
+        model.brake_release_move(q)
+        model.hold(SETTLE_S + 3.0)
+        model.apply_brakes(LOOP_S - SETTLE_S - 3.0)
 
 
 def measure_poses(model: ph.RobotModel, poses: list[cog.CogPose], payload: ph.Payload, n_loops: int = 2,
@@ -60,14 +74,15 @@ def measure_poses(model: ph.RobotModel, poses: list[cog.CogPose], payload: ph.Pa
         q, q_app = np.array(p.q_deg), np.array(p.q_approach_deg)
         model.move(q_prev, q_app, MOVE_S)
         model.move(q_app, q, 1.0)
-        loops = []
+        loops, temps = [], []
         for _ in range(n_loops):
             model.brake_release_move(q)
             model.hold(SETTLE_S)
             tr = model.sample_trace(q, payload, n_samples, period_s)
             loops.append(np.array([tr[a]["Istmoment"] for a in range(1, 7)]))
+            temps.append(np.array([tr[a]["Motortemperatur"] for a in range(1, 7)]))
             model.apply_brakes(max(LOOP_S - SETTLE_S - n_samples * period_s, 0.0))
-        out.append(PoseTraces(p.name, p.q_deg, loops, period_s))
+        out.append(PoseTraces(p.name, p.q_deg, loops, period_s, temps))
         q_prev = q
     return out
 
@@ -135,10 +150,11 @@ def simulate_properties(model: ph.RobotModel, dut: ph.AsymmetricDut, scheme: str
 # --- as files ---------------------------------------------------------------------------------------------------------
 def _write_pose(directory: Path, prefix: str, t: PoseTraces) -> list[str]:
     names = []
-    for k, loop in enumerate(t.loops):
+    for k, (loop, temp) in enumerate(zip(t.loops, t.temps_k, strict=True)):
         name = f"{prefix}_{t.name.replace('+', 'p').replace('-', 'm').replace('/', '_')}_l{k + 1:02d}"
         write_trace_set(directory, name, t.period_s,
-                        {f"NextGenDrive#{a}": {"Istmoment": (loop[a - 1], "Nm")} for a in range(1, 7)})
+                        {f"NextGenDrive#{a}": {"Istmoment": (loop[a - 1], "Nm"), "Motortemperatur": (temp[a - 1], "K")}
+                         for a in range(1, 7)})
         names.append(name)
     return names
 
