@@ -118,18 +118,37 @@ def cog_poses(measurement_pose_deg: Sequence[float], scheme: str = "full") -> li
 # ---------------------------------------------------------------------------------------------------------------------
 # Per-axis calibration of the payload torque (the torsional section of CAL.json)
 # ---------------------------------------------------------------------------------------------------------------------
-#: Gain models of the bias-corrected reading r of one axis against the true payload torque x (Nm):
-#: r = x · (k0 + k1·|x|/1 kNm + k2·(|x|/1 kNm)²), the first 1, 2 or 3 terms. Like Table 1's K (eq. 19–20): the
-#: reading's gain depends on the load torque; on A5 strongly, on the torsional axes hardly.
-GAIN_MODELS = {"linear": 1, "poly2": 2, "poly3": 3}
+#: Gain models of the bias-corrected reading r of one axis against the true payload torque x (Nm), with their number
+#: of parameters. Polynomial (like eq. 19): r = x · (k0 + k1·|x|/1 kNm + k2·(|x|/1 kNm)²), the first 1, 2 or 3
+#: terms. Saturating (like eq. 20's exponentials, at a fixed scale τ): r = x · (k0 + k1·(1 − exp(−|x|/τ))),
+#: ``sat<τ in Nm>``. Like Table 1's K: the reading's gain depends on the load torque, on A5 strongly.
+SAT_SCALES_NM = (100, 200, 300, 500, 800)
+GAIN_MODELS = {"linear": 1, "poly2": 2, "poly3": 3, **{f"sat{t}": 2 for t in SAT_SCALES_NM}}
 #: Axes whose payload torque the torsional calibration fits (A1 carries none in these poses, A2 is not needed).
 COG_AXES = (3, 4, 5, 6)
 
 
-def gain_basis(x_nm: np.ndarray, n_params: int) -> np.ndarray:
-    """Columns x·(|x|/1000)^j, j < n_params: the reading r = basis @ k."""
+def _sat_scale_nm(model: str) -> float | None:
+    return float(model[3:]) if model.startswith("sat") else None
+
+
+def gain_basis(x_nm: np.ndarray, model: str) -> np.ndarray:
+    """The columns of ``model`` at payload torques x: the reading r = basis @ k."""
     x = np.asarray(x_nm, dtype=float)
-    return np.stack([x * (np.abs(x) / 1000.0) ** j for j in range(n_params)], axis=-1)
+    tau = _sat_scale_nm(model)
+    if tau is not None:
+        return np.stack([x, x * (1.0 - np.exp(-np.abs(x) / tau))], axis=-1)
+    return np.stack([x * (np.abs(x) / 1000.0) ** j for j in range(GAIN_MODELS[model])], axis=-1)
+
+
+def gain_slope(x_nm: np.ndarray, model: str, k: np.ndarray) -> np.ndarray:
+    """dr/dx of ``model`` with parameters k."""
+    xa = np.abs(np.asarray(x_nm, dtype=float))
+    tau = _sat_scale_nm(model)
+    if tau is not None:
+        e = np.exp(-xa / tau)
+        return k[0] + k[1] * (1.0 - e) + k[1] * (xa / tau) * e
+    return sum((j + 1) * k[j] * (xa / 1000.0) ** j for j in range(len(k)))
 
 
 @dataclass(frozen=True)
@@ -160,13 +179,11 @@ class AxisGain:
 
     def reading_nm(self, x_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
         k = np.asarray(self.params if params is None else params, dtype=float)
-        return gain_basis(x_nm, len(k)) @ k
+        return gain_basis(x_nm, self.model) @ k
 
     def slope(self, x_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
         """dr/dx."""
-        k = np.asarray(self.params if params is None else params, dtype=float)
-        xa = np.abs(np.asarray(x_nm, dtype=float)) / 1000.0
-        return sum((j + 1) * k[j] * xa**j for j in range(len(k)))
+        return gain_slope(x_nm, self.model, np.asarray(self.params if params is None else params, dtype=float))
 
     def payload_torque_nm(self, reading_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
         """Invert r(x) by Newton's method (r is odd and monotone over the calibrated range; checked)."""
@@ -229,11 +246,11 @@ def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray
     k_loo = []
     for p in points:
         out = grp == p
-        k, _ = _gain_lsq(x[~out], r[~out], s[~out], n, grp[~out] if point_offsets else None)
+        k, _ = _gain_lsq(x[~out], r[~out], s[~out], model, grp[~out] if point_offsets else None)
         k_loo.append(k)
-        res = r[out] - gain_basis(x[out], n) @ k
+        res = r[out] - gain_basis(x[out], model) @ k
         heldout[out] = res - res.mean() if point_offsets else res
-    k, offsets = _gain_lsq(x, r, s, n, grp if point_offsets else None)
+    k, offsets = _gain_lsq(x, r, s, model, grp if point_offsets else None)
     # jackknife over points: a mounting's error is shared by all its poses, so the points, not the poses, are the
     # independent samples (the least-squares covariance, which counts poses, would be too small)
     dk = np.array(k_loo) - np.mean(k_loo, axis=0)
@@ -248,10 +265,11 @@ def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray
     return gain, heldout
 
 
-def _gain_lsq(x: np.ndarray, r: np.ndarray, s: np.ndarray, n: int, group: np.ndarray | None = None
+def _gain_lsq(x: np.ndarray, r: np.ndarray, s: np.ndarray, model: str, group: np.ndarray | None = None
               ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted least squares r = basis(x) @ k (+ δ_group); returns k and the group offsets (empty without)."""
-    a = gain_basis(x, n)
+    a = gain_basis(x, model)
+    n = a.shape[1]
     groups = np.unique(group) if group is not None else np.empty(0)
     if group is not None:
         a = np.hstack([a, (group[:, None] == groups[None, :]).astype(float)])
