@@ -251,6 +251,9 @@ def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray
         res = r[out] - gain_basis(x[out], model) @ k
         heldout[out] = res - res.mean() if point_offsets else res
     k, offsets = _gain_lsq(x, r, s, model, grp if point_offsets else None)
+    span = np.linspace(0.0, max(abs(x.min()), abs(x.max())), 50)
+    if not (k[0] > 0 and np.all(gain_slope(span, model, k) > 0)):
+        raise DataError(f"A{axis}: gain model {model} is not monotone over the calibrated torques (k = {k.tolist()})")
     # jackknife over points: a mounting's error is shared by all its poses, so the points, not the poses, are the
     # independent samples (the least-squares covariance, which counts poses, would be too small)
     dk = np.array(k_loo) - np.mean(k_loo, axis=0)

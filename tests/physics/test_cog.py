@@ -84,6 +84,10 @@ def test_fit_gain_recovers_a_known_curve_and_validates_held_out():
     assert ev["models"]["linear"]["heldout_rms_nm"] > 5 * ev["models"]["poly2"]["heldout_rms_nm"]
     with pytest.raises(DataError, match="cannot validate"):
         cog.fit_gain(4, x[:12], r[:12], np.ones(12), group[:12], "poly3")
+    with pytest.raises(DataError, match="not monotone"):  # a reading falling with the load is no calibration
+        cog.fit_gain(4, x, -r, np.full(60, 0.5), group, "sat300")
+    sat, _ = cog.fit_gain(4, x, r, np.full(60, 0.5), group, "sat300")
+    np.testing.assert_allclose(sat.payload_torque_nm(sat.reading_nm(grid)), grid, atol=1e-6)
 
 
 def _exact_poses(c_dut, m_dut, gains, offsets, scheme="full", fixture=(10.0, (0.0, 0.0, 0.005))):
