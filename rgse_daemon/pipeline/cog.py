@@ -153,7 +153,8 @@ def gain_slope(x_nm: np.ndarray, model: str, k: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class AxisGain:
-    """K of one axis for the CoG: reading r (bias-corrected, Nm) = x·(k0 + k1|x|/1000 + …) for payload torque x.
+    """K of one axis for the CoG: reading r (bias-corrected, Nm) = basis(x) @ params for payload torque x, the
+    basis of ``model`` (:data:`GAIN_MODELS`: polynomial or saturating gain).
 
     ``covariance``: of the params (fit). ``u_point_nm``: standard deviation of the held-out residuals of whole points
     (one mounting each): the scatter a new mounting adds, fixed over the poses of that mounting.
