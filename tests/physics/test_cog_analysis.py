@@ -157,3 +157,16 @@ def test_a_thermal_mismatch_with_the_torsional_campaign_is_warned(measured):
     warmer = [dataclasses.replace(r, motor_temp_k=tuple(t + 5.0 for t in r.motor_temp_k)) for r in readings]
     res = acog.compute_cog(warmer, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
     assert any("motor temperatures in the CoG poses differ" in w and "A5 +5." in w for w in res.warnings)
+
+
+def test_a_dut_beyond_the_calibrated_torques_is_warned(measured):
+    """A 300 kg DuT loads A3..A5 far beyond the torsional points (at most 126 kg): the result says so (U does not
+    cover an extrapolated K)."""
+    campaign, _ = measured
+    model = ph.RobotModel(seed=6)
+    cc.warm_up(model)
+    heavy = dataclasses.replace(ph.refex_wing_box(), mass_kg=300.0, cog_dut_m=(-0.02, 0.03, 0.45))
+    run = cc.simulate_properties(model, heavy, "full")
+    res = acog.compute_cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=300.0, u_mass_kg=1.0,
+                           fixture=run.fixture)
+    assert any("outside what the torsional calibration covered" in w for w in res.warnings), res.warnings
