@@ -124,6 +124,11 @@ def print_table(table: dict[str, dict], seeds: int, took_s: float) -> None:
 
     print(f"CoG on the simulated KR 500, {seeds} seeds, DuT frame x/y across, z along the launch axis "
           f"(ECSS ±{ACROSS_MM:g}/±{ACROSS_MM:g}/±{ALONG_MM:g} mm); {took_s:.0f} s\n")
+    for scheme, n in (("full", 8), ("paper", 2)):
+        points = 1 + len(cc.TORSIONAL_POINTS)
+        print(f"torsional calibration, {scheme} scheme: {points} mountings x {n} poses, robot time "
+              f"{points * robot_time_s(n) / 60:.0f} min (plus mounting each load)")
+    print()
     print("| row | poses | robot s | RMS err x/y/z mm | max err x/y/z mm | mean U x/y/z mm | coverage x/y/z | "
           "within ECSS |")
     print("|---|---|---|---|---|---|---|---|")
