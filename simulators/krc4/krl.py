@@ -103,10 +103,12 @@ class KrlRuntimeError(RgseError):
 
 @dataclass(frozen=True)
 class MotionEvent:
-    """A motion started (``kind`` ``"start"``) or came to rest (``"end"``; ``stopped`` if a stop cut it short).
+    """A motion started (``kind`` ``"start"``), began to brake on its path (``"brake"``: a stop) or came to rest
+    (``"end"``; ``stopped`` if a stop cut it short).
 
     ``q_deg``: axes now (deg); ``target_deg``: where the motion goes; ``directions``: sign of each axis' travel (+1,
-    −1, 0), i.e. the side an axis approaches its rest position from; ``t_s``: simulated time.
+    −1, 0), i.e. the side an axis approaches its rest position from; ``t_s``: simulated time; ``move``: the planned
+    motion that begins now (``"start"``, ``"brake"``), the profile the axes will follow (the dynamics use it).
     """
 
     kind: str
@@ -115,6 +117,7 @@ class MotionEvent:
     directions: tuple[int, ...]
     t_s: float
     stopped: bool = False
+    move: JointMove | None = None
 
 
 MotionListener = Callable[[MotionEvent], None]
@@ -691,7 +694,7 @@ class KrlInterpreter:
         target = await self._motion_target(stmt, frame)
         move = self._plan(kind, target)
         directions = move.directions()
-        self._emit(MotionEvent("start", tuple(self.axes_deg), tuple(target), directions, self._sim_time_s))
+        self._emit(MotionEvent("start", tuple(self.axes_deg), tuple(target), directions, self._sim_time_s, move=move))
         t_move = 0.0
         while True:
             q, qd = move.state(t_move)
@@ -703,7 +706,9 @@ class KrlInterpreter:
                 await self._checkpoint()  # stays here until started again
                 move = self._plan(kind, target)  # continue on the same joint line to the target
                 t_move = 0.0
-                self._emit(MotionEvent("start", tuple(self.axes_deg), tuple(target), directions, self._sim_time_s))
+                self._emit(
+                    MotionEvent("start", tuple(self.axes_deg), tuple(target), directions, self._sim_time_s, move=move)
+                )
                 continue
             t_move += await self._tick()
         self._publish(np.asarray(move.q_end_deg), np.zeros(6))
@@ -712,6 +717,9 @@ class KrlInterpreter:
     async def _brake(self, move: JointMove, t_move: float, target: np.ndarray, directions: tuple[int, ...]) -> None:
         """Ramp down on the path (STOP 2 / program stop); the robot ends at rest."""
         braking = move.stopped_at(t_move)
+        self._emit(
+            MotionEvent("brake", tuple(self.axes_deg), tuple(target), directions, self._sim_time_s, move=braking)
+        )
         t = 0.0
         while t < braking.duration_s:
             q, qd = braking.state(t)

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rgse_daemon import kinematics as kin
 from rgse_daemon.errors import RgseError
 from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, point_velocity_mm_s
 
@@ -80,6 +81,23 @@ class Profile:
     def duration_s(self) -> float:
         last = self.segments[-1]
         return last.t0_s + last.duration_s
+
+    def sample(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(s, ds/dt, d²s/dt²)`` at the times ``t_s`` since the start (arrays; at rest before and after)."""
+        t = np.asarray(t_s, dtype=float)
+        first, last = self.segments[0], self.segments[-1]
+        s_end, v_end = last.at(self.duration_s)
+        s = np.where(t < 0.0, first.s0, s_end)
+        v = np.where(t < 0.0, 0.0, v_end)
+        a = np.zeros_like(t)
+        for k, seg in enumerate(self.segments):
+            end = seg.t0_s + seg.duration_s
+            inside = (t >= seg.t0_s) & ((t < end) if k < len(self.segments) - 1 else (t <= end))
+            dt = t - seg.t0_s
+            s = np.where(inside, seg.s0 + seg.v0 * dt + 0.5 * seg.a * dt * dt, s)
+            v = np.where(inside, seg.v0 + seg.a * dt, v)
+            a = np.where(inside & (seg.duration_s > 0.0), seg.a, a)
+        return s, v, a
 
     def at(self, t_s: float) -> tuple[float, float]:
         """``(s, ds/dt)`` at time ``t_s`` since the start (clamped to the profile's ends)."""
@@ -148,6 +166,13 @@ class JointMove:
         delta = self.delta_deg
         return np.asarray(self.q_start_deg) + s * delta, v * delta
 
+    def sample(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Axis angles (deg), speeds (deg/s) and accelerations (deg/s²), each (n, 6), at times ``t_s`` (n,)
+        since the start."""
+        s, v, a = self.profile.sample(np.atleast_1d(np.asarray(t_s, dtype=float)))
+        delta = self.delta_deg
+        return np.asarray(self.q_start_deg) + s[:, None] * delta, v[:, None] * delta, a[:, None] * delta
+
     def directions(self) -> tuple[int, ...]:
         """Sign (+1, −1, 0) of each axis' travel: which side the axes approach the target from."""
         return tuple(int(np.sign(d)) for d in self.delta_deg)
@@ -181,10 +206,46 @@ def check_limits(q_deg: Sequence[float]) -> None:
             raise MotionError(f"A{i} target {q:.3f} deg is outside the software limits {lo:g}..{hi:g} deg")
 
 
+def axis_lines_batched(q_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``kinematics.axis_lines`` for many poses at once: origins (n, 6, 3) m and KUKA-positive directions (n, 6, 3)
+    of the six axes for q (n, 6) deg; the origin of axis 6 is the flange's. The same modified-DH chain, batched
+    (the T1 planner and a moving trace need hundreds to thousands of poses; one at a time that took ~75 ms per
+    motion, during which the simulated robot stood still)."""
+    q = np.atleast_2d(np.asarray(q_deg, dtype=float))
+    theta = kin.AXIS_SIGN * np.deg2rad(q) + kin.THETA_OFFSET_RAD
+    n = len(q)
+    t = np.tile(np.eye(4), (n, 1, 1))
+    origins, dirs = np.empty((n, 6, 3)), np.empty((n, 6, 3))
+    for i in range(6):
+        alpha, a, d = kin.MDH[i]
+        ca, sa = np.cos(alpha), np.sin(alpha)
+        ct, st = np.cos(theta[:, i]), np.sin(theta[:, i])
+        step = np.zeros((n, 4, 4))
+        step[:, 0, 0], step[:, 0, 1], step[:, 0, 3] = ct, -st, a
+        step[:, 1, 0], step[:, 1, 1], step[:, 1, 2], step[:, 1, 3] = st * ca, ct * ca, -sa, -sa * d
+        step[:, 2, 0], step[:, 2, 1], step[:, 2, 2], step[:, 2, 3] = st * sa, ct * sa, ca, ca * d
+        step[:, 3, 3] = 1.0
+        t = t @ step
+        origins[:, i], dirs[:, i] = t[:, :3, 3], t[:, :3, 2] * kin.AXIS_SIGN[i]
+    return origins, dirs
+
+
+def flange_speeds_mm_s(q_deg: np.ndarray, qdot_deg_s: np.ndarray) -> np.ndarray:
+    """:func:`flange_speed_mm_s` for many poses at once (q (n, 6) deg, one q̇ (6,) deg/s)."""
+    origins, dirs = axis_lines_batched(q_deg)
+    flange = origins[:, 5]
+    w = np.deg2rad(np.asarray(qdot_deg_s, dtype=float))
+    v = np.einsum("i,nij->nj", w, np.cross(dirs, flange[:, None, :] - origins))
+    return np.linalg.norm(v, axis=1) * 1000.0
+
+
 def path_speed_per_unit(q_start_deg: np.ndarray, delta_deg: np.ndarray, speed_fn: FlangeSpeed) -> float:
     """Largest flange speed (mm/s) along the joint line per unit of path-parameter speed ``ds/dt`` (1/s)."""
     n = max(2, math.ceil(float(np.abs(delta_deg).max()) / SAMPLE_STEP_DEG) + 1)
-    return max(speed_fn(q_start_deg + s * delta_deg, delta_deg) for s in np.linspace(0.0, 1.0, n))
+    s = np.linspace(0.0, 1.0, n)
+    if speed_fn is flange_speed_mm_s:
+        return float(flange_speeds_mm_s(q_start_deg + s[:, None] * delta_deg, delta_deg).max())
+    return max(speed_fn(q_start_deg + sk * delta_deg, delta_deg) for sk in s)
 
 
 def plan_joint_move(
@@ -236,3 +297,81 @@ def plan_joint_move(
                 clamped = t1_limit_mm_s is not None and t1_limit_mm_s / per_unit < v_path
                 v_path = v_cart
     return JointMove(kind, tuple(q0), tuple(q1), Profile.trapezoid(v_path, a_path), clamped)
+
+
+@dataclass(frozen=True)
+class MotionSamples:
+    """The robot's axes at a set of times (see :meth:`MotionHistory.sample`)."""
+
+    q_deg: np.ndarray  # (n, 6)
+    qd_deg_s: np.ndarray  # (n, 6)
+    qdd_deg_s2: np.ndarray  # (n, 6)
+    moving: np.ndarray  # (n,) bool: a motion is under way
+    t_since_stop_s: np.ndarray  # (n,) time since the last motion came to rest; NaN if none did before
+    approach: np.ndarray  # (n, 6) sign of each axis' travel in the last motion that moved it; 0 if none
+
+    @property
+    def any_motion(self) -> bool:
+        return bool(self.moving.any() or np.any(np.isfinite(self.t_since_stop_s)))
+
+
+class MotionHistory:
+    """The motions the robot made, as planned, in the simulator's clock: the axes, speeds and accelerations at any
+    time follow from them exactly (the KRL interpreter only sees them once per interpolation cycle).
+
+    Every motion is recorded at its start with :meth:`add`; a later entry (a STOP 2 ramp, a resumed motion)
+    supersedes the earlier one from its own start time. Entries older than ``keep_s`` before the newest are
+    dropped.
+    """
+
+    def __init__(self, keep_s: float = 3600.0) -> None:
+        self.keep_s = keep_s
+        self._entries: list[tuple[float, JointMove]] = []
+
+    def add(self, t0_s: float, move: JointMove) -> None:
+        self._entries.append((float(t0_s), move))
+        horizon = t0_s - self.keep_s
+        while len(self._entries) > 1 and self._entries[1][0] < horizon:
+            self._entries.pop(0)
+
+    def active(self, t_s: float) -> JointMove | None:
+        """The motion under way at ``t_s`` (None when at rest)."""
+        for t0, move in reversed(self._entries):
+            if t0 <= t_s:
+                return move if t_s < t0 + move.duration_s else None
+        return None
+
+    def sample(self, t_s: np.ndarray, q_rest_deg: Sequence[float] | None = None) -> MotionSamples:
+        """The axes at the times ``t_s`` (n,). ``q_rest_deg``: where the robot stands before the first entry
+        (default: that entry's start)."""
+        t = np.atleast_1d(np.asarray(t_s, dtype=float))
+        n = len(t)
+        if q_rest_deg is None:
+            q_rest_deg = self._entries[0][1].q_start_deg if self._entries else (0.0,) * 6
+        q = np.tile(np.asarray(q_rest_deg, dtype=float), (n, 1))
+        qd = np.zeros((n, 6))
+        qdd = np.zeros((n, 6))
+        moving = np.zeros(n, dtype=bool)
+        since = np.full(n, np.nan)
+        approach = np.zeros((n, 6))
+        starts = [t0 for t0, _ in self._entries] + [np.inf]
+        for k, (t0, move) in enumerate(self._entries):
+            t_end = t0 + move.duration_s
+            mask = (t >= t0) & (t < starts[k + 1])
+            if not mask.any():
+                continue
+            qk, qdk, qddk = move.sample(t[mask] - t0)
+            q[mask], qd[mask], qdd[mask] = qk, qdk, qddk
+            moving[mask] = t[mask] < t_end
+            rest = mask & (t >= t_end)
+            since[rest] = t[rest] - t_end
+            dirs = np.array(move.directions(), dtype=float)
+            moved = dirs != 0
+            approach[np.ix_(mask, moved)] = dirs[moved]
+        # an axis the current entry does not move keeps the direction of the last entry that moved it
+        for i in range(6):
+            col = approach[:, i]
+            for k in range(1, n):
+                if col[k] == 0.0:
+                    col[k] = col[k - 1]
+        return MotionSamples(q, qd, qdd, moving, since, approach)

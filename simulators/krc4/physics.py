@@ -98,23 +98,76 @@ TA_MASS_KG = 19.20
 TA_TORQUE_A5_NM = 217.95  # Table A1, at g = 9.81
 FIXTURE_MASS_KG = 10.288  # paper §2.4.7, the ReFEx fixture
 FIXTURE_THICKNESS_M = 0.040
+FIXTURE_SIDE_M = 0.400  # assumed footprint of the fixture block (its inertia only)
+TA_RAIL_SECTION_M = 0.120  # assumed cross-section and length of the test adapter's guide rail (its inertia only)
+TA_RAIL_LENGTH_M = 1.000
+
+
+InertiaLike = Sequence[float] | Sequence[Sequence[float]] | np.ndarray
+"""Three principal moments (a diagonal tensor) or a full symmetric 3×3 tensor, kg·m²."""
+
+
+def inertia_tensor_kgm2(value: InertiaLike, what: str = "inertia") -> np.ndarray:
+    """A 3×3 inertia tensor (kg·m²) from three diagonal moments or a full tensor; ValueError naming ``what`` if it is
+    not a physical one (finite, symmetric, principal moments ≥ 0 and obeying the triangle inequality)."""
+    t = np.asarray(value, dtype=float)
+    if t.shape == (3,):
+        t = np.diag(t)
+    if t.shape != (3, 3) or not np.all(np.isfinite(t)):
+        raise ValueError(f"{what}: expected three moments or a 3×3 tensor of finite kg·m², got shape {t.shape}")
+    scale = max(float(np.abs(t).max()), 1e-12)
+    if not np.allclose(t, t.T, atol=1e-9 * scale):
+        raise ValueError(f"{what}: the inertia tensor is not symmetric")
+    p = np.linalg.eigvalsh(t)
+    tol = 1e-9 * scale
+    if p[0] < -tol or p[2] > p[0] + p[1] + tol:
+        raise ValueError(f"{what}: principal moments {p.round(6).tolist()} kg·m² are not a rigid body's "
+                         "(each must be ≥ 0 and none larger than the sum of the other two)")
+    return t
+
+
+def box_inertia_kgm2(mass_kg: float, x_m: float, y_m: float, z_m: float) -> tuple[float, float, float]:
+    """Principal moments (kg·m²) about the CoG of a homogeneous box with edges x, y, z (m) along its axes."""
+    return (mass_kg * (y_m**2 + z_m**2) / 12.0, mass_kg * (x_m**2 + z_m**2) / 12.0,
+            mass_kg * (x_m**2 + y_m**2) / 12.0)
+
+
+def plate_with_hole_inertia_kgm2(mass_kg: float, side_m: float, thickness_m: float,
+                                 hole_diameter_m: float) -> tuple[float, float, float]:
+    """Principal moments (kg·m²) about the CoG of a square plate (side × side × thickness, z its normal) with a
+    centred round cut-out, homogeneous, of total mass ``mass_kg``: the full plate minus the disc."""
+    r = hole_diameter_m / 2.0
+    a_plate, a_hole = side_m**2, np.pi * r**2
+    m_full = mass_kg * a_plate / (a_plate - a_hole)
+    m_hole = m_full - mass_kg
+    ixx = m_full * (side_m**2 + thickness_m**2) / 12.0 - m_hole * (3 * r**2 + thickness_m**2) / 12.0
+    izz = m_full * 2 * side_m**2 / 12.0 - m_hole * r**2 / 2.0
+    return (float(ixx), float(ixx), float(izz))
 
 
 @dataclass(frozen=True)
 class RigidBody:
-    """A rigid body fixed to the flange: mass (kg), CoG in the flange frame (m), principal inertia (kg·m², a
-    placeholder: static torques do not depend on it)."""
+    """A rigid body fixed to the flange: mass (kg), CoG in the flange frame (m) and its inertia tensor about the
+    CoG in the flange frame (kg·m²; three principal moments along the flange axes, or a full 3×3 tensor; kept as
+    a 3×3 tuple). The static torques do not depend on the inertia; the dynamics (``dynamics.py``) do."""
 
     name: str
     mass_kg: float
     cog_flange_m: tuple[float, float, float]
-    inertia_kgm2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inertia_cog_kgm2: InertiaLike = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.mass_kg) and self.mass_kg >= 0.0):
             raise ValueError(f"{self.name}: mass must be finite and ≥ 0, got {self.mass_kg}")
         if len(self.cog_flange_m) != 3 or not np.all(np.isfinite(self.cog_flange_m)):
             raise ValueError(f"{self.name}: CoG must be three finite coordinates (m)")
+        t = inertia_tensor_kgm2(self.inertia_cog_kgm2, f"{self.name}: inertia about the CoG")
+        object.__setattr__(self, "inertia_cog_kgm2", tuple(tuple(float(v) for v in row) for row in t))
+
+    @property
+    def inertia_tensor_kgm2(self) -> np.ndarray:
+        """The inertia tensor about the body's CoG in the flange frame (3×3, kg·m²)."""
+        return np.array(self.inertia_cog_kgm2, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -140,13 +193,36 @@ class Payload:
         t = self.theta
         return t[1:] / t[0] if t[0] > 0 else np.zeros(3)
 
+    def inertia_flange_kgm2(self, shift_z_m: float = 0.0) -> np.ndarray:
+        """Inertia tensor (3×3, kg·m²) of all bodies about the flange origin in the flange frame (parallel-axis
+        theorem: I_o = Σ I_c + m (|c|² 1 − c cᵀ)); ``shift_z_m`` moves every body along the flange axis (a
+        mounting's CoG shift)."""
+        total = np.zeros((3, 3))
+        for b in self.bodies:
+            c = np.asarray(b.cog_flange_m, dtype=float) + np.array([0.0, 0.0, shift_z_m])
+            total += b.inertia_tensor_kgm2 + b.mass_kg * (c @ c * np.eye(3) - np.outer(c, c))
+        return total
+
+    @property
+    def inertia_cog_kgm2(self) -> np.ndarray:
+        """Inertia tensor (3×3, kg·m²) of the whole payload about its common CoG, in the flange frame."""
+        c = self.cog_flange_m
+        return self.inertia_flange_kgm2() - self.mass_kg * (c @ c * np.eye(3) - np.outer(c, c))
+
     def __add__(self, other: Payload) -> Payload:
         return Payload(self.bodies + other.bodies)
 
 
 def mpa() -> RigidBody:
     """The multi-payload adapter: 440 × 440 × 20 mm stainless plate with a Ø120 mm cut-out (§2.2)."""
-    return RigidBody("MPA", MPA_MASS_KG, (0.0, 0.0, CHAIN_ORIGIN_Z_M + MPA_THICKNESS_M / 2), (3.0, 3.0, 5.9))
+    return RigidBody("MPA", MPA_MASS_KG, (0.0, 0.0, CHAIN_ORIGIN_Z_M + MPA_THICKNESS_M / 2),
+                     plate_with_hole_inertia_kgm2(MPA_MASS_KG, MPA_SIDE_M, MPA_THICKNESS_M, MPA_CUTOUT_DIAMETER_M))
+
+
+def cb_inertia_kgm2() -> tuple[float, float, float]:
+    """A calibration body's principal moments about its CoG (kg·m², z its normal): a 440 × 440 × 15 mm plate with
+    the Ø120 mm cut-out, 20.93 kg."""
+    return plate_with_hole_inertia_kgm2(CB_MASS_KG, MPA_SIDE_M, CB_THICKNESS_M, MPA_CUTOUT_DIAMETER_M)
 
 
 def mpa_front_z_m() -> float:
@@ -159,7 +235,7 @@ def calibration_stack(n_cb: int, base_z_m: float | None = None) -> tuple[RigidBo
         raise ValueError(f"n_cb must be 0..{N_CB_MAX}, got {n_cb}")
     z0 = mpa_front_z_m() if base_z_m is None else base_z_m
     return tuple(
-        RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z0 + CB_THICKNESS_M * (k - 0.5)), (0.34, 0.34, 0.68))
+        RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z0 + CB_THICKNESS_M * (k - 0.5)), cb_inertia_kgm2())
         for k in range(1, n_cb + 1)
     )
 
@@ -179,7 +255,9 @@ def paper_levers_m(n_cb: int) -> tuple[float, float]:
 def test_adapter(g_m_s2: float = kin.G_PAPER_M_S2) -> RigidBody:
     """The guide-rail test adapter (Fig. 18) on the MPA; its A5 torque in the measurement pose is Table A1's."""
     lever_a5 = TA_TORQUE_A5_NM / (kin.G_PAPER_M_S2 * TA_MASS_KG)
-    return RigidBody("TA", TA_MASS_KG, (0.0, 0.0, lever_a5 - kin.D6_M), (0.1, 2.5, 2.5))
+    # a guide rail along the flange axis: a 120 × 120 mm box of 1.0 m (its inertia is an assumption of the size)
+    return RigidBody("TA", TA_MASS_KG, (0.0, 0.0, lever_a5 - kin.D6_M),
+                     box_inertia_kgm2(TA_MASS_KG, TA_RAIL_SECTION_M, TA_RAIL_SECTION_M, TA_RAIL_LENGTH_M))
 
 
 def torque_calibration_payload(n_cb: int, cb_lever_a5_m: float) -> Payload:
@@ -188,7 +266,7 @@ def torque_calibration_payload(n_cb: int, cb_lever_a5_m: float) -> Payload:
     if not 0.60 <= cb_lever_a5_m <= 1.50:
         raise ValueError(f"cb_lever_a5_m {cb_lever_a5_m} m is outside the guide rail (0.60..1.50 m)")
     z = cb_lever_a5_m - kin.D6_M
-    bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z), (0.34, 0.34, 0.68)) for k in range(1, n_cb + 1))
+    bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z), cb_inertia_kgm2()) for k in range(1, n_cb + 1))
     return Payload((mpa(), test_adapter(), *bodies))
 
 
@@ -206,21 +284,22 @@ def campaign_point_payload(point: Mapping[str, Any]) -> Payload:
 def dut_payload(
     dut_mass_kg: float,
     dut_cog_m: Sequence[float],
-    dut_inertia_kgm2: Sequence[float] = (0.0, 0.0, 0.0),
+    dut_inertia_kgm2: InertiaLike = (0.0, 0.0, 0.0),
     fixture_mass_kg: float = FIXTURE_MASS_KG,
     with_mpa: bool = True,
 ) -> Payload:
     """A device under test on its fixture on the MPA (Fig. 14, 29).
 
-    ``dut_cog_m`` is the DuT's CoG in the flange frame (m). The fixture is a 40 mm block centred on the MPA's face.
+    ``dut_cog_m`` is the DuT's CoG in the flange frame (m); ``dut_inertia_kgm2`` its inertia about that CoG in the
+    flange frame (three moments along the flange axes or a 3×3 tensor, kg·m²). The fixture is a 400 × 400 × 40 mm
+    block centred on the MPA's face.
     """
     bodies: list[RigidBody] = [mpa()] if with_mpa else []
     if fixture_mass_kg > 0:
         base = mpa_front_z_m() if with_mpa else 0.0
-        bodies.append(RigidBody("fixture", fixture_mass_kg, (0.0, 0.0, base + FIXTURE_THICKNESS_M / 2)))
-    bodies.append(
-        RigidBody("DuT", dut_mass_kg, tuple(float(c) for c in dut_cog_m), tuple(float(i) for i in dut_inertia_kgm2))
-    )
+        bodies.append(RigidBody("fixture", fixture_mass_kg, (0.0, 0.0, base + FIXTURE_THICKNESS_M / 2),
+                                box_inertia_kgm2(fixture_mass_kg, FIXTURE_SIDE_M, FIXTURE_SIDE_M, FIXTURE_THICKNESS_M)))
+    bodies.append(RigidBody("DuT", dut_mass_kg, tuple(float(c) for c in dut_cog_m), dut_inertia_kgm2))
     return Payload(tuple(bodies))
 
 
@@ -239,15 +318,55 @@ def fixture_front_z_m(with_mpa: bool = True) -> float:
 @dataclass(frozen=True)
 class AsymmetricDut:
     """A DuT whose CoG is off the flange axis, with its own frame: origin (m) and KUKA A, B, C (Z-Y-X, deg) in
-    the flange frame, its CoG in that frame (m). ``cog_flange_m`` is the truth the CoG measurement is checked
-    against (before the per-mounting shift the robot model adds)."""
+    the flange frame, its CoG in that frame (m), its inertia tensor about the CoG in that frame
+    (``inertia_about_cog_kgm2``: three moments along the DuT axes or a full symmetric 3×3, kg·m²). ``cog_flange_m``
+    is the truth the CoG measurement is checked against (before the per-mounting shift the robot model adds);
+    ``principal_moments_kgm2`` (ascending) and ``inertia_dut_kgm2`` the truth of an inertia identification. The
+    DuT → flange rotation is ``rotation``: v_flange = R · v_dut, I_flange = R · I_dut · Rᵀ. Its envelope, for the
+    T1 speed limit at every point of the payload, is a box of ``box_size_dut_m`` (edges along the DuT axes, m)
+    centred at ``box_centre_dut_m`` (default: the CoG); ``box_corners_flange_m()`` gives its eight corners."""
 
     name: str
     mass_kg: float
     cog_dut_m: tuple[float, float, float]
     dut_origin_flange_m: tuple[float, float, float]
     dut_abc_deg: tuple[float, float, float]
-    inertia_kgm2: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inertia_about_cog_kgm2: InertiaLike = (0.0, 0.0, 0.0)
+    box_size_dut_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    box_centre_dut_m: tuple[float, float, float] | None = None
+
+    def box_corners_flange_m(self) -> np.ndarray:
+        """The eight corners of the DuT's envelope box in the flange frame (8×3, m)."""
+        centre = np.asarray(self.cog_dut_m if self.box_centre_dut_m is None else self.box_centre_dut_m, dtype=float)
+        half = np.asarray(self.box_size_dut_m, dtype=float) / 2.0
+        signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
+        corners_dut = centre + signs * half
+        return corners_dut @ self.rotation.T + np.asarray(self.dut_origin_flange_m)
+
+    def __post_init__(self) -> None:
+        t = inertia_tensor_kgm2(self.inertia_about_cog_kgm2, f"{self.name}: inertia about the CoG")
+        object.__setattr__(self, "inertia_about_cog_kgm2", tuple(tuple(float(v) for v in row) for row in t))
+
+    @property
+    def inertia_dut_kgm2(self) -> np.ndarray:
+        """The inertia tensor about the CoG in the DuT frame (3×3, kg·m²)."""
+        return np.array(self.inertia_about_cog_kgm2, dtype=float)
+
+    @property
+    def inertia_flange_kgm2(self) -> np.ndarray:
+        """The inertia tensor about the CoG in the flange frame (3×3, kg·m²): R · I_dut · Rᵀ."""
+        r = self.rotation
+        return r @ self.inertia_dut_kgm2 @ r.T
+
+    @property
+    def principal_moments_kgm2(self) -> np.ndarray:
+        """The true principal moments about the CoG (kg·m², ascending)."""
+        return np.linalg.eigvalsh(self.inertia_dut_kgm2)
+
+    @property
+    def principal_axes_dut(self) -> np.ndarray:
+        """Unit principal axes in the DuT frame as columns, in the order of ``principal_moments_kgm2``."""
+        return np.linalg.eigh(self.inertia_dut_kgm2)[1]
 
     @property
     def rotation(self) -> np.ndarray:
@@ -260,15 +379,42 @@ class AsymmetricDut:
 
     def payload(self, fixture_mass_kg: float = FIXTURE_MASS_KG, with_mpa: bool = True) -> Payload:
         """MPA, fixture and this DuT, as mounted for a mass and a properties run."""
-        return dut_payload(self.mass_kg, self.cog_flange_m, self.inertia_kgm2, fixture_mass_kg, with_mpa)
+        return dut_payload(self.mass_kg, self.cog_flange_m, self.inertia_flange_kgm2, fixture_mass_kg, with_mpa)
+
+
+def _rotated_tensor(principal_kgm2: Sequence[float], abc_deg: Sequence[float]) -> np.ndarray:
+    """R · diag(principal) · Rᵀ with R = Rz(A)·Ry(B)·Rx(C): a tensor whose principal axes are turned by A, B, C."""
+    r = Rotation.from_euler("ZYX", abc_deg, degrees=True).as_matrix()
+    return r @ np.diag(np.asarray(principal_kgm2, dtype=float)) @ r.T
+
+
+#: The wing box's principal moments about its CoG (kg·m²) and how its principal axes are turned against the DuT
+#: axes (KUKA A, B, C in deg: the spar's sweep and the skins' twist). A 1.6 × 0.6 × 0.3 m box (x × y × z) of
+#: 107.3 kg homogeneous would have (4.02, 23.70, 26.11); the mass of a wing box sits in its skins and spars, away
+#: from the centre, so each moment is ~25 % larger. Invented numbers of the right size, not ReFEx data.
+WING_BOX_PRINCIPAL_KGM2 = (5.1, 29.4, 32.6)
+WING_BOX_AXES_ABC_DEG = (8.0, 2.5, -4.0)
 
 
 def refex_wing_box() -> AsymmetricDut:
     """A ReFEx-like wing box (paper §2.4.7: the DuT on the 10.288 kg fixture): 107.3 kg, its frame at the centre of
     the fixture's front face turned 90° about the flange axis (its x along the flange's y), its CoG 310 mm out from
-    the interface and 28/41 mm off the flange axis. Invented numbers of the right size, not ReFEx data."""
+    the interface and 28/41 mm off the flange axis; 1.6 m along its x, 0.6 m along y, 0.3 m deep (on a 0.16 m
+    bracket), with a full inertia tensor (products of inertia from the principal axes turned by
+    ``WING_BOX_AXES_ABC_DEG``). Invented numbers of the right size, not ReFEx data."""
     return AsymmetricDut("ReFEx wing box", 107.3, (-0.028, 0.041, 0.310), (0.0, 0.0, fixture_front_z_m()),
-                         (90.0, 0.0, 0.0), (6.0, 9.0, 4.5))
+                         (90.0, 0.0, 0.0), _rotated_tensor(WING_BOX_PRINCIPAL_KGM2, WING_BOX_AXES_ABC_DEG),
+                         (1.6, 0.6, 0.3))
+
+
+def compact_cube() -> AsymmetricDut:
+    """A compact DuT: a 0.5 m cube of 60 kg (a homogeneous one would have 2.5 kg·m² about every axis), its
+    equipment not evenly spread: principal moments 2.2 / 2.5 / 2.9 kg·m², axes turned (12°, −5°, 7°) against the
+    cube's, its CoG 12/−8 mm off its centre. Its frame sits at the fixture's front face turned 20° about the flange
+    axis. Invented numbers of the right size."""
+    return AsymmetricDut("compact cube", 60.0, (0.012, -0.008, 0.25), (0.0, 0.0, fixture_front_z_m()),
+                         (20.0, 0.0, 0.0), _rotated_tensor((2.2, 2.5, 2.9), (12.0, -5.0, 7.0)), (0.5, 0.5, 0.5),
+                         (0.0, 0.0, 0.25))
 
 
 #: The torsional calibration (interfaces §2): up to six calibration bodies on a bracket on the MPA whose CoG sits at
@@ -287,7 +433,7 @@ def torsional_point_payload(n_cb: int, offset_x_m: float, offset_y_m: float,
         raise ValueError(f"n_cb {n_cb} must be 0..{TORSIONAL_N_CB_MAX} on the torsional bracket")
     if n_cb and (max(abs(offset_x_m), abs(offset_y_m)) > 0.20 or not 0.10 <= z_m <= 0.60):
         raise ValueError("the torsional bracket reaches 0.20 m off the flange axis and 0.10..0.60 m along it")
-    bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (offset_x_m, offset_y_m, z_m), (0.34, 0.34, 0.68))
+    bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (offset_x_m, offset_y_m, z_m), cb_inertia_kgm2())
                    for k in range(1, n_cb + 1))
     return Payload((mpa(), *bodies))
 

@@ -25,9 +25,11 @@ How the parts meet:
   temperature (K); ``$BRAKE_SIG`` all ones while the drives are on. ``$AXIS_ACT``/``$AXIS_ACT_MEAS``/``$POS_ACT``
   (forward kinematics) are kept by the interpreter. Noise, drift and transients show only in traces.
 * **Traces** (:mod:`simulators.krc4.trace`) sample the physics for the pose and payload at the trigger, with the
-  physics state (temperatures, time since the last motion, approach directions) of that moment. Approximation:
-  if the robot moves during a trace, the position channels follow the motion (sampled every IPO cycle) but the
-  torque channels stay those of the trigger pose; the measurement procedure holds still while recording.
+  physics state (temperatures, time since the last motion, approach directions) of that moment. If the robot
+  moves during a trace, every sample follows the planned motions exactly (:class:`~simulators.krc4.motion.
+  MotionHistory`, in the simulator's clock): positions from the profiles, ``Istmoment`` from the rigid-body
+  dynamics plus friction through the error model (:mod:`simulators.krc4.dynamics`, whose docstring holds the
+  contract). ``$TORQUE_AXIS_ACT[i]`` read during a motion is the noise-free dynamic reading.
 """
 
 from __future__ import annotations
@@ -43,10 +45,11 @@ from typing import Any
 import numpy as np
 
 from rgse_daemon.errors import ConfigError
-from rgse_daemon.kinematics import flange_pose_xyzabc
 from rgse_daemon.krl.ast import Decl
 from rgse_daemon.krl.parser import parse_dat
+from simulators.krc4.dynamics import SERVO_LAG_S, RobotDynamics, dynamic_reading_nm, sample_motion_trace
 from simulators.krc4.krl import KrlInterpreter, MotionEvent, ProgramLoader, share_loader
+from simulators.krc4.motion import MotionHistory, MotionSamples, axis_lines_batched
 from simulators.krc4.physics import CHANNEL_UNITS, CHANNELS, Payload, RobotModel, RobotState, TraceTruth
 from simulators.krc4.scenario import Scenario, load_scenario, scenario_from_mapping
 from simulators.krc4.server import KrcServer, ServerConfig
@@ -77,6 +80,7 @@ class _Snapshot:
     payload: Payload
     state: RobotState
     moves_before: int
+    t_s: float  # simulated clock at the trigger
 
 
 class _ProgramControl:
@@ -153,6 +157,9 @@ class SimulatedKrc4:
         if not 0.0 < time_scale <= MAX_TIME_SCALE:
             raise ConfigError(f"time_scale {time_scale} must be > 0 and <= {MAX_TIME_SCALE:g}")
         self.model = RobotModel(_scenario(scenario), seed=seed)
+        self.dynamics = RobotDynamics(self.model.scenario)
+        self.history = MotionHistory()
+        """The planned motions in the simulator's clock (what the dynamics of a moving trace follow)."""
         self.clock = SimClock(time_scale)
         self.store = VariableStore()
         behaviour = {k: v for k, v in self.model.scenario.server.model_dump().items() if v is not None}
@@ -173,6 +180,7 @@ class SimulatedKrc4:
         self.truths: dict[str, TraceTruth] = {}
         self.moves = 0
         self._motion_start: MotionEvent | None = None
+        self._move_anchor = (0.0, 0.0)  # (clock, interpreter time) at the start of the current move
         self._physics_s = self.clock.now_s()
         self._register_getters()
 
@@ -281,6 +289,15 @@ class SimulatedKrc4:
             self.model.apply_brakes(dt)
 
     def _on_motion(self, event: MotionEvent) -> None:
+        if event.move is not None and event.kind == "start":
+            self._move_anchor = (self.clock.now_s(), event.t_s)
+            self.history.add(self._move_anchor[0], event.move)
+        if event.kind == "brake":
+            if event.move is not None:
+                # the ramp starts where the interpreter was on its move: same time into the move, in the clock
+                clock_t0, interp_t0 = self._move_anchor
+                self.history.add(clock_t0 + max(0.0, event.t_s - interp_t0), event.move)
+            return
         if event.kind == "start":
             self._sync_physics()
             self._motion_start = event
@@ -310,6 +327,11 @@ class SimulatedKrc4:
     def _torques_nm(self) -> np.ndarray:
         if not self._drives_on():
             return np.zeros(6)
+        now = self.clock.now_s()
+        if self.history.active(now) is not None:
+            m = self.history.sample(np.array([now - SERVO_LAG_S]))  # the arm, following the command
+            return dynamic_reading_nm(self.model, self.dynamics, m.q_deg[0], m.qd_deg_s[0], m.qdd_deg_s2[0],
+                                      self.payload)
         return self.model.static_reading_nm(self._q(), self.payload)
 
     def _register_getters(self) -> None:
@@ -335,7 +357,8 @@ class SimulatedKrc4:
     # --- TraceSource --------------------------------------------------------------------------------------------
     def begin(self, name: str) -> object:
         self._sync_physics()
-        return _Snapshot(name, self._q().copy(), self.payload, copy.deepcopy(self.model.state), self.moves)
+        return _Snapshot(name, self._q().copy(), self.payload, copy.deepcopy(self.model.state), self.moves,
+                         self.clock.now_s())
 
     def axes_deg(self) -> tuple[float, ...]:
         return tuple(float(v) for v in self._q())
@@ -351,6 +374,11 @@ class SimulatedKrc4:
     ) -> Modules:
         assert isinstance(token, _Snapshot)
         self._sync_physics()
+        t_s = np.arange(n_samples) * period_s
+        motion = self.history.sample(token.t_s - pre_s + t_s)
+        stopped_inside = np.isfinite(motion.t_since_stop_s) & (motion.t_since_stop_s <= t_s)
+        if motion.moving.any() or stopped_inside.any():
+            return self._record_motion(token, modules, n_samples, period_s, pre_s, motion)
         moved = self.moves != token.moves_before
         state_now = copy.deepcopy(self.model.state)
         drives = self.model.sample_trace(
@@ -368,7 +396,6 @@ class SimulatedKrc4:
         truth = self.model.last_truth
         assert truth is not None
         self.truths[token.name] = truth
-        t_s = np.arange(n_samples) * period_s
         track_t, track_q = axes_track
         q_t = np.column_stack([np.interp(t_s, track_t, track_q[:, i]) for i in range(6)])  # (n, 6)
         out: dict[str, dict[str, tuple[np.ndarray, str]]] = {}
@@ -380,15 +407,45 @@ class SimulatedKrc4:
             ch = {**ch, "Sollposition": q_t[:, k - 1], "Istposition": q_t[:, k - 1] + jitter}
             out[module] = {name: (ch[name], CHANNEL_UNITS[name]) for name in CHANNELS}
         if IPO_MODULE in modules:
-            poses, where = np.unique(q_t, axis=0, return_inverse=True)  # standing still: one pose
-            xyz = np.array([flange_pose_xyzabc(q)[:3] for q in poses])[where.reshape(-1)]
-            override = float(self.store.read("$OV_PRO"))
-            out[IPO_MODULE] = {
-                "Sollposition X": (xyz[:, 0], "mm"),
-                "Sollposition Y": (xyz[:, 1], "mm"),
-                "Sollposition Z": (xyz[:, 2], "mm"),
-                "Programmoverride": (np.full(n_samples, override), "%"),
-            }
+            out[IPO_MODULE] = self._ipo_channels(q_t)
+        return out
+
+    def _ipo_channels(self, q_t: np.ndarray) -> dict[str, tuple[np.ndarray, str]]:
+        """The interpolator's channels for the axes ``q_t`` (n, 6): flange position and override."""
+        xyz = axis_lines_batched(q_t)[0][:, 5] * 1000.0  # the flange's origin, mm
+        override = float(self.store.read("$OV_PRO"))
+        return {
+            "Sollposition X": (xyz[:, 0], "mm"),
+            "Sollposition Y": (xyz[:, 1], "mm"),
+            "Sollposition Z": (xyz[:, 2], "mm"),
+            "Programmoverride": (np.full(len(q_t), override), "%"),
+        }
+
+    def _record_motion(self, token: _Snapshot, modules: tuple[str, ...], n_samples: int, period_s: float,
+                       pre_s: float, motion: MotionSamples) -> Modules:
+        """A trace during which the robot moved: every sample from the planned motions and the dynamics (the arm
+        follows the command ``SERVO_LAG_S`` late)."""
+        times = token.t_s - pre_s + np.arange(n_samples) * period_s
+        drives = sample_motion_trace(
+            self.model,
+            self.dynamics,
+            token.payload,
+            motion,
+            period_s,
+            t_since_release_s=max(0.0, token.state.t_since_release_s - pre_s),
+            motor_temp_k=token.state.motor_temp_k,
+            last_approach_sign=token.state.last_approach_sign,
+            actual=self.history.sample(times - SERVO_LAG_S),
+        )
+        truth = self.model.last_truth
+        assert truth is not None
+        self.truths[token.name] = truth
+        out: dict[str, dict[str, tuple[np.ndarray, str]]] = {}
+        for k, module in enumerate(DRIVE_MODULES, start=1):
+            if module in modules:
+                out[module] = {name: (drives[k][name], CHANNEL_UNITS[name]) for name in CHANNELS}
+        if IPO_MODULE in modules:
+            out[IPO_MODULE] = self._ipo_channels(motion.q_deg)
         return out
 
     def program_text(self) -> str | None:
