@@ -18,6 +18,7 @@ from rgse_daemon.pipeline.calibration import AxisK, Calibration
 from rgse_daemon.pipeline.cog import AxisGain
 from rgse_daemon.pipeline.envelope import Envelope
 from rgse_daemon.pipeline.preprocess import Preprocessing
+from rgse_daemon.pipeline.thermal import ThermalDrift
 from rgse_daemon.pipeline.uncertainty import CalibrationUncertainty
 from rgse_daemon.trace.names import plain_name
 
@@ -194,13 +195,24 @@ def envelope(path: Path | str, doc: dict[str, Any]) -> Envelope | None:
         raise DataError(f"{path}: {exc}") from exc
 
 
+def thermal(path: Path | str, doc: dict[str, Any]) -> ThermalDrift | None:
+    """``fit.thermal``: the campaign's thermal drift of the torque estimate; None in files without it."""
+    d = (doc.get("fit") or {}).get("thermal")
+    if d is None:
+        return None
+    try:
+        return ThermalDrift.from_dict(d)
+    except DataError as exc:
+        raise DataError(f"{path}: {exc}") from exc
+
+
 def uncertainty_inputs(path: Path | str, doc: dict[str, Any], cal: Calibration, alts: list[Calibration]
                        ) -> dict[str, Any]:
     """The keyword arguments of :func:`rgse_daemon.pipeline.inline.in_line_mass` that come from a calibration file:
-    ``uncertainty``, ``alternative_uncertainty`` and ``envelope`` (None / empty in older files)."""
+    ``uncertainty``, ``alternative_uncertainty``, ``envelope`` and ``thermal`` (None / empty in older files)."""
     return {"uncertainty": uncertainty(path, doc, cal),
             "alternative_uncertainty": alternative_uncertainties(path, doc, list(alts)),
-            "envelope": envelope(path, doc)}
+            "envelope": envelope(path, doc), "thermal": thermal(path, doc)}
 
 
 def check_robot(path: Path | str, doc: dict[str, Any], robot: str) -> None:

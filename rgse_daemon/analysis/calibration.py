@@ -18,9 +18,11 @@ from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import Manifest, load_manifest, read_loops, source_sha256, thermal_state_k
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import thermal as thermal_mod
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import CalibrationPoints
 from rgse_daemon.pipeline.envelope import Envelope
+from rgse_daemon.pipeline.thermal import ThermalDrift
 
 #: Robot named in a calibration fitted from a bare points CSV (the paper's robot type; the CSV names none).
 POINTS_ROBOT = "KR500R2830"
@@ -35,6 +37,8 @@ class CampaignData:
     files: list[Path]
     thermal_state_k: dict[str, float] | None = None
     """Mean A3/A5 motor temperature over every loop (K), when the traces recorded it."""
+    loop_temps_k: list[list[tuple[float, float]]] | None = None
+    """Per point, per loop: the A3 and A5 motor temperature (K); None when a trace did not record it."""
 
 
 def load_campaign(directory: Path) -> CampaignData:
@@ -45,12 +49,33 @@ def load_campaign(directory: Path) -> CampaignData:
         raise DataError(f"{man.path}: a calibration campaign needs a 'zero' point (the M_0 bias)")
     loops = []
     every_loop = []
+    temps = []
     for spec in man.points:
         point_loops = read_loops(directory, spec.traces)
         every_loop += point_loops
         loops.append([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point_loops])
+        temps.append([(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in point_loops])
     files = [man.path, *sorted(p for p in Path(directory).iterdir() if p.suffix in (".dat", ".r64"))]
-    return CampaignData(man, loops, files, thermal_state_k(every_loop))
+    state = thermal_state_k(every_loop)
+    return CampaignData(man, loops, files, state, temps if state is not None else None)
+
+
+def campaign_thermal(data: CampaignData, cfg: pp.Preprocessing) -> ThermalDrift | None:
+    """The thermal drift of the torque estimate from the campaign's loops (:mod:`rgse_daemon.pipeline.thermal`);
+    None when the traces carry no motor temperature or it does not vary within the points."""
+    if data.loop_temps_k is None:
+        return None
+    readings = {"A3": [], "A5": []}
+    temps = {"A3": [], "A5": []}
+    for point_loops, point_temps in zip(data.loops, data.loop_temps_k, strict=True):
+        readings["A3"].append(np.array([pp.process_loop(a3, dt, cfg).torque_nm for a3, _, dt in point_loops]))
+        readings["A5"].append(np.array([pp.process_loop(a5, dt, cfg).torque_nm for _, a5, dt in point_loops]))
+        temps["A3"].append(np.array([t3 for t3, _ in point_temps], float))
+        temps["A5"].append(np.array([t5 for _, t5 in point_temps], float))
+    try:
+        return thermal_mod.fit(readings, temps)
+    except DataError:
+        return None
 
 
 def campaign_points(data: CampaignData, cfg: pp.Preprocessing) -> tuple[CalibrationPoints, float, float]:
@@ -81,9 +106,9 @@ def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float
     """Evaluate every model (in-sample and LOO), pick ``method`` (or the auto choice) and fit it on all points."""
     evaluations = cal_mod.evaluate_all(points, g, dr)
     if method == "auto":
-        chosen = cal_mod.select_auto(evaluations)
+        chosen = cal_mod.choose_auto(points, evaluations)
     else:
-        if method not in cal_mod.MODELS:
+        if not cal_mod.known_method(method):
             raise DataError(f"unknown calibration method {method!r}; use auto or one of {', '.join(cal_mod.MODELS)}")
         found = [e for e in evaluations if e.method == method]
         chosen = found[0] if found else cal_mod.evaluate(points, method, g, dr)
@@ -122,10 +147,12 @@ def validation_record(points: CalibrationPoints, chosen: cal_mod.Evaluation, nes
 def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, robot: str,
               pre: pp.Preprocessing | None, bias3: float, bias5: float, g_u: float,
               sources: dict[str, str], where: Path,
-              thermal: dict[str, float] | None = None, nested: bool = True) -> tuple[dict[str, Any], dict[str, Any]]:
+              thermal: dict[str, float] | None = None, nested: bool = True,
+              drift: ThermalDrift | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit and describe a calibration: (CAL.json document, the ``--json`` summary). One code path for the CLI and
     the daemon's campaign, so a stored calibration is always reproducible from its campaign directory.
-    ``nested``: also the nested held-out figure of ``auto`` (selection repeated inside every fold; seconds)."""
+    ``nested``: also the nested held-out figure of ``auto`` (selection repeated inside every fold; seconds).
+    ``drift``: the campaign's thermal drift (CAL.json ``fit.thermal``), removed from the DuT's loops at measurement."""
     try:
         cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
         nested_pct = (cal_mod.mean_abs_pct(points.mass_kg, cal_mod.nested_loo_auto_mass_kg(points, g, dr))
@@ -141,7 +168,8 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
                                    "uncertainty": cu.to_dict(),
                                    "envelope": Envelope.from_torques(points.torque_a3_nm,
                                                                      points.torque_a5_nm).to_dict(),
-                                   "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr)},
+                                   "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr),
+                                   **({} if drift is None else {"thermal": drift.to_dict()})},
                         g_u_m_s2=g_u, thermal_state_k=thermal)
     summary = {
         "calibration_id": doc["calibration_id"],
@@ -159,7 +187,8 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
                     "lever_group_mean_abs_err_pct": (e.lever_mean_abs_err_pct
                                                      if np.isfinite(e.lever_mean_abs_err_pct) else None),
                     "joint": e.joint, "admissible": e.admissible, "note": e.note,
-                    "n_params": e.n_params} for e in evaluations],
+                    "n_params": e.n_params}
+                   for e in evaluations + ([] if any(e.method == chosen.method for e in evaluations) else [chosen])],
     }
     return doc, summary
 
@@ -205,7 +234,8 @@ def fit_campaign(directory: Path, method: str,
     setup = data.manifest.setup
     doc, summary = calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot,
                              pre=pre, bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2,
-                             sources=source_sha256(data.files), where=directory, thermal=data.thermal_state_k)
+                             sources=source_sha256(data.files), where=directory, thermal=data.thermal_state_k,
+                             drift=campaign_thermal(data, pre))
     if data.manifest.torsional_points:
         # the CoG calibration (issue #14): bias per pose and K for A3..A6 from the torsional points
         doc["torsional"] = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre)

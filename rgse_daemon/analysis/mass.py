@@ -60,7 +60,8 @@ def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: p
                             float(fit.get("loo_residual_rms_rel", 0.0)), float(cal_doc.get("g_u_m_s2", 0.0)),
                             g_measurement_m_s2, g_u_measurement_m_s2, alternatives,
                             **calfile.uncertainty_inputs("CAL.json", cal_doc, cal, alternatives),
-                            envelope_limit=envelope_limit)
+                            envelope_limit=envelope_limit,
+                            loop_temps_k=[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in loops])
     return MassResult(r.mass_kg, r.uncertainty.u_kg, r.uncertainty.expanded_kg, r.gross_mass_kg, fixture_mass_kg,
                       len(loops), r.samples_used, r.samples_total, str(cal_doc["calibration_id"]), r.method,
                       r.warnings, r.uncertainty.components(), operating_point=r.operating_point)
@@ -84,15 +85,18 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
     if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
         result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
     result.motor_temp_k = thermal_state_k(loops)
-    mismatch = thermal_mismatch(result.motor_temp_k, doc.get("thermal_state_k"))
+    mismatch = thermal_mismatch(result.motor_temp_k, doc.get("thermal_state_k"),
+                                corrected="thermal" in result.u_components_kg)
     if mismatch is not None:
         result.warnings.append(mismatch)
     return result
 
 
-def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any) -> str | None:
+def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any, corrected: bool = False) -> str | None:
     """A warning when the A3/A5 motor temperatures of the measurement differ from the calibration campaign's by more
-    than :data:`THERMAL_MISMATCH_K` (the torque estimate drifts with motor temperature; U does not model it)."""
+    than :data:`THERMAL_MISMATCH_K` (the torque estimate drifts with motor temperature). ``corrected``: the loops
+    were brought to the campaign's temperature with its drift coefficient (``fit.thermal``, its uncertainty in U),
+    which rests on a few K of warming within the campaign's points: the warning says so."""
     if measured_k is None or not isinstance(calibration_k, dict):
         return None
     diffs = {ax: measured_k[ax] - float(calibration_k[ax]) for ax in ("A3", "A5") if ax in calibration_k}
@@ -100,5 +104,9 @@ def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any) ->
     if not off:
         return None
     text = ", ".join(f"{ax} {d:+.1f} K" for ax, d in off.items())
+    if corrected:
+        return (f"motor temperatures differ from the calibration campaign's ({text}; limit {THERMAL_MISMATCH_K:g} "
+                f"K): corrected with the campaign's thermal drift (extrapolated, its uncertainty in U); warming "
+                f"up until steady avoids the extrapolation")
     return (f"motor temperatures differ from the calibration campaign's ({text}; limit {THERMAL_MISMATCH_K:g} K): "
             f"warm up until steady, or re-calibrate")

@@ -459,6 +459,83 @@ def _fit_axis(points: CalibrationPoints, method: str, g_m_s2: float, lever_diffe
                        _torque_range(points.torque_a5_nm[loaded]), g_m_s2, lever_difference_m, {"A3": r3, "A5": r5})
 
 
+#: Largest |correlation| of the two axes' residuals the ``sur-*`` fits use: at ±1 the common mode would be free and
+#: the A3/A5 split unidentifiable (a joint model); below it each axis stays tied to its own expected torque.
+SUR_RHO_CAP = 0.9
+#: Feasible-GLS rounds of the ``sur-*`` fits (residual covariance re-estimated each round).
+SUR_ROUNDS = 3
+#: Huber threshold in robust standard deviations (1.345: 95 % efficiency at normal errors); the scale is the
+#: normalised median absolute residual (1.4826 × median |r|).
+HUBER_K = 1.345
+
+
+def huber_lstsq(a: np.ndarray, y: np.ndarray, rounds: int = 30) -> np.ndarray:
+    """Huber M-estimate of ``a·c ≈ y`` by iteratively reweighted least squares, threshold :data:`HUBER_K` robust
+    standard deviations (scale: 1.4826 × the median |residual| of the least-squares start, held fixed).
+
+    Hand-written rather than ``scipy.optimize.least_squares(loss="huber")``: the nested validation and the bootstrap
+    make thousands of these tiny fits, and IRLS on a linear model is a few weighted normal-equation solves."""
+    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+    scale = 1.4826 * float(np.median(np.abs(a @ coef - y)))
+    if not scale > 0:
+        return coef
+    for _ in range(rounds):
+        r = np.abs(a @ coef - y) / (HUBER_K * scale)
+        w = np.where(r > 1.0, 1.0 / np.maximum(r, 1e-12), 1.0)
+        aw = a * w[:, None]
+        new = np.linalg.solve(aw.T @ a, aw.T @ y)
+        if np.all(np.abs(new - coef) <= 1e-9 * (np.abs(coef) + 1e-12)):
+            return new
+        coef = new
+    return coef
+
+
+def _fit_axis_sur(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
+                  terms_a3: tuple[str, ...], terms_a5: tuple[str, ...]) -> Calibration:
+    """Per-axis gain curves (eq. 17/18: each axis' corrected torque to its own expected torque) fitted together as
+    *seemingly unrelated regressions*, robustly and in relative terms.
+
+    A new mounting moves the load's CoG (and the stack's lever) by the same length for both axes, so the torque
+    error it causes is nearly the same on A3 and A5 and cancels in eq. 21 (eq. 3/4). Fitting each axis on its own
+    (``axis-*``) chases this common mode; here the (A3, A5) residual pair of every point is whitened with the
+    axes' residual covariance (feasible GLS, re-estimated :data:`SUR_ROUNDS` times, correlation capped at
+    :data:`SUR_RHO_CAP` so each axis keeps its own expected torque), weighted by 1/m (the relative mass error, the
+    paper's measure) and fitted with a Huber loss so that a single scattered point does not pull the curve
+    (``scipy.optimize.least_squares``)."""
+    loaded = points.mass_kg > 0
+    n, p3, p5 = int(loaded.sum()), len(terms_a3), len(terms_a5)
+    if n < max(p3, p5) + 2:
+        raise CalibrationError(f"model {method} needs at least {max(p3, p5) + 2} loaded points, got {n}")
+    a3 = GainK(terms_a3, np.zeros(p3)).design(points.torque_a3_nm[loaded])
+    a5 = GainK(terms_a5, np.zeros(p5)).design(points.torque_a5_nm[loaded])
+    x = np.zeros((n, 2, p3 + p5))
+    x[:, 0, :p3], x[:, 1, p3:] = a3, a5
+    y = np.stack([points.expected_a3_nm[loaded], points.expected_a5_nm[loaded]], axis=1)
+    w = 1.0 / points.mass_kg[loaded]
+    x, y = x * w[:, None, None], y * w[:, None]
+    cov_r = np.eye(2)
+    for _ in range(SUR_ROUNDS):
+        white = np.linalg.inv(np.linalg.cholesky(cov_r))
+        xw, yw = np.einsum("ij,njp->nip", white, x).reshape(2 * n, -1), (y @ white.T).reshape(-1)
+        coef = huber_lstsq(xw, yw)
+        r = np.einsum("nkp,p->nk", x, coef) - y
+        s = np.sqrt(np.mean(r**2, axis=0))
+        if not np.all(s > 0):
+            break
+        rho = float(np.clip(np.mean(r[:, 0] * r[:, 1]) / (s[0] * s[1]), -SUR_RHO_CAP, SUR_RHO_CAP))
+        cov_r = np.array([[s[0] ** 2, rho * s[0] * s[1]], [rho * s[0] * s[1], s[1] ** 2]])
+    resid = xw @ coef - yw
+    dof = max(2 * n - p3 - p5, 1)
+    cov = float(resid @ resid) / dof * np.linalg.pinv(xw.T @ xw)
+    k3, k5 = GainK(terms_a3, coef[:p3]), GainK(terms_a5, coef[p3:])
+    return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[loaded]),
+                       _torque_range(points.torque_a5_nm[loaded]), g_m_s2, lever_difference_m,
+                       {"A3": r_squared(points.expected_a3_nm[loaded], k3.corrected_torque_nm(
+                           points.torque_a3_nm[loaded])),
+                        "A5": r_squared(points.expected_a5_nm[loaded], k5.corrected_torque_nm(
+                            points.torque_a5_nm[loaded]))})
+
+
 # ------------------------------------------------------------------------------------------------------------
 # joint drive-gain fits (mass error minimised directly)
 # ------------------------------------------------------------------------------------------------------------
@@ -502,11 +579,21 @@ def _ratio_model(name: str, a3: Callable, a5: Callable) -> FitFn:
     return lambda p, g, dr: _fit_ratio(p, name, g, dr, a3, a5)
 
 
+#: The per-axis gain models' terms (A3, A5): their average is again a per-axis gain curve (:func:`average_of`).
+GAIN_TERMS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {}
+
+
+def _sur_model(name: str, t3: tuple[str, ...], t5: tuple[str, ...]) -> FitFn:
+    GAIN_TERMS[name] = (t3, t5)
+    return lambda p, g, dr: _fit_axis_sur(p, name, g, dr, t3, t5)
+
+
 def _gain_model(name: str, t3: tuple[str, ...], t5: tuple[str, ...], loss: str = "linear") -> FitFn:
     return lambda p, g, dr: _fit_gain(p, name, g, dr, t3, t5, loss)
 
 
 def _axis_model(name: str, t3: tuple[str, ...], t5: tuple[str, ...]) -> FitFn:
+    GAIN_TERMS[name] = (t3, t5)
     return lambda p, g, dr: _fit_axis(p, name, g, dr, t3, t5)
 
 
@@ -521,6 +608,18 @@ MODELS: dict[str, tuple[FitFn, str]] = {
                   "quadratic drive gain per axis (odd in torque), each axis fitted to its expected torque"),
     "axis-log": (_axis_model("axis-log", ("lin", "log"), ("lin", "sqrt")),
                  "A3 gain with a saturating log term, A5 with a square-root term, each axis fitted on its own"),
+    "sur-linear": (_sur_model("sur-linear", ("lin",), ("lin",)),
+                   "constant drive gain per axis, per-axis curves fitted together (axes' common mode, Huber, 1/m)"),
+    "sur-quad": (_sur_model("sur-quad", ("lin", "quad"), ("lin", "quad")),
+                 "quadratic drive gain per axis, per-axis curves fitted together (common mode, Huber, 1/m)"),
+    "sur-log": (_sur_model("sur-log", ("lin", "log"), ("lin", "sqrt")),
+                "A3 log, A5 square-root gain term, per-axis curves fitted together (common mode, Huber, 1/m)"),
+    "sur-log-lin": (_sur_model("sur-log-lin", ("lin", "log"), ("lin",)),
+                    "A3 log gain term, A5 constant gain, per-axis curves fitted together (common mode, Huber, 1/m)"),
+    "sur-log-quad": (_sur_model("sur-log-quad", ("lin", "log"), ("lin", "quad")),
+                     "A3 log, A5 quadratic gain term, per-axis curves fitted together (common mode, Huber, 1/m)"),
+    "sur-log-log": (_sur_model("sur-log-log", ("lin", "log"), ("lin", "log")),
+                    "log gain term on both axes, per-axis curves fitted together (common mode, Huber, 1/m)"),
     "gain-linear": (_gain_model("gain-linear", ("lin",), ("lin",)),
                     "constant drive gain per axis, fitted jointly to the masses"),
     "gain-sqrt": (_gain_model("gain-sqrt", ("lin", "sqrt"), ("lin",)),
@@ -558,10 +657,67 @@ def reference_mass_param_covariance(points: CalibrationPoints, method: str, g_m_
 
 
 def fit(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Calibration:
-    """Fit calibration ``method`` (a key of :data:`MODELS`) to the calibration points."""
+    """Fit calibration ``method`` (a key of :data:`MODELS`, or an average ``avg:a+b+...`` of per-axis gain models)
+    to the calibration points."""
+    if method.startswith(AVERAGE_PREFIX):
+        return _fit_average(points, method, g_m_s2, lever_difference_m)
     if method not in MODELS:
         raise CalibrationError(f"unknown calibration method {method!r}; choose auto or one of {', '.join(MODELS)}")
     return MODELS[method][0](points, g_m_s2, lever_difference_m)
+
+
+def known_method(method: str) -> bool:
+    """A key of :data:`MODELS` or a well-formed average of its per-axis gain models."""
+    if method.startswith(AVERAGE_PREFIX):
+        members = method.removeprefix(AVERAGE_PREFIX).split("+")
+        return len(members) >= 2 and all(m in AVERAGEABLE for m in members)
+    return method in MODELS
+
+
+# ------------------------------------------------------------------------------------------------------------
+# the average of the admissible per-axis gain models (what ``auto`` gives)
+# ------------------------------------------------------------------------------------------------------------
+#: Prefix of an averaged model's method name; the members follow, joined by ``+``.
+AVERAGE_PREFIX = "avg:"
+#: Models whose two axes are gain curves fitted per axis: their average is again a per-axis gain curve.
+AVERAGEABLE = tuple(GAIN_TERMS)
+#: Members of the average: admissible per-axis gain models whose selection score is within this factor of the best.
+AVERAGE_FACTOR = 1.5
+_TERM_ORDER = ("lin", "quad", "sqrt", "log")
+
+
+def _mean_gain(ks: list[AxisK]) -> GainK:
+    """The mean of gain curves: G(M) = Σ G_k(M)/n is linear in the union of their terms."""
+    terms = tuple(t for t in _TERM_ORDER if any(t in k.terms for k in ks if isinstance(k, GainK)))
+    coef = np.zeros(len(terms))
+    for k in ks:
+        if not isinstance(k, GainK):
+            raise CalibrationError(f"only gain curves can be averaged, got {k.kind}")
+        for t, c in zip(k.terms, k.coef, strict=True):
+            coef[terms.index(t)] += float(c) / len(ks)
+    return GainK(terms, coef)
+
+
+def _fit_average(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Calibration:
+    """Each member fitted on the points, their gain curves averaged per axis with equal weights. Eq. 21 is linear in
+    the corrected torques, so the mass of the average is the average of the members' masses, and each axis still
+    answers to its own expected torque. Averaging the few best models instead of picking one keeps the choice among
+    near-equal held-out errors (which 13 points cannot make reliably) from adding its own scatter.
+
+    The covariance is the members' covariances mapped onto the union of terms with the members taken as
+    independent (an approximation; the budget of a file with ``fit.uncertainty`` uses the bootstrap refits)."""
+    if not known_method(method):
+        raise CalibrationError(f"average {method!r}: needs at least two of {', '.join(AVERAGEABLE)}")
+    fits = [fit(points, m, g_m_s2, lever_difference_m) for m in method.removeprefix(AVERAGE_PREFIX).split("+")]
+    k3, k5 = _mean_gain([f.k_a3 for f in fits]), _mean_gain([f.k_a5 for f in fits])
+    n3 = len(k3.terms)
+    cov = np.zeros((n3 + len(k5.terms),) * 2)
+    for f in fits:
+        idx = [k3.terms.index(t) for t in f.k_a3.terms] + [n3 + k5.terms.index(t) for t in f.k_a5.terms]
+        cov[np.ix_(idx, idx)] += np.asarray(f.covariance, float) / len(fits) ** 2
+    loaded = points.mass_kg > 0
+    return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[loaded]),
+                       _torque_range(points.torque_a5_nm[loaded]), g_m_s2, lever_difference_m, {})
 
 
 #: How the models are validated (recorded in CAL.json): every load configuration (all loops of a calibration point
@@ -734,6 +890,40 @@ def select_auto(evaluations: list[Evaluation]) -> Evaluation:
     return min(close, key=lambda e: (e.n_params, score[e.method]))
 
 
+def average_of(points: CalibrationPoints, evaluations: list[Evaluation]) -> Evaluation | None:
+    """The equal-weight average of the admissible per-axis gain models whose selection score is within
+    :data:`AVERAGE_FACTOR` of the best of them, as an :class:`Evaluation` (its held-out masses and residuals are the
+    members' means: eq. 21 is linear in the corrected torques); None if fewer than two qualify."""
+    score = selection_score(evaluations)
+    pool = [e for e in evaluations if e.method in AVERAGEABLE and e.admissible]
+    if len(pool) < 2:
+        return None
+    best = min(score[e.method] for e in pool)
+    members = [e for e in pool if score[e.method] <= AVERAGE_FACTOR * best]
+    if len(members) < 2:
+        return None
+    method = AVERAGE_PREFIX + "+".join(e.method for e in members)
+    ins = np.mean([e.in_sample_mass_kg for e in members], axis=0)
+    loo = np.mean([e.loo_mass_kg for e in members], axis=0)
+    lever = np.mean([e.lever_mass_kg for e in members], axis=0)
+    held = np.isfinite(lever)
+    k3 = {t for e in members for t in GAIN_TERMS[e.method][0]}
+    k5 = {t for e in members for t in GAIN_TERMS[e.method][1]}
+    return Evaluation(method, ins, loo, mean_abs_pct(points.mass_kg, ins), mean_abs_pct(points.mass_kg, loo),
+                      float(np.max(np.abs(loo - points.mass_kg))), len(k3) + len(k5),
+                      np.mean([e.heldout_residual_nm for e in members], axis=0), lever,
+                      mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else float("nan"))
+
+
+def choose_auto(points: CalibrationPoints, evaluations: list[Evaluation]) -> Evaluation:
+    """What ``--method auto`` uses: a joint model where :func:`select_auto` admits and prefers one, otherwise the
+    average of the best per-axis gain models (:func:`average_of`), or the single best model if there is no average."""
+    single = select_auto(evaluations)
+    if single.joint:
+        return single
+    return average_of(points, evaluations) or single
+
+
 def nested_loo_auto_mass_kg(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float,
                             progress: Callable[[int, int], None] | None = None) -> np.ndarray:
     """Honest out-of-sample figure of ``--method auto``: in each fold (one configuration held out) the model is
@@ -743,7 +933,7 @@ def nested_loo_auto_mass_kg(points: CalibrationPoints, g_m_s2: float, lever_diff
     for i in range(n):
         keep = np.arange(n) != i
         sub = points.subset(keep)
-        chosen = select_auto(evaluate_all(sub, g_m_s2, lever_difference_m))
+        chosen = choose_auto(sub, evaluate_all(sub, g_m_s2, lever_difference_m))
         cal = fit(sub, chosen.method, g_m_s2, lever_difference_m)
         out[i] = float(cal.mass_kg(points.torque_a3_nm[i], points.torque_a5_nm[i]))
         if progress is not None:

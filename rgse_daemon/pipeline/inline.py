@@ -14,6 +14,7 @@ from rgse_daemon.pipeline import envelope as env_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import Calibration
+from rgse_daemon.pipeline.thermal import ThermalDrift
 
 #: Fewer valid samples per loop than this draws a warning.
 MIN_SAMPLES_PER_LOOP = 100
@@ -54,22 +55,37 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
                  uncertainty: unc.CalibrationUncertainty | None = None,
                  alternative_uncertainty: Sequence[unc.CalibrationUncertainty | None] = (),
                  envelope: env_mod.Envelope | None = None,
-                 envelope_limit: float = env_mod.DEFAULT_LIMIT) -> InlineMass:
+                 envelope_limit: float = env_mod.DEFAULT_LIMIT, thermal: ThermalDrift | None = None,
+                 loop_temps_k: Sequence[tuple[float | None, float | None]] | None = None) -> InlineMass:
     """Mass of the DuT and its uncertainty from its loops (interfaces §1 ``rgse mass``).
 
     ``alternatives``: the other admissible calibration models (same points), for the model-form spread, with their
     own ``alternative_uncertainty`` (same order; None where a file has none). ``uncertainty``: the calibration's
     :class:`~rgse_daemon.pipeline.uncertainty.CalibrationUncertainty`; None (an older calibration file) gives the
     former budget with ``model_rms_rel``. ``envelope``: what the campaign covered; far outside (beyond
-    ``envelope_limit``) raises :class:`~rgse_daemon.pipeline.envelope.OperatingPointError`.
+    ``envelope_limit``) raises :class:`~rgse_daemon.pipeline.envelope.OperatingPointError`. ``thermal``: the
+    campaign's drift of the torque estimate with motor temperature; with ``loop_temps_k`` (A3, A5 per loop, K) every
+    loop is brought to the campaign's temperature (:mod:`rgse_daemon.pipeline.thermal`) and U gets its ``thermal``
+    term.
     """
     t3, t5, se3, se5, used, total = [], [], [], [], 0, 0
     warnings: list[str] = []
-    for a3, a5, period_s, name in loops:
+    temps = None
+    if thermal is not None and loop_temps_k is not None and len(loop_temps_k) == len(loops) and all(
+            t is not None for pair in loop_temps_k for t in pair):
+        temps = np.asarray(loop_temps_k, float)
+    raw3, raw5 = [], []
+    for j, (a3, a5, period_s, name) in enumerate(loops):
         r3 = pp.process_loop(a3, period_s, pre)
         r5 = pp.process_loop(a5, period_s, pre)
-        t3.append(r3.torque_nm)
-        t5.append(r5.torque_nm)
+        raw3.append(r3.torque_nm)
+        raw5.append(r5.torque_nm)
+        if temps is None:
+            t3.append(r3.torque_nm)
+            t5.append(r5.torque_nm)
+        else:
+            t3.append(thermal.correct_nm("A3", r3.torque_nm, temps[j, 0]))
+            t5.append(thermal.correct_nm("A5", r5.torque_nm, temps[j, 1]))
         se3.append(unc.batch_means_se(pp.kept_samples(a3, period_s, pre)))
         se5.append(unc.batch_means_se(pp.kept_samples(a5, period_s, pre)))
         n_used = min(r3.n_used, r5.n_used)
@@ -106,6 +122,9 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
     alt_mass = np.array([float(a.mass_kg(m3, m5)) for a in alternatives])
     u_loops = unc.loop_spread_kg(loop_mass, loop_se)
     u_g = unc.g_kg(gross, cal.g_m_s2, g_u_calibration_m_s2, g_meas, g_u_measurement_m_s2)
+    u_thermal = None if temps is None else float(np.hypot(  # β3 and β5 estimated independently
+        s3 * thermal.u_correction_nm("A3", np.array(raw3), temps[:, 0]),
+        s5 * thermal.u_correction_nm("A5", np.array(raw5), temps[:, 1])))
     if uncertainty is None:  # a calibration file without held-out residuals: the former budget
         u = unc.MassUncertainty(
             u_loops_kg=u_loops,
@@ -113,9 +132,15 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
             u_model_kg=unc.model_kg(gross, model_rms_rel, alt_mass),
             u_reference_kg=unc.reference_mc_kg(cal, m3, m5),
             u_g_kg=u_g,
+            u_thermal_kg=u_thermal,
         )
     else:
-        spread = unc.model_spread_kg(gross, alt_mass) if where == "outside" else unc.model_form_kg(gross, alt_mass)
+        if where == "outside":
+            spread = unc.model_spread_kg(gross, alt_mass)
+        else:  # the alternatives' lack of fit at calibration-like points is in the reproducibility already
+            spread = unc.excess_kg(unc.model_form_kg(gross, alt_mass), uncertainty.at_interior(
+                lambda a3, a5: unc.model_form_kg(float(cal.mass_kg(a3, a5)),
+                                                 np.array([float(a.mass_kg(a3, a5)) for a in alternatives]))))
         u = unc.MassUncertainty(
             u_loops_kg=u_loops,
             u_calibration_kg=uncertainty.u_calibration_kg(cal, m3, m5),
@@ -123,6 +148,7 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
             u_reference_kg=uncertainty.u_reference_kg(cal, m3, m5),
             u_g_kg=u_g,
             u_reproducibility_kg=uncertainty.reproducibility.u_kg(cal.g_m_s2, cal.lever_difference_m),
+            u_thermal_kg=u_thermal,
         )
     return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings, cal.method,
                       where)
@@ -135,7 +161,7 @@ def _usable_model(cal: Calibration, cu: unc.CalibrationUncertainty, alternatives
     alternative whose is (the others stay alternatives); with a note for the result's warnings."""
     candidates = [(cal, cu)] + [(a, c) for a, c in zip(alternatives, alternative_cu, strict=False) if c is not None]
     for i, (c, u) in enumerate(candidates):
-        u_cal = u.u_calibration_kg(c, torque_a3_nm, torque_a5_nm)
+        u_cal = u.curve_spread_kg(c, torque_a3_nm, torque_a5_nm)
         if not unc.unusable(u_cal, u.reproducibility.u_kg(c.g_m_s2, c.lever_difference_m)):
             if i == 0:
                 return cal, cu, list(alternatives), ""

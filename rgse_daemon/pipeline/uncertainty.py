@@ -11,11 +11,17 @@ the budget is:
 * ``calibration``: the uncertainty of the fitted *curve* at the operating point: the spread of the DuT's mass over
   refits of the calibration to resampled points (residual-pair bootstrap: each refit is a curve through plausible
   data, so an ill-determined eq. 20 stays finite where its points are). Never parameter draws pushed through the
-  exponentials.
+  exponentials. A held-out residual is a new configuration's scatter *plus* the curve's error there (the fit did
+  not see the point), so the reproducibility already holds the curve's spread at calibration-like points: only the
+  *excess* of the spread at the DuT over its RMS at the interior configurations enters (``√max(s_DuT² − s̄², 0)``;
+  counting both covered the truth in ~100 % of the simulated repetitions).
 * ``reference``: likewise, the spread over refits with the reference masses drawn from their covariance.
-* ``model``: the model-form spread of the admissible alternatives at the DuT's torques (the held-out lack of fit is
-  in ``reproducibility`` now); outside the campaign's envelope their full spread.
+* ``model``: the model-form spread of the admissible alternatives at the DuT's torques, again only its excess over
+  the RMS spread at the interior configurations (each alternative's lack of fit there is in the held-out residuals
+  as well); outside the campaign's envelope their full spread.
 * ``g``: as below.
+* ``thermal``: the uncertainty of the thermal-drift correction (:mod:`rgse_daemon.pipeline.thermal`), when the
+  calibration carries the campaign's drift and the loops their motor temperatures.
 
 A calibration file without ``fit.uncertainty`` (written before) keeps the former budget of five components:
 
@@ -42,7 +48,8 @@ A calibration file without ``fit.uncertainty`` (written before) keeps the former
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -73,6 +80,8 @@ class MassUncertainty:
     u_g_kg: float = 0.0
     u_reproducibility_kg: float | None = None
     """None: a calibration file without held-out residuals (the former budget, no such component)."""
+    u_thermal_kg: float | None = None
+    """None: no thermal correction (a calibration without ``fit.thermal`` or loops without motor temperature)."""
 
     @property
     def u_kg(self) -> float:
@@ -135,13 +144,17 @@ class CalibrationUncertainty:
     """(B, p) parameter sets of the residual-pair bootstrap refits."""
     reference_params: np.ndarray
     """(R, p) parameter sets of the refits with reference masses drawn from their covariance (may be empty)."""
+    interior_torque_nm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """(k, 2) normalised A3/A5 torques of the interior configurations the reproducibility rests on (empty in older
+    files: then nothing is taken as already counted)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"reproducibility": self.reproducibility.to_dict(),
                 "scheme": f"residual-pair bootstrap ({len(self.fit_params)} refits), reference-mass draws "
                           f"({len(self.reference_params)} refits), evaluated at the operating point",
                 "bootstrap_params": np.asarray(self.fit_params, float).tolist(),
-                "reference_params": np.asarray(self.reference_params, float).tolist()}
+                "reference_params": np.asarray(self.reference_params, float).tolist(),
+                "interior_torque_nm": np.asarray(self.interior_torque_nm, float).tolist()}
 
     @classmethod
     def from_dict(cls, d: Any, n_params: int) -> CalibrationUncertainty:
@@ -151,18 +164,38 @@ class CalibrationUncertainty:
                                   float(d["reproducibility"]["corr"]), None if n is None else int(n))
             boot = np.asarray(d["bootstrap_params"], float).reshape(-1, n_params)
             ref = np.asarray(d.get("reference_params") or [], float).reshape(-1, n_params)
+            inner = np.asarray(d.get("interior_torque_nm") or [], float).reshape(-1, 2)
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"fit.uncertainty: malformed: {exc}") from exc
-        if not (np.all(np.isfinite(boot)) and np.all(np.isfinite(ref)) and len(boot) >= 2
+        if not (np.all(np.isfinite(boot)) and np.all(np.isfinite(ref)) and np.all(np.isfinite(inner)) and len(boot) >= 2
                 and all(np.isfinite([rep.rms_a3_nm, rep.rms_a5_nm, rep.corr]))):
             raise DataError("fit.uncertainty: needs finite reproducibility and at least two bootstrap parameter sets")
-        return cls(rep, boot, ref)
+        return cls(rep, boot, ref, inner)
+
+    def curve_spread_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
+        """The whole bootstrap spread of the mass at these torques (the usability check of a model)."""
+        return refit_spread_kg(cal, self.fit_params, torque_a3_nm, torque_a5_nm)
+
+    def at_interior(self, mass_at: Callable[[float, float], float]) -> float:
+        """RMS of ``mass_at(M_A3, M_A5)`` over the interior configurations (0 if the file names none)."""
+        vals = np.array([mass_at(a3, a5) for a3, a5 in np.asarray(self.interior_torque_nm, float)])
+        return float(np.sqrt(np.mean(vals**2))) if vals.size else 0.0
 
     def u_calibration_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
-        return refit_spread_kg(cal, self.fit_params, torque_a3_nm, torque_a5_nm)
+        """The curve's spread at the DuT beyond what the reproducibility holds (see the module docstring)."""
+        at_dut = self.curve_spread_kg(cal, torque_a3_nm, torque_a5_nm)
+        return excess_kg(at_dut, self.at_interior(lambda a3, a5: self.curve_spread_kg(cal, a3, a5)))
 
     def u_reference_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
         return refit_spread_kg(cal, self.reference_params, torque_a3_nm, torque_a5_nm)
+
+
+def excess_kg(at_dut_kg: float, at_interior_kg: float) -> float:
+    """``√max(s_DuT² − s̄²_interior, 0)``: the part of a spread at the DuT that the held-out residuals of the interior
+    configurations (the reproducibility) do not already hold."""
+    if not np.isfinite(at_dut_kg):
+        return float("inf")
+    return float(np.sqrt(max(at_dut_kg**2 - at_interior_kg**2, 0.0)))
 
 
 def residual_pairs_nm(cal: Calibration, points: CalibrationPoints) -> np.ndarray:
@@ -231,9 +264,11 @@ def calibration_uncertainty(points: CalibrationPoints, method: str, g_m_s2: floa
     per-axis residuals (:attr:`calibration.Evaluation.heldout_residual_nm`). The reproducibility counts the loaded
     *interior* configurations only: holding out the heaviest point on an axis is an extrapolation, which the
     operating-point check (:mod:`rgse_daemon.pipeline.envelope`) treats, not the reproducibility."""
-    return CalibrationUncertainty(Reproducibility.from_residuals(np.asarray(heldout_residual_nm)[interior(points)]),
+    inner = interior(points)
+    return CalibrationUncertainty(Reproducibility.from_residuals(np.asarray(heldout_residual_nm)[inner]),
                                   bootstrap_params(points, method, g_m_s2, lever_difference_m),
-                                  reference_params(points, method, g_m_s2, lever_difference_m))
+                                  reference_params(points, method, g_m_s2, lever_difference_m),
+                                  np.stack([points.torque_a3_nm[inner], points.torque_a5_nm[inner]], axis=1))
 
 
 def interior(points: CalibrationPoints) -> np.ndarray:

@@ -15,7 +15,7 @@ import json
 import numpy as np
 import pytest
 
-from rgse_daemon.analysis.calibration import CampaignData, campaign_points
+from rgse_daemon.analysis.calibration import CampaignData, campaign_points, campaign_thermal
 from rgse_daemon.cli import main
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import inline
@@ -38,7 +38,9 @@ def one_repetition(seed: int) -> tuple[float, inline.InlineMass]:
     """(true DuT mass, the in-line result) of one seed."""
     camp, model = simulate_campaign(seed)
     data = CampaignData(camp.manifest, [[(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point]
-                                        for point in camp.loops], [])
+                                        for point in camp.loops], [],
+                        loop_temps_k=[[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in point]
+                                      for point in camp.loops])
     points, bias3, bias5 = campaign_points(data, pp.PAPER)
     dr = camp.manifest.setup.lever_difference_m
     ev = cal_mod.evaluate(points, METHOD, G, dr)
@@ -48,7 +50,9 @@ def one_repetition(seed: int) -> tuple[float, inline.InlineMass]:
     meas = simulate_measurement(model, dut_kg, cog_z_m)
     r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in meas.loops], cal,
                             bias3, bias5, pp.PAPER, meas.fixture_mass_kg, uncertainty=cu,
-                            envelope=Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm))
+                            envelope=Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm),
+                            thermal=campaign_thermal(data, pp.PAPER),
+                            loop_temps_k=[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in meas.loops])
     return dut_kg, r
 
 
@@ -89,7 +93,12 @@ def test_one_repetition_through_trace_files_and_cli(tmp_path, capsys):
     assert abs(res["mass_kg"] - dut_kg) <= res["U_kg"]
     assert res["U_kg"] == pytest.approx(2 * res["u_kg"])
     c = res["u_components_kg"]
-    assert set(c) == {"loops", "calibration", "model", "reference", "g", "reproducibility"}
+    assert set(c) == {"loops", "calibration", "model", "reference", "g", "reproducibility", "thermal"}
+    assert 0.0 < c["thermal"] < c["reproducibility"]
+    drift = doc["fit"]["thermal"]  # the simulated drives drift by 0.08 %/K (A3) and 0.17 %/K (A5)
+    assert drift["coeff_per_k"]["A3"] == pytest.approx(0.0008, abs=3 * drift["u_coeff_per_k"]["A3"] + 2e-5)
+    assert drift["coeff_per_k"]["A5"] == pytest.approx(0.0017, abs=3 * drift["u_coeff_per_k"]["A5"] + 2e-5)
+    assert drift["reference_k"] == pytest.approx(doc["thermal_state_k"])
     assert res["u_kg"] == pytest.approx(np.sqrt(sum(v**2 for v in c.values())))
     # the same path in memory gives the same mass (the files carry the data exactly)
     _, r = one_repetition(seed)

@@ -194,14 +194,19 @@ def test_ill_conditioned_eq20_keeps_u_finite(table1):
     ev = C.evaluate(scattered, "paper", G, DR)
     cu = unc.calibration_uncertainty(scattered, "paper", G, DR, ev.heldout_residual_nm)
     m3, m5 = 1500.0, 420.0  # a 110 kg DuT in the mass-stack pose
-    u_cal = cu.u_calibration_kg(cal, m3, m5)
+    u_cal = cu.curve_spread_kg(cal, m3, m5)
     old = unc.calibration_mc_kg(cal, m3, m5)
     assert np.isfinite(u_cal) and 0.0 < u_cal < 3.0
     assert not np.isfinite(old) or old > 10 * u_cal  # the parameter-space propagation is useless here
     u_rep = cu.reproducibility.u_kg(G, DR)
     assert not unc.unusable(u_cal, u_rep)
+    # the budget's term is the excess over the spread at the interior configurations (in the reproducibility)
+    at_points = cu.at_interior(lambda a3, a5: cu.curve_spread_kg(cal, a3, a5))
+    assert len(cu.interior_torque_nm) == int(unc.interior(scattered).sum()) and at_points > 0
+    assert cu.u_calibration_kg(cal, m3, m5) == pytest.approx(np.sqrt(max(u_cal**2 - at_points**2, 0.0)))
     # far beyond the points the same bootstrap says the curve is not known: unusable there
-    assert unc.unusable(cu.u_calibration_kg(cal, 9000.0, 8000.0), u_rep)
+    assert unc.unusable(cu.curve_spread_kg(cal, 9000.0, 8000.0), u_rep)
+    assert cu.u_calibration_kg(cal, 9000.0, 8000.0) > 10 * at_points
     assert unc.unusable(float("inf"), 1.0) and unc.unusable(3.01, 1.0) and not unc.unusable(2.99, 1.0)
 
 

@@ -111,11 +111,93 @@ def test_held_out_residuals_are_per_axis_corrected_minus_expected(paper_dir):
 def test_table1_nested_out_of_sample_of_auto(paper_dir):
     """Table 1, the selection repeated in every fold. The joint gain models reached 0.709 % by moving the correction
     between the axes (their held-out per-axis torques miss by 36-127 Nm); the admissible per-axis models' honest
-    figure is about 0.82 %, and the paper's method is above 1 %."""
+    figure was 0.82 % picking one, 0.74 % averaging the best per-axis gain models with the ``sur-*`` among them (the
+    issue's 0.70 % is not reached), and the paper's method is above 1 %."""
     pts = load_points_csv(paper_dir / "table1_calibration.csv")
     evs = C.evaluate_all(pts, G, DR)
     assert not any(e.admissible for e in evs if e.joint)
     nested = C.mean_abs_pct(pts.mass_kg, C.nested_loo_auto_mass_kg(pts, G, DR))
     paper = next(e for e in evs if e.method == "paper")
-    assert nested < 0.85
+    assert nested < 0.75
     assert nested < paper.loo_mean_abs_err_pct - 0.2
+
+
+def common_mode_campaign(seed: int, shift_m: float = 0.008) -> tuple[C.CalibrationPoints, np.ndarray]:
+    """Table-1-like loads; every mounting shifts the load's CoG by δ (σ = ``shift_m``): the same g·m·δ on A3 and A5
+    (eq. 3/4), which eq. 21 cancels. Returns the points and the true constant drive gains (A3, A5)."""
+    rng = np.random.default_rng(seed)
+    mass = np.r_[0.0, 20.93 * np.arange(1, 11), 228.51, 228.51, 228.51]
+    l5 = np.r_[0.265 + 0.0075 * np.arange(11), 0.775, 1.025, 1.275]
+    e3, e5 = G * mass * (l5 + DR), G * mass * l5
+    shift = G * mass * rng.normal(0.0, shift_m, 14)
+    gains = np.array([1.1, 0.87])
+    t3 = (e3 + shift) / gains[0] + rng.normal(0, 2, 14) * (mass > 0)
+    t5 = (e5 + shift) / gains[1] + rng.normal(0, 2, 14) * (mass > 0)
+    return C.CalibrationPoints(np.array(["zero"] + ["mass"] * 10 + ["torque"] * 3), mass, t3, t5, e3, e5), gains
+
+
+def test_sur_fit_uses_the_axes_common_mode():
+    """A mounting's CoG shift moves both axes' torques alike: fitting the axes together with their residual
+    correlation finds each axis' gain better than fitting each axis alone, and the mass of a DuT at another lever."""
+    err_sur, err_axis, gain_sur, gain_axis = [], [], [], []
+    for seed in range(30):
+        pts, gains = common_mode_campaign(seed, shift_m=0.02)
+        sur, axis = C.fit(pts, "sur-linear", G, DR), C.fit(pts, "axis-linear", G, DR)
+        assert not C.Evaluation("sur-linear", *(np.zeros(1),) * 2, 0.0, 0.0, 0.0, 2).joint
+        gain_sur.append(np.abs(sur.params - gains))
+        gain_axis.append(np.abs(axis.params - gains))
+        m, l5 = 120.0, np.array([0.3, 0.6, 1.2])  # DuTs at the mass stack's, between and the torque points' levers
+        t3, t5 = G * m * (l5 + DR) / gains[0], G * m * l5 / gains[1]
+        err_sur.append(np.abs(sur.mass_kg(t3, t5) - m))
+        err_axis.append(np.abs(axis.mass_kg(t3, t5) - m))
+    assert np.mean(err_sur) < 0.75 * np.mean(err_axis), (np.mean(err_sur), np.mean(err_axis))
+    assert np.all(np.mean(gain_sur, axis=0) < np.mean(gain_axis, axis=0))
+    # each axis still answers to its own expected torque: the split is identified (not a joint fit)
+    assert np.all(np.mean(gain_sur, axis=0) < 0.006)
+
+
+def test_sur_fit_is_robust_to_one_scattered_point():
+    pts, _ = common_mode_campaign(1, shift_m=0.0)
+    bad = C.CalibrationPoints(pts.kind, pts.mass_kg, pts.torque_a3_nm + 150.0 * (np.arange(14) == 6),
+                              pts.torque_a5_nm, pts.expected_a3_nm, pts.expected_a5_nm)
+    clean = C.fit(pts, "sur-linear", G, DR).params
+    robust = C.fit(bad, "sur-linear", G, DR).params
+    plain = C.fit(bad, "axis-linear", G, DR).params
+    assert np.abs(robust - clean).max() < 0.5 * np.abs(plain - C.fit(pts, "axis-linear", G, DR).params).max()
+    # Huber by IRLS: the gross residual gets weight < 1, the others stay least squares
+    a = np.c_[np.ones(20), np.arange(20.0)]
+    y = 2.0 + 0.5 * np.arange(20.0) + np.random.default_rng(0).normal(0, 0.1, 20)
+    y[5] += 10.0
+    # (bounded influence: the outlier still pulls a little, 10 × weight ≈ 1.345 σ_robust / 10)
+    np.testing.assert_allclose(C.huber_lstsq(a, y), [2.0, 0.5], atol=0.2)
+    assert abs(np.linalg.lstsq(a, y, rcond=None)[0][0] - 2.0) > 1.0
+
+
+def test_auto_averages_the_best_per_axis_gain_models():
+    pts, _ = common_mode_campaign(3)
+    evs = C.evaluate_all(pts, G, DR)
+    avg = C.choose_auto(pts, evs)
+    assert avg.method.startswith(C.AVERAGE_PREFIX) and C.known_method(avg.method)
+    members = avg.method.removeprefix(C.AVERAGE_PREFIX).split("+")
+    score = C.selection_score(evs)
+    pool = [e.method for e in evs if e.method in C.AVERAGEABLE and e.admissible]
+    best = min(score[m] for m in pool)
+    assert members == [m for m in pool if score[m] <= C.AVERAGE_FACTOR * best] and len(members) >= 2
+    # eq. 21 is linear in the corrected torques: the average's mass is the members' mean, per axis a gain curve
+    cal = C.fit(pts, avg.method, G, DR)
+    t3, t5 = np.array([800.0, 2500.0]), np.array([300.0, 1500.0])
+    want = np.mean([C.fit(pts, m, G, DR).mass_kg(t3, t5) for m in members], axis=0)
+    np.testing.assert_allclose(cal.mass_kg(t3, t5), want, rtol=1e-12)
+    assert isinstance(cal.k_a3, C.GainK) and isinstance(cal.k_a5, C.GainK)
+    assert cal.covariance.shape == (len(cal.params),) * 2
+    # its held-out figures are the members' means too (held out with the members refitted without the point)
+    by = {e.method: e for e in evs}
+    np.testing.assert_allclose(avg.loo_mass_kg, np.mean([by[m].loo_mass_kg for m in members], axis=0))
+    np.testing.assert_allclose(avg.heldout_residual_nm, np.mean([by[m].heldout_residual_nm for m in members], axis=0))
+    assert avg.loo_mean_abs_err_pct == pytest.approx(C.mean_abs_pct(pts.mass_kg, avg.loo_mass_kg))
+    # a joint model the selection admits and prefers is kept; with one candidate there is nothing to average
+    assert not C.known_method("avg:axis-quad") and not C.known_method("avg:axis-quad+gain-linear")
+    with pytest.raises(C.CalibrationError, match="average"):
+        C.fit(pts, "avg:axis-quad+paper", G, DR)
+    one = [e for e in evs if e.method in ("axis-quad", "paper")]
+    assert C.choose_auto(pts, one).method in ("axis-quad", "paper")

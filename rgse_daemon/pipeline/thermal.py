@@ -1,0 +1,100 @@
+"""The thermal drift of the torque estimate (paper §2.4.5): estimated from the campaign's own loops, removed at
+measurement time, its uncertainty a term of U.
+
+The drive's torque estimate drifts with motor temperature, relative to the whole reading (arm, bias and load):
+``M(T) = M_static·(1 + β·(T − T_amb))``. Within one calibration point the load and its mounting are fixed while the
+motors warm from loop to loop, so each loop's deviation from its point's mean is ``β·M̄_i·(T_ij − T̄_i)`` plus
+noise: a regression through the origin over all loops of all points gives β per axis and its standard uncertainty
+(the mounting offsets, the hysteresis and the settling are the same for every loop of a point and drop out).
+
+At measurement time each loop's reading is brought to the campaign's mean motor temperature ``T_ref`` (CAL.json
+``thermal_state_k``, the temperature the calibration points hold): ``M_corr = M·(1 − β·(T − T_ref))`` (first order
+in β·ΔT; the second order is below 0.01 % for 40 K at β = 0.002/K). The uncertainty of β gives the ``thermal``
+component ``u(δ) = u_β·|M̄·(T − T_ref)|`` per axis, through eq. 21's sensitivities.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon.errors import DataError
+
+AXES = ("A3", "A5")
+
+
+@dataclass(frozen=True)
+class ThermalDrift:
+    """β per axis (1/K), its standard uncertainty, the reference temperature (K), the loops it rests on."""
+
+    coeff_per_k: dict[str, float]
+    u_coeff_per_k: dict[str, float]
+    reference_k: dict[str, float]
+    n_loops: int
+    span_k: dict[str, float]
+    """The spread of the loop temperatures about their point means the estimate saw (max − min, K)."""
+
+    def correct_nm(self, axis: str, reading_nm: float, temp_k: float) -> float:
+        """The loop's (raw, not bias-normalised) reading brought to the reference temperature."""
+        return float(reading_nm) * (1.0 - self.coeff_per_k[axis] * (float(temp_k) - self.reference_k[axis]))
+
+    def u_correction_nm(self, axis: str, reading_nm: np.ndarray, temp_k: np.ndarray) -> float:
+        """Standard uncertainty of the correction of the mean over the loops (β's error is common to all loops)."""
+        lever = np.mean(np.asarray(reading_nm, float) * (np.asarray(temp_k, float) - self.reference_k[axis]))
+        return float(abs(lever) * self.u_coeff_per_k[axis])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"coeff_per_k": dict(self.coeff_per_k), "u_coeff_per_k": dict(self.u_coeff_per_k),
+                "reference_k": dict(self.reference_k), "n_loops": self.n_loops, "span_k": dict(self.span_k)}
+
+    @classmethod
+    def from_dict(cls, d: Any) -> ThermalDrift:
+        try:
+            vals = {key: {ax: float(d[key][ax]) for ax in AXES}
+                    for key in ("coeff_per_k", "u_coeff_per_k", "reference_k", "span_k")}
+            n = int(d["n_loops"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"fit.thermal: malformed {d!r}: {exc}") from exc
+        if not all(np.isfinite(v) for sub in vals.values() for v in sub.values()) or any(
+                v < 0 for v in vals["u_coeff_per_k"].values()):
+            raise DataError(f"fit.thermal: needs finite values and u_coeff_per_k >= 0, got {d!r}")
+        return cls(vals["coeff_per_k"], vals["u_coeff_per_k"], vals["reference_k"], n, vals["span_k"])
+
+
+def fit_axis(readings_nm: Sequence[np.ndarray], temps_k: Sequence[np.ndarray]) -> tuple[float, float, float]:
+    """β (1/K), u(β) and the temperature span of one axis from per-point loop readings and temperatures.
+
+    Regression through the origin of ``M_ij − M̄_i`` on ``M̄_i·(T_ij − T̄_i)``; the residual variance has
+    ``N − P − 1`` degrees of freedom (N loops, P point means, β)."""
+    xs, ys = [], []
+    for r, t in zip(readings_nm, temps_k, strict=True):
+        r, t = np.asarray(r, float), np.asarray(t, float)
+        if r.size < 2:
+            continue
+        xs.append(r.mean() * (t - t.mean()))
+        ys.append(r - r.mean())
+    if not xs:
+        raise DataError("thermal drift: no calibration point has two loops")
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    sxx = float(x @ x)
+    dof = x.size - len(xs) - 1
+    if sxx <= 0 or dof < 1:
+        raise DataError("thermal drift: the loops' motor temperatures do not vary within the points")
+    beta = float(x @ y) / sxx
+    res = y - beta * x
+    span = float(max(np.ptp(np.asarray(t, float) - np.mean(t)) for t in temps_k if np.size(t) >= 2))
+    return beta, float(np.sqrt(float(res @ res) / dof / sxx)), span
+
+
+def fit(readings_nm: dict[str, Sequence[np.ndarray]], temps_k: dict[str, Sequence[np.ndarray]]) -> ThermalDrift:
+    """:class:`ThermalDrift` of A3 and A5 from a campaign's per-point loop readings (raw, after pre-processing, Nm)
+    and motor temperatures (K); the reference is the mean temperature over every loop."""
+    coeff, u, ref, span = {}, {}, {}, {}
+    for ax in AXES:
+        coeff[ax], u[ax], span[ax] = fit_axis(readings_nm[ax], temps_k[ax])
+        ref[ax] = float(np.mean(np.concatenate([np.asarray(t, float) for t in temps_k[ax]])))
+    n = int(sum(np.size(t) for t in temps_k["A3"]))
+    return ThermalDrift(coeff, u, ref, n, span)

@@ -1,0 +1,143 @@
+"""The thermal drift of the torque estimate (§2.4.5): β from the campaign's loops, the DuT's loops corrected to the
+campaign's temperature, the correction's uncertainty in U; and the budget's excess terms (what the reproducibility
+already holds is not counted twice)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline import calibration as C
+from rgse_daemon.pipeline import inline
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import thermal as T
+from rgse_daemon.pipeline import uncertainty as unc
+
+G, DR = 9.81, 1.025
+RAW = pp.Preprocessing(crop_sigma=None, filter="none", window=1, order="backward", location="mean", settle_s=0.0)
+BETA = {"A3": 0.0008, "A5": 0.0017}
+AMBIENT_K = 293.15
+
+
+def reading(static_nm: float, beta: float, temp_k: np.ndarray) -> np.ndarray:
+    return static_nm * (1.0 + beta * (np.asarray(temp_k) - AMBIENT_K))
+
+
+def campaign(seed: int = 0, noise_nm: float = 0.3) -> tuple[dict, dict]:
+    """14 points of 3 loops warming by ~1.5 K each, statics from -1300 (the arm) to +3000 Nm."""
+    rng = np.random.default_rng(seed)
+    readings, temps = {"A3": [], "A5": []}, {"A3": [], "A5": []}
+    for static3, static5 in zip(np.linspace(-1320.0, 3000.0, 14), np.linspace(-316.0, 2500.0, 14), strict=True):
+        t = AMBIENT_K + np.array([3.6, 5.3, 6.3]) + rng.normal(0, 0.1, 3)
+        for ax, st in (("A3", static3), ("A5", static5)):
+            readings[ax].append(reading(st, BETA[ax], t) + rng.normal(0, noise_nm, 3))
+            temps[ax].append(t)
+    return readings, temps
+
+
+def test_drift_coefficient_from_the_loops_within_points():
+    drift = T.fit(*campaign())
+    for ax in ("A3", "A5"):
+        assert drift.coeff_per_k[ax] == pytest.approx(BETA[ax], abs=3 * drift.u_coeff_per_k[ax])
+        assert 0 < drift.u_coeff_per_k[ax] < 0.1 * BETA[ax]
+        assert drift.reference_k[ax] == pytest.approx(AMBIENT_K + 5.07, abs=0.1)
+        assert drift.span_k[ax] == pytest.approx(2.7, abs=0.5)
+    assert drift.n_loops == 42
+    # a constant per-point offset (a mounting, 7 Nm) hardly enters: only the within-point deviations carry β
+    readings, temps = campaign()
+    offsets = np.random.default_rng(5).normal(0.0, 7.0, 14)
+    shifted = {ax: [r + d for r, d in zip(readings[ax], offsets, strict=True)] for ax in readings}
+    again = T.fit(shifted, temps)
+    assert again.coeff_per_k["A3"] == pytest.approx(drift.coeff_per_k["A3"], rel=0.02)
+    # noise-free: exact to first order
+    exact = T.fit(*campaign(noise_nm=0.0))
+    assert exact.coeff_per_k["A5"] == pytest.approx(BETA["A5"], rel=0.01)
+
+
+def test_drift_needs_loops_that_warm_within_points():
+    with pytest.raises(DataError, match="do not vary"):
+        T.fit_axis([np.array([1.0, 1.1]), np.array([2.0, 2.2])], [np.full(2, 300.0), np.full(2, 300.0)])
+    with pytest.raises(DataError, match="two loops"):
+        T.fit_axis([np.array([1.0])], [np.array([300.0])])
+
+
+def test_round_trip_and_malformed():
+    drift = T.fit(*campaign())
+    assert T.ThermalDrift.from_dict(drift.to_dict()) == drift
+    bad = drift.to_dict()
+    bad["u_coeff_per_k"]["A5"] = -1.0
+    with pytest.raises(DataError, match="u_coeff_per_k"):
+        T.ThermalDrift.from_dict(bad)
+    with pytest.raises(DataError, match=r"fit\.thermal: malformed"):
+        T.ThermalDrift.from_dict({"coeff_per_k": {"A3": 0.0}})
+
+
+def test_correction_and_its_uncertainty():
+    drift = T.ThermalDrift({"A3": 0.001, "A5": 0.002}, {"A3": 1e-4, "A5": 2e-4}, {"A3": 300.0, "A5": 301.0}, 42,
+                           {"A3": 3.0, "A5": 3.0})
+    assert drift.correct_nm("A3", 1000.0, 310.0) == pytest.approx(1000.0 * (1 - 0.001 * 10.0))
+    assert drift.correct_nm("A5", -500.0, 296.0) == pytest.approx(-500.0 * (1 + 0.002 * 5.0))
+    assert drift.correct_nm("A3", 1000.0, 300.0) == 1000.0
+    assert drift.u_correction_nm("A3", np.array([1000.0, 1000.0]), np.array([310.0, 320.0])) == pytest.approx(
+        1000.0 * 15.0 * 1e-4)
+    assert drift.u_correction_nm("A5", np.array([-500.0]), np.array([291.0])) == pytest.approx(500.0 * 10.0 * 2e-4)
+
+
+def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
+    # the axes read downwards like the arm's own torque (the bias): K < 0 absorbs the sign
+    cal = C.Calibration("axis-linear", C.GainK(("lin",), np.array([-1.1])), C.GainK(("lin",), np.array([-0.85])),
+                        np.zeros((2, 2)), (0.0, 3000.0), (0.0, 800.0), G, DR)
+    drift = T.fit(*campaign())
+    bias3, bias5 = -1320.0, -316.0
+    ref3, ref5 = drift.reference_k["A3"], drift.reference_k["A5"]
+    true3, true5 = -1500.0, -400.0  # the DuT's normalised torques at the campaign's temperature
+    temps = [(ref3 + d, ref5 + d) for d in (35.0, 22.0, 15.0)]  # held 15 min: warm, cooling loop by loop
+
+    def at(static, beta, temp, ref):  # the reading the warm drive gives, relative to the campaign's temperature
+        return static * (1 + beta * (temp - AMBIENT_K)) / (1 + beta * (ref - AMBIENT_K))
+
+    loops = [(np.full(50, at(true3 + bias3, BETA["A3"], t3, ref3)),
+              np.full(50, at(true5 + bias5, BETA["A5"], t5, ref5)), 0.012, f"l{k}") for k, (t3, t5) in enumerate(temps)]
+    want = float(cal.mass_kg(true3, true5))
+    plain = inline.in_line_mass(loops, cal, bias3, bias5, RAW)
+    fixed = inline.in_line_mass(loops, cal, bias3, bias5, RAW, thermal=drift, loop_temps_k=temps)
+    assert abs(plain.mass_kg - want) > 1.0  # uncorrected: kilograms off
+    assert abs(fixed.mass_kg - want) < 0.1 * abs(plain.mass_kg - want)
+    c = fixed.uncertainty.components()
+    assert "thermal" not in plain.uncertainty.components()
+    s3, s5 = inline.slope_kg_per_nm(cal, fixed.torque_a3_nm, fixed.torque_a5_nm)
+    raw3 = np.array([lp[0][0] for lp in loops])
+    raw5 = np.array([lp[1][0] for lp in loops])
+    u3 = drift.u_correction_nm("A3", raw3, np.array(temps)[:, 0])
+    u5 = drift.u_correction_nm("A5", raw5, np.array(temps)[:, 1])
+    assert c["thermal"] == pytest.approx(np.hypot(s3 * u3, s5 * u5)) and c["thermal"] > 0
+    assert abs(fixed.mass_kg - want) < 2 * c["thermal"] + 0.05
+    # loops without a temperature: no correction, no thermal term
+    none = inline.in_line_mass(loops, cal, bias3, bias5, RAW, thermal=drift, loop_temps_k=[(None, None)] * 3)
+    assert none.mass_kg == pytest.approx(plain.mass_kg) and "thermal" not in none.uncertainty.components()
+
+
+def test_excess_counts_only_what_the_reproducibility_does_not_hold():
+    assert unc.excess_kg(0.5, 0.3) == pytest.approx(0.4)
+    assert unc.excess_kg(0.3, 0.5) == 0.0
+    assert unc.excess_kg(float("inf"), 0.5) == float("inf")
+    cu = unc.CalibrationUncertainty(unc.Reproducibility(10.0, 10.0, 0.0), np.array([[1.10, 0.85], [1.12, 0.85]]),
+                                    np.zeros((0, 2)), np.array([[1000.0, 200.0], [2000.0, 400.0]]))
+    cal = C.Calibration("axis-linear", C.GainK(("lin",), np.array([1.1])), C.GainK(("lin",), np.array([0.85])),
+                        np.zeros((2, 2)), (0.0, 3000.0), (0.0, 800.0), G, DR)
+    at_dut = cu.curve_spread_kg(cal, 3000.0, 600.0)
+    inner = np.sqrt(np.mean([cu.curve_spread_kg(cal, 1000.0, 200.0) ** 2, cu.curve_spread_kg(cal, 2000.0, 400.0) ** 2]))
+    assert at_dut == pytest.approx(0.02 * 3000.0 / np.sqrt(2) / (G * DR))
+    assert cu.u_calibration_kg(cal, 3000.0, 600.0) == pytest.approx(np.sqrt(at_dut**2 - inner**2))
+    assert cu.u_calibration_kg(cal, 500.0, 100.0) == 0.0
+    # the model term likewise: an alternative that differs by a constant gain offset differs more at larger torques
+    alt = C.Calibration("axis-quad", C.GainK(("lin",), np.array([1.101])), C.GainK(("lin",), np.array([0.85])),
+                        np.zeros((2, 2)), (0.0, 3000.0), (0.0, 800.0), G, DR)
+    loops = [(np.full(10, 3000.0), np.full(10, 600.0), 0.012, "l0"), (np.full(10, 3000.0), np.full(10, 600.0), 0.012,
+                                                                         "l1")]
+    r = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, alternatives=[alt], uncertainty=cu,
+                            alternative_uncertainty=[None])
+    full = 0.001 * 3000.0 / (G * DR)
+    at_points = np.sqrt(np.mean([(0.001 * 1000.0 / (G * DR)) ** 2, (0.001 * 2000.0 / (G * DR)) ** 2]))
+    assert r.uncertainty.u_model_kg == pytest.approx(np.sqrt(full**2 - at_points**2))
