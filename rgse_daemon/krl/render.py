@@ -292,12 +292,71 @@ class ResidentParams(TemplateParams):
         return [p for s in sorted(starts) for p in self._commands(s)]
 
 
+AxisPcts = tuple[float, float, float, float, float, float]
+
+
+class InertiaMove(BaseModel):
+    """One move of the inertia excitation: the target and the $VEL_AXIS/$ACC_AXIS % (A1..A6) in force for it."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    pose: PoseDeg
+    vel_axis_pct: AxisPcts
+    acc_axis_pct: AxisPcts
+
+    @model_validator(mode="after")
+    def _pcts_in_range(self) -> InertiaMove:
+        for what, values in (("vel_axis_pct", self.vel_axis_pct), ("acc_axis_pct", self.acc_axis_pct)):
+            if not all(0.0 < v <= 100.0 for v in values):
+                raise ValueError(f"{what} must be in (0, 100] % for every axis, got {list(values)}")
+        return self
+
+
+class InertiaParams(TemplateParams):
+    """The inertia excitation (issue #15), designed per payload by ``rgse_daemon.pipeline.excitation``:
+    ``vel_axis_pct``/``acc_axis_pct`` hold for the move to ``start_pose``, each of ``moves`` sets its own."""
+
+    template: ClassVar[str] = "rgse_inertia"
+    start_pose: PoseDeg = _MEAS
+    moves: tuple[InertiaMove, ...] = Field(min_length=1, max_length=2000)
+
+    def placeholders(self) -> dict[str, str]:
+        lines: list[str] = []
+        vel = (self.vel_axis_pct,) * 6
+        acc = (self.acc_axis_pct,) * 6
+        for n, mv in enumerate(self.moves, 1):
+            for sysvar, now, want in (("$VEL_AXIS", vel, mv.vel_axis_pct), ("$ACC_AXIS", acc, mv.acc_axis_pct)):
+                lines += [f"  {sysvar}[{i}] = {format_real(w)}" for i, (o, w) in enumerate(zip(now, want,
+                                                                                                strict=True), 1)
+                          if o != w]
+            vel, acc = mv.vel_axis_pct, mv.acc_axis_pct
+            lines += [f"  RGSE_LOOP = {n}", f"  PTP {format_axes(mv.pose)}"]
+        return {
+            **super().placeholders(),
+            "start_pose": format_axes(self.start_pose),
+            "moves": "\n".join(lines),
+            "n_moves": format_int(len(self.moves)),
+        }
+
+    def paths(self, start_deg: Sequence[float]) -> list[list[tuple[float, ...]]]:
+        return [[tuple(start_deg), self.start_pose, *(mv.pose for mv in self.moves)]]
+
+
 MODELS: dict[str, type[TemplateParams]] = {
     m.template: m
-    for m in (MeasPoseParams, OperPoseParams, CalPoseParams, WarmupParams, BrakeReleaseParams, ResidentParams)
+    for m in (
+        MeasPoseParams,
+        OperPoseParams,
+        CalPoseParams,
+        WarmupParams,
+        BrakeReleaseParams,
+        ResidentParams,
+        InertiaParams,
+    )
 }
-#: The templates in the order ``rgse krl render`` writes them.
-TEMPLATES: tuple[str, ...] = tuple(MODELS)
+#: The templates in the order ``rgse krl render`` writes them. Not the inertia excitation: its moves are designed
+#: for each payload (``rgse_daemon.pipeline.excitation``), there are no defaults to render it from.
+TEMPLATES: tuple[str, ...] = tuple(n for n in MODELS if n != InertiaParams.template)
 
 
 # --- speeds -----------------------------------------------------------------------------------------------------------

@@ -1,0 +1,192 @@
+"""The inertia of a DuT from a run directory's motion traces (issue #15), and the excitation program of a run.
+
+One code path for ``rgse inertia`` and a run that includes inertia. The numbers are computed in
+:mod:`rgse_daemon.pipeline.inertia`; the moves are designed in :mod:`rgse_daemon.pipeline.excitation`.
+
+A run directory holds two KUKA Trace sets recorded while ``rgse_inertia`` ran, the *tare* (MPA and fixture) and the
+*DuT* (on the same fixture), with the drives of A4–A6 (``Sollposition``, ``Istposition``, ``Istmoment``; with
+``Motortemperatur`` the reading's thermal drift between the two runs is fitted too), and a
+manifest ``inertia.toml`` (docs/interfaces.md)::
+
+    [inertia]
+    dut_trace = "inertia_dut"          # trace names in the directory
+    tare_trace = "inertia_tare"
+    base_deg = [0.0, -90.0, 90.0, 0.0, 0.0, 0.0]   # A1..A6 of the axes a trace does not hold (A1..A3)
+    mass_kg = 107.3                    # the DuT, from the static measurement
+    cog_flange_m = [-0.041, -0.028, 0.345]
+    U_cog_flange_m = [0.002, 0.002, 0.002]          # k = 2
+    dut_abc_deg = [90.0, 0.0, 0.0]     # the DuT frame on the flange (KUKA A, B, C)
+    fixture_mass_kg = 30.0             # what the tare run carries (MPA + fixture): the calibration's operating point
+    fixture_cog_flange_m = [0.0, 0.0, 0.04]
+
+With a CAL.json whose ``torsional`` section has gain curves for A4–A6, the readings are taken through them
+(``pipeline.inertia.TorqueCalibration``); without one, 1:1.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rgse_daemon import calfile
+from rgse_daemon.errors import DataError
+from rgse_daemon.krl.render import InertiaMove, InertiaParams, RenderedProgram, render
+from rgse_daemon.pipeline import excitation as ex
+from rgse_daemon.pipeline import inertia as inr
+from rgse_daemon.trace.channels import ISTMOMENT, ISTPOSITION, MOTORTEMPERATUR, SOLLPOSITION, drive_module
+from rgse_daemon.trace.diadem import read_trace_set
+
+#: $ACC_AXIS (%) of the first move, to the start pose.
+START_ACC_PCT = 20.0
+MANIFEST = "inertia.toml"
+
+
+def excitation_program(design: ex.Excitation) -> RenderedProgram:
+    """The KRL of a designed excitation (template ``rgse_inertia``); the static check still decides the push."""
+    first = design.moves[0]
+    moves = tuple(InertiaMove(pose=m.target_deg, vel_axis_pct=m.vel_axis_pct, acc_axis_pct=m.acc_axis_pct)
+                  for m in design.moves)
+    params = InertiaParams(vel_axis_pct=min(first.vel_axis_pct), acc_axis_pct=START_ACC_PCT,
+                           start_pose=design.start_deg, moves=moves)
+    return render(InertiaParams.template, params)
+
+
+@dataclass(frozen=True)
+class InertiaManifest:
+    dut_trace: str
+    tare_trace: str
+    base_deg: tuple[float, ...]
+    mass_kg: float
+    cog_flange_m: tuple[float, float, float]
+    U_cog_flange_m: tuple[float, float, float]
+    dut_abc_deg: tuple[float, float, float]
+    fixture_mass_kg: float
+    fixture_cog_flange_m: tuple[float, float, float]
+
+    def to_toml(self) -> str:
+        def arr(v: Any) -> str:
+            return "[" + ", ".join(repr(float(x)) for x in v) + "]"
+
+        return "\n".join([
+            "[inertia]",
+            f'dut_trace = "{self.dut_trace}"',
+            f'tare_trace = "{self.tare_trace}"',
+            f"base_deg = {arr(self.base_deg)}",
+            f"mass_kg = {float(self.mass_kg)!r}",
+            f"cog_flange_m = {arr(self.cog_flange_m)}",
+            f"U_cog_flange_m = {arr(self.U_cog_flange_m)}",
+            f"dut_abc_deg = {arr(self.dut_abc_deg)}",
+            f"fixture_mass_kg = {float(self.fixture_mass_kg)!r}",
+            f"fixture_cog_flange_m = {arr(self.fixture_cog_flange_m)}",
+            "",
+        ])
+
+
+def _floats(d: dict[str, Any], key: str, n: int, where: str) -> tuple[float, ...]:
+    v = d.get(key)
+    if not isinstance(v, list) or len(v) != n or not all(isinstance(x, int | float) and math.isfinite(x) for x in v):
+        raise DataError(f"{where}: {key} must be {n} finite numbers, got {v!r}")
+    return tuple(float(x) for x in v)
+
+
+def load_manifest(directory: Path) -> InertiaManifest:
+    path = directory / MANIFEST
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise DataError(f"{path}: no inertia manifest in the run directory") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise DataError(f"{path}: not valid TOML: {exc}") from exc
+    sec = doc.get("inertia")
+    if not isinstance(sec, dict):
+        raise DataError(f"{path}: no [inertia] table")
+    for key in ("dut_trace", "tare_trace"):
+        if not isinstance(sec.get(key), str):
+            raise DataError(f"{path}: {key} must be a trace name")
+    mass = sec.get("mass_kg")
+    if not isinstance(mass, int | float) or not mass > 0:
+        raise DataError(f"{path}: mass_kg must be a positive number, got {mass!r}")
+    fmass = sec.get("fixture_mass_kg", 0.0)
+    if not isinstance(fmass, int | float) or not fmass >= 0:
+        raise DataError(f"{path}: fixture_mass_kg must be >= 0, got {fmass!r}")
+    return InertiaManifest(
+        sec["dut_trace"], sec["tare_trace"], _floats(sec, "base_deg", 6, str(path)), float(mass),
+        _floats(sec, "cog_flange_m", 3, str(path)),  # type: ignore[arg-type]
+        _floats(sec, "U_cog_flange_m", 3, str(path)) if "U_cog_flange_m" in sec else (0.0, 0.0, 0.0),  # type: ignore[arg-type]
+        _floats(sec, "dut_abc_deg", 3, str(path)) if "dut_abc_deg" in sec else (0.0, 0.0, 0.0),  # type: ignore[arg-type]
+        float(fmass),
+        _floats(sec, "fixture_cog_flange_m", 3, str(path)) if "fixture_cog_flange_m" in sec else (0.0, 0.0, 0.0),  # type: ignore[arg-type]
+    )
+
+
+def read_strokes(directory: Path, name: str, base_deg: tuple[float, ...]) -> tuple[list[inr.Stroke], float]:
+    """The strokes (one per motion) of trace ``name`` and its sample period; axes not traced stand at ``base_deg``."""
+    ts = read_trace_set(directory, name)
+    traced = [ax for ax in range(1, 7) if drive_module(ax) in ts.files]
+    missing = [ax for ax in inr.WRIST_AXES if ax not in traced]
+    if missing:
+        raise DataError(f"{directory}: trace {name!r} lacks the drives of A{', A'.join(map(str, missing))}")
+    first = ts.files[drive_module(traced[0])]
+    n, period = first.n_samples, float(first.period_s)
+    soll = np.tile(np.asarray(base_deg, float), (n, 1))
+    ist = soll.copy()
+    tau = np.full((n, 6), np.nan)
+    temp = np.full((n, 6), np.nan)
+    for ax in traced:
+        tf = ts.files[drive_module(ax)]
+        if tf.n_samples != n or not math.isclose(tf.period_s, period, rel_tol=1e-9):
+            raise DataError(f"{tf.dat_path}: {tf.n_samples} samples every {tf.period_s} s, the other drives of the "
+                            f"trace have {n} every {period} s")
+        for arr, ch in ((soll, SOLLPOSITION), (ist, ISTPOSITION), (tau, ISTMOMENT)):
+            values = np.asarray(tf.channel(ch).values, float)
+            if not np.all(np.isfinite(values)):
+                raise DataError(f"{tf.dat_path}: channel {ch!r} is not finite")
+            arr[:, ax - 1] = values
+        if MOTORTEMPERATUR in tf.channels:
+            temp[:, ax - 1] = np.asarray(tf.channel(MOTORTEMPERATUR).values, float)
+    has_temp = all(np.all(np.isfinite(temp[:, ax - 1])) for ax in inr.WRIST_AXES)
+    t = np.arange(n) * period
+    strokes = []
+    for sl in inr.split_strokes(soll):
+        lo, hi = max(sl.start - round(0.15 / period), 0), min(sl.stop + round(0.15 / period), n)
+        strokes.append(inr.Stroke(t[lo:hi], ist[lo:hi], tau[lo:hi], soll[lo:hi],
+                                  temp_k=np.nan_to_num(temp[lo:hi], nan=0.0) if has_temp else None))
+    return strokes, period
+
+
+def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | None = None,
+                        n_bootstrap: int = inr.N_BOOTSTRAP) -> inr.InertiaResult:
+    """The identification of a run directory (see the module docstring)."""
+    directory = Path(directory)
+    man = load_manifest(directory)
+    dut, period = read_strokes(directory, man.dut_trace, man.base_deg)
+    tare, period_t = read_strokes(directory, man.tare_trace, man.base_deg)
+    if not math.isclose(period, period_t, rel_tol=1e-9):
+        raise DataError(f"{directory}: DuT and tare traces have different sample periods ({period} / {period_t} s)")
+    if len(dut) != len(tare):
+        raise DataError(f"{directory}: the DuT trace has {len(dut)} motions, the tare {len(tare)}: not the same "
+                        "excitation")
+    try:
+        strokes = [inr.difference(d, t) for d, t in zip(dut, tare, strict=True)]
+    except ValueError as exc:
+        raise DataError(f"{directory}: {exc}") from exc
+    cal = None
+    if calibration_path is not None:
+        doc = calfile.read(calibration_path)[0]
+        tors = calfile.torsional(doc, calibration_path)
+        if tors is None:
+            raise DataError(f"{calibration_path}: no torsional section (the gain curves of A4..A6)")
+        gains = {ax: g for ax, g in tors.gains.items() if ax in inr.WRIST_AXES}
+        fix = man.fixture_mass_kg
+        cal = inr.TorqueCalibration(gains, (fix, *(fix * c for c in man.fixture_cog_flange_m)))  # type: ignore[arg-type]
+    try:
+        return inr.identify(strokes, period, man.mass_kg, man.cog_flange_m, dut_abc_deg=man.dut_abc_deg,
+                            calibration=cal, u_cog_flange_m=tuple(u / 2.0 for u in man.U_cog_flange_m),
+                            n_bootstrap=n_bootstrap)
+    except ValueError as exc:
+        raise DataError(f"{directory}: {exc}") from exc
