@@ -29,8 +29,8 @@ campaign that a previous daemon left interrupted is continued at its first incom
 operator to confirm the mounted load).
 
 Commands (MQTT ``cmd/<verb>`` or in-process) are the :class:`~rgse_daemon.io.mqtt.CommandHandler` methods:
-``measure``, ``calibrate``, ``abort``, ``confirm``; ``measure`` and ``calibrate`` answer once the run has started,
-with its run id, and the run goes on in a task.
+``measure``, ``properties``, ``calibrate``, ``abort``, ``confirm``; ``measure``, ``properties`` and ``calibrate``
+answer once the run has started, with its run id, and the run goes on in a task.
 """
 
 from __future__ import annotations
@@ -46,13 +46,21 @@ from rgse_daemon import kinematics as kin
 from rgse_daemon.config import Config
 from rgse_daemon.controller import Controller
 from rgse_daemon.errors import RgseError
-from rgse_daemon.io.commands import AbortCommand, CalibrateCommand, CalibrationPoint, ConfirmCommand, MeasureCommand
+from rgse_daemon.io.commands import (
+    AbortCommand,
+    CalibrateCommand,
+    CalibrationPoint,
+    ConfirmCommand,
+    MeasureCommand,
+    PropertiesCommand,
+)
 from rgse_daemon.procedures.calibration import CB_MASS_KG, TA_MASS_KG, TA_TORQUE_A5_NM, CampaignPoint, run_calibration
 from rgse_daemon.procedures.documents import Document, Result
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.measurement import run_measurement
 from rgse_daemon.procedures.programs import static_checker
+from rgse_daemon.procedures.properties import PropertiesSettings, run_properties
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.latch import SafetyLatch
@@ -129,6 +137,7 @@ class Daemon:
                                    data_dir=cfg.paths.data_dir)
         self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed)
         self._confirm_data: dict[str, Any] = {}
+        self._prompt_open = False
         self._tasks: list[asyncio.Task[Any]] = []
         self._controller_task: asyncio.Task[None] | None = None
         self._resumed = False
@@ -196,6 +205,7 @@ class Daemon:
                 self.mqtt = MqttBridge(self.cfg.mqtt, self.robot, self.store, self, __version__)
                 await self.mqtt.start()
                 stack.push_async_callback(self._bounded, "mqtt", self.mqtt.stop)
+                self.mqtt.publish_prompt(None)  # a prompt retained by a daemon that died while it waited is void
 
             state = StatePublisher(self.link, self.admission, rate_hz=self.cfg.mqtt.state_rate_hz,
                                    engine=lambda: self.engine, mqtt=lambda: self.mqtt, safety_io=self.safety_io)
@@ -332,6 +342,12 @@ class Daemon:
         if self.console is not None:
             self.console.event(ev)
         if self.mqtt is not None:
+            if ev.kind == "confirm":
+                self.mqtt.publish_prompt(ev.to_json())
+                self._prompt_open = True
+            elif ev.kind == "state" and self._prompt_open and ev.data.get("state") != "confirm":
+                self.mqtt.publish_prompt(None, ev.run_id)  # answered, or the run ended while it waited
+                self._prompt_open = False
             if ev.kind == "alarm":
                 self.mqtt.publish_alarm(ev.to_json())
             elif ev.run_id is not None and ev.kind != "result":  # a result goes out from the outbox: _document
@@ -378,11 +394,27 @@ class Daemon:
         if fixture_mass_kg is not None:
             overrides["fixture_mass_kg"] = fixture_mass_kg
         settings = RunSettings.from_config(self.cfg, **overrides)
+        if self.cfg.properties.when == "every_measurement":  # every measurement is a properties run
+            return await self.start_properties(settings=settings, dry_run=dry_run)
         inputs = self._inputs()
         dry = self._dry(self.engine) if dry_run and self.engine is not None else None
         return self._start_run(
             "measurement",
             lambda engine, store: run_measurement(engine, store, self.cfg, settings=settings, inputs=inputs),
+            engine=dry,
+        )
+
+    async def start_properties(self, *, settings: RunSettings | None = None, props: PropertiesSettings | None = None,
+                               dry_run: bool = False) -> asyncio.Task[Any]:
+        """A mass-properties run (mass, then the CoG poses; :mod:`rgse_daemon.procedures.properties`)."""
+        settings = settings or RunSettings.from_config(self.cfg)
+        props = props or PropertiesSettings.from_config(self.cfg)
+        inputs = self._inputs()
+        dry = self._dry(self.engine) if dry_run and self.engine is not None else None
+        return self._start_run(
+            "properties",
+            lambda engine, store: run_properties(engine, store, self.cfg, settings=settings, props=props,
+                                                 inputs=inputs),
             engine=dry,
         )
 
@@ -415,7 +447,25 @@ class Daemon:
     async def measure(self, cmd: MeasureCommand) -> dict[str, Any]:
         task = await self.start_measurement(loops=cmd.loops, fixture_mass_kg=cmd.fixture_mass_kg,
                                             dry_run=cmd.dry_run)
-        return {"accepted": "measurement", "run_id": await self.admission.started(task), "dry_run": cmd.dry_run}
+        kind = self.admission.kind or "measurement"  # "properties" when every measurement is one
+        return {"accepted": kind, "run_id": await self.admission.started(task), "dry_run": cmd.dry_run}
+
+    async def properties(self, cmd: PropertiesCommand) -> dict[str, Any]:
+        overrides: dict[str, Any] = {}
+        if cmd.loops is not None:
+            overrides["loops"] = cmd.loops
+        if cmd.fixture_mass_kg is not None:
+            overrides["fixture_mass_kg"] = cmd.fixture_mass_kg
+        fixture = cmd.fixture
+        props = PropertiesSettings.from_config(
+            self.cfg, scheme=cmd.scheme, loops_per_pose=cmd.loops_per_pose,
+            fixture_cog_flange_m=fixture.cog_flange_m if fixture is not None else None,
+            dut_origin_flange_m=fixture.dut_origin_flange_m if fixture is not None else None,
+            dut_abc_deg=fixture.dut_abc_deg if fixture is not None else None)
+        task = await self.start_properties(settings=RunSettings.from_config(self.cfg, **overrides), props=props,
+                                           dry_run=cmd.dry_run)
+        return {"accepted": "properties", "run_id": await self.admission.started(task), "dry_run": cmd.dry_run,
+                "scheme": props.scheme}
 
     async def calibrate(self, cmd: CalibrateCommand) -> dict[str, Any]:
         points = [campaign_point(p) for p in cmd.points] if cmd.points is not None else None

@@ -120,6 +120,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
     _add_json(p)
 
+    p = sub.add_parser("inertia", help="offline inertia tensor from a run directory with DuT and tare motion traces")
+    p.add_argument("--traces", type=Path, required=True, metavar="DIR")
+    p.add_argument("--calibration", type=Path, metavar="CAL.json",
+                   help="take the readings through its torsional gain curves of A4..A6 (default: 1:1)")
+    _add_json(p)
+
     p = sub.add_parser("study", help="the pre-processing parameter study (paper Table A2), ranked")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--campaign", type=Path, metavar="DIR")
@@ -185,7 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
     # rgse run: start a run on the daemon and follow it (on the Python client)
-    p = sub.add_parser("run", help="start a measurement or a campaign on the running daemon and follow it")
+    p = sub.add_parser("run", help="start a measurement, a properties run or a campaign on the running daemon and "
+                                        "follow it")
     kinds = p.add_subparsers(dest="run_kind", required=True, metavar="KIND")
     m = kinds.add_parser("measure", help="an in-line measurement of the mounted DuT")
     m.add_argument("--loops", type=int, metavar="N")
@@ -194,7 +201,20 @@ def build_parser() -> argparse.ArgumentParser:
     c = kinds.add_parser("calibrate", help="a calibration campaign (confirming each load)")
     c.add_argument("--points", type=Path, metavar="FILE.toml", help="[[point]] tables (default: paper Table 1)")
     c.add_argument("--method", metavar="paper|auto|NAME")
-    for q in (m, c):
+    r = kinds.add_parser("properties", help="a mass-properties run of the mounted DuT: mass, then CoG")
+    r.add_argument("--loops", type=int, metavar="N", help="mass loops (default: measurement.loops)")
+    r.add_argument("--loops-per-pose", type=int, metavar="N", help="loops in each CoG pose")
+    r.add_argument("--scheme", choices=("paper", "full"), help="the CoG poses (default: properties.scheme)")
+    r.add_argument("--fixture-mass", type=float, metavar="KG")
+    r.add_argument("--fixture-cog", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="the fixture's CoG in the flange frame (m); with it the command's fixture frame replaces "
+                        "properties.fixture")
+    r.add_argument("--dut-origin", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="the DuT frame's origin in the flange frame (m; needs --fixture-cog)")
+    r.add_argument("--dut-abc", type=float, nargs=3, metavar=("A", "B", "C"),
+                   help="the DuT frame's KUKA A, B, C in the flange frame (deg; needs --fixture-cog)")
+    r.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
+    for q in (m, c, r):
         q.add_argument("--config", type=Path, required=True, metavar="FILE")
         q.add_argument("--on-prompt", choices=("stdin", "wait"), default="stdin",
                        help="stdin: a line on stdin confirms each prompt (default); wait: answered elsewhere")

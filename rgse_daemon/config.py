@@ -242,6 +242,35 @@ class MeasurementConfig(_Section):
     trace_timeout_s: Seconds = 120.0
 
 
+Coordinate_m = Annotated[float, Field(ge=-3.0, le=3.0)]
+Angle_deg = Annotated[float, Field(ge=-360.0, le=360.0)]
+
+
+class FixtureFrameConfig(_Section):
+    """The fixture between MPA and DuT and the DuT's own frame, for the CoG (issue #14). The fixture's mass is
+    ``measurement.fixture_mass_kg``."""
+
+    cog_flange_m: tuple[Coordinate_m, Coordinate_m, Coordinate_m] | None = None
+    """The fixture's CoG in the flange frame (m); needed when the fixture has a mass (its moment is subtracted)."""
+    dut_origin_flange_m: tuple[Coordinate_m, Coordinate_m, Coordinate_m] = (0.0, 0.0, 0.0)
+    """Origin of the DuT's own frame in the flange frame (m)."""
+    dut_abc_deg: tuple[Angle_deg, Angle_deg, Angle_deg] = (0.0, 0.0, 0.0)
+    """Orientation of the DuT's frame in the flange frame: KUKA A, B, C (Z-Y-X, deg)."""
+
+
+class PropertiesConfig(_Section):
+    """The mass-properties run (mass, then the CoG poses; interfaces §4, README "Centre of gravity")."""
+
+    scheme: Literal["paper", "full"] = "full"
+    """The CoG poses: ``paper`` (eq. 5-7: measurement pose, A6 +90°) or ``full`` (A6 0/90/180/270°, A4/A5 tilts)."""
+    loops_per_pose: int = Field(2, ge=1, le=20)
+    """Brake-release loops (each with one trace of the A3..A6 drives) in every CoG pose."""
+    when: Literal["on_request", "every_measurement"] = "on_request"
+    """``on_request``: only a properties run (MQTT ``properties``, ``rgse run properties``) measures the CoG;
+    ``every_measurement``: every measurement run is a properties run."""
+    fixture: FixtureFrameConfig = FixtureFrameConfig()
+
+
 class MqttConfig(_Section):
     enabled: bool = False
     host: str = Field("127.0.0.1", min_length=1)
@@ -325,12 +354,23 @@ class Config(BaseSettings):
     limits: LimitsConfig = LimitsConfig()
     store: StoreConfig = StoreConfig()
     measurement: MeasurementConfig = MeasurementConfig()
+    properties: PropertiesConfig = PropertiesConfig()
     mqtt: MqttConfig = MqttConfig()
     console: ConsoleConfig = ConsoleConfig()
     modbus: ModbusConfig | None = None
     """The Modbus TCP safety I/O module; absent: no area-cleared input, so AUT is never allowed."""
     scale: ScaleConfig | None = None
     """The reference crane scale on a serial line; absent: `rgse reference` is unavailable."""
+
+    @model_validator(mode="after")
+    def _properties_fixture(self) -> Config:
+        # a measurement that is always a properties run must know where the fixture's mass sits (its moment is part
+        # of every CoG pose's torque); an on-request run is checked when it is asked for
+        if (self.properties.when == "every_measurement" and self.measurement.fixture_mass_kg > 0
+                and self.properties.fixture.cog_flange_m is None):
+            raise ValueError("properties.when = \"every_measurement\" with measurement.fixture_mass_kg > 0 needs "
+                             "properties.fixture.cog_flange_m (the fixture's CoG in the flange frame, m)")
+        return self
 
     @classmethod
     def settings_customise_sources(

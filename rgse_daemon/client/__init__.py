@@ -7,9 +7,11 @@ from rgse_daemon.client.types import (
     CalibrationResult,
     CampaignPoint,
     DaemonState,
+    FixtureFrame,
     MeasurementResult,
     ProgressEvent,
     Prompt,
+    PropertiesResult,
     Refused,
     Result,
     RunFailed,
@@ -18,7 +20,7 @@ from rgse_daemon.client.types import (
 )
 
 __all__ = [
-    "CalibrationResult", "CampaignPoint", "DaemonState", "MeasurementResult", "ProgressEvent", "Prompt",
-    "PromptHandler", "Refused", "Result", "RgseClient", "Run", "RunFailed", "SyncClient", "SyncRun", "WaitTimeout",
-    "load_points",
+    "CalibrationResult", "CampaignPoint", "DaemonState", "FixtureFrame", "MeasurementResult", "ProgressEvent",
+    "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "RgseClient", "Run", "RunFailed",
+    "SyncClient", "SyncRun", "WaitTimeout", "load_points",
 ]

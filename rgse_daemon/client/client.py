@@ -31,9 +31,11 @@ from .types import (
     CalibrationResult,
     CampaignPoint,
     DaemonState,
+    FixtureFrame,
     MeasurementResult,
     ProgressEvent,
     Prompt,
+    PropertiesResult,
     Refused,
     Result,
     RunFailed,
@@ -64,10 +66,11 @@ class RgseClient:
         self._progress: dict[str, list[ProgressEvent]] = {}
         self._results: dict[str, dict[str, Any]] = {}
         self._failures: dict[str, str] = {}
+        self._prompt_times: set[str] = set()  # prompts seen (progress or the retained prompt), by their time
         self.alarms: list[dict[str, Any]] = []
         self._waiters: list[asyncio.Future[None]] = []
         t = ep.topics
-        self._session = Session(ep, "client", (t.status, t.state, t.alarm, f"{t.prefix}/run/+/progress",
+        self._session = Session(ep, "client", (t.status, t.state, t.alarm, t.prompt, f"{t.prefix}/run/+/progress",
                                                f"{t.prefix}/run/+/result"), self._on_message, timeout_s)
 
     @classmethod
@@ -98,9 +101,14 @@ class RgseClient:
             self.alarms.append(doc)
             if doc.get("kind") == "run_failed" and isinstance(doc.get("run_id"), str):
                 self._failures[doc["run_id"]] = str(doc.get("message") or "no reason given")
+        elif topic == t.prompt and isinstance(doc, dict):
+            # the retained prompt: a client that connects while a run waits learns of the prompt it missed
+            run_id = doc.get("run_id")
+            if doc.get("pending") is True and isinstance(run_id, str) and self._new_prompt(doc):
+                self._progress.setdefault(run_id, []).append(ProgressEvent.of(run_id, doc))
         elif topic.startswith(head) and isinstance(doc, dict):
             run_id, _, leaf = topic[len(head):].partition("/")
-            if leaf == "progress":
+            if leaf == "progress" and (doc.get("kind") != "confirm" or self._new_prompt(doc)):
                 self._progress.setdefault(run_id, []).append(ProgressEvent.of(run_id, doc))
             elif leaf == "result":
                 self._results[run_id] = doc
@@ -108,6 +116,14 @@ class RgseClient:
             if not waiter.done():
                 waiter.set_result(None)
         self._waiters.clear()
+
+    def _new_prompt(self, doc: dict[str, Any]) -> bool:
+        """A prompt arrives twice (progress, QoS 0, and the retained prompt, QoS 1): True the first time."""
+        key = f"{doc.get('run_id')}|{doc.get('time')}|{doc.get('message')}"
+        if key in self._prompt_times:
+            return False
+        self._prompt_times.add(key)
+        return True
 
     async def until(self, predicate: Callable[[], T | None], what: str, timeout_s: float) -> T:
         """The first truthy value of ``predicate()``, checked now and after every message; :class:`WaitTimeout`
@@ -167,6 +183,16 @@ class RgseClient:
                                                 "dry_run": dry_run or None})
         return Run(self, reply.get("run_id"), "measurement")
 
+    async def properties(self, *, loops: int | None = None, loops_per_pose: int | None = None,
+                         scheme: str | None = None, fixture_mass_kg: float | None = None,
+                         fixture: FixtureFrame | None = None, dry_run: bool = False) -> Run:
+        """Start a mass-properties run of the mounted DuT: its mass, then its CoG in the poses of ``scheme``
+        (``"paper"`` or ``"full"``); ``None`` takes the daemon's ``[measurement]``/``[properties]`` settings."""
+        reply = await self._command("properties", {
+            "loops": loops, "loops_per_pose": loops_per_pose, "scheme": scheme, "fixture_mass_kg": fixture_mass_kg,
+            "fixture": fixture.as_command() if fixture is not None else None, "dry_run": dry_run or None})
+        return Run(self, reply.get("run_id"), "properties")
+
     async def calibrate(self, points: Sequence[CampaignPoint] | None = None, *, method: str | None = None) -> Run:
         """Start a calibration campaign over ``points`` (``None``: paper Table 1) fitted with ``method``."""
         fields: dict[str, Any] = {"method": method}
@@ -190,6 +216,8 @@ class RgseClient:
                                timeout_s or self.timeout_s)
         if kind == "calibration" or (kind is None and "mass_kg" not in doc):
             return CalibrationResult.of(run_id, doc)
+        if kind == "properties" or (kind is None and doc.get("cog_m") is not None):
+            return PropertiesResult.of(run_id, doc)
         return MeasurementResult.of(run_id, doc)
 
     def results(self) -> dict[str, dict[str, Any]]:
@@ -228,7 +256,7 @@ class Run:
     async def attach(cls, client: RgseClient, timeout_s: float | None = None) -> Run:
         """The run the daemon's state names (to follow or abort a run another tool started)."""
         state = await client.state(timeout_s)
-        if not state.run_id or state.run_kind not in ("measurement", "calibration"):
+        if not state.run_id or state.run_kind not in ("measurement", "calibration", "properties"):
             raise WaitTimeout(f"no run in progress (engine {state.engine})")
         return cls(client, state.run_id, state.run_kind)  # type: ignore[arg-type]
 

@@ -194,8 +194,60 @@ class CalibrationResult:
                    warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc)
 
 
-Result = MeasurementResult | CalibrationResult
-RunKind = Literal["measurement", "calibration"]
+def _xyz(doc: dict[str, Any], key: str) -> tuple[float, float, float] | None:
+    value = doc.get(key)
+    if isinstance(value, list) and len(value) == 3 and all(
+            isinstance(v, int | float) and not isinstance(v, bool) for v in value):
+        return (float(value[0]), float(value[1]), float(value[2]))
+    return None
+
+
+@dataclass(frozen=True)
+class PropertiesResult:
+    """The result of a mass-properties run: the measurement's mass and the CoG, flange and DuT frame (m), each with
+    its U (k = 2); ``raw["cog"]`` holds the whole CoG result (scheme, poses, budget)."""
+
+    run_id: str
+    robot: str | None
+    mass_kg: float
+    U_kg: float | None
+    cog_m: tuple[float, float, float]
+    U_cog_m: tuple[float, float, float]
+    cog_dut_m: tuple[float, float, float] | None
+    U_cog_dut_m: tuple[float, float, float] | None
+    calibration_id: str | None
+    warnings: tuple[str, ...]
+    raw: dict[str, Any] = field(repr=False)
+
+    @classmethod
+    def of(cls, run_id: str, doc: dict[str, Any]) -> PropertiesResult:
+        mass, cog, u_cog = _f(doc, "mass_kg"), _xyz(doc, "cog_m"), _xyz(doc, "U_cog_m")
+        if mass is None or cog is None or u_cog is None:
+            raise DataError(f"run {run_id}: properties result without a numeric mass_kg, cog_m and U_cog_m (three "
+                            f"each): {sorted(doc)}")
+        return cls(run_id=run_id, robot=_s(doc, "robot"), mass_kg=mass, U_kg=_f(doc, "U_kg"), cog_m=cog,
+                   U_cog_m=u_cog, cog_dut_m=_xyz(doc, "cog_dut_m"), U_cog_dut_m=_xyz(doc, "U_cog_dut_m"),
+                   calibration_id=_s(doc, "calibration_id"),
+                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc)
+
+
+Result = MeasurementResult | CalibrationResult | PropertiesResult
+RunKind = Literal["measurement", "calibration", "properties"]
+
+
+@dataclass(frozen=True)
+class FixtureFrame:
+    """The fixture and the DuT's frame of a properties run (the ``properties`` command's ``fixture``): the fixture's
+    CoG in the flange frame (m), the DuT frame's origin (m) and KUKA A, B, C (deg) in the flange frame."""
+
+    cog_flange_m: tuple[float, float, float]
+    dut_origin_flange_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    dut_abc_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def as_command(self) -> dict[str, Any]:
+        return {"cog_flange_m": [float(v) for v in self.cog_flange_m],
+                "dut_origin_flange_m": [float(v) for v in self.dut_origin_flange_m],
+                "dut_abc_deg": [float(v) for v in self.dut_abc_deg]}
 
 
 @dataclass(frozen=True)

@@ -7,10 +7,16 @@ operations, archive, pipeline, store, outbox) then
 
 1. runs a calibration campaign (the zero point, stacks of calibration bodies, torque points with the test adapter);
    the simulated operator mounts each load when the daemon asks for it and confirms;
-2. measures a DuT in line: the paper's ReFEx wing-box segment (net 107.3 kg by crane scale; on a 10.288 kg fixture).
+   — and the torsional points (calibration bodies on a bracket off the flange axis, in every pose of the CoG
+   scheme) that calibrate A3..A6 for torque;
+2. measures a DuT in line in a mass-properties run: a ReFEx-like wing box (107.3 kg, its CoG off the flange axis;
+   on a 10.288 kg fixture), first its mass (10 loops in the measurement pose), then its centre of gravity in the
+   CoG poses of the ``paper`` scheme (the ``full`` scheme's eight poses would take four times the robot time in the
+   campaign and the run, see README "Centre of gravity").
 
-It prints true vs measured mass, the expanded uncertainty U (k = 2), and timings: robot time (what the robot needs:
-motion, settling, recording — converted to real time) and daemon overhead (pulling, archiving, computing).
+It prints true vs measured mass and CoG with the expanded uncertainty U (k = 2), and timings: robot time (what the
+robot needs: motion, settling, recording — converted to real time) and daemon overhead (pulling, archiving,
+computing).
 
 Progress goes to stderr: on a terminal as two bars (the campaign's points × loops, the measurement's loops with their
 estimated time left) under the operator prompts, alarms and results; elsewhere as one plain line per event.
@@ -31,15 +37,19 @@ from types import TracebackType
 from typing import TYPE_CHECKING, Any, Protocol
 from urllib.parse import urlsplit
 
+from rgse_daemon import kinematics as kin
 from rgse_daemon.app import Daemon
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.krl.render import globals_dat_text
-from rgse_daemon.procedures.calibration import table1_points
+from rgse_daemon.pipeline.cog import cog_poses
+from rgse_daemon.procedures.calibration import table1_points, torsional_points
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.properties import PropertiesSettings
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.progress import new_progress, running, terminal_console
-from simulators.krc4.physics import campaign_point_payload, dut_payload
+from simulators.krc4 import physics as ph
+from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.process import SimProcess
 
 if TYPE_CHECKING:
@@ -53,16 +63,26 @@ SEED = 2024
 #: Simulated seconds per wall second: a ~20 simulated minutes campaign + run in well under two minutes.
 TIME_SCALE = 200.0
 #: The paper's in-line run (Table 2): ReFEx wing-box segment on its fixture.
-DUT_MASS_KG = 107.3
-FIXTURE_MASS_KG = 10.288
-DUT_COG_M = (0.0, 0.04, 0.30)
-#: A shortened Table 1 campaign: zero, seven stacks, the three torque-based points. Every point is a new mounting
-#: with its own offsets (Table 1's scatter): more points, fewer loops each, give the
-#: calibration's reproducibility and curve more to rest on than more loops of the same mounting.
-CAMPAIGN = table1_points(n_bodies=(0, 1, 2, 3, 5, 7, 8, 10), torque_levers_a5_m=(0.761, 1.011, 1.261))
-CAMPAIGN_LOOPS = 3
+DUT = ph.refex_wing_box()
+DUT_MASS_KG = DUT.mass_kg
+FIXTURE_MASS_KG = ph.FIXTURE_MASS_KG
+#: The CoG poses of the demo's properties run (and of its torsional calibration points).
+COG_SCHEME = "paper"
+#: Loads on the torsional bracket (bodies, their CoG in the flange frame, m): two to six bodies at both signs of x
+#: and y, so that the A3..A6 payload torques span the wing box's in both poses.
+TORSIONAL_LOADS = ((2, (0.10, 0.0, 0.30)), (4, (-0.10, 0.05, 0.40)), (4, (0.05, 0.10, 0.40)),
+                   (6, (0.10, -0.05, 0.45)))
+#: A shortened Table 1 campaign: zero, seven stacks, the three torque-based points; then the bare MPA and four loads
+#: on the torsional bracket in every CoG pose. Every point is a new mounting with its own offsets (Table 1's
+#: scatter): more points, fewer loops each, give the calibration's reproducibility and curve more to rest on than
+#: more loops of the same mounting.
+CAMPAIGN = [*table1_points(n_bodies=(0, 1, 2, 3, 5, 7, 8, 10), torque_levers_a5_m=(0.761, 1.011, 1.261)),
+            *torsional_points(COG_SCHEME, TORSIONAL_LOADS)]
+CAMPAIGN_LOOPS = 2
 SETTLE_S = 4.0
 MEASUREMENT_LOOPS = 10
+#: Loops in each CoG pose of the properties run (after its MEASUREMENT_LOOPS mass loops).
+PROPERTIES_LOOPS_PER_POSE = 2
 DEADLINE_S = 600.0
 
 
@@ -171,10 +191,11 @@ class BarsView:
             self.note(f"  [{ev.kind}] {ev.message}", style="bold red" if ev.kind == "alarm" else None)
         if ev.kind not in ("step", "loop") or ev.loop_index is None or ev.loop_count is None:
             return
-        if "point_index" in ev.data:  # a campaign loop: point i's loop j is loop i·n + j of the campaign
+        if "point_index" in ev.data:  # a campaign loop (a torsional point has loops in every CoG pose)
             if ev.kind == "loop":
-                self.progress.update(self.campaign, completed=ev.data["point_index"] * ev.loop_count + ev.loop_index,
-                                     refresh=True)
+                self.progress.advance(self.campaign)
+            return
+        if ev.data.get("phase") == "cog":  # the CoG poses: their lines say where the run is
             return
         self.progress.start_task(self.measurement)  # its first loop began (a no-op after that)
         if ev.kind == "loop":
@@ -187,8 +208,14 @@ def demo_view(*, quiet: bool, bars: bool) -> View:
     """Bars if ``bars`` and stderr is an interactive terminal; else plain lines, or nothing if ``quiet``."""
     console = terminal_console() if bars else None
     if console is not None:
-        return BarsView(console, len(CAMPAIGN) * CAMPAIGN_LOOPS, MEASUREMENT_LOOPS)
+        return BarsView(console, campaign_loops(), MEASUREMENT_LOOPS)
     return SilentView() if quiet else PlainView()
+
+
+def campaign_loops() -> int:
+    """The campaign's loops: ``CAMPAIGN_LOOPS`` per point, in every CoG pose for a torsional point."""
+    poses = len(cog_poses(kin.measurement_pose(), COG_SCHEME))
+    return sum(CAMPAIGN_LOOPS * (poses if p.kind == "torsional" else 1) for p in CAMPAIGN)
 
 
 class Operator:
@@ -252,12 +279,15 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
                     "the calibration campaign",
                 )
                 t_cal = time.monotonic() - t0
-                dut = dut_payload(DUT_MASS_KG, DUT_COG_M, fixture_mass_kg=FIXTURE_MASS_KG)
-                await sim.mount(dut)
-                view.note(f"in-line measurement: {MEASUREMENT_LOOPS} loops")
+                await sim.mount(DUT.payload())
+                view.note(f"in-line mass properties: {MEASUREMENT_LOOPS} mass loops, then the CoG poses "
+                          f"({COG_SCHEME}) x {PROPERTIES_LOOPS_PER_POSE} loops")
                 t0 = time.monotonic()
-                result = await _wait(await daemon.start_measurement(), "the measurement run")
+                result = await _wait(await daemon.start_properties(
+                    props=PropertiesSettings(COG_SCHEME, PROPERTIES_LOOPS_PER_POSE, ph.fixture_cog_flange_m(),
+                                             DUT.dut_origin_flange_m, DUT.dut_abc_deg)), "the properties run")
                 t_meas = time.monotonic() - t0
+                true_cog_m = _true_dut_cog_m(await sim.truth())
                 report_path = None
                 if report_dir is not None:
                     report_path = await _write_report(cfg, result["run_id"], report_dir)
@@ -294,10 +324,34 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
             "in_sample_mean_abs_err_pct": calibration["in_sample_mean_abs_err_pct"],
             "loo_mean_abs_err_pct": calibration["loo_mean_abs_err_pct"],
         },
+        # the CoG of the same run: flange frame with U (k = 2), the simulator's truth as mounted
+        "cog_m": result["cog_m"],
+        "U_cog_m": result["U_cog_m"],
+        "true_cog_m": true_cog_m,
+        "cog_error_mm": [1000.0 * (c - t) for c, t in zip(result["cog_m"], true_cog_m, strict=True)],
+        "cog_within_U": all(abs(c - t) <= u for c, t, u in zip(result["cog_m"], true_cog_m, result["U_cog_m"],
+                                                                strict=True)),
+        "cog_dut_m": result["cog_dut_m"],
+        "U_cog_dut_m": result["U_cog_dut_m"],
+        "cog_scheme": COG_SCHEME,
+        "mass_robot_time_s": float(timing["mass_robot_time_s"]) * TIME_SCALE,
+        "cog_robot_time_s": float(timing["cog_robot_time_s"]) * TIME_SCALE,
         "wall_s": {"calibration": t_cal, "measurement": t_meas, "total": time.monotonic() - t_start},
         "warnings": result.get("warnings", []),
         "report": str(report_path) if report_path is not None else None,
     }
+
+
+def _true_dut_cog_m(truth: Any) -> list[float]:
+    """The DuT's CoG as the simulator mounted it (its mounting's shift included), flange frame (m): everything on
+    the flange minus MPA and fixture."""
+    if truth is None:
+        raise RgseError("demo: the simulator recorded no trace, so it has no truth to compare with")
+    total = [truth.payload_mass_kg * c for c in truth.payload_cog_flange_m]
+    mpa = ph.mpa()
+    fixture_cog = ph.fixture_cog_flange_m()
+    return [(t - mpa.mass_kg * m - FIXTURE_MASS_KG * f) / DUT_MASS_KG
+            for t, m, f in zip(total, mpa.cog_flange_m, fixture_cog, strict=True)]
 
 
 async def _write_report(cfg: Config, run_id: str, out: Path) -> Path:
@@ -318,10 +372,18 @@ def run(args: argparse.Namespace) -> int:
     print(f"true mass      {summary['true_mass_kg']:9.3f} kg")
     print(f"measured mass  {summary['mass_kg']:9.3f} kg ± {summary['U_kg']:.3f} kg (U, k = 2)   "
           f"error {summary['error_kg']:+.3f} kg  {'within' if summary['within_U'] else 'OUTSIDE'} U")
-    print(f"{summary['loops']} loops: robot time {summary['robot_time_s'] / 60:.1f} min (real-time equivalent), "
+    mm = [1000.0 * v for v in summary["cog_m"]]
+    umm = [1000.0 * v for v in summary["U_cog_m"]]
+    tmm = [1000.0 * v for v in summary["true_cog_m"]]
+    print(f"true CoG       x {tmm[0]:7.2f}, y {tmm[1]:7.2f}, z {tmm[2]:7.2f} mm (flange frame)")
+    print(f"measured CoG   x {mm[0]:7.2f} ± {umm[0]:.2f}, y {mm[1]:7.2f} ± {umm[1]:.2f}, z {mm[2]:7.2f} ± {umm[2]:.2f}"
+          f" mm (U, k = 2; {summary['cog_scheme']} scheme)   {'within' if summary['cog_within_U'] else 'OUTSIDE'} U")
+    print(f"{summary['loops']} mass loops and the CoG poses: robot time {summary['robot_time_s'] / 60:.1f} min "
+          f"(mass {summary['mass_robot_time_s'] / 60:.1f}, CoG {summary['cog_robot_time_s'] / 60:.1f}; real-time "
+          f"equivalent), "
           f"daemon overhead {summary['overhead_s']:.2f} s ({summary['overhead_pct_of_robot_time']:.2f} %)")
     w = summary["wall_s"]
-    print(f"wall time: campaign {w['calibration']:.1f} s, measurement {w['measurement']:.1f} s, "
+    print(f"wall time: campaign {w['calibration']:.1f} s, mass properties {w['measurement']:.1f} s, "
           f"total {w['total']:.1f} s (simulator at {summary['time_scale']:g}x)")
     if summary["report"] is not None:
         print(f"report: {summary['report']}")

@@ -1,7 +1,9 @@
-"""``rgse run measure|calibrate --config FILE [...]``: start a run on the running daemon and follow it to its
-result, for shell scripts (on :mod:`rgse_daemon.client`).
+"""``rgse run measure|properties|calibrate --config FILE [...]``: start a run on the running daemon and follow it to
+its result, for shell scripts (on :mod:`rgse_daemon.client`).
 
 ``rgse run measure --config FILE [--loops N] [--fixture-mass KG] [--dry-run]``
+``rgse run properties --config FILE [--loops N] [--loops-per-pose N] [--scheme paper|full] [--fixture-mass KG]
+[--fixture-cog X Y Z [--dut-origin X Y Z] [--dut-abc A B C]] [--dry-run]``
 ``rgse run calibrate --config FILE [--points FILE.toml] [--method M]``
 common: ``[--on-prompt stdin|wait] [--timeout S] [--report DIR] [--json]``
 
@@ -27,6 +29,7 @@ import sys
 from collections.abc import Awaitable, Callable
 
 from rgse_daemon.client import (
+    FixtureFrame,
     Prompt,
     Refused,
     RgseClient,
@@ -116,6 +119,13 @@ async def follow(rgse: RgseClient, run: Run, args: argparse.Namespace, timeout_s
     assert result is not None
     if args.json:
         print(json.dumps(result.raw))
+    elif run.kind == "properties":
+        r = result.raw
+        mm = [1000.0 * v for v in r["cog_m"]]
+        umm = [1000.0 * v for v in r["U_cog_m"]]
+        print(f"run {run.run_id}: mass {r.get('mass_kg', float('nan')):.3f} kg, U {r.get('U_kg', float('nan')):.3f} kg;"
+              f" CoG (flange) x {mm[0]:.2f} ± {umm[0]:.2f}, y {mm[1]:.2f} ± {umm[1]:.2f}, z {mm[2]:.2f} ± "
+              f"{umm[2]:.2f} mm (k = {r.get('k', 2)})")
     elif run.kind == "measurement":
         r = result.raw
         print(f"run {run.run_id}: mass {r.get('mass_kg', float('nan')):.3f} kg, U {r.get('U_kg', float('nan')):.3f}"
@@ -136,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if not (math.isfinite(timeout_s) and timeout_s > 0):
         raise ConfigError(f"--timeout {args.timeout!r}: must be a finite number of seconds > 0")
     points = load_points(args.points) if getattr(args, "points", None) is not None else None
+    fixture = _fixture(args)
     rgse = RgseClient.from_config(args.config)
 
     async def main() -> int:
@@ -144,6 +155,10 @@ def run(args: argparse.Namespace) -> int:
                 if args.run_kind == "measure":
                     run_ = await rgse.measure(loops=args.loops, fixture_mass_kg=args.fixture_mass,
                                               dry_run=args.dry_run)
+                elif args.run_kind == "properties":
+                    run_ = await rgse.properties(loops=args.loops, loops_per_pose=args.loops_per_pose,
+                                                 scheme=args.scheme, fixture_mass_kg=args.fixture_mass,
+                                                 fixture=fixture, dry_run=args.dry_run)
                 else:
                     run_ = await rgse.calibrate(points, method=args.method)
             except Refused as exc:
@@ -164,6 +179,21 @@ def run(args: argparse.Namespace) -> int:
                 raise
 
     return run_operator("run", args, main)
+
+
+def _fixture(args: argparse.Namespace) -> FixtureFrame | None:
+    """The command line's fixture frame (``--fixture-cog``, ``--dut-origin``, ``--dut-abc``), None without it."""
+    cog = getattr(args, "fixture_cog", None)
+    origin, abc = getattr(args, "dut_origin", None), getattr(args, "dut_abc", None)
+    if cog is None:
+        if origin is not None or abc is not None:
+            raise ConfigError("--dut-origin/--dut-abc need --fixture-cog: the command's fixture frame replaces the "
+                              "configured one as a whole")
+        return None
+    for name, values in (("--fixture-cog", cog), ("--dut-origin", origin), ("--dut-abc", abc)):
+        if values is not None and not all(math.isfinite(v) for v in values):
+            raise ConfigError(f"{name} {values}: three finite numbers")
+    return FixtureFrame(tuple(cog), tuple(origin or (0.0, 0.0, 0.0)), tuple(abc or (0.0, 0.0, 0.0)))
 
 
 async def _abort(run_: Run, reason: str) -> None:

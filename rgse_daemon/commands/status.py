@@ -25,11 +25,20 @@ def _short(value: Any) -> str:
     return text if len(text) <= WIDTH else text[: WIDTH - 1] + "…"
 
 
+def _xyz(value: Any) -> bool:
+    return isinstance(value, list) and len(value) == 3 and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+
+
 def _result_line(result: Any) -> str:
     if isinstance(result, dict) and isinstance(result.get("mass_kg"), int | float):
         line = f"mass {result['mass_kg']:.3f} kg"
         if isinstance(result.get("U_kg"), int | float):
             line += f", U {result['U_kg']:.3f} kg (k = {result.get('k', '?')})"
+        cog, u_cog = result.get("cog_m"), result.get("U_cog_m")
+        if _xyz(cog) and _xyz(u_cog):  # a properties run: the CoG in the flange frame with its U
+            line += "; CoG (flange) " + ", ".join(f"{a} {1000 * c:.2f} ± {1000 * u:.2f}"
+                                                  for a, c, u in zip("xyz", cog, u_cog, strict=True)) + " mm"
         return line
     if isinstance(result, dict) and result.get("calibration_id"):
         line = f"calibration {result['calibration_id']}"

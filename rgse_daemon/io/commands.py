@@ -10,6 +10,8 @@ can still be answered.
 Verbs and fields (units in the names):
 
 ``measure``    ``{request_id, loops?, fixture_mass_kg?, dry_run?, token?}``
+``properties`` ``{request_id, loops?, loops_per_pose?, scheme?, fixture_mass_kg?, fixture?, dry_run?, token?}``:
+               mass, then the CoG poses; ``fixture`` = ``{cog_flange_m, dut_origin_flange_m?, dut_abc_deg?}``
 ``calibrate``  ``{request_id, points?, method?, token?}``; a point is a manifest ``[[point]]`` without traces
 ``abort``      ``{request_id, run_id?, reason, token?}``
 ``confirm``    ``{request_id, run_id, point?, token?}``: the operator confirms the load of a campaign point
@@ -84,6 +86,39 @@ class MeasureCommand(_Command):
     """Check the plan and the interlock, render and check the KRL, but move nothing."""
 
 
+Coordinate = Annotated[float, Field(ge=-3.0, le=3.0)]
+Angle = Annotated[float, Field(ge=-360.0, le=360.0)]
+
+
+class FixtureFrameSpec(BaseModel):
+    """The fixture and the DuT's frame of a properties run (replaces ``[properties.fixture]`` of the config)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+    cog_flange_m: tuple[Coordinate, Coordinate, Coordinate]
+    """The fixture's CoG in the flange frame (m)."""
+    dut_origin_flange_m: tuple[Coordinate, Coordinate, Coordinate] = (0.0, 0.0, 0.0)
+    """The DuT frame's origin in the flange frame (m)."""
+    dut_abc_deg: tuple[Angle, Angle, Angle] = (0.0, 0.0, 0.0)
+    """The DuT frame's KUKA A, B, C (Z-Y-X, deg) in the flange frame."""
+
+
+class PropertiesCommand(_Command):
+    """Start a mass-properties run of the mounted DuT: its mass, then its centre of gravity in the CoG poses."""
+
+    VERB: ClassVar[str] = "properties"
+    loops: int | None = Field(None, ge=1, le=100)
+    """Mass loops in the measurement pose; ``None``: ``measurement.loops``."""
+    loops_per_pose: int | None = Field(None, ge=1, le=20)
+    """Loops in each CoG pose; ``None``: ``properties.loops_per_pose``."""
+    scheme: Literal["paper", "full"] | None = None
+    """The CoG poses; ``None``: ``properties.scheme``."""
+    fixture_mass_kg: float | None = Field(None, ge=0.0, le=500.0)
+    fixture: FixtureFrameSpec | None = None
+    """``None``: ``properties.fixture`` of the config."""
+    dry_run: bool = False
+
+
 class CalibrationPoint(BaseModel):
     """One load configuration of a calibration campaign (interfaces §2 ``[[point]]``, without the traces)."""
 
@@ -124,11 +159,12 @@ class ConfirmCommand(_Command):
     """The operator's note, recorded with the confirmation (e.g. 'bodies 1-3 mounted, bolts torqued')."""
 
 
-Command = MeasureCommand | CalibrateCommand | AbortCommand | ConfirmCommand
+Command = MeasureCommand | PropertiesCommand | CalibrateCommand | AbortCommand | ConfirmCommand
 
 #: The verbs accepted on ``<prefix>/cmd/<verb>`` and their schemas.
 COMMANDS: dict[str, type[_Command]] = {
     "measure": MeasureCommand,
+    "properties": PropertiesCommand,
     "calibrate": CalibrateCommand,
     "abort": AbortCommand,
     "confirm": ConfirmCommand,

@@ -24,7 +24,8 @@ back, and none of that may lose a measurement result, block a procedure or execu
   at most ``state_rate_hz``; a snapshot replaced before it was sent counts in ``dropped_state``. Alarms, command
   replies and progress wait in one bounded queue (``queue_size``); overflow counts in ``dropped_messages``.
   Progress (QoS 0) published while disconnected is dropped and counted (``dropped_progress``): stale progress
-  is noise. Alarms and replies queued during an outage are sent after the reconnect.
+  is noise. Alarms and replies queued during an outage are sent after the reconnect. The operator prompt
+  (``prompt``) is retained with QoS 1: a console or client that reconnects during a prompt finds it.
 * **Commands** arrive on ``<prefix>/cmd/<verb>`` (QoS 1) and are validated by :mod:`rgse_daemon.io.commands`.
   Malformed, unauthorised, schema-violating and unknown-verb commands are refused WITHOUT EFFECT: a reply
   ``{request_id, ok: false, error}`` on ``<prefix>/cmd/<verb>/reply`` and an ``alarm``. Valid ones call the
@@ -42,6 +43,7 @@ Public API::
     bridge.publish_state({...})                         # non-blocking; rate-limited, keep-latest
     bridge.publish_progress(run_id, {...})              # non-blocking; QoS 0
     bridge.publish_alarm({"kind": ..., "message": ...}) # non-blocking; QoS 1
+    bridge.publish_prompt({...} | None)                 # non-blocking; QoS 1, retained
     await store.record_result(run_id, result, hashes, publish=bridge.result_message(run_id)); bridge.notify_outbox()
     bridge.counters, bridge.connection_state, bridge.topics
 """
@@ -75,6 +77,7 @@ from rgse_daemon.io.commands import (
     CommandRefused,
     ConfirmCommand,
     MeasureCommand,
+    PropertiesCommand,
     parse_command,
 )
 from rgse_daemon.io.topics import FORBIDDEN_IN_LEVEL, MqttError, Topics
@@ -142,6 +145,8 @@ class CommandHandler(Protocol):
     """
 
     async def measure(self, cmd: MeasureCommand) -> dict[str, Any]: ...
+
+    async def properties(self, cmd: PropertiesCommand) -> dict[str, Any]: ...
 
     async def calibrate(self, cmd: CalibrateCommand) -> dict[str, Any]: ...
 
@@ -391,6 +396,14 @@ class MqttBridge:
         if not isinstance(alarm, dict):
             raise MqttError(f"alarm: a dict expected, got {type(alarm).__name__}")
         self._enqueue(_Out(self.topics.alarm, _dumps({"time": _now(), **alarm}, "alarm"), qos=1))
+
+    def publish_prompt(self, prompt: dict[str, Any] | None, run_id: str | None = None) -> None:
+        """The operator prompt a run waits for (the ``confirm`` event), retained with QoS 1 on ``<prefix>/prompt``
+        and queued across outages, so that a console or client that (re)connects finds it; ``None``: no prompt is
+        pending any more (answered, or the run of ``run_id`` ended) — retained ``{"pending": false}``."""
+        doc = ({"pending": True, **prompt} if prompt is not None
+               else {"pending": False, "run_id": run_id, "time": _now()})
+        self._enqueue(_Out(self.topics.prompt, _dumps(doc, "prompt"), qos=1, retain=True))
 
     def notify_outbox(self) -> None:
         """A row was added to the outbox: publish it now rather than at the next sweep."""

@@ -47,6 +47,12 @@ class Topics:
         return f"{self.prefix}/alarm"
 
     @property
+    def prompt(self) -> str:
+        """The operator prompt a run waits for (retained, QoS 1): a console or client that connects (again) finds
+        it; ``{"pending": false}`` once it is answered or the run ended."""
+        return f"{self.prefix}/prompt"
+
+    @property
     def commands(self) -> str:
         """The subscription: every verb, one level (so ``cmd/<verb>/reply`` is not ours to read)."""
         return f"{self.prefix}/cmd/+"

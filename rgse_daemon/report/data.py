@@ -32,9 +32,10 @@ from typing import Any
 import numpy as np
 
 from rgse_daemon import __version__, calfile
+from rgse_daemon.analysis import cog as cog_analysis
 from rgse_daemon.analysis import reference as ref
 from rgse_daemon.errors import DataError, RgseError
-from rgse_daemon.manifest import Loop, read_loop
+from rgse_daemon.manifest import TORSIONAL_KIND, Loop, read_loop
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline.calibration import Calibration, CalibrationPoints
@@ -57,6 +58,11 @@ REL_TOL = 1e-9
 
 #: ECSS-E-10-03C mass accuracy requirement, relative (±0.05 %).
 ECSS_MASS_REL = 0.0005
+
+#: ECSS-E-10-03C centre-of-gravity accuracy (m): along the launch axis (the DuT frame's z) and across it (x, y).
+ECSS_COG_ALONG_M = 0.0025
+ECSS_COG_ACROSS_M = 0.001
+ECSS_COG_LIMITS_M = (ECSS_COG_ACROSS_M, ECSS_COG_ACROSS_M, ECSS_COG_ALONG_M)
 
 #: Coverage factor of the error corridors drawn from a parameter covariance.
 BAND_K = 2.0
@@ -140,6 +146,8 @@ class MeasurementView:
     """Normalised double averages of the run (eq. 16 minus M_0): the calibration's working point."""
     checks: list[str]
     events: list[Any]
+    cog: dict[str, Any] | None = None
+    """A properties run: its CoG result (``analysis.cog.CogResult.to_json``), recomputed and checked."""
 
 
 @dataclass(frozen=True)
@@ -259,7 +267,9 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     if rec.run_id is None:
         return CalibrationView(rec, doc, cal, cfg, None, [], [], checks)
     run = repo.get_run(rec.run_id)
-    specs = repo.points(run.id)
+    # the torsional points (CoG, measured in several poses) are not mass points: the mass calibration ignores them
+    # (as analysis.calibration does), and so does this recomputation; CAL.json's torsional section is shown as stored
+    specs = [p for p in repo.points(run.id) if p.spec.get("kind") != TORSIONAL_KIND]
     loops = repo.loops(run.id)
     files = repo.trace_files(run.id)
     if not specs:
@@ -336,18 +346,34 @@ def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> Measureme
     loop_shas = {f.sha256 for f in files if f.loop_index is not None}
     if not loop_shas <= stored_inputs:
         raise ReportConsistencyError(f"run {run_id} result {result.id}: loop trace files not among its inputs")
+    all_loops = loops
+    if isinstance(res.get("mass_traces"), list):  # a properties run: the mass loops, then the CoG poses' loops
+        loops = [lp for lp in loops if lp.trace_name in res["mass_traces"]]
+        if len(loops) != len(res["mass_traces"]):
+            raise ReportConsistencyError(f"run {run_id} result {result.id}: mass loops {res['mass_traces']} are not "
+                                         f"all recorded")
     raw: list[Loop] = [read_loop(_loop_directory(root, lp, files), lp.trace_name) for lp in loops]
     fixture = float(res.get("fixture_mass_kg", 0.0))
     bias3, bias5 = float(doc["bias_nm"]["A3"]), float(doc["bias_nm"]["A5"])
+    # the campaign's thermal drift (CAL.json fit.thermal): every loop brought to the campaign's temperature, as
+    # pipeline.inline does when each loop recorded its A3/A5 motor temperatures
+    thermal = calfile.thermal(f"calibration {cal_id}", doc)
+    temps = [(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in raw]
+    if thermal is None or not all(t is not None for pair in temps for t in pair):
+        thermal = None
     views, t3, t5, used, total = [], [], [], 0, 0
-    for lp, loop in zip(loops, raw, strict=True):
+    for j, (lp, loop) in enumerate(zip(loops, raw, strict=True)):
         a3 = axis_processing(loop.torque_a3_nm, loop.period_s, cfg)
         a5 = axis_processing(loop.torque_a5_nm, loop.period_s, cfg)
-        t3.append(a3.loop_mean_nm)
-        t5.append(a5.loop_mean_nm)
+        if thermal is None:
+            t3.append(a3.loop_mean_nm)
+            t5.append(a5.loop_mean_nm)
+        else:
+            t3.append(float(thermal.correct_nm("A3", a3.loop_mean_nm, float(temps[j][0]))))
+            t5.append(float(thermal.correct_nm("A5", a5.loop_mean_nm, float(temps[j][1]))))
         used += min(a3.n_used, a5.n_used)
         total += a3.n_total
-        gross = float(cal.mass_kg(pp.normalise(a3.loop_mean_nm, bias3), pp.normalise(a5.loop_mean_nm, bias5)))
+        gross = float(cal.mass_kg(pp.normalise(t3[-1], bias3), pp.normalise(t5[-1], bias5)))
         views.append(LoopView(lp.index, lp, loop.period_s, a3, a5, gross))
     # eq. 16 over the loops of the normalised loop means, then eq. 21: exactly as the pipeline computes the mass
     w3 = pp.double_average_nm(pp.normalise(np.array(t3), bias3))
@@ -360,9 +386,58 @@ def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> Measureme
     for key, value in again.items():
         if key in res:
             _check(checks, f"result {key}", res[key], value)
+    cog = None
+    if isinstance(res.get("cog_poses"), list):
+        cog = _recompute_cog(root, run, all_loops, files, res, doc, checks)
     refs = ref.references(repo, run_id)
     return MeasurementView(run, result, results, views, files, calv, refs, w3, w5, checks,
-                           repo.events(run_id=run_id))
+                           repo.events(run_id=run_id), cog)
+
+
+def _recompute_cog(root: Path, run: RunRecord, loops: list[LoopRecord], files: list[TraceFileRecord],
+                   res: dict[str, Any], cal_doc: dict[str, Any], checks: list[str]) -> dict[str, Any]:
+    """The CoG of a properties run recomputed from its archived pose loops with :func:`analysis.cog.compute_cog`
+    (the fixture frame and the scheme's poses as the result states them, the mass as stored), checked against the
+    stored one; returns the stored CoG result (``cog``)."""
+    stored = res.get("cog")
+    if not isinstance(stored, dict):
+        raise DataError(f"run {run.id}: properties result without its 'cog' object")
+    by_trace = {lp.trace_name: lp for lp in loops}
+    setup = run.config.get("settings", {})
+    fixture = cog_analysis.FixtureFrame.from_json(
+        {"mass_kg": res.get("fixture_mass_kg", 0.0), **_fixture_of(run.config.get("properties", {}))},
+        f"run {run.id} properties fixture")
+    with tempfile.TemporaryDirectory(prefix="rgse-report-cog-") as tmp:
+        directory = Path(tmp)
+        poses = []
+        for pose in res["cog_poses"]:
+            for trace in pose["traces"]:
+                if trace not in by_trace:
+                    raise ReportConsistencyError(f"run {run.id}: CoG pose {pose['name']} loop {trace} not recorded")
+                _loop_directory(root, by_trace[trace], files)  # its files lie in one archive directory
+                for f in files:
+                    if f.loop_index == by_trace[trace].index:
+                        (directory / PurePosixPath(f.path).name).write_bytes((root / f.path).read_bytes())
+            poses.append((pose["name"], pose["q_deg"], pose["traces"]))
+        (directory / "manifest.toml").write_text(
+            f'[setup]\nrobot = "{run.robot}"\ng = {float(setup.get("g_m_s2", 9.81))!r}\n'
+            f'lever_difference_m = {float(setup.get("lever_difference_m", 0.0))!r}\n\n'
+            + cog_analysis.properties_manifest_toml(str(stored.get("scheme", "custom")), fixture, poses,
+                                                    mass_kg=float(res["mass_kg"]), u_mass_kg=float(res["u_kg"])),
+            encoding="utf-8")
+        cal_path = directory / "CAL.json"
+        cal_path.write_text(json.dumps(cal_doc), encoding="utf-8")
+        again = cog_analysis.compute_cog_dir(directory, cal_path).to_json()
+    for key in ("cog_flange_m", "U_cog_flange_m", "cog_dut_m", "U_cog_dut_m"):
+        for axis, (a, b) in enumerate(zip(stored[key], again[key], strict=True)):
+            _check(checks, f"result cog {key}[{axis}]", a, b)
+    return stored
+
+
+def _fixture_of(props: dict[str, Any]) -> dict[str, Any]:
+    return {"cog_flange_m": props.get("fixture_cog_flange_m") or [0.0, 0.0, 0.0],
+            "dut_origin_flange_m": props.get("dut_origin_flange_m", [0.0, 0.0, 0.0]),
+            "dut_abc_deg": props.get("dut_abc_deg", [0.0, 0.0, 0.0])}
 
 
 def meta(repo: Repository) -> ReportMeta:

@@ -14,11 +14,13 @@ import math
 from collections.abc import Iterable, Sequence
 from datetime import datetime
 from html import escape
+from typing import Any
 
 from rgse_daemon.analysis import reference as ref
 from rgse_daemon.report import plots
 from rgse_daemon.report.data import (
     BAND_K,
+    ECSS_COG_LIMITS_M,
     ECSS_MASS_REL,
     CalibrationView,
     MeasurementView,
@@ -343,6 +345,32 @@ def _loops_table(view: MeasurementView) -> str:
                   "robot start", "recording end"), rows, right=(0, 3, 4, 5, 6, 7))
 
 
+def _cog_section(cog: dict[str, Any]) -> str:
+    """The CoG table (flange and DuT frame, U with k = 2) beside the ECSS-E-10-03C accuracy, and its picture."""
+    rows = []
+    for i, axis in enumerate("xyz"):
+        lim = ECSS_COG_LIMITS_M[i]
+        u_dut = float(cog["U_cog_dut_m"][i])
+        rows.append((t(axis), num(1000 * float(cog["cog_flange_m"][i]), ".2f", f"cog_flange_mm.{axis}"),
+                     num(1000 * float(cog["U_cog_flange_m"][i]), ".2f", f"U_cog_flange_mm.{axis}"),
+                     num(1000 * float(cog["cog_dut_m"][i]), ".2f", f"cog_dut_mm.{axis}"),
+                     num(1000 * u_dut, ".2f", f"U_cog_dut_mm.{axis}"),
+                     t(f"±{1000 * lim:g} mm " + ("along" if axis == "z" else "across")),
+                     badge(u_dut <= lim, "met", "not met")))
+    out = table(("coordinate", "flange frame mm", "U mm (k = 2)", "DuT frame mm", "U mm (k = 2)",
+                 "ECSS-E-10-03C", "U within it"), rows, right=(1, 2, 3, 4), cls="cog")
+    out += kv([("scheme / poses", t(f"{cog.get('scheme')} / {cog.get('n_poses')}")),
+               ("DuT mass used", num(cog.get("mass_kg"), ".3f", "cog_mass_kg", "kg") + " ± "
+                + num(cog.get("U_mass_kg"), ".3f", "cog_U_mass_kg", "kg")),
+               ("reduced χ² of the fit", num((cog.get("budget") or {}).get("chi2_red"), ".2f", "cog_chi2_red"))])
+    out += ("<p>The launch axis is the DuT frame's z. The CoG is recomputed from the archived pose loops with the "
+            "stored calibration and found equal to the stored one.</p>")
+    for w in cog.get("warnings") or []:
+        out += f'<p class="warn">warning: {t(w)}</p>'
+    return '<div class="cog-figure">' + out + figure(plots.cog_in_dut_frame(cog), "the CoG in the DuT frame with U "
+                                                     "and the ECSS accuracy", "cog_in_dut_frame") + "</div>"
+
+
 def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
     run = view.run
     n_checks = len(view.checks) + len(view.calibration.checks)
@@ -352,6 +380,7 @@ def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
         "<h2>Result</h2>", _result_summary(view),
         "<h2>Mass against ECSS-E-10-03C and the crane scale</h2>",
         figure(plots.mass_vs_ecss(view), "net mass with U against the ECSS band and the crane scale", "mass_vs_ecss"),
+        *(["<h2>Centre of gravity</h2>", _cog_section(view.cog)] if view.cog is not None else []),
         "<h2>Reference measurement (Table 2)</h2>", _reference_section(view),
         "<h2>Loop by loop</h2>", _loops_table(view),
         figure(plots.loop_masses(view), "net mass of each loop", "loop_masses"),

@@ -7,6 +7,7 @@ Figure numbers refer to Kottmeier et al. 2024.
 from __future__ import annotations
 
 import io
+import textwrap
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -14,6 +15,7 @@ from matplotlib.figure import Figure
 
 from rgse_daemon.report.data import (
     BAND_K,
+    ECSS_COG_LIMITS_M,
     ECSS_MASS_REL,
     AxisProcessing,
     CalibrationView,
@@ -124,12 +126,52 @@ def mass_vs_ecss(view: MeasurementView) -> bytes:
     return _png(fig)
 
 
+def cog_in_dut_frame(cog: dict) -> bytes:
+    """The CoG in the DuT's frame (mm): across the launch axis (x-y, with U as a rectangle) and along it (z), each
+    with the ECSS-E-10-03C accuracy (±1 mm across, ±2.5 mm along) drawn about the measured point for comparison."""
+    c = 1000.0 * np.asarray(cog["cog_dut_m"], dtype=float)
+    u = 1000.0 * np.asarray(cog["U_cog_dut_m"], dtype=float)
+    lim = 1000.0 * np.asarray(ECSS_COG_LIMITS_M)
+    fig, axes = _new(10, 5.0, 1, 2)
+    ax = axes[0, 0]
+    ax.add_patch(_rect(c[0] - lim[0], c[1] - lim[1], 2 * lim[0], 2 * lim[1], "#2ca02c", 0.25,
+                       f"ECSS ± {lim[0]:g} mm across"))
+    ax.add_patch(_rect(c[0] - u[0], c[1] - u[1], 2 * u[0], 2 * u[1], "#1f77b4", 0.35, "± U (k = 2)"))
+    ax.plot([c[0]], [c[1]], "o", color="#d62728", label=f"CoG x {c[0]:.2f}, y {c[1]:.2f} mm")
+    half = 1.6 * max(lim[0], u[0], u[1])  # zoomed to the CoG: U and the ECSS box must be readable
+    ax.set_xlim(c[0] - half, c[0] + half)
+    ax.set_ylim(c[1] - half, c[1] + half)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm, DuT frame)")
+    ax.set_ylabel("y (mm, DuT frame)")
+    ax.set_title("across the launch axis", fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=3)
+    ax = axes[0, 1]
+    ax.axhspan(c[2] - lim[2], c[2] + lim[2], color="#2ca02c", alpha=0.25, label=f"ECSS ± {lim[2]:g} mm along")
+    ax.errorbar([0], [c[2]], yerr=[[u[2]], [u[2]]], fmt="o", color="#d62728", capsize=8,
+                label=f"CoG z {c[2]:.2f} ± {u[2]:.2f} mm (k = 2)")
+    ax.set_xticks([])
+    ax.set_xlim(-1, 1)
+    ax.set_ylabel("z (mm, DuT frame: the launch axis)")
+    ax.set_title("along the launch axis", fontsize=9)
+    ax.grid(axis="y", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.04), ncol=1)
+    return _png(fig)
+
+
+def _rect(x: float, y: float, w: float, h: float, color: str, alpha: float, label: str):
+    from matplotlib.patches import Rectangle
+
+    return Rectangle((x, y), w, h, color=color, alpha=alpha, label=label)
+
+
 # ------------------------------------------------------------------------------------------------------------
 # calibration: Fig. 25 (curves), Fig. 27 (K fits with corridor), Fig. 28 (results and error corridor)
 # ------------------------------------------------------------------------------------------------------------
 def calibration_curves(calv: CalibrationView) -> bytes:
     cal = calv.calibration
-    fig, axes = _new(10, 4.2, 1, 2)
+    fig, axes = _new(10, 5.0, 1, 2)
     for ax, name, k_axis in ((axes[0, 0], "A3", cal.k_a3), (axes[0, 1], "A5", cal.k_a5)):
         meas = np.array([getattr(p, f"measured_{name.lower()}_nm") for p in calv.points])
         exp = np.array([getattr(p, f"expected_{name.lower()}_nm") for p in calv.points])
@@ -139,7 +181,7 @@ def calibration_curves(calv: CalibrationView) -> bytes:
         sign = 1.0 if float(np.sum(meas)) >= 0 else -1.0
         grid = sign * np.linspace(0, float(np.max(np.abs(meas))) * 1.05, 200)
         ax.plot(np.abs(k_axis.corrected_torque_nm(grid)), np.abs(grid), color="#d62728", lw=1.2,
-                label=f"calibration K(M)·M ({cal.method})")
+                label="calibration K(M)·M")
         for kind in sorted(set(kinds)):
             sel = np.array([k == kind for k in kinds])
             color, marker = _KIND_STYLE.get(kind, ("#000000", "x"))
@@ -149,6 +191,8 @@ def calibration_curves(calv: CalibrationView) -> bytes:
         ax.set_title(f"{name}", fontsize=10)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, loc="upper left")
+    # an averaged method names every member model; wrapped above the axes so that it never squeezes them
+    fig.suptitle("\n".join(textwrap.wrap(f"method: {cal.method}", 110)), fontsize=8)
     return _png(fig)
 
 
@@ -156,7 +200,7 @@ def k_fits(calv: CalibrationView, working: tuple[float, float] | None = None) ->
     cal = calv.calibration
     cov = np.asarray(cal.covariance, float)
     n3 = len(cal.k_a3.params)
-    fig, axes = _new(10, 4.2, 1, 2)
+    fig, axes = _new(10, 5.0, 1, 2)
     for ax, name, k_axis, block, rng, w in (
         (axes[0, 0], "A3", cal.k_a3, cov[:n3, :n3], cal.torque_range_a3_nm, None if working is None else working[0]),
         (axes[0, 1], "A5", cal.k_a5, cov[n3:, n3:], cal.torque_range_a5_nm, None if working is None else working[1]),

@@ -235,7 +235,7 @@ class Console:
         for r in reversed(runs):
             results = await self._store.results(r.id)
             res = results[-1].result if results else None
-            kind = str(r.kind)
+            kind = "properties" if "properties" in r.config else str(r.kind)  # stored as a measurement run
             link = None
             if res is not None:
                 link = f"/report/calibration/{res['calibration_id']}" if kind == "calibration" and \

@@ -12,6 +12,7 @@ import pytest
 from rgse_daemon.krl.render import globals_dat_text
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.modbus_io import ModbusIoSim
+from tests.support.cogcal import fit_sim_cog_calibration
 from tests.support.daemon import fit_sim_calibration
 
 SIM_SEED = 7
@@ -42,3 +43,9 @@ async def modbus_sim() -> AsyncIterator[ModbusIoSim]:
 def calibration_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
     """CAL.json of the simulated robot, fitted once per session."""
     return fit_sim_calibration(tmp_path_factory.mktemp("sim-calibration"))
+
+
+@pytest.fixture(scope="session")
+def cog_calibration_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """CAL.json of the simulated robot with its torsional (CoG) section, paper scheme, fitted once per session."""
+    return fit_sim_cog_calibration(tmp_path_factory.mktemp("cog-calibration"), "paper")

@@ -149,3 +149,19 @@ async def test_run_calibrate_follows_prompts_answered_elsewhere(
     assert ran.rc == 0, ran.err
     assert ran.out.startswith("run ") and "calibration" in ran.out, ran.out
     assert ran.err.count("waiting for the operator's confirmation") == len(loads), ran.err
+
+
+async def test_run_properties_refused_without_a_cog_calibration_and_on_a_half_fixture_frame(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, calibration_doc: dict[str, Any],
+        tmp_path: Path) -> None:
+    cfg, config = setup(tmp_path, sim, private_broker, loops=1)
+    await seed_calibration(cfg, calibration_doc)  # mass only: no torsional section
+    async with running_daemon(cfg) as rd:
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        half = await rgse_run("properties", "--config", config, "--dut-origin", "0", "0", "0.04", close_stdin=True)
+        assert half.rc == 2 and "--fixture-cog" in half.err
+        ran = await rgse_run("properties", "--config", config, "--scheme", "paper", "--fixture-cog", "0", "0", "0.05",
+                             close_stdin=True)
+        assert ran.rc == 1 and ran.out == ""
+        assert "refused by the daemon" in ran.err and "no torsional section" in ran.err
+        assert not rd.daemon.run_active

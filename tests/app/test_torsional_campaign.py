@@ -16,6 +16,8 @@ from rgse_daemon.manifest import load_manifest
 from rgse_daemon.pipeline.cog import cog_poses
 from rgse_daemon.procedures.calibration import table1_points, torsional_points
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.report import build_report
+from rgse_daemon.store import Repository
 from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.daemon import Events, daemon_config, first_of, running_daemon
@@ -53,6 +55,11 @@ async def test_campaign_measures_torsional_points_in_every_pose(sim: SimulatedKr
     tors = calfile.torsional(doc)
     assert tors is not None and set(tors.poses) == {"meas", "A6+90"} and set(tors.gains) == {3, 4, 5, 6}
     assert doc["calibration_id"] == summary["calibration_id"]
+    # its report: the mass calibration recomputed from the archived mass points (the torsional ones left out, as
+    # the fit leaves them out) equals the stored one
+    with Repository.open(cfg.store.url, cfg.paths.data_dir) as repo:
+        page = build_report(repo, cfg.paths.data_dir, tmp_path / "report", calibration_id=summary["calibration_id"])
+    assert summary["calibration_id"] in page.read_text(encoding="utf-8")
 
 
 def _run_dir(data_dir: Path, run_id: str) -> Path:

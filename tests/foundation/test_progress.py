@@ -152,9 +152,15 @@ def test_demo_bars_follow_the_events() -> None:
 
     view.event(Event("step", "point 3/8: 3 CB", step="point", data={"point_index": 2}))
     view.event(Event("confirm", "mount 3 CB (point 3/8) and confirm", data={"point_index": 2}))
-    view.event(campaign_loop(2, 4))
+    # every finished campaign loop advances the bar by one (a torsional point has loops in every CoG pose, so the
+    # point index alone cannot say how far the campaign is); a step event moves nothing
+    for point, loop in [(p, lp) for p in range(2) for lp in range(1, 6)] + [(2, lp) for lp in range(1, 5)]:
+        view.event(campaign_loop(point, loop))
     assert campaign.completed == 14  # points 1 and 2 (5 loops each), then loop 4 of point 3
-    view.event(campaign_loop(7, 5))
+    view.event(Event("step", "point 4/8: 4 CB", step="point", data={"point_index": 3}))
+    assert campaign.completed == 14
+    for point, loop in [(2, 5)] + [(p, lp) for p in range(3, 8) for lp in range(1, 6)]:
+        view.event(campaign_loop(point, loop))
     assert campaign.completed == 40 and campaign.finished
 
     view.event(Event("step", "moving to the measurement pose", step="measurement-pose"))

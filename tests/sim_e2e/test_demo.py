@@ -43,11 +43,16 @@ def test_demo_json_agrees_with_truth_within_u(tmp_path: Path) -> None:
     # the campaign warmed the robot to a steady thermal state, so nothing was flagged
     assert out["warnings"] == []
     assert out["overhead_s"] > 0 and out["robot_time_s"] > out["overhead_s"]
-    # the HTML report of the run: every image it shows exists, and it names the run
+    # the asymmetric DuT's CoG from the same (properties) run (issue #14): flange frame, U (k = 2), the truth
+    for key in ("cog_m", "U_cog_m", "true_cog_m"):
+        assert len(out[key]) == 3 and all(isinstance(v, float) for v in out[key]), key
+    assert all(u > 0 for u in out["U_cog_m"])
+    assert out["cog_within_U"] is True, (out["cog_error_mm"], out["U_cog_m"])
+    # the HTML report of the run: every image it shows exists, it names the run and shows the CoG
     html_files = list(report_dir.glob("*.html"))
     assert len(html_files) == 1 and out["report"] == str(html_files[0])
     html = html_files[0].read_text(encoding="utf-8")
-    assert out["run_id"] in html
+    assert out["run_id"] in html and "Centre of gravity" in html
     images = re.findall(r'<img[^>]+src="([^"]+)"', html)
     assert images, "the report shows no plots"
     for src in images:

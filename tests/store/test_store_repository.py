@@ -331,3 +331,31 @@ def test_calibration_documents_are_checked_and_never_replaced(repo: Repository) 
         repo.add_calibration({**calibration_doc("cal-5"), "created_utc": "2024-05-01T12:00:00"})
     with pytest.raises(StoreError, match="cal-6: not storable as JSON"):
         repo.add_calibration({**calibration_doc("cal-6"), "bias_nm": {"A3": math.inf}})
+
+
+def test_a_properties_result_round_trips_exactly(repo: Repository) -> None:
+    """A mass-properties run (issue #14) is stored as a measurement run with ``properties`` in its configuration;
+    its result (CoG in two frames with U, the nested CoG result) comes back bit for bit, in the outbox too."""
+    props = {"scheme": "full", "loops_per_pose": 2, "fixture_cog_flange_m": [0.0, 0.0, 0.055],
+             "dut_origin_flange_m": [0.0, 0.0, 0.075], "dut_abc_deg": [90.0, 0.0, 0.0]}
+    run = repo.create_run(RunKind.MEASUREMENT, ROBOT, {"loops": 2, "properties": props}, run_id="props-1")
+    repo.set_run_state(run.id, RunState.RUNNING)
+    repo.add_loop(run.id, 0, "cog_l01")
+    h = _sha("pose file")
+    repo.add_trace_file(run.id, f"{run.directory}/cog_l01_NextGenDrive#6.r64", h, 1000, loop_index=0)
+    cog = {"cog_flange_m": [-0.04123456789012345, -0.028, 0.3450146454735719],
+           "U_cog_flange_m": [0.0007123, 0.00091, 0.0161], "cog_dut_m": [-0.028, 0.04123456789012345, 0.27],
+           "U_cog_dut_m": [0.00091, 0.0007123, 0.0161], "k": 2, "scheme": "full", "n_poses": 8,
+           "warnings": ["A5: payload torques outside what the torsional calibration covered"],
+           "budget": {"covariance_flange_m2": [[1e-7, 2e-9, 0.0], [2e-9, 2e-7, 0.0], [0.0, 0.0, 6e-5]],
+                      "chi2_red": 0.93}}
+    result = {**RESULT, "run_kind": "properties", "cog_m": cog["cog_flange_m"], "U_cog_m": cog["U_cog_flange_m"],
+              "cog_dut_m": cog["cog_dut_m"], "U_cog_dut_m": cog["U_cog_dut_m"], "cog": cog,
+              "mass_traces": ["dut_l01"], "cog_poses": [{"name": "meas", "q_deg": [0.0, -90.0, 90.0, 0.0, 0.0, 0.0],
+                                                          "traces": ["cog_l01"]}]}
+    topic = f"rgse/{ROBOT}/run/{run.id}/result"
+    repo.record_result(run.id, result, [h], publish=OutboxMessage(topic))
+    (stored,) = repo.results(run.id)
+    assert stored.result == result and repo.get_run(run.id).config["properties"] == props
+    (msg,) = repo.pending_outbox()
+    assert json.loads(msg.payload) == result

@@ -1,0 +1,298 @@
+"""The mass-properties run (issue #14) as a plan: the DuT's mass, then its centre of gravity, one step after the other.
+
+Steps, in this order (a further step, e.g. the inertia, goes after the CoG poses and before the computation)::
+
+    prepare      verify the controller (T1 …), push the trace configuration, warm up, measurement pose
+    mass         ``loops`` × (brake-release move → settle → trace of A3/A5 → pull, archive) — as the measurement run
+    cog poses    for every pose of the scheme (:func:`~rgse_daemon.pipeline.cog.cog_poses`): PTP to its approach
+                 (A4/A6 from below, as in the torsional calibration), PTP into it, ``loops_per_pose`` ×
+                 (brake-release move about the pose → settle → trace of the A3..A6 drives → pull, archive); back to
+                 the measurement pose
+    compute      write the properties run directory (``manifest.toml`` with ``[measurement]`` and ``[properties]``,
+                 the calibration as ``CAL.json``) and compute mass and CoG **by the same code as** ``rgse cog
+                 --traces DIR --calibration DIR/CAL.json`` (:func:`~rgse_daemon.analysis.cog.compute_cog_dir`)
+
+Every motion is a program pushed through the engine, so the interlock's static check sees it before a byte reaches
+the controller, and the runtime monitor watches it. The result is the measurement's result plus ``cog_m`` /
+``U_cog_m`` (flange frame, m, k = 2), ``cog_dut_m`` / ``U_cog_dut_m`` (the DuT's frame) and the whole CoG result
+under ``cog``. The run is stored as a measurement run (its config carries ``properties``); the daemon calls it a
+``properties`` run.
+
+::
+
+    result = await run_properties(engine, store, cfg)                                  # [properties] of cfg
+    result = await run_properties(engine, store, cfg, props=PropertiesSettings.from_config(cfg, scheme="paper"))
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable, Generator, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from rgse_daemon import calfile
+from rgse_daemon.analysis.cog import FixtureFrame, compute_cog_dir, properties_manifest_toml
+from rgse_daemon.config import Config
+from rgse_daemon.durable import write_atomic
+from rgse_daemon.errors import DataError
+from rgse_daemon.io.topics import Topics
+from rgse_daemon.pipeline.cog import SCHEMES, CogPose, cog_poses
+from rgse_daemon.procedures import documents as d
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.directory import setup_toml, traces_toml
+from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.loop import LoopOutcome, loop
+from rgse_daemon.procedures.measurement import CALIBRATION_FILE, timing_summary
+from rgse_daemon.procedures.preconditions import PreconditionError
+from rgse_daemon.procedures.programs import (
+    COG_TRACE_CONFIG_NAME,
+    COG_TRACE_MODULES,
+    axes_of,
+    program,
+    run_checked,
+    trace_config_xml,
+)
+from rgse_daemon.procedures.recorder import StoreRecorder
+from rgse_daemon.procedures.retrieval import TRACE_DIR
+from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.procedures.warmup import prepare
+from rgse_daemon.safety.inputs import SafetyInputs
+from rgse_daemon.store import RunKind, Store
+
+
+@dataclass(frozen=True)
+class PropertiesSettings:
+    """What a properties run adds to the measurement's :class:`RunSettings`: the CoG scheme, the loops in each pose
+    and the fixture frame (its mass is the run's ``fixture_mass_kg``)."""
+
+    scheme: str
+    loops_per_pose: int
+    fixture_cog_flange_m: tuple[float, float, float] | None
+    dut_origin_flange_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    dut_abc_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    @classmethod
+    def from_config(cls, cfg: Config, **overrides: Any) -> PropertiesSettings:
+        p = cfg.properties
+        base = cls(p.scheme, p.loops_per_pose, p.fixture.cog_flange_m, p.fixture.dut_origin_flange_m,
+                   p.fixture.dut_abc_deg)
+        return replace(base, **{k: v for k, v in overrides.items() if v is not None})
+
+    def fixture(self, fixture_mass_kg: float) -> FixtureFrame:
+        """The fixture frame; PreconditionError (naming the setting) when a fixture with mass has no CoG, or the
+        values are unusable."""
+        if self.scheme not in SCHEMES:
+            raise PreconditionError(f"properties scheme {self.scheme!r}: use one of {', '.join(SCHEMES)}")
+        if self.loops_per_pose < 1:
+            raise PreconditionError(f"properties loops_per_pose {self.loops_per_pose}: must be >= 1")
+        cog = self.fixture_cog_flange_m
+        if cog is None:
+            if fixture_mass_kg > 0:
+                raise PreconditionError(
+                    f"properties run: the fixture has {fixture_mass_kg:g} kg but no CoG: set properties.fixture."
+                    f"cog_flange_m (or the command's fixture.cog_flange_m), the fixture's CoG in the flange frame (m)")
+            cog = (0.0, 0.0, 0.0)
+        try:
+            return FixtureFrame(float(fixture_mass_kg), tuple(cog), tuple(self.dut_origin_flange_m),  # type: ignore[arg-type]
+                                tuple(self.dut_abc_deg))  # type: ignore[arg-type]
+        except DataError as exc:
+            raise PreconditionError(f"properties run: {exc}") from None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"scheme": self.scheme, "loops_per_pose": self.loops_per_pose,
+                "fixture_cog_flange_m": None if self.fixture_cog_flange_m is None else list(self.fixture_cog_flange_m),
+                "dut_origin_flange_m": list(self.dut_origin_flange_m), "dut_abc_deg": list(self.dut_abc_deg)}
+
+
+def pose_trace_name(tag: str, pose_number: int, loop_number: int) -> str:
+    """The trace of loop ``loop_number`` in the ``pose_number``-th CoG pose (1-based)."""
+    return f"cog_{tag}_p{pose_number:02d}_l{loop_number:02d}"
+
+
+def write_properties_dir(run_dir: Path, s: RunSettings, mass_traces: Sequence[str], scheme: str,
+                         fixture: FixtureFrame, poses: Sequence[tuple[CogPose, Sequence[str]]],
+                         cal_doc: dict[str, Any]) -> None:
+    """The properties run directory (interfaces §2): ``[setup]``, the mass loops as ``[measurement]``, the CoG
+    poses as ``[properties]`` (:func:`~rgse_daemon.analysis.cog.properties_manifest_toml`), and ``CAL.json``."""
+    run_dir.mkdir(parents=True, exist_ok=True)
+    lines = [*setup_toml(s), "[measurement]", f"fixture_mass_kg = {float(s.fixture_mass_kg)!r}",
+             traces_toml(mass_traces), ""]
+    text = "\n".join(lines) + "\n" + properties_manifest_toml(
+        scheme, fixture, [(p.name, p.q_deg, traces) for p, traces in poses])
+    write_atomic(run_dir / "manifest.toml", text)
+    write_atomic(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
+
+
+def compute_properties(run_dir: Path) -> dict[str, Any]:
+    """Mass and CoG of a properties run directory, as ``rgse mass`` and ``rgse cog`` compute them from its files."""
+    from rgse_daemon.procedures.measurement import compute_mass
+
+    cal = run_dir / CALIBRATION_FILE
+    mass = compute_mass(run_dir, cal)
+    cog = compute_cog_dir(run_dir, cal, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
+    c = cog.to_json()
+    return {**mass, "cog_m": c["cog_flange_m"], "U_cog_m": c["U_cog_flange_m"], "cog_dut_m": c["cog_dut_m"],
+            "U_cog_dut_m": c["U_cog_dut_m"], "cog": c, "warnings": [*mass.get("warnings", []), *cog.warnings]}
+
+
+def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, fixture: FixtureFrame,
+            poses: list[tuple[CogPose, list[str]]], cal_doc: dict[str, Any]) -> dict[str, Any]:
+    write_properties_dir(run_dir, s, mass_traces, scheme, fixture, poses, cal_doc)
+    return {**compute_properties(run_dir), "mass_traces": list(mass_traces),
+            "cog_poses": [{"name": p.name, "q_deg": list(p.q_deg), "traces": list(t)} for p, t in poses]}
+
+
+# --- the steps ----------------------------------------------------------------------------------------------------
+def mass_step(run: d.RunContext, s: RunSettings, tag: str,
+              first_index: int) -> Generator[m.Msg, Any, list[LoopOutcome]]:
+    """The mass loops in the measurement pose (as the measurement run's)."""
+    outcomes: list[LoopOutcome] = []
+    for i in range(1, s.loops + 1):
+        yield m.Checkpoint(f"mass loop {i}")
+        yield m.Emit(Event("step", f"mass loop {i}/{s.loops}", step="loop", loop_index=i, loop_count=s.loops,
+                           data={"phase": "mass"}))
+        out = yield from loop(first_index + i - 1, f"dut_{tag}_l{i:02d}", run, s)
+        outcomes.append(out)
+        per_loop_s = sum(o.timing.robot_s + o.timing.overhead_s for o in outcomes) / len(outcomes)
+        yield m.Emit(Event("loop", f"mass loop {i}/{s.loops} done", step="loop", loop_index=i, loop_count=s.loops,
+                           eta_s=per_loop_s * (s.loops - i), data={"phase": "mass", **out.timing.to_json()}))
+    return outcomes
+
+
+def move_to(pose: Sequence[float], s: RunSettings) -> Generator[m.Msg, Any, float]:
+    """PTP to ``pose`` with ``rgse_cal_pose`` (as the torsional calibration moves), rendered for the T1 limit from
+    the live axes; the engine's ``Push`` runs the interlock's static check first."""
+    snap = yield m.ReadState()
+    prog = yield m.Compute("render rgse_cal_pose", _pose_program, (s, axes_of(snap, s.meas_pose_deg), tuple(pose)),
+                           timeout_s=60.0)
+    return (yield from run_checked(prog, s)) or 0.0
+
+
+def _pose_program(s: RunSettings, start: tuple[float, ...], pose: tuple[float, ...]) -> Any:
+    return program("rgse_cal_pose", s, start, cal_pose_deg=pose)
+
+
+def cog_step(run: d.RunContext, s: RunSettings, p: PropertiesSettings, tag: str, first_index: int
+             ) -> Generator[m.Msg, Any, tuple[list[tuple[CogPose, list[str]]], list[LoopOutcome]]]:
+    """The CoG poses: every pose of the scheme, approached as :func:`cog_poses` prescribes, ``loops_per_pose``
+    loops each with the A3..A6 trace; then back to the measurement pose."""
+    yield m.PutFile(TRACE_DIR + COG_TRACE_CONFIG_NAME, trace_config_xml(s, COG_TRACE_MODULES).encode("utf-8"))
+    poses = cog_poses(s.meas_pose_deg, p.scheme)
+    index = first_index
+    measured: list[tuple[CogPose, list[str]]] = []
+    outcomes: list[LoopOutcome] = []
+    n = p.loops_per_pose
+    for k, pose in enumerate(poses, 1):
+        yield m.Checkpoint(f"CoG pose {pose.name}")
+        yield m.Emit(Event("step", f"CoG pose {k}/{len(poses)} ({pose.name})", step="pose",
+                           data={"phase": "cog", "pose": pose.name, "pose_index": k, "pose_count": len(poses),
+                                 "q_deg": list(pose.q_deg)}))
+        yield from move_to(pose.q_approach_deg, s)
+        yield from move_to(pose.q_deg, s)
+        at_pose = replace(s, meas_pose_deg=pose.q_deg)  # the brake-release move turns A3/A5 about this pose
+        traces = []
+        for j in range(1, n + 1):
+            yield m.Checkpoint(f"CoG pose {pose.name} loop {j}")
+            out = yield from loop(index, pose_trace_name(tag, k, j), run, at_pose, trace_config=COG_TRACE_CONFIG_NAME)
+            index += 1
+            outcomes.append(out)
+            traces.append(out.trace)
+            yield m.Emit(Event("loop", f"CoG pose {pose.name} loop {j}/{n} done", step="loop", loop_index=j,
+                               loop_count=n, data={"phase": "cog", "pose": pose.name, "pose_index": k,
+                                                   "pose_count": len(poses), **out.timing.to_json()}))
+        measured.append((pose, traces))
+    yield from move_to(s.meas_pose_deg, s)
+    return measured, outcomes
+
+
+def properties_plan(
+    run: d.RunContext,
+    s: RunSettings,
+    p: PropertiesSettings,
+    cal_doc: dict[str, Any],
+    *,
+    inputs: Callable[[], SafetyInputs] | None = None,
+) -> m.Plan:
+    """The properties run as a plan (see the module docstring); returns the result (None in a dry run)."""
+    fixture = p.fixture(s.fixture_mass_kg)
+    warnings = yield from prepare(s, inputs)
+    tag = run.run_id.rsplit("-", 1)[-1][:8].lower()
+    yield m.Emit(Event("step", f"mass: {s.loops} loops in the measurement pose", step="mass",
+                       data={"phase": "mass", "loops": s.loops}))
+    mass_loops = yield from mass_step(run, s, tag, 1)
+    yield m.Emit(Event("step", f"CoG: {len(cog_poses(s.meas_pose_deg, p.scheme))} poses ({p.scheme}) x "
+                               f"{p.loops_per_pose} loops", step="cog", data={"phase": "cog", "scheme": p.scheme}))
+    poses, pose_loops = yield from cog_step(run, s, p, tag, 1 + len(mass_loops))
+    yield m.Emit(Event("step", "computing mass and CoG (offline path)", step="compute"))
+    t0 = time.monotonic()
+    result = yield m.Process("compute mass and CoG", _finish,
+                             (run.run_dir, s, [o.trace for o in mass_loops], p.scheme, fixture, poses, cal_doc))
+    if result is None:  # dry run
+        return None
+    compute_s = time.monotonic() - t0
+    outcomes = [*mass_loops, *pose_loops]
+    shas = sorted({h for o in outcomes for h in o.sha256s})
+    result = {
+        **result,
+        "run_id": run.run_id,
+        "robot": s.robot,
+        "run_kind": "properties",
+        "trace_sha256": shas,
+        "warnings": [*result.get("warnings", []), *(warnings or [])],
+        "controller_copies_deleted": all(o.deleted for o in outcomes),
+        "timing": {**timing_summary(outcomes, compute_s),
+                   "mass_robot_time_s": sum(o.timing.robot_s for o in mass_loops),
+                   "cog_robot_time_s": sum(o.timing.robot_s for o in pose_loops)},
+    }
+    yield d.Result(result, shas)
+    for w in result["warnings"]:  # e.g. payload torques beyond what the torsional calibration covered
+        yield m.Emit(Event("log", f"warning: {w}", step="result", data={"warning": w}))
+    mm = [1000.0 * v for v in result["cog_m"]]
+    umm = [1000.0 * v for v in result["U_cog_m"]]
+    yield m.Emit(Event("result", f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg, CoG (flange) "
+                                 f"x {mm[0]:.1f} ± {umm[0]:.1f}, y {mm[1]:.1f} ± {umm[1]:.1f}, "
+                                 f"z {mm[2]:.1f} ± {umm[2]:.1f} mm (k = 2)", step="result", data=result))
+    return result
+
+
+async def run_properties(
+    engine: RunEngine,
+    store: Store,
+    cfg: Config,
+    *,
+    settings: RunSettings | None = None,
+    props: PropertiesSettings | None = None,
+    inputs: Callable[[], SafetyInputs] | None = None,
+) -> dict[str, Any] | None:
+    """Execute :func:`properties_plan` on ``engine`` as a recorded run (:meth:`RunEngine.execute`).
+
+    Refused (PreconditionError, before anything moves or is stored) without an active calibration for this robot,
+    when that calibration has no torsional section (no CoG calibration), or with an unusable fixture frame."""
+    s = settings or RunSettings.from_config(cfg)
+    p = props or PropertiesSettings.from_config(cfg)
+    p.fixture(s.fixture_mass_kg)  # refuse a bad fixture before the run opens
+    cog_poses(s.meas_pose_deg, p.scheme)
+    recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+    cal = await recorder.active_calibration(s.robot)
+    if cal is None:
+        raise PreconditionError(f"robot {s.robot}: no active calibration; run a calibration campaign first")
+    try:
+        tors = calfile.torsional(cal.document, f"calibration {cal.id}")
+    except DataError as exc:
+        raise PreconditionError(str(exc)) from None
+    if tors is None:
+        raise PreconditionError(f"robot {s.robot}: the active calibration {cal.id} has no torsional section (no CoG "
+                                f"calibration): run a campaign with torsional points first")
+    missing = [q.name for q in cog_poses(s.meas_pose_deg, p.scheme) if q.name not in tors.poses]
+    if missing:
+        raise PreconditionError(f"robot {s.robot}: the active calibration {cal.id} calibrated the CoG poses "
+                                f"{', '.join(tors.poses)} ({tors.scheme}), not {', '.join(missing)} of scheme "
+                                f"{p.scheme!r}: use scheme {tors.scheme!r} or calibrate those poses")
+    opening = d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json(), "calibration_id": cal.id,
+                                                       "properties": p.to_json()})
+    return await engine.execute(opening, lambda run: properties_plan(run, s, p, cal.document, inputs=inputs),
+                                recorder)
