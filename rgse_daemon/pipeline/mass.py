@@ -35,5 +35,5 @@ def dut_mass_kg(corrected_a3_nm, corrected_a5_nm, g_m_s2: float, lever_differenc
     fixture_mass_kg
         Mass of the mounting fixture m_f; 0 gives the gross mass.
     """
-    return (np.asarray(corrected_a3_nm, float) - np.asarray(corrected_a5_nm, float)) / (
-        g_m_s2 * lever_difference_m) - fixture_mass_kg
+    # A3 in float makes the difference float (integer counts must not wrap); A5 follows numpy's promotion
+    return (np.asarray(corrected_a3_nm, float) - corrected_a5_nm) / (g_m_s2 * lever_difference_m) - fixture_mass_kg

@@ -85,7 +85,7 @@ def fit_axis(readings_nm: Sequence[np.ndarray], temps_k: Sequence[np.ndarray]) -
         raise DataError("thermal drift: the loops' motor temperatures do not vary within the points")
     beta = float(x @ y) / sxx
     res = y - beta * x
-    span = float(max(np.ptp(np.asarray(t, float) - np.mean(t)) for t in temps_k if np.size(t) >= 2))
+    span = float(max(np.ptp(np.asarray(t, float)) for t in temps_k if np.size(t) >= 2))  # max − min within a point
     return beta, float(np.sqrt(float(res @ res) / dof / sxx)), span
 
 
