@@ -130,7 +130,7 @@ def r_squared(y: np.ndarray, y_fit: np.ndarray) -> float:
     """Coefficient of determination of a fit."""
     ss_res = float(np.sum((y - y_fit) ** 2))
     ss_tot = float(np.sum((y - np.mean(y)) ** 2))
-    return 1.0 - ss_res / ss_tot if ss_tot > 0 else float("nan")
+    return 1.0 - ss_res / ss_tot if ss_tot > 0 else np.nan
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -757,7 +757,7 @@ class Evaluation:
     n_params: int
     heldout_residual_nm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     lever_mass_kg: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    lever_mean_abs_err_pct: float = float("nan")
+    lever_mean_abs_err_pct: float = np.nan
     admissible: bool = True
     note: str = ""
 
@@ -818,7 +818,7 @@ def evaluate(points: CalibrationPoints, method: str, g_m_s2: float, lever_differ
     loo, resid = _held_out(points, method, g_m_s2, lever_difference_m)
     lever = _lever_group_out(points, method, g_m_s2, lever_difference_m)
     held = np.isfinite(lever)
-    lever_pct = mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else float("nan")
+    lever_pct = mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else np.nan
     return Evaluation(method, ins, loo, mean_abs_pct(points.mass_kg, ins), mean_abs_pct(points.mass_kg, loo),
                       float(np.max(np.abs(loo - points.mass_kg))), len(cal.params), resid, lever, lever_pct)
 
@@ -882,8 +882,8 @@ def select_auto(evaluations: list[Evaluation]) -> Evaluation:
     pool = [e for e in evaluations if e.admissible] or list(evaluations)
     axis = [e for e in pool if not e.joint]
     joint = [e for e in pool if e.joint]
-    best_axis = min((score[e.method] for e in axis), default=float("inf"))
-    best_joint = min((score[e.method] for e in joint), default=float("inf"))
+    best_axis = min((score[e.method] for e in axis), default=np.inf)
+    best_joint = min((score[e.method] for e in joint), default=np.inf)
     group = joint if best_joint < best_axis - PREFER_AXIS_MARGIN_PCT else (axis or joint)
     best = min(score[e.method] for e in group)
     close = [e for e in group if score[e.method] <= best + 0.01]
@@ -912,7 +912,7 @@ def average_of(points: CalibrationPoints, evaluations: list[Evaluation]) -> Eval
     return Evaluation(method, ins, loo, mean_abs_pct(points.mass_kg, ins), mean_abs_pct(points.mass_kg, loo),
                       float(np.max(np.abs(loo - points.mass_kg))), len(k3) + len(k5),
                       np.mean([e.heldout_residual_nm for e in members], axis=0), lever,
-                      mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else float("nan"))
+                      mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else np.nan)
 
 
 def choose_auto(points: CalibrationPoints, evaluations: list[Evaluation]) -> Evaluation:

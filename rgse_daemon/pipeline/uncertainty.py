@@ -194,7 +194,7 @@ def excess_kg(at_dut_kg: float, at_interior_kg: float) -> float:
     """``√max(s_DuT² − s̄²_interior, 0)``: the part of a spread at the DuT that the held-out residuals of the interior
     configurations (the reproducibility) do not already hold."""
     if not np.isfinite(at_dut_kg):
-        return float("inf")
+        return np.inf
     return float(np.sqrt(max(at_dut_kg**2 - at_interior_kg**2, 0.0)))
 
 
@@ -255,7 +255,7 @@ def refit_spread_kg(cal: Calibration, params: np.ndarray, torque_a3_nm: float, t
         return 0.0
     with np.errstate(over="ignore", invalid="ignore"):
         masses = np.array([float(cal.with_params(p).mass_kg(torque_a3_nm, torque_a5_nm)) for p in params])
-    return float(np.std(masses, ddof=1)) if np.all(np.isfinite(masses)) else float("inf")
+    return float(np.std(masses, ddof=1)) if np.all(np.isfinite(masses)) else np.inf
 
 
 def calibration_uncertainty(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
@@ -274,11 +274,8 @@ def calibration_uncertainty(points: CalibrationPoints, method: str, g_m_s2: floa
 def interior(points: CalibrationPoints) -> np.ndarray:
     """Loaded points whose |M_A3| and |M_A5| both lie below the largest of the other points' (bool mask)."""
     a3, a5 = np.abs(points.torque_a3_nm), np.abs(points.torque_a5_nm)
-    out = points.mass_kg > 0
-    for i in np.flatnonzero(out):
-        others = np.arange(len(points)) != i
-        out[i] = a3[i] < a3[others].max() and a5[i] < a5[others].max()
-    return out
+    # below the others' largest ⇔ below the overall largest (the largest itself, or a tie for it, is not below)
+    return (points.mass_kg > 0) & (a3 < a3.max()) & (a5 < a5.max())
 
 
 def unusable(u_calibration_kg: float, u_reproducibility_kg: float) -> bool:
@@ -291,20 +288,20 @@ def batch_means_se(x: np.ndarray, n_batches: int = 10) -> float:
     x = np.asarray(x, float)
     n_batches = min(n_batches, x.size // 2)
     if n_batches < 2:
-        return float("nan")
+        return np.nan
     usable = x[: x.size - x.size % n_batches].reshape(n_batches, -1).mean(axis=1)
     return float(usable.std(ddof=1) / np.sqrt(n_batches))
 
 
-def loop_spread_kg(loop_mass_kg: np.ndarray, loop_se_kg: np.ndarray | float = float("nan")) -> float:
+def loop_spread_kg(loop_mass_kg: np.ndarray, loop_se_kg: np.ndarray | float = np.nan) -> float:
     """Standard uncertainty of the mean over loops (eq. 16 outer average): the larger of the between-loop
     standard error and the pooled within-loop (batch means) standard error."""
     m = np.asarray(loop_mass_kg, float)
     se = np.atleast_1d(np.asarray(loop_se_kg, float))
-    within = float(np.sqrt(np.sum(se**2)) / max(m.size, 1)) if np.all(np.isfinite(se)) else float("nan")
-    between = float(m.std(ddof=1) / np.sqrt(m.size)) if m.size >= 2 else float("nan")
+    within = float(np.sqrt(np.sum(se**2)) / max(m.size, 1)) if np.all(np.isfinite(se)) else np.nan
+    between = float(m.std(ddof=1) / np.sqrt(m.size)) if m.size >= 2 else np.nan
     candidates = [v for v in (within, between) if np.isfinite(v)]
-    return max(candidates) if candidates else float("nan")
+    return max(candidates) if candidates else np.nan
 
 
 def covariance_mc_kg(cal: Calibration, cov: np.ndarray, torque_a3_nm: float, torque_a5_nm: float,

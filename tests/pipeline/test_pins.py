@@ -4,12 +4,16 @@ changed operator used to leave unnoticed. The expected values are worked out by 
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline import calibration as C
 from rgse_daemon.pipeline import mass as mass_eq
 from rgse_daemon.pipeline import thermal as T
+from rgse_daemon.pipeline import uncertainty as unc
 
 G, DR = 9.81, 1.025
 
@@ -78,3 +82,116 @@ def test_thermal_drift_with_an_exact_coefficient_is_accepted():
     drift = T.ThermalDrift.from_dict(d)
     assert drift.u_coeff_per_k == {"A3": 0.0, "A5": 0.0}
     assert drift.u_correction_nm("A3", np.array([1000.0]), np.array([310.0])) == 0.0
+
+
+# ------------------------------------------------------------------------------------------------------------
+# uncertainty.py: reproducibility, the calibration file's record, reference refits, interior points
+# ------------------------------------------------------------------------------------------------------------
+def stack_points(scatter_nm: float = 0.0, seed: int = 0, n: int = 8) -> C.CalibrationPoints:
+    """A zero point and ``n`` loads on an exact linear drive (A3 reads 1/1.1, A5 1/0.85 of the expected torque),
+    with optional scatter on the expected torques; levers vary so that the A3/A5 ratio does too."""
+    rng = np.random.default_rng(seed)
+    mass = np.r_[0.0, 25.0 * np.arange(1, n + 1)]
+    l5 = np.r_[0.3, 0.25 + 0.02 * np.arange(1, n + 1)]
+    e3, e5 = G * mass * (l5 + DR), G * mass * l5
+    e3[1:] += rng.normal(0.0, scatter_nm, n)
+    e5[1:] += rng.normal(0.0, scatter_nm, n)
+    return C.CalibrationPoints(np.array(["zero"] + ["mass"] * n), mass, e3 / 1.1, e5 / 0.85, e3, e5)
+
+
+def test_reproducibility_by_hand_and_its_edges():
+    r = np.array([[3.0, 1.0], [-1.0, 2.0], [2.0, -2.0], [0.0, 1.0]])
+    rep = unc.Reproducibility.from_residuals(r)
+    s3, s5 = np.sqrt(14.0 / 4), np.sqrt(10.0 / 4)  # RMS per axis: Σr² = 14 and 10 over 4 configurations
+    assert (rep.rms_a3_nm, rep.rms_a5_nm, rep.n) == (pytest.approx(s3), pytest.approx(s5), 4)
+    assert rep.corr == pytest.approx((3.0 - 2.0 - 4.0 + 0.0) / 4 / (s3 * s5))
+    # integer residual records are squared in float (int16: 300² would wrap)
+    wide = unc.Reproducibility.from_residuals(np.array([[300, 0], [-300, 400]], np.int16))
+    assert (wide.rms_a3_nm, wide.rms_a5_nm) == (pytest.approx(300.0), pytest.approx(np.sqrt(80000.0)))
+    # one axis without scatter: no correlation (not 0/0)
+    flat = unc.Reproducibility.from_residuals(np.array([[1.0, 0.0], [-2.0, 0.0]]))
+    assert flat.corr == 0.0 and flat.rms_a5_nm == 0.0
+    # perfectly (anti)correlated axes: |ρ| never exceeds 1 by rounding, and the propagated u is exact
+    a = np.array([-39.09138659531002, 26.388016173117336, 95.16162849420985])
+    same = unc.Reproducibility.from_residuals(np.stack([a, a], axis=1))
+    opposite = unc.Reproducibility.from_residuals(np.stack([a, -a], axis=1))
+    assert same.corr == 1.0 and opposite.corr == -1.0
+    assert opposite.u_kg(G, DR) == pytest.approx(2.0 * opposite.rms_a3_nm / (G * DR) * opposite.small_sample_factor)
+    with pytest.raises(C.CalibrationError,
+                       match=r"^reproducibility needs held-out residuals of at least two configurations$"):
+        unc.Reproducibility.from_residuals(np.array([[1.0, 2.0], [np.nan, 0.0]]))
+
+
+def test_reproducibility_of_a_small_scatter():
+    """u = √(s3² + s5² − 2ρ·s3·s5)/(g·Δr): for s3 = s5 = 0.1 Nm, ρ = 0, many configurations, √0.02/(g·Δr)."""
+    assert unc.Reproducibility(0.1, 0.1, 0.0).u_kg(G, DR) == pytest.approx(np.sqrt(0.02) / (G * DR))
+    assert unc.Reproducibility(0.1, 0.1, 1.0).u_kg(G, DR) == 0.0
+
+
+def test_calibration_uncertainty_record_keeps_the_interior_torques_and_floats():
+    cu = unc.CalibrationUncertainty(unc.Reproducibility(1.0, 2.0, 0.5, 5), np.array([[1, 2], [3, 4]]),
+                                    np.array([[5, 6]]), np.array([[1000, 200], [1500, 300]]))
+    d = cu.to_dict()
+    text = json.dumps(d)
+    assert '"bootstrap_params": [[1.0, 2.0], [3.0, 4.0]]' in text
+    assert '"reference_params": [[5.0, 6.0]]' in text
+    assert '"interior_torque_nm": [[1000.0, 200.0], [1500.0, 300.0]]' in text
+    back = unc.CalibrationUncertainty.from_dict(json.loads(text), 2)
+    np.testing.assert_array_equal(back.interior_torque_nm, [[1000.0, 200.0], [1500.0, 300.0]])
+    record = {"reproducibility": {"rms_a3_nm": 1, "rms_a5_nm": 2, "corr": 0}, "bootstrap_params": [[1, 2], [3, 4]],
+              "reference_params": [[5, 6]], "interior_torque_nm": [[1000, 200]]}
+    loaded = unc.CalibrationUncertainty.from_dict(record, 2)
+    for arr in (loaded.fit_params, loaded.reference_params, loaded.interior_torque_nm):
+        assert arr.dtype == np.float64
+    assert loaded.interior_torque_nm.shape == (1, 2)
+    # the RMS over the interior configurations: √((1² + 2²)/2)
+    assert cu.at_interior(lambda a3, a5: a3 / 500.0 - 1.0) == pytest.approx(np.sqrt(2.5))
+
+
+def test_excess_of_an_infinite_spread_is_infinite():
+    assert unc.excess_kg(float("inf"), 1.0) == float("inf")
+    assert unc.excess_kg(float("nan"), 1.0) == float("inf")
+
+
+def test_reference_refits_of_a_joint_model_and_their_centre():
+    pts = stack_points(scatter_nm=2.0, seed=4)
+    var = np.r_[0.0, np.full(8, 0.01**2)]
+    pts = C.CalibrationPoints(pts.kind, pts.mass_kg, pts.torque_a3_nm, pts.torque_a5_nm, pts.expected_a3_nm,
+                              pts.expected_a5_nm, C.reference_mass_covariance(var))
+    ref = unc.reference_params(pts, "gain-linear", G, DR, n=12)  # a joint model needs g and Δr to refit
+    np.testing.assert_array_equal(ref, unc.reference_params(pts, "gain-linear", G, DR, n=12))
+    base = C.fit(pts, "gain-linear", G, DR).params
+    assert ref.shape == (12, 2) and np.all(np.abs(ref.mean(axis=0) - base) < 1e-3 * np.abs(base))
+    sur = unc.reference_params(pts, "sur-linear", G, DR, n=12)  # the zero point stays unloaded in every draw
+    assert np.all(np.abs(sur.mean(axis=0) - C.fit(pts, "sur-linear", G, DR).params) < 1e-3)
+    zero_cov = C.CalibrationPoints(pts.kind, pts.mass_kg, pts.torque_a3_nm, pts.torque_a5_nm, pts.expected_a3_nm,
+                                   pts.expected_a5_nm, np.zeros((9, 9)))
+    assert unc.reference_params(zero_cov, "gain-linear", G, DR).shape == (0, 2)
+    cu = unc.calibration_uncertainty(pts, "gain-linear", G, DR, np.ones((9, 2)))
+    assert cu.reference_params.shape == (unc.REFERENCE_N, 2)
+
+
+def test_reference_refits_refuse_nothing_on_a_slightly_indefinite_covariance():
+    """A covariance a hair from positive semi-definite (rounding in a file) is drawn from without a warning."""
+    pts = stack_points()
+    cov = C.reference_mass_covariance(np.r_[0.0, np.full(8, 1e-4)])
+    cov[1, 2] = cov[2, 1] = 1.0001e-4  # |cov_12| > √(var_1·var_2)
+    pts = C.CalibrationPoints(pts.kind, pts.mass_kg, pts.torque_a3_nm, pts.torque_a5_nm, pts.expected_a3_nm,
+                              pts.expected_a5_nm, cov)
+    assert unc.reference_params(pts, "axis-linear", G, DR, n=5).shape == (5, 2)
+
+
+def test_interior_points_by_hand():
+    """Interior: loaded and strictly below the others' largest |M| on both axes (a tie for the largest is not)."""
+    kind = np.array(["zero", "mass", "mass", "mass", "mass", "mass"])
+    mass = np.array([0.0, 0.5, 10.0, 20.0, 30.0, 30.0])
+    a3 = np.array([0.0, 10.0, 200.0, 900.0, 900.0, 100.0])
+    a5 = np.array([0.0, 5.0, 50.0, 100.0, 80.0, 400.0])
+    pts = C.CalibrationPoints(kind, mass, a3, a5, a3, a5)
+    # 0.5 kg is a load; 900 Nm twice: neither is below the other's; the last is the largest on A5 only
+    np.testing.assert_array_equal(unc.interior(pts), [False, True, True, False, False, False])
+
+
+def test_model_spread_without_alternatives_is_zero():
+    assert unc.model_spread_kg(5.0, np.array([])) == 0.0
+    assert unc.model_spread_kg(5.0, np.array([4.0, 7.5])) == 2.5
