@@ -153,7 +153,7 @@ def _row_median(x: np.ndarray, n_valid: np.ndarray) -> np.ndarray:
     s = np.sort(x, axis=1)
     lo = np.take_along_axis(s, np.maximum((n_valid - 1) // 2, 0)[:, None], axis=1)[:, 0]
     hi = np.take_along_axis(s, np.maximum(n_valid // 2, 0)[:, None], axis=1)[:, 0]
-    return np.where(n_valid > 0, 0.5 * (lo + hi), np.nan)
+    return 0.5 * (lo + hi)  # a row without valid samples reads its first (NaN) element twice: NaN
 
 
 def location_rows(x: np.ndarray, kind: str) -> np.ndarray:

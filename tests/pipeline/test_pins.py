@@ -12,6 +12,7 @@ import pytest
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import calibration as C
 from rgse_daemon.pipeline import mass as mass_eq
+from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import thermal as T
 from rgse_daemon.pipeline import uncertainty as unc
 
@@ -195,3 +196,48 @@ def test_interior_points_by_hand():
 def test_model_spread_without_alternatives_is_zero():
     assert unc.model_spread_kg(5.0, np.array([])) == 0.0
     assert unc.model_spread_kg(5.0, np.array([4.0, 7.5])) == 2.5
+
+
+# ------------------------------------------------------------------------------------------------------------
+# preprocess.py: parameter checks, the moving average in double precision, the row median
+# ------------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"filter": "box"}, "pre-processing: unknown filter 'box' (one of none, moving_average, gaussian, median)"),
+    ({"order": "sideways"}, "pre-processing: unknown order 'sideways' (one of backward, forward)"),
+    ({"location": "mode"}, "pre-processing: unknown location 'mode'"),
+    ({"window": 0}, "pre-processing: window must be >= 1 sample, got 0"),
+    ({"crop_sigma": 0.0}, "pre-processing: crop_sigma must be > 0, got 0.0"),
+    ({"settle_s": -0.5}, "pre-processing: settle_s must be >= 0, got -0.5"),
+])
+def test_preprocessing_parameters_are_refused_by_name(kwargs, message):
+    with pytest.raises(pp.PreprocessError) as err:
+        pp.Preprocessing(**kwargs)
+    assert str(err.value) == message
+
+
+def test_preprocessing_round_trips_and_names_bad_keys():
+    cfg = pp.Preprocessing(crop_sigma=2.5, filter="gaussian", window=75, order="forward", location="huber",
+                           settle_s=0.3)
+    assert cfg.to_dict() == {"crop_sigma": 2.5, "filter": "gaussian", "window": 75, "order": "forward",
+                             "location": "huber", "settle_s": 0.3}
+    assert pp.Preprocessing.from_dict(cfg.to_dict()) == cfg
+    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: bad parameters \{'sigma': 1\}: .*'sigma'"):
+        pp.Preprocessing.from_dict({"sigma": 1})
+
+
+def test_moving_average_of_float32_torques_is_summed_in_double():
+    """A float32 trace (a logger's single precision) is averaged in double: its cumulative sum over 20000 samples
+    of ~1500 Nm would lose the 0.01 Nm steps in single precision."""
+    x = (1500.0 + 0.01 * (np.arange(20000) % 7)).astype(np.float32)
+    want = np.array([x.astype(float)[max(i - 1, 0):i + 2].mean() for i in range(x.size)])  # window 3, by slices
+    np.testing.assert_allclose(pp.moving_average(x, 3)[0], want, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(pp.moving_average(x, np.array([3.0]))[0], want, rtol=0, atol=1e-9)
+
+
+def test_row_median_by_hand():
+    x = np.array([[3.0, 1.0, 2.0, np.nan], [4.0, 1.0, 3.0, 2.0], [7.0, np.nan, np.nan, np.nan],
+                  [np.nan, np.nan, np.nan, np.nan], [9.0, 1.0, 5.0, 3.0]])
+    n_valid = np.isfinite(x).sum(axis=1)
+    got = pp._row_median(x, n_valid)
+    np.testing.assert_array_equal(got[[0, 1, 2, 4]], [2.0, 2.5, 7.0, 4.0])  # odd, even, one value, even
+    assert np.isnan(got[3])
