@@ -11,6 +11,7 @@ import pytest
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import calibration as C
+from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import mass as mass_eq
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import thermal as T
@@ -226,9 +227,9 @@ def test_preprocessing_round_trips_and_names_bad_keys():
 
 
 def test_moving_average_of_float32_torques_is_summed_in_double():
-    """A float32 trace (a logger's single precision) is averaged in double: its cumulative sum over 20000 samples
+    """A float32 trace (a logger's single precision) is averaged in double: its cumulative sum over 3000 samples
     of ~1500 Nm would lose the 0.01 Nm steps in single precision."""
-    x = (1500.0 + 0.01 * (np.arange(20000) % 7)).astype(np.float32)
+    x = (1500.0 + 0.01 * (np.arange(3000) % 7)).astype(np.float32)
     want = np.array([x.astype(float)[max(i - 1, 0):i + 2].mean() for i in range(x.size)])  # window 3, by slices
     np.testing.assert_allclose(pp.moving_average(x, 3)[0], want, rtol=0, atol=1e-9)
     np.testing.assert_allclose(pp.moving_average(x, np.array([3.0]))[0], want, rtol=0, atol=1e-9)
@@ -241,3 +242,116 @@ def test_row_median_by_hand():
     got = pp._row_median(x, n_valid)
     np.testing.assert_array_equal(got[[0, 1, 2, 4]], [2.0, 2.5, 7.0, 4.0])  # odd, even, one value, even
     assert np.isnan(got[3])
+
+
+def test_bootstrap_refits_replayed_by_hand():
+    """The residual-pair bootstrap replayed step by step: loaded points only (0.5 kg is a load), in-sample residual
+    pairs centred and inflated by √(n/(n − p/2)), drawn with the generator's own integers, added to the fitted
+    corrected torques; the masses of eq. 21 (floored at 1e-6 kg) for a joint model."""
+    mass = np.array([0.0, 0.5, 20.0, 45.0, 70.0, 90.0])
+    l5 = np.array([0.3, 0.25, 0.28, 0.31, 0.26, 0.33])
+    e3, e5 = G * mass * (l5 + DR), G * mass * l5
+    e3[1:] += np.array([3.0, -2.0, 5.0, -4.0, 1.0])
+    e5[1:] += np.array([-1.0, 2.0, 0.5, 1.5, -2.5])
+    t3, t5 = e3 / 1.1, e5 / 0.85
+    pts = C.CalibrationPoints(np.array(["zero"] + ["mass"] * 5), mass, t3, t5, e3, e5)
+    boot = unc.bootstrap_params(pts, "axis-linear", G, DR, n=7, seed=5)
+    slope3, slope5 = (t3 @ e3) / (t3 @ t3), (t5 @ e5) / (t5 @ t5)  # least squares through the origin per axis
+    fit3, fit5 = slope3 * t3[1:], slope5 * t5[1:]
+    res = np.stack([e3[1:] - fit3, e5[1:] - fit5], axis=1)
+    res = (res - res.mean(axis=0)) * np.sqrt(5 / (5 - 2 / 2))
+    rng = np.random.default_rng(5)
+    want = []
+    for _ in range(7):
+        d = res[rng.integers(0, 5, 5)]
+        s3, s5 = fit3 + d[:, 0], fit5 + d[:, 1]
+        want.append([(t3[1:] @ s3) / (t3[1:] @ t3[1:]), (t5[1:] @ s5) / (t5[1:] @ t5[1:])])
+    np.testing.assert_allclose(boot, want, rtol=1e-12)
+    # a joint model refits to the masses (e3 − e5)/(g·Δr) of the drawn torques; the 0.5 kg load floors at 1e-6 kg
+    joint = unc.bootstrap_params(pts, "gain-linear", G, DR, n=3, seed=2)
+    cal = C.fit(pts, "gain-linear", G, DR)
+    fitted = np.stack([cal.k_a3.corrected_torque_nm(t3[1:]), cal.k_a5.corrected_torque_nm(t5[1:])], axis=1)
+    res = np.stack([e3[1:], e5[1:]], axis=1) - fitted
+    res = (res - res.mean(axis=0)) * np.sqrt(5 / (5 - 2 / 2))
+    rng = np.random.default_rng(2)
+    for row in joint:
+        d = res[rng.integers(0, 5, 5)]
+        star = fitted + d
+        m = np.r_[0.0, np.maximum((star[:, 0] - star[:, 1]) / (G * DR), 1e-6)]
+        refit = C.fit(C.CalibrationPoints(pts.kind, m, t3, t5, np.r_[0.0, star[:, 0]], np.r_[0.0, star[:, 1]]),
+                      "gain-linear", G, DR)
+        np.testing.assert_allclose(row, refit.params, rtol=1e-10)
+
+
+def test_refit_spread_of_a_curve_that_turns_nan_is_infinite_without_warnings():
+    """exp(b2·M) − exp(b4·M) overflows to ∞ − ∞ = NaN at a large torque: the spread is ∞, silently (the test run
+    turns warnings into errors)."""
+    cal = C.Calibration("paper", C.PolyK(np.array([1.0])), C.DoubleExpK(np.array([1.0, 1.0, -1.0, 1.0])),
+                        np.zeros((5, 5)), (0.0, 1.0), (0.0, 1.0), G, DR)
+    params = np.array([[1.0, 1.0, 1.0, -1.0, 1.0], [1.0, 1.0, 0.0, 0.0, 0.0]])
+    assert unc.refit_spread_kg(cal, params, 10.0, 1000.0) == np.inf
+
+
+def test_reference_streams_are_their_own():
+    """The reference-mass draws use their own seed (1), not the bootstrap's or the fit covariance's (0); without a
+    reference covariance the component is zero."""
+    cal = C.Calibration("axis-linear", C.GainK(("lin",), np.array([1.1])), C.GainK(("lin",), np.array([0.85])),
+                        np.diag([1e-4, 1e-4]), (0.0, 3000.0), (0.0, 800.0), G, DR, {}, np.diag([4e-5, 1e-5]))
+    assert unc.reference_mc_kg(cal, 1000.0, 200.0, n_draws=200) == unc.covariance_mc_kg(
+        cal, np.diag([4e-5, 1e-5]), 1000.0, 200.0, 200, seed=1)
+    assert unc.reference_mc_kg(cal, 1000.0, 200.0, n_draws=200) != unc.covariance_mc_kg(
+        cal, np.diag([4e-5, 1e-5]), 1000.0, 200.0, 200, seed=0)
+    cal.covariance_reference = None
+    assert unc.reference_mc_kg(cal, 1000.0, 200.0) == 0.0
+    pts = stack_points(scatter_nm=1.0)
+    pts = C.CalibrationPoints(pts.kind, pts.mass_kg, pts.torque_a3_nm, pts.torque_a5_nm, pts.expected_a3_nm,
+                              pts.expected_a5_nm, C.reference_mass_covariance(np.r_[0.0, np.full(8, 1e-4)]))
+    np.testing.assert_array_equal(unc.reference_params(pts, "axis-linear", G, DR, n=4),
+                                  unc.reference_params(pts, "axis-linear", G, DR, n=4, seed=1))
+
+
+def test_loops_disagree_at_the_default_factor_of_three():
+    """χ² = Σ((m − m̄)/se)²/(n − 1) for m = 0, 3, 6: 18/se²/2 = 9/se²; the default threshold is 3² = 9, strict."""
+    m = np.array([0.0, 3.0, 6.0])
+    assert not unc.loops_disagree(m, np.ones(3))  # χ² = 9 exactly: not beyond
+    assert unc.loops_disagree(m, np.full(3, 0.9))  # χ² = 11.1
+
+
+# ------------------------------------------------------------------------------------------------------------
+# inline.py: per-axis pre-processing and temperatures, every term in both budgets
+# ------------------------------------------------------------------------------------------------------------
+RAW = pp.Preprocessing(crop_sigma=None, filter="none", window=1, order="backward", location="mean", settle_s=0.0)
+
+
+def linear_cal(k3: float = 1.1, k5: float = 0.85) -> C.Calibration:
+    return C.Calibration("axis-linear", C.GainK(("lin",), np.array([k3])), C.GainK(("lin",), np.array([k5])),
+                         np.zeros((2, 2)), (0.0, 3000.0), (0.0, 800.0), G, DR)
+
+
+def test_in_line_mass_preprocesses_a5_with_the_given_settings():
+    """A5 with a spike, no cropping asked for: its torque is the plain mean of every sample (the paper's 1σ crop
+    would remove the spike)."""
+    a5 = np.full(200, 200.0)
+    a5[100] = 2200.0
+    loops = [(np.full(200, 1000.0), a5, 0.012, "l0")]
+    r = inline.in_line_mass(loops, linear_cal(), 0.0, 0.0, RAW)
+    assert r.torque_a5_nm == pytest.approx(200.0 + 2000.0 / 200)
+
+
+def test_in_line_mass_corrects_each_axis_at_its_own_temperature_in_both_budgets():
+    drift = T.ThermalDrift({"A3": 0.001, "A5": 0.002}, {"A3": 1e-4, "A5": 2e-4}, {"A3": 300.0, "A5": 300.0}, 30,
+                           {"A3": 5.0, "A5": 5.0})
+    loops = [(np.full(50, 1000.0), np.full(50, 200.0), 0.012, f"l{k}") for k in range(2)]
+    temps = [(310.0, 300.0), (320.0, 300.0)]  # A3 warm, A5 at the campaign's temperature
+    cal = linear_cal()
+    cu = unc.CalibrationUncertainty(unc.Reproducibility(1.0, 1.0, 0.0), np.array([[1.1, 0.85], [1.1, 0.85]]),
+                                    np.zeros((0, 2)))
+    s3 = 1.1 / (G * DR)
+    for kw in ({}, {"uncertainty": cu}):
+        r = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, thermal=drift, loop_temps_k=temps,
+                                g_u_calibration_m_s2=0.01, g_measurement_m_s2=9.8134, **kw)
+        m3 = 1000.0 * (1 - 0.001 * 15.0)  # mean of the corrections at +10 K and +20 K
+        assert (r.torque_a3_nm, r.torque_a5_nm) == (pytest.approx(m3), pytest.approx(200.0))
+        c = r.uncertainty.components()
+        assert c["thermal"] == pytest.approx(s3 * 1000.0 * 15.0 * 1e-4)  # A5 at T_ref: no A5 part
+        assert c["g"] == pytest.approx(abs(r.gross_mass_kg) * 0.01 / G)
