@@ -355,3 +355,42 @@ def test_in_line_mass_corrects_each_axis_at_its_own_temperature_in_both_budgets(
         c = r.uncertainty.components()
         assert c["thermal"] == pytest.approx(s3 * 1000.0 * 15.0 * 1e-4)  # A5 at T_ref: no A5 part
         assert c["g"] == pytest.approx(abs(r.gross_mass_kg) * 0.01 / G)
+
+
+def test_crop_works_row_by_row():
+    """Each row (a filter window of the study) is cropped about its own mean and σ."""
+    x = np.array([[0.0, 1.0, 2.0, 3.0, 40.0], [100.0, 101.0, 102.0, 103.0, 104.0]])
+    got = pp.crop_outliers(x, 1.0)
+    # row 0: mean 9.2, σ 15.4: only 40 is beyond; row 1: mean 102, σ √2: 100 and 104 are beyond
+    np.testing.assert_array_equal(np.isfinite(got), [[True, True, True, True, False], [False, True, True, True, False]])
+    # a tiny σ keeps at least the sample nearest the mean of each row
+    np.testing.assert_array_equal(np.isfinite(pp.crop_outliers(np.array([[0.0, 1.0, 5.0], [7.0, 9.0, 20.0]]), 1e-9)),
+                                  [[False, True, False], [False, True, False]])
+
+
+def test_smooth_edges_and_windows():
+    x = np.array([1.0, 2.0, 3.0, 4.0, 50.0])
+    # median of 5, ends continued by their nearest sample: the first reads (1, 1, 1, 2, 3), the last (3, 4, 50, 50, 50)
+    assert pp.smooth(x, "median", 5)[0, -1] == 50.0 and pp.smooth(x, "median", 5)[0, 0] == 1.0
+    # windows are whole samples: 2.5 is a window of 2
+    np.testing.assert_array_equal(pp.smooth(x, "gaussian", 2.5), pp.smooth(x, "gaussian", 2))
+    assert pp.smooth(np.array([1, 2, 3]), "none", 1).dtype == np.float64
+    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: unknown filter 'box'$"):
+        pp.smooth(x, "box", 3)
+
+
+def test_loop_messages_spread_and_kept_samples():
+    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: a loop must be 1-D, got shape \(2, 2\)$"):
+        pp.process_loop(np.ones((2, 2)), 0.01, RAW)
+    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: torque samples contain NaN or infinite values$"):
+        pp.process_loop(np.array([1.0, np.nan, 2.0]), 0.01, RAW)
+    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: a point needs at least one loop$"):
+        pp.double_average_nm(np.array([]))
+    r = pp.process_loop(np.array([1.0, 2.0, 3.0, 4.0]), 0.01, RAW)
+    assert (r.torque_nm, r.spread_nm, r.n_used, r.n_total) == (2.5, pytest.approx(np.sqrt(1.25)), 4, 4)
+    # kept samples: the settle cut counts in samples of the period (0.1 s at 10 ms: 10), then the 1σ crop
+    x = np.r_[np.full(10, 99.0), [10.0, 11.0, 12.0, 30.0, 11.0, 10.0, 12.0, 11.0]]
+    for order in ("backward", "forward"):
+        cfg = pp.Preprocessing(crop_sigma=1.0, filter="none", window=1, order=order, settle_s=0.1)
+        np.testing.assert_array_equal(pp.kept_samples(x, 0.01, cfg), [10.0, 11.0, 12.0, 11.0, 10.0, 12.0, 11.0])
+    assert pp.normalise(np.array([30000], np.int16), np.int16(-10000))[0] == 40000.0
