@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from scipy.optimize import brentq
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import calibration as C
@@ -394,3 +395,29 @@ def test_loop_messages_spread_and_kept_samples():
         cfg = pp.Preprocessing(crop_sigma=1.0, filter="none", window=1, order=order, settle_s=0.1)
         np.testing.assert_array_equal(pp.kept_samples(x, 0.01, cfg), [10.0, 11.0, 12.0, 11.0, 10.0, 12.0, 11.0])
     assert pp.normalise(np.array([30000], np.int16), np.int16(-10000))[0] == 40000.0
+
+
+def test_trimmed_mean_by_hand():
+    """10 % cut from each tail of the valid samples (floor of 0.1·n), per row, NaN ignored."""
+    a = np.array([10.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 100.0, 9.0, 11.0])  # n = 12: cut 1 each side
+    b = np.array([np.nan, 4.0, 1.0, 2.0, 3.0, 50.0, 5.0, 6.0, 7.0, 8.0, 9.0, np.nan])  # n = 10: cut 1 each side
+    got = pp.location_rows(np.stack([a, b]), "trimmed")
+    want = [(2 + 3 + 4 + 5 + 6 + 7 + 8 + 9 + 10 + 11) / 10, (2 + 3 + 4 + 5 + 6 + 7 + 8 + 9) / 8]
+    np.testing.assert_allclose(got, want, rtol=1e-15)
+
+
+def huber_by_definition(row: np.ndarray) -> float:
+    """The root of Σ ψ_c(x − μ) = 0, ψ clipped at c = 1.345·s, s = 1.4826·MAD (the standard deviation if MAD = 0)."""
+    v = row[np.isfinite(row)]
+    med = np.median(v)
+    s = 1.4826 * np.median(np.abs(v - med)) or np.std(v)
+    c = 1.345 * s
+    return brentq(lambda mu: np.sum(np.clip(v - mu, -c, c)), v.min(), v.max(), xtol=1e-13)
+
+
+def test_huber_location_is_the_root_of_its_estimating_equation():
+    rows = np.array([[0.10, 0.12, 0.11, 0.13, 0.35, 0.09, 0.11, np.nan, 0.60],  # MAD-scale < 1, skewed, a NaN
+                     [5.0, 5.0, 5.0, 5.0, 5.0, 6.0, 20.0, 5.0, 9.0]])  # MAD = 0: the standard deviation is the scale
+    got = pp.location_rows(rows, "huber")
+    np.testing.assert_allclose(got, [huber_by_definition(r) for r in rows], rtol=0, atol=1e-8)
+    assert got[0] != pytest.approx(np.nanmedian(rows[0]), abs=1e-4) and got[1] != pytest.approx(5.0, abs=1e-3)
