@@ -307,8 +307,7 @@ def loop_spread_kg(loop_mass_kg: np.ndarray, loop_se_kg: np.ndarray | float = np
 def covariance_mc_kg(cal: Calibration, cov: np.ndarray, torque_a3_nm: float, torque_a5_nm: float,
                      n_draws: int = MC_DRAWS, seed: int = 0) -> float:
     """Standard deviation of the mass over draws of the calibration parameters from ``cov``."""
-    cov = np.asarray(cov, float)
-    if cov.size == 0 or not np.any(cov):
+    if not np.any(cov):  # also an empty covariance
         return 0.0
     rng = np.random.default_rng(seed)
     draws = rng.multivariate_normal(cal.params, cov, size=n_draws, check_valid="ignore", method="eigh")

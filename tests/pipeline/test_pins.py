@@ -421,3 +421,37 @@ def test_huber_location_is_the_root_of_its_estimating_equation():
     got = pp.location_rows(rows, "huber")
     np.testing.assert_allclose(got, [huber_by_definition(r) for r in rows], rtol=0, atol=1e-8)
     assert got[0] != pytest.approx(np.nanmedian(rows[0]), abs=1e-4) and got[1] != pytest.approx(5.0, abs=1e-3)
+
+
+def test_loop_checks_name_the_problem():
+    x = np.arange(10.0)
+    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: sample period must be > 0, got 0\.0$"):
+        pp.process_loop(x, 0.0, RAW)
+    cfg = pp.Preprocessing(crop_sigma=None, filter="none", window=1, settle_s=0.08)
+    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: only 2 samples left after the 0\.08 s settle "
+                                                 r"cut$"):
+        pp.process_loop(x, 0.01, cfg)
+    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: unknown location 'mode'$"):
+        pp.location_rows(x, "mode")
+    # a tight crop may leave a single sample: that is a loop, not an error
+    tight = pp.Preprocessing(crop_sigma=0.5, filter="none", window=1)
+    r = pp.process_loop(np.array([0.0, 10.0, 20.0]), 0.01, tight)
+    assert (r.torque_nm, r.n_used) == (10.0, 1)
+
+
+def test_parameter_monte_carlo_is_the_sample_deviation_of_seeded_draws():
+    """Eq. 21 with constant gains is linear in them: m = (k3·M3 − k5·M5)/(g·Δr) for each draw; the component is the
+    sample standard deviation (n − 1) over the draws of the generator seeded 0 (fit) or 1 (reference masses)."""
+    cov = np.array([[1e-4, 2e-5], [2e-5, 4e-5]])
+    cal = C.Calibration("axis-linear", C.GainK(("lin",), np.array([1.1])), C.GainK(("lin",), np.array([0.85])),
+                        cov, (0.0, 3000.0), (0.0, 800.0), G, DR)
+    for seed in (0, 3):
+        draws = np.random.default_rng(seed).multivariate_normal([1.1, 0.85], cov, size=4, method="eigh")
+        masses = (draws[:, 0] * 1000.0 - draws[:, 1] * 200.0) / (G * DR)
+        assert unc.covariance_mc_kg(cal, cov, 1000.0, 200.0, n_draws=4, seed=seed) == pytest.approx(
+            np.std(masses, ddof=1), rel=1e-12)
+    assert unc.calibration_mc_kg(cal, 1000.0, 200.0, n_draws=4) == unc.covariance_mc_kg(
+        cal, cov, 1000.0, 200.0, n_draws=4, seed=0)
+    # a covariance a hair from positive semi-definite is drawn from silently (warnings are errors here)
+    near = np.array([[1e-4, 1.00001e-4], [1.00001e-4, 1e-4]])
+    assert unc.covariance_mc_kg(cal, near, 1000.0, 200.0, n_draws=10) > 0
