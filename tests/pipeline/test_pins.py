@@ -455,3 +455,63 @@ def test_parameter_monte_carlo_is_the_sample_deviation_of_seeded_draws():
     # a covariance a hair from positive semi-definite is drawn from silently (warnings are errors here)
     near = np.array([[1e-4, 1.00001e-4], [1.00001e-4, 1e-4]])
     assert unc.covariance_mc_kg(cal, near, 1000.0, 200.0, n_draws=10) > 0
+
+
+# ------------------------------------------------------------------------------------------------------------
+# calibration.py: the gain curve's K, the model records, leave-one-out, the nested figure of auto
+# ------------------------------------------------------------------------------------------------------------
+def test_gain_curve_k_by_hand():
+    """K = G(M)/M of G = 1.1·M + 0.02·M·|M|/1000; at M = 0 the linear coefficient (the limit), NaN without one."""
+    k = C.GainK(("lin", "quad"), np.array([1.1, 0.02]))
+    np.testing.assert_allclose(k.k(np.array([0.0, 1000.0, -500.0])), [1.1, 1.12, 1.11], rtol=1e-14)
+    assert k.k(np.array([250.0]))[0] == pytest.approx((275.0 + 1.25) / 250.0, rel=1e-14)
+    only_sqrt = C.GainK(("sqrt",), np.array([2.0]))
+    got = only_sqrt.k(np.array([0.0, 4.0]))
+    assert np.isnan(got[0]) and got[1] == pytest.approx(2.0 * np.sqrt(4000.0) / 4.0)
+    assert C.GainK(("quad", "lin"), np.array([0.5, 0.9])).k(np.array([0.0]))[0] == 0.9  # wherever "lin" sits
+
+
+def test_axis_model_records_round_trip_and_name_their_faults():
+    models = [C.PolyK(np.array([1e-8, -2e-5, 1.1])), C.DoubleExpK(np.array([0.5, -1e-3, 0.6, 1e-5])),
+              C.GainK(("lin", "log"), np.array([1.05, 0.02]), 800.0)]
+    assert [m.to_dict() for m in models] == [
+        {"kind": "poly", "coef": [1e-8, -2e-5, 1.1]}, {"kind": "double_exp", "b": [0.5, -1e-3, 0.6, 1e-5]},
+        {"kind": "gain", "terms": ["lin", "log"], "coef": [1.05, 0.02], "scale_nm": 800.0}]
+    for m in models:
+        back = C.AxisK.from_dict(json.loads(json.dumps(m.to_dict())))
+        assert type(back) is type(m) and np.array_equal(back.params, m.params)
+        assert back.to_dict() == m.to_dict()
+    assert C.AxisK.from_dict(models[2].to_dict()).scale_nm == 800.0
+    cal = C.Calibration("x", models[0], models[1], np.zeros((7, 7)), (0.0, 1.0), (0.0, 1.0), G, DR)
+    assert cal.models_dict() == {"A3": models[0].to_dict(), "A5": models[1].to_dict()}
+    with pytest.raises(DataError, match=r"^calibration model: unknown axis model kind 'spline'$"):
+        C.AxisK.from_dict({"kind": "spline"})
+    with pytest.raises(DataError, match=r"^calibration model: malformed axis model \{'kind': 'poly'\}: 'coef'$"):
+        C.AxisK.from_dict({"kind": "poly"})
+    with pytest.raises(DataError, match=r"^calibration model: malformed axis model \{'coef': \[1\]\}: 'kind'$"):
+        C.AxisK.from_dict({"coef": [1]})
+    with pytest.raises(DataError, match=r"^calibration model: malformed axis model .*'b': 'x'.*could not convert"):
+        C.AxisK.from_dict({"kind": "double_exp", "b": "x"})
+    with pytest.raises(DataError, match=r"^calibration model: malformed axis model .*'terms': 1"):
+        C.AxisK.from_dict({"kind": "gain", "terms": 1, "coef": [1.0], "scale_nm": 1000.0})
+
+
+def test_leave_one_out_by_hand():
+    """Each configuration predicted by the constant gains fitted (least squares through the origin) on the others."""
+    pts = stack_points(scatter_nm=3.0, seed=9, n=6)
+    t3, t5, e3, e5 = pts.torque_a3_nm, pts.torque_a5_nm, pts.expected_a3_nm, pts.expected_a5_nm
+    want = []
+    for i in range(len(pts)):
+        o = np.arange(len(pts)) != i
+        k3, k5 = (t3[o] @ e3[o]) / (t3[o] @ t3[o]), (t5[o] @ e5[o]) / (t5[o] @ t5[o])
+        want.append((k3 * t3[i] - k5 * t5[i]) / (G * DR))
+    np.testing.assert_allclose(C.leave_one_out_mass_kg(pts, "axis-linear", G, DR), want, rtol=1e-12, atol=1e-12)
+
+
+def test_nested_out_of_sample_of_auto_on_an_exact_drive():
+    """Constant drive gains, no scatter: whatever each fold selects recovers every held-out mass; progress per fold."""
+    pts = stack_points(n=6)
+    calls = []
+    got = C.nested_loo_auto_mass_kg(pts, G, DR, progress=lambda done, total: calls.append((done, total)))
+    np.testing.assert_allclose(got, pts.mass_kg, rtol=1e-9, atol=1e-9)
+    assert calls == [(i, 7) for i in range(1, 8)]
