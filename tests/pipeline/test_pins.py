@@ -515,3 +515,43 @@ def test_nested_out_of_sample_of_auto_on_an_exact_drive():
     got = C.nested_loo_auto_mass_kg(pts, G, DR, progress=lambda done, total: calls.append((done, total)))
     np.testing.assert_allclose(got, pts.mass_kg, rtol=1e-9, atol=1e-9)
     assert calls == [(i, 7) for i in range(1, 8)]
+
+
+def test_average_of_gain_models_by_hand():
+    """avg:a+b: per axis the mean gain curve over the union of terms, the members' covariances mapped onto it and
+    divided by n², the torque range of the loaded points (a 0.5 kg load is one), no R²."""
+    base = stack_points(scatter_nm=2.0, seed=3, n=6)
+    mass = base.mass_kg.copy()
+    mass[1] = 0.5
+    pts = C.CalibrationPoints(base.kind, mass, base.torque_a3_nm, base.torque_a5_nm, base.expected_a3_nm,
+                              base.expected_a5_nm)
+    lin, quad = C.fit(pts, "axis-linear", G, DR), C.fit(pts, "axis-quad", G, DR)
+    avg = C.fit(pts, "avg:axis-linear+axis-quad", G, DR)
+    assert avg.method == "avg:axis-linear+axis-quad" and avg.r2 == {}
+    assert avg.k_a3.terms == ("lin", "quad") and avg.k_a5.terms == ("lin", "quad")
+    np.testing.assert_allclose(avg.k_a3.coef, [(lin.k_a3.coef[0] + quad.k_a3.coef[0]) / 2, quad.k_a3.coef[1] / 2])
+    want = np.zeros((4, 4))
+    want[np.ix_([0, 2], [0, 2])] += lin.covariance / 4
+    want += quad.covariance / 4
+    np.testing.assert_allclose(avg.covariance, want, rtol=1e-12)
+    assert avg.torque_range_a3_nm == (abs(pts.torque_a3_nm[1]), abs(pts.torque_a3_nm[-1]))
+    assert avg.torque_range_a5_nm == (min(abs(pts.torque_a5_nm[1:])), max(abs(pts.torque_a5_nm[1:])))
+    assert avg.g_m_s2 == G and avg.lever_difference_m == DR
+    with pytest.raises(C.CalibrationError, match=r"^average 'avg:axis-linear': needs at least two of axis-linear, "
+                                                 r"axis-quad, "):
+        C.fit(pts, "avg:axis-linear", G, DR)
+    with pytest.raises(C.CalibrationError, match=r"^only gain curves can be averaged, got poly$"):
+        C._mean_gain([C.PolyK(np.array([1.0, 0.0]))])
+    with pytest.raises(ValueError):  # terms and coefficients must pair up
+        C._mean_gain([C.GainK(("lin", "quad"), np.array([1.0]))])
+
+
+def test_known_methods():
+    assert C.known_method("paper") and C.known_method("avg:axis-linear+sur-quad")
+    assert not C.known_method("avg:axis-linear") and not C.known_method("spline")
+    assert not C.known_method("avg:axis-linear+gain-linear")  # a joint model cannot be averaged
+
+
+def test_reference_mass_parameter_covariance_without_a_covariance_is_zero():
+    pts = stack_points(n=6)
+    np.testing.assert_array_equal(C.reference_mass_param_covariance(pts, "axis-quad", G, DR), np.zeros((4, 4)))
