@@ -555,3 +555,80 @@ def test_known_methods():
 def test_reference_mass_parameter_covariance_without_a_covariance_is_zero():
     pts = stack_points(n=6)
     np.testing.assert_array_equal(C.reference_mass_param_covariance(pts, "axis-quad", G, DR), np.zeros((4, 4)))
+
+
+def test_with_masses_scales_the_expected_torques_of_the_loads_only():
+    pts = C.CalibrationPoints(np.array(["zero", "mass", "mass"]), np.array([0.0, 0.5, 20.0]),
+                              np.array([0.0, 5.0, 200.0]), np.array([0.0, 1.0, 40.0]), np.array([3.0, 5.5, 220.0]),
+                              np.array([-2.0, 1.2, 44.0]),
+                              np.eye(3) * 1e-4)
+    new = pts.with_masses(np.array([0.0, 1.0, 15.0]))  # scales 2 and 0.75; the zero point keeps its torques
+    np.testing.assert_allclose(new.expected_a3_nm, [3.0, 11.0, 165.0])
+    np.testing.assert_allclose(new.expected_a5_nm, [-2.0, 2.4, 33.0])
+    np.testing.assert_array_equal(new.mass_cov_kg2, pts.mass_cov_kg2)
+
+
+def test_out_of_range_limits_and_message():
+    """Range 100..1100 Nm, 5 % of the 1000 Nm span beyond either end: 50 and 1150 Nm are still inside."""
+    cal = C.Calibration("axis-linear", C.GainK(("lin",), np.array([1.1])), C.GainK(("lin",), np.array([0.85])),
+                        np.zeros((2, 2)), (100.0, 1100.0), (10.0, 410.0), G, DR)
+    assert cal.out_of_range(50.0, 390.0) == [] and cal.out_of_range(-1150.0, 430.0) == []
+    assert cal.out_of_range(60.0, 30.0) == []
+    assert cal.out_of_range(49.0, 200.0) == ["torque A3 |49.0| Nm is outside the calibrated range 100.0..1100.0 Nm"]
+    assert cal.out_of_range(1000.0, -430.5) == ["torque A5 |-430.5| Nm is outside the calibrated range 10.0..410.0 Nm"]
+    assert len(cal.out_of_range(1150.1, 0.0)) == 1
+
+
+def test_evaluate_all_progress_and_refusal():
+    pts = stack_points(scatter_nm=1.0, n=6)
+    calls = []
+    evs = C.evaluate_all(pts, G, DR, progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(i, len(C.MODELS)) for i in range(1, len(C.MODELS) + 1)] and len(evs) > 0
+    one = C.CalibrationPoints(np.array(["zero", "mass"]), np.array([0.0, 10.0]), np.array([0.0, 100.0]),
+                              np.array([0.0, 20.0]), np.array([0.0, 110.0]), np.array([0.0, 22.0]))
+    with pytest.raises(C.CalibrationError, match=r"^no calibration model can be fitted to these points \(too few "
+                                                 r"loaded points\)$"):
+        C.evaluate_all(one, G, DR)
+
+
+def ev(method: str, loo_pct: float, n_params: int = 2, admissible: bool = True, lever_pct: float = np.nan,
+       loo: tuple[float, ...] = (0.0, 10.0), lever: tuple[float, ...] = (np.nan, np.nan)) -> C.Evaluation:
+    return C.Evaluation(method, np.array(loo) + 0.1, np.array(loo), 0.0, loo_pct, 0.0, n_params,
+                        np.zeros((len(loo), 2)), np.array(lever), lever_pct, admissible)
+
+
+def test_selection_rules_by_hand():
+    # without any lever-group figure the score is the configuration error alone
+    assert C.selection_score([ev("axis-linear", 0.7), ev("sur-quad", 0.6)]) == {"axis-linear": 0.7, "sur-quad": 0.6}
+    assert C.selection_score([ev("axis-linear", 0.7), ev("sur-quad", 0.6, lever_pct=2.0)]) == {
+        "axis-linear": pytest.approx(0.72), "sur-quad": pytest.approx(0.62)}
+    # nothing admissible: the best of all
+    assert C.select_auto([ev("axis-linear", 0.7, admissible=False), ev("axis-quad", 0.5, 4, False)]).method == \
+        "axis-quad"
+    # no per-axis model: the joint one
+    assert C.select_auto([ev("gain-linear", 0.9)]).method == "gain-linear"
+    # a joint model exactly the margin better does not replace the per-axis model
+    axis = 0.5
+    joint = axis - C.PREFER_AXIS_MARGIN_PCT
+    assert C.select_auto([ev("axis-linear", axis), ev("gain-linear", joint)]).method == "axis-linear"
+    assert C.select_auto([ev("axis-linear", axis), ev("gain-linear", joint - 1e-9)]).method == "gain-linear"
+    # within 0.01 % the fewer parameters win (0.01 exactly included), beyond it the score
+    assert C.select_auto([ev("axis-quad", 0.5, 4), ev("axis-linear", 0.5 + 0.01, 2)]).method == "axis-linear"
+    assert C.select_auto([ev("axis-quad", 0.5, 4), ev("axis-linear", 0.52, 2)]).method == "axis-quad"
+
+
+def test_average_of_members_by_hand():
+    pts = C.CalibrationPoints(np.array(["zero", "mass"]), np.array([0.0, 10.0]), np.zeros(2), np.zeros(2),
+                              np.zeros(2), np.zeros(2))
+    a = ev("axis-linear", 0.4, loo=(0.2, 10.4), lever=(np.nan, 9.0))
+    b = ev("sur-quad", 0.6, 4, loo=(-0.2, 9.8), lever=(np.nan, 10.0))  # exactly 1.5 × the best: a member
+    c = ev("axis-quad", 0.61, 4, loo=(5.0, 5.0))
+    avg = C.average_of(pts, [a, b, c, ev("gain-linear", 0.1)])  # the joint model is never averaged
+    assert avg.method == "avg:axis-linear+sur-quad"
+    np.testing.assert_allclose(avg.loo_mass_kg, [0.0, 10.1])
+    np.testing.assert_allclose(avg.in_sample_mass_kg, [0.1, 10.2])
+    np.testing.assert_allclose(avg.lever_mass_kg, [np.nan, 9.5])
+    assert avg.lever_mean_abs_err_pct == pytest.approx(5.0) and avg.loo_mean_abs_err_pct == pytest.approx(0.5)
+    assert avg.n_params == 4  # the union of the terms per axis: lin and quad on A3, lin and quad on A5
+    assert C.average_of(pts, [a]) is None
+    assert C.average_of(pts, [a, ev("axis-quad", 0.61, 4)]) is None
