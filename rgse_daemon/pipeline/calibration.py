@@ -247,8 +247,8 @@ class GainK(AxisK):
         m = np.asarray(torque_nm, float)
         g = self.corrected_torque_nm(m)
         slope0 = float(np.asarray(self.coef)[list(self.terms).index("lin")]) if "lin" in self.terms else np.nan
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(m != 0, g / np.where(m != 0, m, 1.0), slope0)
+        with np.errstate(invalid="ignore"):  # G(0)/0 is replaced by the slope at 0
+            return np.where(m != 0, g / m, slope0)
 
     @property
     def params(self) -> np.ndarray:

@@ -8,7 +8,7 @@ import json
 
 import numpy as np
 import pytest
-from scipy.optimize import brentq
+from scipy.optimize import brentq, least_squares
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import calibration as C
@@ -632,3 +632,41 @@ def test_average_of_members_by_hand():
     assert avg.n_params == 4  # the union of the terms per axis: lin and quad on A3, lin and quad on A5
     assert C.average_of(pts, [a]) is None
     assert C.average_of(pts, [a, ev("axis-quad", 0.61, 4)]) is None
+
+
+def test_axis_gain_fit_by_hand():
+    """Per axis, least squares of the expected torque on the basis functions; cov = s²·(AᵀA)⁻¹ with n − p degrees of
+    freedom; at least p + 1 points; the torque range over the loads (0.5 kg is one); R² per axis."""
+    t = np.array([0.0, 100.0, 300.0, 500.0])
+    e = np.array([0.0, 112.0, 327.0, 556.0])
+    k, cov, r2 = C.fit_axis_gain(t, e, ("lin",))
+    c = (t @ e) / (t @ t)
+    res = e - c * t
+    assert k.coef[0] == pytest.approx(c, rel=1e-12)
+    assert cov[0, 0] == pytest.approx((res @ res) / (4 - 1) / (t @ t), rel=1e-10)
+    assert r2 == pytest.approx(1 - (res @ res) / np.sum((e - e.mean()) ** 2), rel=1e-12)
+    with pytest.raises(C.CalibrationError, match=r"^gain curve lin\+quad needs at least 3 points, got 2$"):
+        C.fit_axis_gain(t[:2], e[:2], ("lin", "quad"))
+    assert C.fit_axis_gain(t[:3], e[:3], ("lin", "quad"))[0].coef.shape == (2,)
+    pts = C.CalibrationPoints(np.array(["zero", "mass", "mass", "mass"]), np.array([0.0, 0.5, 20.0, 30.0]), t,
+                              -t / 2, e, -e / 2)
+    cal = C.fit(pts, "axis-linear", G, DR)
+    assert cal.method == "axis-linear" and set(cal.r2) == {"A3", "A5"}
+    assert cal.torque_range_a3_nm == (100.0, 500.0) and cal.torque_range_a5_nm == (50.0, 250.0)
+
+
+def test_huber_lstsq_is_the_huber_m_estimate():
+    """The IRLS result minimises the Huber loss with the threshold 1.345 × (1.4826 × the median |residual| of the
+    least-squares start): scipy's own Huber loss with that scale finds the same line."""
+    rng = np.random.default_rng(2)
+    x = np.linspace(1.0, 10.0, 15)
+    a = np.stack([x, np.ones_like(x)], axis=1)
+    y = 2.0 * x + 1.0 + rng.normal(0.0, 0.3, 15)
+    y[[3, 11]] += [6.0, -4.0]
+    start, *_ = np.linalg.lstsq(a, y, rcond=None)
+    scale = 1.4826 * np.median(np.abs(a @ start - y))
+    ref = least_squares(lambda c: a @ c - y, start, loss="huber", f_scale=1.345 * scale, xtol=1e-15, ftol=1e-15,
+                        gtol=1e-15).x
+    np.testing.assert_allclose(C.huber_lstsq(a, y), ref, rtol=1e-7)
+    exact = 2.0 * x + 1.0  # a perfect fit: no scale, the least-squares answer
+    np.testing.assert_allclose(C.huber_lstsq(a, exact), [2.0, 1.0], rtol=1e-12)
