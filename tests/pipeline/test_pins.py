@@ -670,3 +670,16 @@ def test_huber_lstsq_is_the_huber_m_estimate():
     np.testing.assert_allclose(C.huber_lstsq(a, y), ref, rtol=1e-7)
     exact = 2.0 * x + 1.0  # a perfect fit: no scale, the least-squares answer
     np.testing.assert_allclose(C.huber_lstsq(a, exact), [2.0, 1.0], rtol=1e-12)
+
+
+def test_batch_means_default_is_ten_batches():
+    x = np.random.default_rng(8).normal(0.0, 1.0, 34)
+    means = x[:30].reshape(10, 3).mean(axis=1)  # 34 samples: ten batches of three, the last four left over
+    assert unc.batch_means_se(x) == pytest.approx(means.std(ddof=1) / np.sqrt(10), rel=1e-12)
+
+
+def test_calibration_uncertainty_record_needs_two_finite_refits():
+    record = {"reproducibility": {"rms_a3_nm": 1.0, "rms_a5_nm": 2.0, "corr": 0.0}, "bootstrap_params": [[1.0, 2.0]]}
+    with pytest.raises(DataError, match=r"^fit\.uncertainty: needs finite reproducibility and at least two bootstrap "
+                                        r"parameter sets$"):
+        unc.CalibrationUncertainty.from_dict(record, 2)
