@@ -213,6 +213,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the DuT frame's origin in the flange frame (m; needs --fixture-cog)")
     r.add_argument("--dut-abc", type=float, nargs=3, metavar=("A", "B", "C"),
                    help="the DuT frame's KUKA A, B, C in the flange frame (deg; needs --fixture-cog)")
+    r.add_argument("--inertia", action=argparse.BooleanOptionalAction, default=None,
+                   help="also the inertia tensor: DuT and tare excitation, a prompt to take the DuT off "
+                        "(default: properties.inertia)")
     r.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
     for q in (m, c, r):
         q.add_argument("--config", type=Path, required=True, metavar="FILE")

@@ -44,15 +44,18 @@ from rgse_daemon.trace.diadem import read_trace_set
 #: $ACC_AXIS (%) of the first move, to the start pose.
 START_ACC_PCT = 20.0
 MANIFEST = "inertia.toml"
+#: ECSS-E-10-03C: the inertia tensor within ±3 %.
+ECSS_REL = 0.03
 
 
-def excitation_program(design: ex.Excitation) -> RenderedProgram:
-    """The KRL of a designed excitation (template ``rgse_inertia``); the static check still decides the push."""
+def excitation_program(design: ex.Excitation, rest_s: float = 0.0) -> RenderedProgram:
+    """The KRL of a designed excitation (template ``rgse_inertia``), ``rest_s`` of standstill after each move; the
+    static check still decides the push."""
     first = design.moves[0]
     moves = tuple(InertiaMove(pose=m.target_deg, vel_axis_pct=m.vel_axis_pct, acc_axis_pct=m.acc_axis_pct)
                   for m in design.moves)
     params = InertiaParams(vel_axis_pct=min(first.vel_axis_pct), acc_axis_pct=START_ACC_PCT,
-                           start_pose=design.start_deg, moves=moves)
+                           start_pose=design.start_deg, moves=moves, rest_s=rest_s)
     return render(InertiaParams.template, params)
 
 
