@@ -9,8 +9,8 @@ A run directory holds two KUKA Trace sets recorded while ``rgse_inertia`` ran, t
 manifest ``inertia.toml`` (docs/interfaces.md)::
 
     [inertia]
-    dut_trace = "inertia_dut"          # trace names in the directory
-    tare_trace = "inertia_tare"
+    dut_trace = "inertia_dut"          # trace names in the directory; or lists of them, pair by pair (a long
+    tare_trace = "inertia_tare"        # excitation in several programs, one trace each)
     base_deg = [0.0, -90.0, 90.0, 0.0, 0.0, 0.0]   # A1..A6 of the axes a trace does not hold (A1..A3)
     mass_kg = 107.3                    # the DuT, from the static measurement
     cog_flange_m = [-0.041, -0.028, 0.345]
@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -51,18 +52,28 @@ ECSS_REL = 0.03
 def excitation_program(design: ex.Excitation, rest_s: float = 0.0) -> RenderedProgram:
     """The KRL of a designed excitation (template ``rgse_inertia``), ``rest_s`` of standstill after each move; the
     static check still decides the push."""
-    first = design.moves[0]
-    moves = tuple(InertiaMove(pose=m.target_deg, vel_axis_pct=m.vel_axis_pct, acc_axis_pct=m.acc_axis_pct)
-                  for m in design.moves)
+    return moves_program(design.start_deg, design.moves, rest_s)
+
+
+def moves_program(start_deg: Sequence[float], moves: Sequence[ex.Move], rest_s: float = 0.0) -> RenderedProgram:
+    """``rgse_inertia`` for ``moves`` (a whole excitation or a part of it) from ``start_deg``."""
+    first = moves[0]
     params = InertiaParams(vel_axis_pct=min(first.vel_axis_pct), acc_axis_pct=START_ACC_PCT,
-                           start_pose=design.start_deg, moves=moves, rest_s=rest_s)
+                           start_pose=tuple(float(v) for v in start_deg), rest_s=rest_s,
+                           moves=tuple(InertiaMove(pose=m.target_deg, vel_axis_pct=m.vel_axis_pct,
+                                                   acc_axis_pct=m.acc_axis_pct) for m in moves))
     return render(InertiaParams.template, params)
+
+
+def _names(v: str | tuple[str, ...]) -> tuple[str, ...]:
+    return (v,) if isinstance(v, str) else tuple(v)
 
 
 @dataclass(frozen=True)
 class InertiaManifest:
-    dut_trace: str
-    tare_trace: str
+    dut_trace: str | tuple[str, ...]
+    """One trace, or several (the parts of the excitation in order); the tare's pair with them one by one."""
+    tare_trace: str | tuple[str, ...]
     base_deg: tuple[float, ...]
     mass_kg: float
     cog_flange_m: tuple[float, float, float]
@@ -75,10 +86,13 @@ class InertiaManifest:
         def arr(v: Any) -> str:
             return "[" + ", ".join(repr(float(x)) for x in v) + "]"
 
+        def names(v: str | tuple[str, ...]) -> str:
+            return f'"{v}"' if isinstance(v, str) else "[" + ", ".join(f'"{n}"' for n in v) + "]"
+
         return "\n".join([
             "[inertia]",
-            f'dut_trace = "{self.dut_trace}"',
-            f'tare_trace = "{self.tare_trace}"',
+            f"dut_trace = {names(self.dut_trace)}",
+            f"tare_trace = {names(self.tare_trace)}",
             f"base_deg = {arr(self.base_deg)}",
             f"mass_kg = {float(self.mass_kg)!r}",
             f"cog_flange_m = {arr(self.cog_flange_m)}",
@@ -109,8 +123,14 @@ def load_manifest(directory: Path) -> InertiaManifest:
     if not isinstance(sec, dict):
         raise DataError(f"{path}: no [inertia] table")
     for key in ("dut_trace", "tare_trace"):
-        if not isinstance(sec.get(key), str):
-            raise DataError(f"{path}: {key} must be a trace name")
+        v = sec.get(key)
+        if isinstance(v, list) and v and all(isinstance(n, str) for n in v):
+            sec[key] = tuple(v)
+        elif not isinstance(v, str):
+            raise DataError(f"{path}: {key} must be a trace name or a list of them, got {v!r}")
+    if len(_names(sec["dut_trace"])) != len(_names(sec["tare_trace"])):
+        raise DataError(f"{path}: {len(_names(sec['dut_trace']))} DuT traces but {len(_names(sec['tare_trace']))} "
+                        "tare traces: they pair one by one")
     mass = sec.get("mass_kg")
     if not isinstance(mass, int | float) or not mass > 0:
         raise DataError(f"{path}: mass_kg must be a positive number, got {mass!r}")
@@ -167,17 +187,23 @@ def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | No
     """The identification of a run directory (see the module docstring)."""
     directory = Path(directory)
     man = load_manifest(directory)
-    dut, period = read_strokes(directory, man.dut_trace, man.base_deg)
-    tare, period_t = read_strokes(directory, man.tare_trace, man.base_deg)
-    if not math.isclose(period, period_t, rel_tol=1e-9):
-        raise DataError(f"{directory}: DuT and tare traces have different sample periods ({period} / {period_t} s)")
-    if len(dut) != len(tare):
-        raise DataError(f"{directory}: the DuT trace has {len(dut)} motions, the tare {len(tare)}: not the same "
-                        "excitation")
-    try:
-        strokes = [inr.difference(d, t) for d, t in zip(dut, tare, strict=True)]
-    except ValueError as exc:
-        raise DataError(f"{directory}: {exc}") from exc
+    strokes: list[inr.Stroke] = []
+    periods: set[float] = set()
+    for dut_name, tare_name in zip(_names(man.dut_trace), _names(man.tare_trace), strict=True):
+        dut, period = read_strokes(directory, dut_name, man.base_deg)
+        tare, period_t = read_strokes(directory, tare_name, man.base_deg)
+        if not math.isclose(period, period_t, rel_tol=1e-9) or any(
+                not math.isclose(period, p, rel_tol=1e-9) for p in periods):
+            raise DataError(f"{directory}: traces {dut_name} and {tare_name} have different sample periods "
+                            f"({period} / {period_t} s, others {sorted(periods)})")
+        periods.add(period)
+        if len(dut) != len(tare):
+            raise DataError(f"{directory}: the DuT trace {dut_name} has {len(dut)} motions, the tare {tare_name} "
+                            f"{len(tare)}: not the same excitation")
+        try:
+            strokes += [inr.difference(d, t) for d, t in zip(dut, tare, strict=True)]
+        except ValueError as exc:
+            raise DataError(f"{directory}: {dut_name} / {tare_name}: {exc}") from exc
     cal = None
     if calibration_path is not None:
         doc = calfile.read(calibration_path)[0]

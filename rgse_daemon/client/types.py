@@ -118,7 +118,9 @@ class ProgressEvent:
 
 @dataclass(frozen=True)
 class Prompt:
-    """The daemon waits for the operator: mount this load of campaign point ``point_index`` (0-based), confirm."""
+    """The daemon waits for the operator: mount this load of campaign point ``point_index`` (0-based), confirm. A
+    properties run with the inertia asks once to take the DuT off for the tare (``inertia_tare``; ``point_index`` 0
+    there means nothing); ``data`` is the prompt's whole data."""
 
     run_id: str
     point_index: int
@@ -129,13 +131,19 @@ class Prompt:
     n_cb: int | None
     cb_lever_a5_m: float | None
     message: str
+    data: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def inertia_tare(self) -> bool:
+        """The tare of the inertia: take the DuT off (MPA and fixture stay), then confirm."""
+        return self.data.get("inertia_tare") is True
 
     @classmethod
     def of(cls, ev: ProgressEvent) -> Prompt:
         d = ev.data
         return cls(run_id=ev.run_id, point_index=_i(d, "point_index") or 0, kind=str(d.get("kind", "?")),
                    mass_kg=_f(d, "mass_kg"), lever_a3_m=_f(d, "lever_a3_m"), lever_a5_m=_f(d, "lever_a5_m"),
-                   n_cb=_i(d, "n_cb"), cb_lever_a5_m=_f(d, "cb_lever_a5_m"), message=ev.message)
+                   n_cb=_i(d, "n_cb"), cb_lever_a5_m=_f(d, "cb_lever_a5_m"), message=ev.message, data=dict(d))
 
 
 @dataclass(frozen=True)

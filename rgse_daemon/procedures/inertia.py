@@ -5,12 +5,15 @@ identification)::
 
     design       the excitation for the measured payload (:func:`~rgse_daemon.pipeline.excitation.design`): every
                  swing at the largest $VEL_AXIS that keeps every corner of the interlock's payload cube
-                 (``measurement.payload_lever_max_m``, the points the static check uses) under the T1 limit, rendered
-                 as ``rgse_inertia`` with ``REST_S`` of standstill after each move
-    DuT          push (static check) and select it, arm KUKA Trace of A4..A6 (``INERTIA_TRACE_PERIOD_S``), start it,
-                 wait for the end, stop and pull the trace, archive it as a loop of the run
+                 (``measurement.payload_lever_max_m``, the points the static check uses) under the T1 limit; one
+                 ``rgse_inertia`` program per wrist orientation (a part: the move there and its swings, the last
+                 part also the move back), ``REST_S`` of standstill after each move
+    DuT          per part: push (static check) and select it, arm KUKA Trace of A4..A6 (``INERTIA_TRACE_PERIOD_S``),
+                 start it, wait for the end, check the trace still records, stop and pull it, archive it as a loop
+                 of the run. A part lasts ~30-70 s: far within the trace buffer (200 s at 4 ms) whatever the payload
+                 reach, and a retry or an abort loses one part, not the whole excitation
     tare         the operator takes the DuT off (MPA and fixture stay) and confirms (the engine's Confirm: MQTT/CLI
-                 ``confirm``); the start is verified again (mode, safety inputs) and the *same* program runs, traced
+                 ``confirm``); the start is verified again (mode, safety inputs) and the *same* programs run, traced
     compute      ``inertia.toml`` in the run directory (the traces, mass and CoG of the run, the fixture, the DuT
                  frame) and the identification **by the same code as** ``rgse inertia --traces DIR --calibration
                  DIR/CAL.json`` (:func:`~rgse_daemon.analysis.inertia.compute_inertia_dir`)
@@ -31,7 +34,7 @@ from pathlib import Path
 from typing import Any
 
 from rgse_daemon.analysis.cog import FixtureFrame
-from rgse_daemon.analysis.inertia import MANIFEST, InertiaManifest, compute_inertia_dir, excitation_program
+from rgse_daemon.analysis.inertia import MANIFEST, InertiaManifest, compute_inertia_dir, moves_program
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.krl.render import RenderedProgram, cube_corners
@@ -56,29 +59,32 @@ INERTIA_TRACE_MODULES = ("KRCIpo", "NextGenDrive#4", "NextGenDrive#5", "NextGenD
 INERTIA_TRACE_PERIOD_S = 0.004
 #: Standstill after each move of the excitation (s): one stroke per move in the trace.
 REST_S = 0.3
-#: The trace runs this much longer than the planned program (fraction, plus ``TRACE_MARGIN_S``); it is stopped when
-#: the program ends, so the margin costs nothing but covers a slower controller.
+#: The trace is armed for the whole buffer and stopped when the program ends; the planned program must leave this
+#: much of the buffer free (fraction, plus ``TRACE_MARGIN_S``) for a controller slower than planned.
 TRACE_MARGIN_FRACTION = 0.25
 TRACE_MARGIN_S = 10.0
 #: Deadline of the design (s): the interlock's speed bound over every swing, in a worker thread.
 DESIGN_TIMEOUT_S = 300.0
 #: Deadline of the identification (s): the stroke bootstrap.
 COMPUTE_TIMEOUT_S = 600.0
+#: $TRACE.STATE while the trace still records (kuka-facts §5).
+RECORDING_STATES = ("TRIGGERED",)
 #: The prompt data that marks the tare's mounting change (a client shows it; the demo's operator acts on it).
 TARE_PROMPT = "inertia_tare"
 
 
 @dataclass(frozen=True)
 class InertiaPlan:
-    """A designed excitation and its program, the planned robot time (s, rests included) and the trace length."""
+    """A designed excitation and its programs (one per part), the planned robot time (s, rests included) and the
+    trace length each part is armed for."""
 
     design: ex.Excitation
-    program: RenderedProgram
+    programs: tuple[RenderedProgram, ...]
     planned_s: float
     trace_time_s: float
 
     def to_json(self) -> dict[str, Any]:
-        return {"moves": len(self.design.moves), "planned_robot_time_s": self.planned_s,
+        return {"moves": len(self.design.moves), "parts": len(self.programs), "planned_robot_time_s": self.planned_s,
                 "trace_time_s": self.trace_time_s, "rest_s": REST_S, "trace_period_s": INERTIA_TRACE_PERIOD_S,
                 "condition_number": self.design.condition_number, "log_det": self.design.log_det,
                 "limit_mm_s": self.design.limit_mm_s, "max_point_speed_mm_s": self.design.max_point_speed_mm_s}
@@ -94,26 +100,43 @@ def payload_of(s: RunSettings, fixture: FixtureFrame, mass_kg: float, cog_flange
     return ex.Payload(total, (cog[0], cog[1], cog[2]), points)  # type: ignore[arg-type]
 
 
+def split(design: ex.Excitation, n_blocks: int = ex.N_BLOCKS, repeats: int = ex.REPEATS
+          ) -> list[tuple[tuple[float, ...], tuple[ex.Move, ...]]]:
+    """The parts of ``design`` (start pose, moves): per orientation the move there and its block
+    (``excitation.program_moves``), the move back to the start in the last part."""
+    per_block = 1 + len(ex.SWING_AXES) * (2 + 2 * repeats)
+    moves = design.moves
+    if len(moves) != n_blocks * per_block + 1:
+        raise DataError(f"inertia: a design of {len(moves)} moves is not {n_blocks} blocks of {per_block} and the "
+                        "move back")
+    parts = []
+    start = tuple(design.start_deg)
+    for k in range(n_blocks):
+        chunk = moves[k * per_block:(k + 1) * per_block] + (moves[-1:] if k == n_blocks - 1 else ())
+        parts.append((start, chunk))
+        start = tuple(chunk[-1].target_deg)
+    return parts
+
+
 def plan_excitation(s: RunSettings, payload: ex.Payload) -> InertiaPlan:
-    """The excitation for ``payload`` from the measurement pose, within the trace buffer at 4 ms: the default
-    design, or with one swing per axis and orientation when that one is too long; DataError when even that does not
-    fit (the cube of ``payload_lever_max_m`` sets the speeds, hence the duration)."""
+    """The excitation for ``payload`` from the measurement pose, in parts that each fit the trace buffer at 4 ms;
+    DataError when a part does not (the cube of ``payload_lever_max_m`` sets the speeds, hence the duration)."""
     limit_s = buffer_limit_s(INERTIA_TRACE_PERIOD_S)
-    planned = math.inf
-    for repeats in (ex.REPEATS, 1):
-        try:
-            design = ex.design(payload, base_deg=s.meas_pose_deg, limit_mm_s=s.speed_limit_mm_s, repeats=repeats,
-                               optimise=False)
-        except ValueError as exc:
-            raise DataError(f"inertia: {exc}") from None
-        planned = design.robot_time_s + REST_S * len(design.moves)
-        trace_s = planned * (1.0 + TRACE_MARGIN_FRACTION) + TRACE_MARGIN_S
-        if trace_s <= limit_s:
-            return InertiaPlan(design, excitation_program(design, REST_S), planned, trace_s)
-    raise DataError(f"inertia: the excitation takes {planned:.0f} s of robot time, more than KUKA Trace holds at "
-                    f"{1000 * INERTIA_TRACE_PERIOD_S:g} ms ({limit_s:g} s with margin): the swings are slow because "
-                    f"every point within measurement.payload_lever_max_m = {s.payload_lever_max_m:g} m is kept "
-                    f"under {s.speed_limit_mm_s:g} mm/s; a smaller (true) payload reach shortens them")
+    try:
+        design = ex.design(payload, base_deg=s.meas_pose_deg, limit_mm_s=s.speed_limit_mm_s, optimise=False)
+    except ValueError as exc:
+        raise DataError(f"inertia: {exc}") from None
+    planned = design.robot_time_s + REST_S * len(design.moves)
+    parts = split(design)
+    longest = max(planned * len(moves) / len(design.moves) for _, moves in parts)  # the parts are alike
+    if longest * (1.0 + TRACE_MARGIN_FRACTION) + TRACE_MARGIN_S > limit_s:
+        raise DataError(f"inertia: a part of the excitation takes ~{longest:.0f} s of robot time, more than KUKA "
+                        f"Trace holds at {1000 * INERTIA_TRACE_PERIOD_S:g} ms ({limit_s:g} s with margin): the "
+                        f"swings are slow because every point within measurement.payload_lever_max_m = "
+                        f"{s.payload_lever_max_m:g} m is kept under {s.speed_limit_mm_s:g} mm/s; a smaller (true) "
+                        "payload reach shortens them")
+    programs = tuple(moves_program(start, moves, REST_S) for start, moves in parts)
+    return InertiaPlan(design, programs, planned, limit_s)
 
 
 def check_feasible(s: RunSettings, fixture: FixtureFrame, gains_axes: Sequence[int]) -> None:
@@ -138,9 +161,9 @@ def inertia_trace_xml(s: RunSettings, trace_time_s: float) -> str:
                             INERTIA_TRACE_MODULES)
 
 
-def trace_name(tag: str, which: str) -> str:
-    """The excitation trace of the DuT (``which`` = ``dut``) or the tare (``tare``)."""
-    return f"inertia_{tag}_{which}"
+def trace_name(tag: str, which: str, part: int) -> str:
+    """The excitation trace of part ``part`` (1-based) of the DuT (``which`` = ``dut``) or the tare (``tare``)."""
+    return f"inertia_{tag}_{which}_p{part}"
 
 
 def excite(index: int, trace: str, run: d.RunContext, s: RunSettings,
@@ -153,17 +176,22 @@ def excite(index: int, trace: str, run: d.RunContext, s: RunSettings,
     yield d.LoopStarted(index, trace, _now())
     record_start = _now()
     t0 = time.monotonic()
-    yield m.TraceStart(trace, INERTIA_TRACE_CONFIG_NAME)
+    armed = yield m.TraceStart(trace, INERTIA_TRACE_CONFIG_NAME)  # None in a dry run
     yield m.Start()
     reply = yield m.WaitProgram(frozenset({"P_END"}), s.program_timeout_s)
     timing.motion_s = reply[1] if reply is not None else 0.0
     yield m.VerifyDone("RGSE_DONE")
     yield d.LoopRecording(index, robot_end_utc=_now(), record_start_utc=record_start)
+    state = yield m.ReadVar("$TRACE.STATE")
+    state_name = str(getattr(state, "name", state)).strip().lstrip("#").upper()
+    if armed is not None and state_name not in RECORDING_STATES:
+        raise DataError(f"inertia: the trace {trace} ended ($TRACE.STATE #{state_name}) before the excitation did: "
+                        f"the program ran longer than the trace buffer holds at {INERTIA_TRACE_PERIOD_S * 1000:g} ms")
     yield m.TraceStop()
     yield m.TraceWait(s.trace_timeout_s)
     timing.record_s = max(0.0, time.monotonic() - t0 - timing.motion_s)
     yield d.LoopRecorded(index, _now())
-    pulled: PulledTrace | None = yield m.Pull(trace, run.run_dir, s.trace_timeout_s)
+    pulled: PulledTrace | None = yield m.Pull(trace, run.run_dir, s.trace_timeout_s, INERTIA_TRACE_MODULES[1:])
     outcome = LoopOutcome(trace, timing)
     if pulled is None:  # dry run
         return outcome
@@ -192,14 +220,13 @@ def inertia_step(run: d.RunContext, s: RunSettings, fixture: FixtureFrame, dut_a
     plan: InertiaPlan = yield m.Compute("design the inertia excitation", plan_excitation,
                                         (s, payload_of(s, fixture, mass, cog)), timeout_s=DESIGN_TIMEOUT_S)
     yield m.PutFile(TRACE_DIR + INERTIA_TRACE_CONFIG_NAME, inertia_trace_xml(s, plan.trace_time_s).encode("utf-8"))
-    dut_trace, tare_trace = trace_name(tag, "dut"), trace_name(tag, "tare")
-    yield m.Checkpoint("inertia: DuT excitation")
-    yield m.Emit(Event("step", f"inertia: DuT excitation ({len(plan.design.moves)} moves, {plan.planned_s:.0f} s "
-                               "planned)", step="inertia", data={"phase": "inertia", "which": "dut",
-                                                                 **plan.to_json()}))
-    dut = yield from excite(first_index, dut_trace, run, s, plan.program)
-    yield m.Emit(Event("loop", "inertia: DuT excitation done", step="loop",
-                       data={"phase": "inertia", "which": "dut", **dut.timing.to_json()}))
+    n = len(plan.programs)
+    dut_traces = [trace_name(tag, "dut", k) for k in range(1, n + 1)]
+    tare_traces = [trace_name(tag, "tare", k) for k in range(1, n + 1)]
+    yield m.Emit(Event("step", f"inertia: DuT excitation ({len(plan.design.moves)} moves in {n} parts, "
+                               f"{plan.planned_s:.0f} s planned)", step="inertia",
+                       data={"phase": "inertia", "which": "dut", **plan.to_json()}))
+    dut = yield from _parts("DuT", dut_traces, first_index, run, s, plan)
     yield m.Checkpoint("inertia: tare")
     note = yield m.Confirm("inertia tare: take the DuT off (leave MPA and fixture mounted) and confirm",
                            data={TARE_PROMPT: True, "phase": "inertia", "fixture_mass_kg": fixture.mass_kg})
@@ -207,22 +234,35 @@ def inertia_step(run: d.RunContext, s: RunSettings, fixture: FixtureFrame, dut_a
                        data={"phase": "inertia", "which": "tare"}))
     snap = yield from verify_start(inputs)  # a new mounting: mode and safety inputs again, then to the start pose
     yield from run_checked((yield from render_program("rgse_meas_pose", s, snap)), s)
-    tare = yield from excite(first_index + 1, tare_trace, run, s, plan.program)
-    yield m.Emit(Event("loop", "inertia: tare excitation done", step="loop",
-                       data={"phase": "inertia", "which": "tare", **tare.timing.to_json()}))
+    tare = yield from _parts("tare", tare_traces, first_index + n, run, s, plan)
     if static is None:  # dry run
-        return None, [dut, tare]
+        return None, [*dut, *tare]
     yield m.Emit(Event("step", "computing the inertia (offline path)", step="compute-inertia"))
-    man = InertiaManifest(dut_trace, tare_trace, tuple(s.meas_pose_deg), mass, cog,  # type: ignore[arg-type]
+    man = InertiaManifest(tuple(dut_traces), tuple(tare_traces), tuple(s.meas_pose_deg), mass,
+                          cog,  # type: ignore[arg-type]
                           tuple(static["U_cog_m"]), tuple(float(v) for v in dut_abc_deg),  # type: ignore[arg-type]
                           fixture.mass_kg, tuple(fixture.cog_flange_m))  # type: ignore[arg-type]
     t0 = time.monotonic()
     result = yield m.Process("compute the inertia", compute_inertia, (run.run_dir, man), timeout_s=COMPUTE_TIMEOUT_S)
     if result is None:
-        return None, [dut, tare]
+        return None, [*dut, *tare]
     result["inertia"]["compute_s"] = time.monotonic() - t0
     result["inertia"]["excitation"] = plan.to_json()
-    return result, [dut, tare]
+    return result, [*dut, *tare]
+
+
+def _parts(which: str, traces: Sequence[str], first_index: int, run: d.RunContext, s: RunSettings,
+           plan: InertiaPlan) -> Generator[m.Msg, Any, list[LoopOutcome]]:
+    """Every part of the excitation, traced, as loops ``first_index``…"""
+    outcomes = []
+    n = len(plan.programs)
+    for k, (trace, prog) in enumerate(zip(traces, plan.programs, strict=True), 1):
+        yield m.Checkpoint(f"inertia: {which} part {k}")
+        out = yield from excite(first_index + k - 1, trace, run, s, prog)
+        outcomes.append(out)
+        yield m.Emit(Event("loop", f"inertia: {which} excitation part {k}/{n} done", step="loop", loop_index=k,
+                           loop_count=n, data={"phase": "inertia", "which": which.lower(), **out.timing.to_json()}))
+    return outcomes
 
 
 def compute_inertia(run_dir: Path, man: InertiaManifest) -> dict[str, Any]:
@@ -241,7 +281,7 @@ def compute_inertia(run_dir: Path, man: InertiaManifest) -> dict[str, Any]:
         "U_principal_moments_kgm2": r["U_principal_moments_kgm2"],
         "principal_axes_dut": r["principal_axes_dut"],
         "U_principal_axes_deg": r["U_principal_axes_deg"],
-        "inertia_traces": {"dut": man.dut_trace, "tare": man.tare_trace},
+        "inertia_traces": {"dut": list(man.dut_trace), "tare": list(man.tare_trace)},
         "inertia": {**r, "mass_kg": man.mass_kg, "cog_flange_m": list(man.cog_flange_m),
                     "U_cog_flange_m": list(man.U_cog_flange_m), "dut_abc_deg": list(man.dut_abc_deg)},
     }
