@@ -20,7 +20,8 @@ manifest ``inertia.toml`` (docs/interfaces.md)::
     fixture_cog_flange_m = [0.0, 0.0, 0.04]
 
 With a CAL.json whose ``torsional`` section has gain curves for A4–A6, the readings are taken through them
-(``pipeline.inertia.TorqueCalibration``); without one, 1:1.
+(``pipeline.inertia.TorqueCalibration``) and the largest relative uncertainty of their slopes enters U
+(:func:`gain_slope_u_rel`); without one, 1:1.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from rgse_daemon.errors import DataError
 from rgse_daemon.krl.render import InertiaMove, InertiaParams, RenderedProgram, render
 from rgse_daemon.pipeline import excitation as ex
 from rgse_daemon.pipeline import inertia as inr
+from rgse_daemon.pipeline.cog import AxisGain
 from rgse_daemon.trace.channels import ISTMOMENT, ISTPOSITION, MOTORTEMPERATUR, SOLLPOSITION, drive_module
 from rgse_daemon.trace.diadem import read_trace_set
 
@@ -182,6 +184,24 @@ def read_strokes(directory: Path, name: str, base_deg: tuple[float, ...]) -> tup
     return strokes, period
 
 
+def gain_slope_u_rel(gain: AxisGain) -> float:
+    """Relative standard uncertainty of a gain curve's slope (the torque scale the inertia is read through) from
+    its fitted parameters' covariance (with the Student factor of its few points), at the middle of the torques the
+    campaign covered: what ``TorqueCalibration.u_gain_rel`` adds to U (it scales every inertia alike)."""
+    k = np.asarray(gain.params, float)
+    cov = np.asarray(gain.covariance, float) * gain.student_factor()
+    x = np.array([0.5 * max(abs(v) for v in gain.torque_range_nm)])
+    slope = float(gain.slope(x, k)[0])
+    jac = np.empty(len(k))
+    for i in range(len(k)):
+        h = 1e-6 * max(abs(k[i]), 1e-6)
+        kp = k.copy()
+        kp[i] += h
+        jac[i] = (float(gain.slope(x, kp)[0]) - slope) / h
+    var = float(jac @ cov @ jac)
+    return math.sqrt(max(var, 0.0)) / abs(slope) if slope != 0 else math.inf
+
+
 def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | None = None,
                         n_bootstrap: int = inr.N_BOOTSTRAP) -> inr.InertiaResult:
     """The identification of a run directory (see the module docstring)."""
@@ -212,7 +232,9 @@ def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | No
             raise DataError(f"{calibration_path}: no torsional section (the gain curves of A4..A6)")
         gains = {ax: g for ax, g in tors.gains.items() if ax in inr.WRIST_AXES}
         fix = man.fixture_mass_kg
-        cal = inr.TorqueCalibration(gains, (fix, *(fix * c for c in man.fixture_cog_flange_m)))  # type: ignore[arg-type]
+        u_rel = max((gain_slope_u_rel(g) for g in gains.values()), default=0.0)
+        cal = inr.TorqueCalibration(gains, (fix, *(fix * c for c in man.fixture_cog_flange_m)),  # type: ignore[arg-type]
+                                    u_gain_rel=u_rel)
     try:
         return inr.identify(strokes, period, man.mass_kg, man.cog_flange_m, dut_abc_deg=man.dut_abc_deg,
                             calibration=cal, u_cog_flange_m=tuple(u / 2.0 for u in man.U_cog_flange_m),
