@@ -78,7 +78,7 @@ FIXTURE = {"cog_flange_m": list(ph.fixture_cog_flange_m()),
 
 
 @pytest.mark.timeout(RUN_TIMEOUT_S + 60)
-async def test_properties_with_inertia_gives_the_principal_moments_within_U_through_the_daemon(
+async def test_properties_with_inertia_end_to_end_through_the_daemon_and_rgse_inertia(
         sim_process: SimProcess, private_broker: MosquittoProcess, cog_calibration_doc: dict[str, Any],
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     sim = sim_process
