@@ -84,6 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", type=Path, metavar="DIR", help="also write the HTML report into DIR")
     p.add_argument("--mqtt", metavar="URL", help="also publish on this broker, e.g. mqtt://127.0.0.1:1883")
     p.add_argument("--console", type=int, metavar="PORT", help="also serve the web console on 127.0.0.1:PORT")
+    p.add_argument("--inertia", action="store_true",
+                   help="the properties run also measures the inertia tensor (DuT and tare excitation)")
 
     p = sub.add_parser("sim", help="run the simulated KR C4 as a server until SIGINT/SIGTERM")
     p.add_argument("--host", default="127.0.0.1")
@@ -213,6 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the DuT frame's origin in the flange frame (m; needs --fixture-cog)")
     r.add_argument("--dut-abc", type=float, nargs=3, metavar=("A", "B", "C"),
                    help="the DuT frame's KUKA A, B, C in the flange frame (deg; needs --fixture-cog)")
+    r.add_argument("--inertia", action=argparse.BooleanOptionalAction, default=None,
+                   help="also the inertia tensor: DuT and tare excitation, a prompt to take the DuT off "
+                        "(default: properties.inertia)")
     r.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
     for q in (m, c, r):
         q.add_argument("--config", type=Path, required=True, metavar="FILE")

@@ -268,6 +268,9 @@ class PropertiesConfig(_Section):
     when: Literal["on_request", "every_measurement"] = "on_request"
     """``on_request``: only a properties run (MQTT ``properties``, ``rgse run properties``) measures the CoG;
     ``every_measurement``: every measurement run is a properties run."""
+    inertia: bool = False
+    """Also the inertia tensor (issue #15): after the CoG poses the DuT's excitation, then, once the operator took
+    the DuT off (a prompt), the tare's; needs the calibration's torque gains of A4..A6."""
     fixture: FixtureFrameConfig = FixtureFrameConfig()
 
 

@@ -9,8 +9,8 @@ A run directory holds two KUKA Trace sets recorded while ``rgse_inertia`` ran, t
 manifest ``inertia.toml`` (docs/interfaces.md)::
 
     [inertia]
-    dut_trace = "inertia_dut"          # trace names in the directory
-    tare_trace = "inertia_tare"
+    dut_trace = "inertia_dut"          # trace names in the directory; or lists of them, pair by pair (a long
+    tare_trace = "inertia_tare"        # excitation in several programs, one trace each)
     base_deg = [0.0, -90.0, 90.0, 0.0, 0.0, 0.0]   # A1..A6 of the axes a trace does not hold (A1..A3)
     mass_kg = 107.3                    # the DuT, from the static measurement
     cog_flange_m = [-0.041, -0.028, 0.345]
@@ -20,13 +20,15 @@ manifest ``inertia.toml`` (docs/interfaces.md)::
     fixture_cog_flange_m = [0.0, 0.0, 0.04]
 
 With a CAL.json whose ``torsional`` section has gain curves for A4–A6, the readings are taken through them
-(``pipeline.inertia.TorqueCalibration``); without one, 1:1.
+(``pipeline.inertia.TorqueCalibration``) and the largest relative uncertainty of their slopes enters U
+(:func:`gain_slope_u_rel`); without one, 1:1.
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,28 +40,42 @@ from rgse_daemon.errors import DataError
 from rgse_daemon.krl.render import InertiaMove, InertiaParams, RenderedProgram, render
 from rgse_daemon.pipeline import excitation as ex
 from rgse_daemon.pipeline import inertia as inr
+from rgse_daemon.pipeline.cog import AxisGain
 from rgse_daemon.trace.channels import ISTMOMENT, ISTPOSITION, MOTORTEMPERATUR, SOLLPOSITION, drive_module
 from rgse_daemon.trace.diadem import read_trace_set
 
 #: $ACC_AXIS (%) of the first move, to the start pose.
 START_ACC_PCT = 20.0
 MANIFEST = "inertia.toml"
+#: ECSS-E-10-03C: the inertia tensor within ±3 %.
+ECSS_REL = 0.03
 
 
-def excitation_program(design: ex.Excitation) -> RenderedProgram:
-    """The KRL of a designed excitation (template ``rgse_inertia``); the static check still decides the push."""
-    first = design.moves[0]
-    moves = tuple(InertiaMove(pose=m.target_deg, vel_axis_pct=m.vel_axis_pct, acc_axis_pct=m.acc_axis_pct)
-                  for m in design.moves)
+def excitation_program(design: ex.Excitation, rest_s: float = 0.0) -> RenderedProgram:
+    """The KRL of a designed excitation (template ``rgse_inertia``), ``rest_s`` of standstill after each move; the
+    static check still decides the push."""
+    return moves_program(design.start_deg, design.moves, rest_s)
+
+
+def moves_program(start_deg: Sequence[float], moves: Sequence[ex.Move], rest_s: float = 0.0) -> RenderedProgram:
+    """``rgse_inertia`` for ``moves`` (a whole excitation or a part of it) from ``start_deg``."""
+    first = moves[0]
     params = InertiaParams(vel_axis_pct=min(first.vel_axis_pct), acc_axis_pct=START_ACC_PCT,
-                           start_pose=design.start_deg, moves=moves)
+                           start_pose=tuple(float(v) for v in start_deg), rest_s=rest_s,
+                           moves=tuple(InertiaMove(pose=m.target_deg, vel_axis_pct=m.vel_axis_pct,
+                                                   acc_axis_pct=m.acc_axis_pct) for m in moves))
     return render(InertiaParams.template, params)
+
+
+def _names(v: str | tuple[str, ...]) -> tuple[str, ...]:
+    return (v,) if isinstance(v, str) else tuple(v)
 
 
 @dataclass(frozen=True)
 class InertiaManifest:
-    dut_trace: str
-    tare_trace: str
+    dut_trace: str | tuple[str, ...]
+    """One trace, or several (the parts of the excitation in order); the tare's pair with them one by one."""
+    tare_trace: str | tuple[str, ...]
     base_deg: tuple[float, ...]
     mass_kg: float
     cog_flange_m: tuple[float, float, float]
@@ -72,10 +88,13 @@ class InertiaManifest:
         def arr(v: Any) -> str:
             return "[" + ", ".join(repr(float(x)) for x in v) + "]"
 
+        def names(v: str | tuple[str, ...]) -> str:
+            return f'"{v}"' if isinstance(v, str) else "[" + ", ".join(f'"{n}"' for n in v) + "]"
+
         return "\n".join([
             "[inertia]",
-            f'dut_trace = "{self.dut_trace}"',
-            f'tare_trace = "{self.tare_trace}"',
+            f"dut_trace = {names(self.dut_trace)}",
+            f"tare_trace = {names(self.tare_trace)}",
             f"base_deg = {arr(self.base_deg)}",
             f"mass_kg = {float(self.mass_kg)!r}",
             f"cog_flange_m = {arr(self.cog_flange_m)}",
@@ -106,8 +125,14 @@ def load_manifest(directory: Path) -> InertiaManifest:
     if not isinstance(sec, dict):
         raise DataError(f"{path}: no [inertia] table")
     for key in ("dut_trace", "tare_trace"):
-        if not isinstance(sec.get(key), str):
-            raise DataError(f"{path}: {key} must be a trace name")
+        v = sec.get(key)
+        if isinstance(v, list) and v and all(isinstance(n, str) for n in v):
+            sec[key] = tuple(v)
+        elif not isinstance(v, str):
+            raise DataError(f"{path}: {key} must be a trace name or a list of them, got {v!r}")
+    if len(_names(sec["dut_trace"])) != len(_names(sec["tare_trace"])):
+        raise DataError(f"{path}: {len(_names(sec['dut_trace']))} DuT traces but {len(_names(sec['tare_trace']))} "
+                        "tare traces: they pair one by one")
     mass = sec.get("mass_kg")
     if not isinstance(mass, int | float) or not mass > 0:
         raise DataError(f"{path}: mass_kg must be a positive number, got {mass!r}")
@@ -159,22 +184,46 @@ def read_strokes(directory: Path, name: str, base_deg: tuple[float, ...]) -> tup
     return strokes, period
 
 
+def gain_slope_u_rel(gain: AxisGain) -> float:
+    """Relative standard uncertainty of a gain curve's slope (the torque scale the inertia is read through) from
+    its fitted parameters' covariance (with the Student factor of its few points), at the middle of the torques the
+    campaign covered: what ``TorqueCalibration.u_gain_rel`` adds to U (it scales every inertia alike)."""
+    k = np.asarray(gain.params, float)
+    cov = np.asarray(gain.covariance, float) * gain.student_factor()
+    x = np.array([0.5 * max(abs(v) for v in gain.torque_range_nm)])
+    slope = float(gain.slope(x, k)[0])
+    jac = np.empty(len(k))
+    for i in range(len(k)):
+        h = 1e-6 * max(abs(k[i]), 1e-6)
+        kp = k.copy()
+        kp[i] += h
+        jac[i] = (float(gain.slope(x, kp)[0]) - slope) / h
+    var = float(jac @ cov @ jac)
+    return math.sqrt(max(var, 0.0)) / abs(slope) if slope != 0 else math.inf
+
+
 def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | None = None,
                         n_bootstrap: int = inr.N_BOOTSTRAP) -> inr.InertiaResult:
     """The identification of a run directory (see the module docstring)."""
     directory = Path(directory)
     man = load_manifest(directory)
-    dut, period = read_strokes(directory, man.dut_trace, man.base_deg)
-    tare, period_t = read_strokes(directory, man.tare_trace, man.base_deg)
-    if not math.isclose(period, period_t, rel_tol=1e-9):
-        raise DataError(f"{directory}: DuT and tare traces have different sample periods ({period} / {period_t} s)")
-    if len(dut) != len(tare):
-        raise DataError(f"{directory}: the DuT trace has {len(dut)} motions, the tare {len(tare)}: not the same "
-                        "excitation")
-    try:
-        strokes = [inr.difference(d, t) for d, t in zip(dut, tare, strict=True)]
-    except ValueError as exc:
-        raise DataError(f"{directory}: {exc}") from exc
+    strokes: list[inr.Stroke] = []
+    periods: set[float] = set()
+    for dut_name, tare_name in zip(_names(man.dut_trace), _names(man.tare_trace), strict=True):
+        dut, period = read_strokes(directory, dut_name, man.base_deg)
+        tare, period_t = read_strokes(directory, tare_name, man.base_deg)
+        if not math.isclose(period, period_t, rel_tol=1e-9) or any(
+                not math.isclose(period, p, rel_tol=1e-9) for p in periods):
+            raise DataError(f"{directory}: traces {dut_name} and {tare_name} have different sample periods "
+                            f"({period} / {period_t} s, others {sorted(periods)})")
+        periods.add(period)
+        if len(dut) != len(tare):
+            raise DataError(f"{directory}: the DuT trace {dut_name} has {len(dut)} motions, the tare {tare_name} "
+                            f"{len(tare)}: not the same excitation")
+        try:
+            strokes += [inr.difference(d, t) for d, t in zip(dut, tare, strict=True)]
+        except ValueError as exc:
+            raise DataError(f"{directory}: {dut_name} / {tare_name}: {exc}") from exc
     cal = None
     if calibration_path is not None:
         doc = calfile.read(calibration_path)[0]
@@ -183,7 +232,9 @@ def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | No
             raise DataError(f"{calibration_path}: no torsional section (the gain curves of A4..A6)")
         gains = {ax: g for ax, g in tors.gains.items() if ax in inr.WRIST_AXES}
         fix = man.fixture_mass_kg
-        cal = inr.TorqueCalibration(gains, (fix, *(fix * c for c in man.fixture_cog_flange_m)))  # type: ignore[arg-type]
+        u_rel = max((gain_slope_u_rel(g) for g in gains.values()), default=0.0)
+        cal = inr.TorqueCalibration(gains, (fix, *(fix * c for c in man.fixture_cog_flange_m)),  # type: ignore[arg-type]
+                                    u_gain_rel=u_rel)
     try:
         return inr.identify(strokes, period, man.mass_kg, man.cog_flange_m, dut_abc_deg=man.dut_abc_deg,
                             calibration=cal, u_cog_flange_m=tuple(u / 2.0 for u in man.U_cog_flange_m),

@@ -118,7 +118,9 @@ class ProgressEvent:
 
 @dataclass(frozen=True)
 class Prompt:
-    """The daemon waits for the operator: mount this load of campaign point ``point_index`` (0-based), confirm."""
+    """The daemon waits for the operator: mount this load of campaign point ``point_index`` (0-based), confirm. A
+    properties run with the inertia asks once to take the DuT off for the tare (``inertia_tare``; ``point_index`` 0
+    there means nothing); ``data`` is the prompt's whole data."""
 
     run_id: str
     point_index: int
@@ -129,13 +131,19 @@ class Prompt:
     n_cb: int | None
     cb_lever_a5_m: float | None
     message: str
+    data: dict[str, Any] = field(default_factory=dict, repr=False)
+
+    @property
+    def inertia_tare(self) -> bool:
+        """The tare of the inertia: take the DuT off (MPA and fixture stay), then confirm."""
+        return self.data.get("inertia_tare") is True
 
     @classmethod
     def of(cls, ev: ProgressEvent) -> Prompt:
         d = ev.data
         return cls(run_id=ev.run_id, point_index=_i(d, "point_index") or 0, kind=str(d.get("kind", "?")),
                    mass_kg=_f(d, "mass_kg"), lever_a3_m=_f(d, "lever_a3_m"), lever_a5_m=_f(d, "lever_a5_m"),
-                   n_cb=_i(d, "n_cb"), cb_lever_a5_m=_f(d, "cb_lever_a5_m"), message=ev.message)
+                   n_cb=_i(d, "n_cb"), cb_lever_a5_m=_f(d, "cb_lever_a5_m"), message=ev.message, data=dict(d))
 
 
 @dataclass(frozen=True)
@@ -202,10 +210,26 @@ def _xyz(doc: dict[str, Any], key: str) -> tuple[float, float, float] | None:
     return None
 
 
+def _matrix(doc: dict[str, Any], key: str) -> Matrix3 | None:
+    value = doc.get(key)
+    if isinstance(value, list) and len(value) == 3:
+        rows = [_xyz({"r": row}, "r") for row in value]
+        if all(r is not None for r in rows):
+            return (rows[0], rows[1], rows[2])  # type: ignore[return-value]
+    return None
+
+
+Vector3 = tuple[float, float, float]
+Matrix3 = tuple[Vector3, Vector3, Vector3]
+
+
 @dataclass(frozen=True)
 class PropertiesResult:
     """The result of a mass-properties run: the measurement's mass and the CoG, flange and DuT frame (m), each with
-    its U (k = 2); ``raw["cog"]`` holds the whole CoG result (scheme, poses, budget)."""
+    its U (k = 2); ``raw["cog"]`` holds the whole CoG result (scheme, poses, budget). A run with the inertia also
+    has the tensor about the CoG in the DuT frame and the principal moments (ascending) with U (k = 2, kg·m²) and
+    the principal axes (unit vectors in the DuT frame, one per moment); ``raw["inertia"]`` holds the whole
+    identification. ``None`` where the run did not measure the inertia."""
 
     run_id: str
     robot: str | None
@@ -218,6 +242,11 @@ class PropertiesResult:
     calibration_id: str | None
     warnings: tuple[str, ...]
     raw: dict[str, Any] = field(repr=False)
+    principal_moments_kgm2: Vector3 | None = None
+    U_principal_moments_kgm2: Vector3 | None = None
+    principal_axes_dut: Matrix3 | None = None
+    inertia_cog_dut_kgm2: Matrix3 | None = None
+    U_inertia_cog_dut_kgm2: Matrix3 | None = None
 
     @classmethod
     def of(cls, run_id: str, doc: dict[str, Any]) -> PropertiesResult:
@@ -228,7 +257,12 @@ class PropertiesResult:
         return cls(run_id=run_id, robot=_s(doc, "robot"), mass_kg=mass, U_kg=_f(doc, "U_kg"), cog_m=cog,
                    U_cog_m=u_cog, cog_dut_m=_xyz(doc, "cog_dut_m"), U_cog_dut_m=_xyz(doc, "U_cog_dut_m"),
                    calibration_id=_s(doc, "calibration_id"),
-                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc)
+                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc,
+                   principal_moments_kgm2=_xyz(doc, "principal_moments_kgm2"),
+                   U_principal_moments_kgm2=_xyz(doc, "U_principal_moments_kgm2"),
+                   principal_axes_dut=_matrix(doc, "principal_axes_dut"),
+                   inertia_cog_dut_kgm2=_matrix(doc, "inertia_cog_dut_kgm2"),
+                   U_inertia_cog_dut_kgm2=_matrix(doc, "U_inertia_cog_dut_kgm2"))
 
 
 Result = MeasurementResult | CalibrationResult | PropertiesResult

@@ -12,7 +12,8 @@ operations, archive, pipeline, store, outbox) then
 2. measures a DuT in line in a mass-properties run: a ReFEx-like wing box (107.3 kg, its CoG off the flange axis;
    on a 10.288 kg fixture), first its mass (10 loops in the measurement pose), then its centre of gravity in the
    CoG poses of the ``paper`` scheme (the ``full`` scheme's eight poses would take four times the robot time in the
-   campaign and the run, see README "Centre of gravity").
+   campaign and the run, see README "Centre of gravity"); with ``--inertia`` then its inertia tensor: the DuT's
+   excitation, the simulated operator takes the DuT off when asked, the tare's excitation.
 
 It prints true vs measured mass and CoG with the expanded uncertainty U (k = 2), and timings: robot time (what the
 robot needs: motion, settling, recording — converted to real time) and daemon overhead (pulling, archiving,
@@ -45,6 +46,7 @@ from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.pipeline.cog import cog_poses
 from rgse_daemon.procedures.calibration import table1_points, torsional_points
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.inertia import TARE_PROMPT
 from rgse_daemon.procedures.properties import PropertiesSettings
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.progress import new_progress, running, terminal_console
@@ -84,6 +86,9 @@ MEASUREMENT_LOOPS = 10
 #: Loops in each CoG pose of the properties run (after its MEASUREMENT_LOOPS mass loops).
 PROPERTIES_LOOPS_PER_POSE = 2
 DEADLINE_S = 600.0
+#: The controller's file work with ``--inertia`` (bytes per wall second): a real C3 Bridge's ~100 kB/s scaled like
+#: the robot's time, else pulling the excitation's 4 ms traces (~6 MB each) would dominate the demo's wall time.
+INERTIA_FILE_RATE_BYTES_S = 100e3 * TIME_SCALE
 
 
 def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_port: int | None = None) -> Config:
@@ -235,9 +240,13 @@ class Operator:
         self.view.event(ev)
 
     async def _mount_and_confirm(self, d: dict[str, Any]) -> None:
-        await self.sim.mount(campaign_point_payload(d))
         engine = self.daemon_ref[0].engine
         assert engine is not None
+        if d.get(TARE_PROMPT) is True:  # the inertia's tare: the DuT comes off, MPA and fixture stay
+            await self.sim.mount(ph.dut_payload(0.0, (0.0, 0.0, 0.0)))
+            engine.confirm("operator took the DuT off")
+            return
+        await self.sim.mount(campaign_point_payload(d))
         engine.confirm(f"operator mounted point {d['point_index']}")
 
 
@@ -250,14 +259,15 @@ async def _wait(task: asyncio.Task[Any], what: str) -> Any:
 
 
 async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None, bars: bool = False,
-                   console_port: int | None = None) -> dict[str, Any]:
+                   console_port: int | None = None, inertia: bool = False) -> dict[str, Any]:
     """The demo; progress on stderr: bars on a terminal if ``bars``, else plain lines unless ``quiet``."""
     t_start = time.monotonic()
     with demo_view(quiet=quiet, bars=bars) as view, tempfile.TemporaryDirectory(prefix="rgse-demo-") as tmp:
         root = Path(tmp)
         # the simulated controller in its own process, as a real KR C4 is its own machine: its CPU work must not
         # stall the daemon's event loop and its 20 Hz interlock monitor
-        sim = SimProcess(root / "share", seed=SEED, time_scale=TIME_SCALE, globals_dat=globals_dat_text())
+        sim = SimProcess(root / "share", seed=SEED, time_scale=TIME_SCALE, globals_dat=globals_dat_text(),
+                         file_rate_bytes_s=INERTIA_FILE_RATE_BYTES_S if inertia else None)
         await asyncio.to_thread(sim.start)
         try:
             cfg = demo_config(sim, root / "data", mqtt_url, console_port)
@@ -285,7 +295,8 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
                 t0 = time.monotonic()
                 result = await _wait(await daemon.start_properties(
                     props=PropertiesSettings(COG_SCHEME, PROPERTIES_LOOPS_PER_POSE, ph.fixture_cog_flange_m(),
-                                             DUT.dut_origin_flange_m, DUT.dut_abc_deg)), "the properties run")
+                                             DUT.dut_origin_flange_m, DUT.dut_abc_deg, inertia)),
+                    "the properties run")
                 t_meas = time.monotonic() - t0
                 true_cog_m = _true_dut_cog_m(await sim.truth())
                 report_path = None
@@ -300,7 +311,7 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
     timing = result["timing"]
     robot_wall_s = float(timing["robot_time_s"])
     overhead_s = float(timing["overhead_s"])
-    return {
+    return {**_inertia_summary(result), **{
         "mass_kg": result["mass_kg"],
         "true_mass_kg": DUT_MASS_KG,
         "error_kg": result["mass_kg"] - DUT_MASS_KG,
@@ -339,6 +350,25 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
         "wall_s": {"calibration": t_cal, "measurement": t_meas, "total": time.monotonic() - t_start},
         "warnings": result.get("warnings", []),
         "report": str(report_path) if report_path is not None else None,
+    }}
+
+
+def _inertia_summary(result: dict[str, Any]) -> dict[str, Any]:
+    """The inertia of the run (if it measured it) beside the simulator's truth: principal moments ascending with U
+    (k = 2), and the robot time of the two excitations (real-time equivalent)."""
+    if "principal_moments_kgm2" not in result:
+        return {}
+    moments, u = result["principal_moments_kgm2"], result["U_principal_moments_kgm2"]
+    truth = [float(v) for v in DUT.principal_moments_kgm2]
+    return {
+        "principal_moments_kgm2": moments,
+        "U_principal_moments_kgm2": u,
+        "true_principal_moments_kgm2": truth,
+        "principal_moments_within_U": [abs(m - t) <= ui for m, t, ui in zip(moments, truth, u, strict=True)],
+        "inertia_cog_dut_kgm2": result["inertia_cog_dut_kgm2"],
+        "U_inertia_cog_dut_kgm2": result["U_inertia_cog_dut_kgm2"],
+        "principal_axes_dut": result["principal_axes_dut"],
+        "inertia_robot_time_s": float(result["timing"]["inertia_robot_time_s"]) * TIME_SCALE,
     }
 
 
@@ -362,7 +392,8 @@ async def _write_report(cfg: Config, run_id: str, out: Path) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     summary = asyncio.run(run_demo(quiet=args.json, report_dir=args.report, mqtt_url=args.mqtt, bars=True,
-                                   console_port=getattr(args, "console", None)))
+                                   console_port=getattr(args, "console", None),
+                                   inertia=bool(getattr(args, "inertia", False))))
     if args.json:
         print(json.dumps(summary))
         return 0
@@ -378,6 +409,12 @@ def run(args: argparse.Namespace) -> int:
     print(f"true CoG       x {tmm[0]:7.2f}, y {tmm[1]:7.2f}, z {tmm[2]:7.2f} mm (flange frame)")
     print(f"measured CoG   x {mm[0]:7.2f} ± {umm[0]:.2f}, y {mm[1]:7.2f} ± {umm[1]:.2f}, z {mm[2]:7.2f} ± {umm[2]:.2f}"
           f" mm (U, k = 2; {summary['cog_scheme']} scheme)   {'within' if summary['cog_within_U'] else 'OUTSIDE'} U")
+    if "principal_moments_kgm2" in summary:
+        for k, (v, u, t) in enumerate(zip(summary["principal_moments_kgm2"], summary["U_principal_moments_kgm2"],
+                                          summary["true_principal_moments_kgm2"], strict=True), 1):
+            print(f"principal moment I{k}: {v:7.3f} ± {u:.3f} kg·m² (U, k = 2), true {t:7.3f}   "
+                  f"{'within' if abs(v - t) <= u else 'OUTSIDE'} U")
+        print(f"inertia excitation (DuT and tare): robot time {summary['inertia_robot_time_s'] / 60:.1f} min")
     print(f"{summary['loops']} mass loops and the CoG poses: robot time {summary['robot_time_s'] / 60:.1f} min "
           f"(mass {summary['mass_robot_time_s'] / 60:.1f}, CoG {summary['cog_robot_time_s'] / 60:.1f}; real-time "
           f"equivalent), "

@@ -9,10 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from rgse_daemon.analysis.inertia import compute_inertia_dir
-
-#: ECSS-E-10-03C: the inertia tensor within ±3 %.
-ECSS_REL = 0.03
+from rgse_daemon.analysis.inertia import ECSS_REL, compute_inertia_dir
 
 
 def run(args: argparse.Namespace) -> int:

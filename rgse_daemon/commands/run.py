@@ -126,6 +126,10 @@ async def follow(rgse: RgseClient, run: Run, args: argparse.Namespace, timeout_s
         print(f"run {run.run_id}: mass {r.get('mass_kg', float('nan')):.3f} kg, U {r.get('U_kg', float('nan')):.3f} kg;"
               f" CoG (flange) x {mm[0]:.2f} ± {umm[0]:.2f}, y {mm[1]:.2f} ± {umm[1]:.2f}, z {mm[2]:.2f} ± "
               f"{umm[2]:.2f} mm (k = {r.get('k', 2)})")
+        if r.get("principal_moments_kgm2") is not None:
+            print(f"run {run.run_id}: principal moments " + ", ".join(
+                f"{v:.3f} ± {u:.3f}" for v, u in zip(r["principal_moments_kgm2"], r["U_principal_moments_kgm2"],
+                                                     strict=True)) + " kg·m² (about the CoG, k = 2)")
     elif run.kind == "measurement":
         r = result.raw
         print(f"run {run.run_id}: mass {r.get('mass_kg', float('nan')):.3f} kg, U {r.get('U_kg', float('nan')):.3f}"
@@ -158,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
                 elif args.run_kind == "properties":
                     run_ = await rgse.properties(loops=args.loops, loops_per_pose=args.loops_per_pose,
                                                  scheme=args.scheme, fixture_mass_kg=args.fixture_mass,
-                                                 fixture=fixture, dry_run=args.dry_run)
+                                                 fixture=fixture, inertia=args.inertia, dry_run=args.dry_run)
                 else:
                     run_ = await rgse.calibrate(points, method=args.method)
             except Refused as exc:

@@ -10,8 +10,9 @@ can still be answered.
 Verbs and fields (units in the names):
 
 ``measure``    ``{request_id, loops?, fixture_mass_kg?, dry_run?, token?}``
-``properties`` ``{request_id, loops?, loops_per_pose?, scheme?, fixture_mass_kg?, fixture?, dry_run?, token?}``:
-               mass, then the CoG poses; ``fixture`` = ``{cog_flange_m, dut_origin_flange_m?, dut_abc_deg?}``
+``properties`` ``{request_id, loops?, loops_per_pose?, scheme?, fixture_mass_kg?, fixture?, inertia?, dry_run?,
+               token?}``: mass, then the CoG poses (then the inertia); ``fixture`` = ``{cog_flange_m,
+               dut_origin_flange_m?, dut_abc_deg?}``
 ``calibrate``  ``{request_id, points?, method?, token?}``; a point is a manifest ``[[point]]`` without traces
 ``abort``      ``{request_id, run_id?, reason, token?}``
 ``confirm``    ``{request_id, run_id, point?, token?}``: the operator confirms the load of a campaign point
@@ -116,6 +117,8 @@ class PropertiesCommand(_Command):
     fixture_mass_kg: float | None = Field(None, ge=0.0, le=500.0)
     fixture: FixtureFrameSpec | None = None
     """``None``: ``properties.fixture`` of the config."""
+    inertia: bool | None = None
+    """Also the inertia (DuT and tare excitation, a prompt to take the DuT off); ``None``: ``properties.inertia``."""
     dry_run: bool = False
 
 

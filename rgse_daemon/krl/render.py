@@ -319,6 +319,9 @@ class InertiaParams(TemplateParams):
     template: ClassVar[str] = "rgse_inertia"
     start_pose: PoseDeg = _MEAS
     moves: tuple[InertiaMove, ...] = Field(min_length=1, max_length=2000)
+    rest_s: float = Field(0.0, ge=0.0, le=5.0)
+    """``WAIT SEC`` after each move (0: none): the robot stands between the strokes, so that a trace splits into
+    one stroke per move whatever the controller's interpolation cycle (``pipeline.inertia.split_strokes``)."""
 
     def placeholders(self) -> dict[str, str]:
         lines: list[str] = []
@@ -331,6 +334,8 @@ class InertiaParams(TemplateParams):
                           if o != w]
             vel, acc = mv.vel_axis_pct, mv.acc_axis_pct
             lines += [f"  RGSE_LOOP = {n}", f"  PTP {format_axes(mv.pose)}"]
+            if self.rest_s > 0.0:
+                lines.append(f"  WAIT SEC {format_real(self.rest_s)}")
         return {
             **super().placeholders(),
             "start_pose": format_axes(self.start_pose),

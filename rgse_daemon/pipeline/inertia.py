@@ -49,7 +49,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
@@ -71,6 +71,10 @@ MIN_SPEED_DEG_S = 1.0
 #: Parameters shared by the wrist axes (I: 6, correction to m·c: 3) and nuisance parameters per axis.
 N_SHARED = 9
 N_AXIS = 5
+#: Motor temperatures within this of their mean (K) over both runs carry no thermal drift to fit: the column
+#: ((T − T_ref)·τ) would be rounding noise times the torque and absorb the inertia (seen on a simulator run whose
+#: Motortemperatur stayed at one value).
+MIN_THERMAL_SPREAD_K = 0.05
 #: Bootstrap replicates over strokes.
 N_BOOTSTRAP = 400
 COVERAGE_K = 2.0
@@ -542,6 +546,12 @@ def identify(
 
     temps = [t for s in strokes for t in (s.temp_k, s.tare_temp_k) if t is not None]
     temp_ref = np.nanmean(np.vstack(temps), axis=0) if temps else None
+    if temp_ref is not None:
+        wrist = [x - 1 for x in WRIST_AXES]
+        spread = max(float(np.nanmax(np.abs(t[:, wrist] - temp_ref[wrist]))) for t in temps)
+        if not spread >= MIN_THERMAL_SPREAD_K:  # one temperature throughout: no drift to fit (the column would be
+            strokes = [replace(s, temp_k=None, tare_temp_k=None) for s in strokes]  # rounding noise times τ)
+            temps, temp_ref = [], None
     if temps and calibration is not None and calibration.temp_ref_k is not None:
         temp_ref = np.asarray(calibration.temp_ref_k, float)
 

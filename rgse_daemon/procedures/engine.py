@@ -476,7 +476,7 @@ class RunEngine:
         # may need longer than a trace takes to record)
         async with self._file_window(f"pull {msg.trace}"):
             return await pull_trace(self.krc, msg.trace, msg.dest_dir, trace_dir=self.trace_dir,
-                                    share_dir=self.share_dir)
+                                    share_dir=self.share_dir, **({"modules": msg.modules} if msg.modules else {}))
 
     async def _do_DeleteTraceCopies(self, msg: m.DeleteTraceCopies) -> tuple[bool, str]:
         return await self._bounded(f"delete {msg.pulled.trace} on the controller", msg.pulled.delete_copies(),

@@ -199,6 +199,8 @@ class Pull(Msg):
     trace: str
     dest_dir: Path
     timeout_s: float = 120.0
+    modules: tuple[str, ...] = ()
+    """The modules whose files must be there (``.dat`` and ``.r64``); empty: the drives of A3 and A5."""
 
     def describe(self) -> str:
         return f"Pull {self.trace} → {self.dest_dir}"

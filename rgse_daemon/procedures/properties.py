@@ -1,6 +1,6 @@
 """The mass-properties run (issue #14) as a plan: the DuT's mass, then its centre of gravity, one step after the other.
 
-Steps, in this order (a further step, e.g. the inertia, goes after the CoG poses and before the computation)::
+Steps, in this order::
 
     prepare      verify the controller (T1 …), push the trace configuration, warm up, measurement pose
     mass         ``loops`` × (brake-release move → settle → trace of A3/A5 → pull, archive) — as the measurement run
@@ -11,11 +11,16 @@ Steps, in this order (a further step, e.g. the inertia, goes after the CoG poses
     compute      write the properties run directory (``manifest.toml`` with ``[measurement]`` and ``[properties]``,
                  the calibration as ``CAL.json``) and compute mass and CoG **by the same code as** ``rgse cog
                  --traces DIR --calibration DIR/CAL.json`` (:func:`~rgse_daemon.analysis.cog.compute_cog_dir`)
+    inertia      only with ``inertia`` (``[properties] inertia``, the command's ``inertia``): the DuT's excitation
+                 designed from that mass and CoG, the tare's after the operator took the DuT off, and the inertia by
+                 the same code as ``rgse inertia`` (:mod:`rgse_daemon.procedures.inertia`)
 
 Every motion is a program pushed through the engine, so the interlock's static check sees it before a byte reaches
 the controller, and the runtime monitor watches it. The result is the measurement's result plus ``cog_m`` /
 ``U_cog_m`` (flange frame, m, k = 2), ``cog_dut_m`` / ``U_cog_dut_m`` (the DuT's frame) and the whole CoG result
-under ``cog``. The run is stored as a measurement run (its config carries ``properties``); the daemon calls it a
+under ``cog``; with the inertia also the tensor about the CoG in the DuT frame, the principal moments (ascending)
+and axes, each with U (``inertia_cog_dut_kgm2``, ``principal_moments_kgm2``, … and the whole identification under
+``inertia``). The run is stored as a measurement run (its config carries ``properties``); the daemon calls it a
 ``properties`` run.
 
 ::
@@ -26,6 +31,7 @@ under ``cog``. The run is stored as a measurement run (its config carries ``prop
 
 from __future__ import annotations
 
+import asyncio
 import json
 import time
 from collections.abc import Callable, Generator, Sequence
@@ -45,6 +51,7 @@ from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.directory import setup_toml, traces_toml
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.inertia import check_feasible, inertia_step
 from rgse_daemon.procedures.loop import LoopOutcome, loop
 from rgse_daemon.procedures.measurement import CALIBRATION_FILE, timing_summary
 from rgse_daemon.procedures.preconditions import PreconditionError
@@ -74,12 +81,14 @@ class PropertiesSettings:
     fixture_cog_flange_m: tuple[float, float, float] | None
     dut_origin_flange_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     dut_abc_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    inertia: bool = False
+    """Also the inertia: DuT and tare excitation after the CoG poses (issue #15)."""
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> PropertiesSettings:
         p = cfg.properties
         base = cls(p.scheme, p.loops_per_pose, p.fixture.cog_flange_m, p.fixture.dut_origin_flange_m,
-                   p.fixture.dut_abc_deg)
+                   p.fixture.dut_abc_deg, p.inertia)
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def fixture(self, fixture_mass_kg: float) -> FixtureFrame:
@@ -105,7 +114,8 @@ class PropertiesSettings:
     def to_json(self) -> dict[str, Any]:
         return {"scheme": self.scheme, "loops_per_pose": self.loops_per_pose,
                 "fixture_cog_flange_m": None if self.fixture_cog_flange_m is None else list(self.fixture_cog_flange_m),
-                "dut_origin_flange_m": list(self.dut_origin_flange_m), "dut_abc_deg": list(self.dut_abc_deg)}
+                "dut_origin_flange_m": list(self.dut_origin_flange_m), "dut_abc_deg": list(self.dut_abc_deg),
+                "inertia": self.inertia}
 
 
 def pose_trace_name(tag: str, pose_number: int, loop_number: int) -> str:
@@ -231,10 +241,21 @@ def properties_plan(
     t0 = time.monotonic()
     result = yield m.Process("compute mass and CoG", _finish,
                              (run.run_dir, s, [o.trace for o in mass_loops], p.scheme, fixture, poses, cal_doc))
+    compute_s = time.monotonic() - t0
+    inertia_loops: list[LoopOutcome] = []
+    if p.inertia:
+        yield m.Emit(Event("step", "inertia: DuT and tare excitation", step="inertia-start",
+                           data={"phase": "inertia"}))
+        inertia, inertia_loops = yield from inertia_step(run, s, fixture, p.dut_abc_deg, result, tag,
+                                                         1 + len(mass_loops) + len(pose_loops), inputs)
+        if result is not None and inertia is not None:
+            compute_s += float(inertia["inertia"]["compute_s"])
+            result = {**result, **inertia,
+                      "warnings": [*result.get("warnings", []),
+                                   *(f"inertia: {w}" for w in inertia["inertia"].get("warnings", []))]}
     if result is None:  # dry run
         return None
-    compute_s = time.monotonic() - t0
-    outcomes = [*mass_loops, *pose_loops]
+    outcomes = [*mass_loops, *pose_loops, *inertia_loops]
     shas = sorted({h for o in outcomes for h in o.sha256s})
     result = {
         **result,
@@ -246,7 +267,8 @@ def properties_plan(
         "controller_copies_deleted": all(o.deleted for o in outcomes),
         "timing": {**timing_summary(outcomes, compute_s),
                    "mass_robot_time_s": sum(o.timing.robot_s for o in mass_loops),
-                   "cog_robot_time_s": sum(o.timing.robot_s for o in pose_loops)},
+                   "cog_robot_time_s": sum(o.timing.robot_s for o in pose_loops),
+                   "inertia_robot_time_s": sum(o.timing.robot_s for o in inertia_loops)},
     }
     yield d.Result(result, shas)
     for w in result["warnings"]:  # e.g. payload torques beyond what the torsional calibration covered
@@ -255,8 +277,17 @@ def properties_plan(
     umm = [1000.0 * v for v in result["U_cog_m"]]
     yield m.Emit(Event("result", f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg, CoG (flange) "
                                  f"x {mm[0]:.1f} ± {umm[0]:.1f}, y {mm[1]:.1f} ± {umm[1]:.1f}, "
-                                 f"z {mm[2]:.1f} ± {umm[2]:.1f} mm (k = 2)", step="result", data=result))
+                                 f"z {mm[2]:.1f} ± {umm[2]:.1f} mm (k = 2)" + _inertia_text(result), step="result",
+                       data=result))
     return result
+
+
+def _inertia_text(result: dict[str, Any]) -> str:
+    if "principal_moments_kgm2" not in result:
+        return ""
+    pm = ", ".join(f"{v:.3f} ± {u:.3f}" for v, u in zip(result["principal_moments_kgm2"],
+                                                       result["U_principal_moments_kgm2"], strict=True))
+    return f", principal moments {pm} kg·m² (k = 2)"
 
 
 async def run_properties(
@@ -274,7 +305,7 @@ async def run_properties(
     when that calibration has no torsional section (no CoG calibration), or with an unusable fixture frame."""
     s = settings or RunSettings.from_config(cfg)
     p = props or PropertiesSettings.from_config(cfg)
-    p.fixture(s.fixture_mass_kg)  # refuse a bad fixture before the run opens
+    fixture = p.fixture(s.fixture_mass_kg)  # refuse a bad fixture before the run opens
     cog_poses(s.meas_pose_deg, p.scheme)
     recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
     cal = await recorder.active_calibration(s.robot)
@@ -292,6 +323,8 @@ async def run_properties(
         raise PreconditionError(f"robot {s.robot}: the active calibration {cal.id} calibrated the CoG poses "
                                 f"{', '.join(tors.poses)} ({tors.scheme}), not {', '.join(missing)} of scheme "
                                 f"{p.scheme!r}: use scheme {tors.scheme!r} or calibrate those poses")
+    if p.inertia:  # gains of A4..A6, an excitation that fits the trace buffer: numeric work, off the event loop
+        await asyncio.to_thread(check_feasible, s, fixture, tuple(tors.gains))
     opening = d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json(), "calibration_id": cal.id,
                                                        "properties": p.to_json()})
     return await engine.execute(opening, lambda run: properties_plan(run, s, p, cal.document, inputs=inputs),

@@ -25,7 +25,7 @@ import hashlib
 import logging
 import os
 import re
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -99,6 +99,7 @@ async def pull_trace(
     share_dir: Path | None = None,
     delete: bool = False,
     require_complete: bool = True,
+    modules: Sequence[str] = (MODULE_A3, MODULE_A5),
 ) -> PulledTrace:
     """Pull, verify and archive every file of ``trace``; see the module docstring. Raises DataError if the set is
     incomplete (unless not ``require_complete``: crash recovery keeps whatever a stopped trace left) or a copy does
@@ -109,7 +110,9 @@ async def pull_trace(
     listing = await krc.list_dir(trace_dir)
     entries = [e for e in listing if not e.is_dir and base_name(e.name).upper().startswith(prefix)]
     names = {plain_name(base_name(e.name), f"{trace_dir}: listed file"): e for e in entries}
-    missing = [trace + s for s in REQUIRED_SUFFIXES if not any(n.upper() == (trace + s).upper() for n in names)]
+    required = REQUIRED_SUFFIXES if tuple(modules) == (MODULE_A3, MODULE_A5) else tuple(
+        f"_{mod}{ext}" for mod in modules for ext in (".dat", ".r64"))
+    missing = [trace + s for s in required if not any(n.upper() == (trace + s).upper() for n in names)]
     if missing and require_complete:
         raise DataError(f"{trace_dir}{trace}: trace incomplete on the controller, missing {', '.join(missing)}")
     staging = dest_dir / STAGING_DIRNAME

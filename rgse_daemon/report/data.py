@@ -33,6 +33,7 @@ import numpy as np
 
 from rgse_daemon import __version__, calfile
 from rgse_daemon.analysis import cog as cog_analysis
+from rgse_daemon.analysis import inertia as inertia_analysis
 from rgse_daemon.analysis import reference as ref
 from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.manifest import TORSIONAL_KIND, Loop, read_loop
@@ -148,6 +149,8 @@ class MeasurementView:
     events: list[Any]
     cog: dict[str, Any] | None = None
     """A properties run: its CoG result (``analysis.cog.CogResult.to_json``), recomputed and checked."""
+    inertia: dict[str, Any] | None = None
+    """A properties run with the inertia: the identification (``analysis.inertia``), recomputed and checked."""
 
 
 @dataclass(frozen=True)
@@ -389,9 +392,48 @@ def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> Measureme
     cog = None
     if isinstance(res.get("cog_poses"), list):
         cog = _recompute_cog(root, run, all_loops, files, res, doc, checks)
+    inertia = None
+    if "principal_moments_kgm2" in res:
+        inertia = _recompute_inertia(root, run, all_loops, files, res, doc, checks)
     refs = ref.references(repo, run_id)
     return MeasurementView(run, result, results, views, files, calv, refs, w3, w5, checks,
-                           repo.events(run_id=run_id), cog)
+                           repo.events(run_id=run_id), cog, inertia)
+
+
+def _recompute_inertia(root: Path, run: RunRecord, loops: list[LoopRecord], files: list[TraceFileRecord],
+                       res: dict[str, Any], cal_doc: dict[str, Any], checks: list[str]) -> dict[str, Any]:
+    """The inertia of a properties run recomputed from its archived excitation traces with
+    :func:`analysis.inertia.compute_inertia_dir` (mass, CoG, fixture and DuT frame as the result states them) and
+    checked against the stored one; returns the stored identification (``inertia``)."""
+    stored = res.get("inertia")
+    traces = res.get("inertia_traces")
+    if not isinstance(stored, dict) or not isinstance(traces, dict):
+        raise DataError(f"run {run.id}: result with principal moments but without its 'inertia' and "
+                        "'inertia_traces' objects")
+    by_trace = {lp.trace_name: lp for lp in loops}
+    setup = run.config.get("settings", {})
+    props = _fixture_of(run.config.get("properties", {}))
+    with tempfile.TemporaryDirectory(prefix="rgse-report-inertia-") as tmp:
+        directory = Path(tmp)
+        for trace in [*traces.get("dut", []), *traces.get("tare", [])]:
+            if trace not in by_trace:
+                raise ReportConsistencyError(f"run {run.id}: inertia excitation trace {trace} not recorded")
+            for f in files:
+                if f.loop_index == by_trace[trace].index:
+                    (directory / PurePosixPath(f.path).name).write_bytes((root / f.path).read_bytes())
+        man = inertia_analysis.InertiaManifest(
+            tuple(traces["dut"]), tuple(traces["tare"]), tuple(setup.get("meas_pose_deg", [])),
+            float(stored["mass_kg"]), tuple(stored["cog_flange_m"]), tuple(stored["U_cog_flange_m"]),
+            tuple(stored["dut_abc_deg"]), float(res.get("fixture_mass_kg", 0.0)),
+            tuple(props["cog_flange_m"]))
+        (directory / inertia_analysis.MANIFEST).write_text(man.to_toml(), encoding="utf-8")
+        cal_path = directory / "CAL.json"
+        cal_path.write_text(json.dumps(cal_doc), encoding="utf-8")
+        again = inertia_analysis.compute_inertia_dir(directory, cal_path).to_json()
+    for key in ("principal_moments_kgm2", "U_principal_moments_kgm2"):
+        for k, (a, b) in enumerate(zip(res[key], again[key], strict=True)):
+            _check(checks, f"result {key}[{k}]", a, b)
+    return stored
 
 
 def _recompute_cog(root: Path, run: RunRecord, loops: list[LoopRecord], files: list[TraceFileRecord],

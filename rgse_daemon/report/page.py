@@ -17,6 +17,7 @@ from html import escape
 from typing import Any
 
 from rgse_daemon.analysis import reference as ref
+from rgse_daemon.analysis.inertia import ECSS_REL
 from rgse_daemon.report import plots
 from rgse_daemon.report.data import (
     BAND_K,
@@ -371,6 +372,49 @@ def _cog_section(cog: dict[str, Any]) -> str:
                                                      "and the ECSS accuracy", "cog_in_dut_frame") + "</div>"
 
 
+def _inertia_section(inertia: dict[str, Any]) -> str:
+    """The inertia tensor about the CoG in the DuT frame, the principal moments (ascending) with U (k = 2) beside
+    ECSS-E-10-03C's ±3 %, said plainly where U exceeds it, and the principal axes."""
+    tensor, u_tensor = inertia["inertia_cog_dut_kgm2"], inertia["U_inertia_cog_dut_kgm2"]
+    rows = [(t(axis), *(num(float(tensor[i][j]), ".3f", f"inertia_cog_dut_kgm2.{axis}{b}") + " ± "
+                        + num(float(u_tensor[i][j]), ".3f", f"U_inertia_cog_dut_kgm2.{axis}{b}")
+                        for j, b in enumerate("xyz")))
+            for i, axis in enumerate("xyz")]
+    out = "<p>Inertia tensor about the CoG, DuT frame (kg·m², U with k = 2):</p>"
+    out += table(("", "x", "y", "z"), rows, right=(1, 2, 3), cls="inertia")
+    prows = []
+    met_all = True
+    for k, (m, u, axis, ua) in enumerate(zip(inertia["principal_moments_kgm2"], inertia["U_principal_moments_kgm2"],
+                                             inertia["principal_axes_dut"], inertia["U_principal_axes_deg"],
+                                             strict=True), 1):
+        met = float(u) <= ECSS_REL * abs(float(m))
+        met_all &= met
+        prows.append((t(f"I{k}"), num(float(m), ".3f", f"principal_moments_kgm2.{k}"),
+                      num(float(u), ".3f", f"U_principal_moments_kgm2.{k}"),
+                      num(100.0 * float(u) / abs(float(m)) if m else None, ".1f", f"U_principal_pct.{k}", "%"),
+                      t("(" + ", ".join(f"{float(v):+.3f}" for v in axis) + ")"),
+                      num(float(ua), ".1f", f"U_principal_axes_deg.{k}", "°"),
+                      t("±3 %"), badge(met, "met", "not met")))
+    out += table(("moment", "kg·m²", "U kg·m² (k = 2)", "U / moment", "axis (DuT frame)", "U axis",
+                  "ECSS-E-10-03C", "U within it"), prows, right=(1, 2, 3, 5), cls="inertia")
+    if not met_all:
+        out += ('<p class="warn">Where U exceeds ±3 % the measurement does not show the ECSS accuracy: at T1 speeds '
+                "the inertial torques are small against the drive's noise, and the parallel-axis shift to the CoG "
+                "carries the CoG's own U (README, Moments of inertia).</p>")
+    exc = inertia.get("excitation") or {}
+    out += kv([("strokes / samples", t(f"{inertia.get('n_strokes')} / {inertia.get('n_samples')}")),
+               ("excitation", t(f"{exc.get('moves')} moves in {exc.get('parts')} parts, "
+                                f"{exc.get('planned_robot_time_s', float('nan')):.0f} s planned per run, tare and "
+                                "DuT")),
+               ("condition number", num(inertia.get("condition_number"), ".1f", "inertia_condition_number"))])
+    out += ("<p>Identified from the DuT's and the tare's excitation (the same programs, the DuT taken off for the "
+            "tare) with the mass and CoG of this run; recomputed from the archived traces with the stored "
+            "calibration and found equal to the stored result.</p>")
+    for w in inertia.get("warnings") or []:
+        out += f'<p class="warn">warning: {t(w)}</p>'
+    return out
+
+
 def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
     run = view.run
     n_checks = len(view.checks) + len(view.calibration.checks)
@@ -381,6 +425,7 @@ def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
         "<h2>Mass against ECSS-E-10-03C and the crane scale</h2>",
         figure(plots.mass_vs_ecss(view), "net mass with U against the ECSS band and the crane scale", "mass_vs_ecss"),
         *(["<h2>Centre of gravity</h2>", _cog_section(view.cog)] if view.cog is not None else []),
+        *(["<h2>Moments of inertia</h2>", _inertia_section(view.inertia)] if view.inertia is not None else []),
         "<h2>Reference measurement (Table 2)</h2>", _reference_section(view),
         "<h2>Loop by loop</h2>", _loops_table(view),
         figure(plots.loop_masses(view), "net mass of each loop", "loop_masses"),

@@ -346,16 +346,17 @@ class MotionHistory:
         (default: that entry's start)."""
         t = np.atleast_1d(np.asarray(t_s, dtype=float))
         n = len(t)
+        entries = list(self._entries)  # a trace is sampled in a worker thread while the interpreter may add moves
         if q_rest_deg is None:
-            q_rest_deg = self._entries[0][1].q_start_deg if self._entries else (0.0,) * 6
+            q_rest_deg = entries[0][1].q_start_deg if entries else (0.0,) * 6
         q = np.tile(np.asarray(q_rest_deg, dtype=float), (n, 1))
         qd = np.zeros((n, 6))
         qdd = np.zeros((n, 6))
         moving = np.zeros(n, dtype=bool)
         since = np.full(n, np.nan)
         approach = np.zeros((n, 6))
-        starts = [t0 for t0, _ in self._entries] + [np.inf]
-        for k, (t0, move) in enumerate(self._entries):
+        starts = [t0 for t0, _ in entries] + [np.inf]
+        for k, (t0, move) in enumerate(entries):
             t_end = t0 + move.duration_s
             mask = (t >= t0) & (t < starts[k + 1])
             if not mask.any():

@@ -143,7 +143,8 @@ class TraceSource(Protocol):
     ) -> Modules:
         """The samples of ``modules`` (n_samples every period_s, the first pre_s before the trigger).
 
-        ``axes_track`` = (times s relative to the first sample, axes deg (n, 6)) as seen while recording.
+        ``axes_track`` = (times s relative to the first sample, axes deg (n, 6)) as seen while recording. Called
+        in a worker thread, once the recording has ended.
         """
         ...
 
@@ -333,7 +334,9 @@ class TraceEngine:
         n_samples = max(1, round((pre_s + elapsed) / period_s))
         track = (np.asarray(times) + pre_s, np.asarray(axes, dtype=float))
         names = tuple(m.name for m in cfg.modules)
-        samples = self.source.record(token, names, n_samples, period_s, pre_s, track)
+        # in a worker thread: the samples of a long moving trace are a second or more of numerics, and a real
+        # controller's trace does not hold up its C3 Bridge server (the daemon's interlock reads it at 20 Hz)
+        samples = await asyncio.to_thread(self.source.record, token, names, n_samples, period_s, pre_s, track)
         await self._write(request, samples, period_s)
 
     async def _write(self, request: TraceRequest, samples: Modules, period_s: float) -> None:
