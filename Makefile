@@ -3,6 +3,9 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+# the suite in two processes (pytest-xdist): most of its time is waiting on simulated controllers, brokers and
+# file transfers, and each test keeps to its own ports, schemas, topics and temporary directories
+TEST_WORKERS ?= 2
 
 .PHONY: demo test lint bench venv clean mutation
 
@@ -22,7 +25,7 @@ test: $(STAMP)
 	$(BIN)/ruff check rgse_daemon simulators tests bench examples
 	$(BIN)/lint-imports
 	bash scripts/ensure-services.sh
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n $(TEST_WORKERS) --dist worksteal
 
 lint: $(STAMP)
 	$(BIN)/ruff check rgse_daemon simulators tests bench examples

@@ -6,6 +6,8 @@ import asyncio
 import json
 from pathlib import Path
 
+import pytest
+
 from rgse_daemon.controller import Controller
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures.calibration import fit_campaign, run_calibration, table1_points
@@ -47,6 +49,7 @@ def steady(cfg, **kw) -> RunSettings:
                  warmup_max_s=2400.0 / TIME_SCALE, **kw)
 
 
+@pytest.mark.timeout(360)  # two campaign fits (with the nested validation) and the simulator in one process
 async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store: Store, engine: RunEngine):
     seen: list[int] = []
     engine.subscribe(mount_on_confirm(sim, engine, seen))

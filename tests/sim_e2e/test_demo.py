@@ -11,9 +11,10 @@ from pathlib import Path
 
 import pytest
 
-#: The demo needs about a minute on a quiet 2-core machine (contract: under 2 minutes); the test allows for a
-#: loaded one. Its wall time is reported by the demo itself, not asserted here.
-DEMO_TIMEOUT_S = 400
+#: The demo needs about five minutes on a 2-core machine since its campaign also calibrates the torsional axes
+#: (16 points, ~50 loops, each with a trace pulled at the controller's file rate); the test allows for a loaded
+#: machine. Its wall time is reported by the demo itself, not asserted here.
+DEMO_TIMEOUT_S = 720
 
 
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 20)
