@@ -895,13 +895,15 @@ def select_auto(evaluations: list[Evaluation]) -> Evaluation:
 
 def average_of(points: CalibrationPoints, evaluations: list[Evaluation]) -> Evaluation | None:
     """The equal-weight average of the admissible per-axis gain models whose selection score is within
-    :data:`AVERAGE_FACTOR` of the best of them, as an :class:`Evaluation` (its held-out masses and residuals are the
-    members' means: eq. 21 is linear in the corrected torques); None if fewer than two qualify."""
+    :data:`AVERAGE_FACTOR` of the best admissible per-axis model (averageable or not), as an :class:`Evaluation` (its
+    held-out masses and residuals are the members' means: eq. 21 is linear in the corrected torques); None if fewer
+    than two qualify. A model that is not a gain curve (``paper``, ``ratio-linear``) and clearly better than every
+    gain curve leaves no members: the average is for near-equal models, not for outvoting a better one."""
     score = selection_score(evaluations)
     pool = [e for e in evaluations if e.method in AVERAGEABLE and e.admissible]
     if len(pool) < 2:
         return None
-    best = min(score[e.method] for e in pool)
+    best = min(score[e.method] for e in evaluations if e.admissible and not e.joint)
     members = [e for e in pool if score[e.method] <= AVERAGE_FACTOR * best]
     if len(members) < 2:
         return None

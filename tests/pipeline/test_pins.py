@@ -632,6 +632,12 @@ def test_average_of_members_by_hand():
     assert avg.n_params == 4  # the union of the terms per axis: lin and quad on A3, lin and quad on A5
     assert C.average_of(pts, [a]) is None
     assert C.average_of(pts, [a, ev("axis-quad", 0.61, 4)]) is None
+    # a per-axis model that is no gain curve sets the bar too: clearly better than every gain curve, no average
+    assert C.average_of(pts, [ev("paper", 0.39), a, b]) is None
+    assert C.average_of(pts, [ev("paper", 0.4), a, b]).method == "avg:axis-linear+sur-quad"
+    # ... but an inadmissible or a joint one does not
+    assert C.average_of(pts, [ev("paper", 0.1, admissible=False), a, b]).method == "avg:axis-linear+sur-quad"
+    assert C.average_of(pts, [ev("gain-quad", 0.1), a, b]).method == "avg:axis-linear+sur-quad"
 
 
 def test_axis_gain_fit_by_hand():
