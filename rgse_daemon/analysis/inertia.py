@@ -202,6 +202,17 @@ def gain_slope_u_rel(gain: AxisGain) -> float:
     return math.sqrt(max(var, 0.0)) / abs(slope) if slope != 0 else math.inf
 
 
+def torque_calibration(gains: dict[int, AxisGain], fixture_mass_kg: float,
+                       fixture_cog_flange_m: Sequence[float]) -> inr.TorqueCalibration:
+    """The wrist axes' gain curves of a calibration (CAL.json's torsional section) as the identification takes
+    them, with what the tare run carries (MPA and fixture: the operating point) and the slopes' uncertainty."""
+    wrist = {ax: g for ax, g in gains.items() if ax in inr.WRIST_AXES}
+    fix = float(fixture_mass_kg)
+    u_rel = max((gain_slope_u_rel(g) for g in wrist.values()), default=0.0)
+    return inr.TorqueCalibration(wrist, (fix, *(fix * float(c) for c in fixture_cog_flange_m)),  # type: ignore[arg-type]
+                                 u_gain_rel=u_rel)
+
+
 def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | None = None,
                         n_bootstrap: int = inr.N_BOOTSTRAP) -> inr.InertiaResult:
     """The identification of a run directory (see the module docstring)."""
@@ -230,11 +241,7 @@ def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | No
         tors = calfile.torsional(doc, calibration_path)
         if tors is None:
             raise DataError(f"{calibration_path}: no torsional section (the gain curves of A4..A6)")
-        gains = {ax: g for ax, g in tors.gains.items() if ax in inr.WRIST_AXES}
-        fix = man.fixture_mass_kg
-        u_rel = max((gain_slope_u_rel(g) for g in gains.values()), default=0.0)
-        cal = inr.TorqueCalibration(gains, (fix, *(fix * c for c in man.fixture_cog_flange_m)),  # type: ignore[arg-type]
-                                    u_gain_rel=u_rel)
+        cal = torque_calibration(tors.gains, man.fixture_mass_kg, man.fixture_cog_flange_m)
     try:
         return inr.identify(strokes, period, man.mass_kg, man.cog_flange_m, dut_abc_deg=man.dut_abc_deg,
                             calibration=cal, u_cog_flange_m=tuple(u / 2.0 for u in man.U_cog_flange_m),
