@@ -20,7 +20,7 @@ manifest ``inertia.toml`` (docs/interfaces.md)::
     fixture_cog_flange_m = [0.0, 0.0, 0.04]
 
 With a CAL.json whose ``torsional`` section has gain curves for A4–A6, the readings are taken through them
-(``pipeline.inertia.TorqueCalibration``) and the largest relative uncertainty of their slopes enters U
+(``pipeline.inertia.TorqueCalibration``) and the relative uncertainty of each one's slope enters U, axis by axis
 (:func:`gain_slope_u_rel`); without one, 1:1.
 """
 
@@ -187,7 +187,8 @@ def read_strokes(directory: Path, name: str, base_deg: tuple[float, ...]) -> tup
 def gain_slope_u_rel(gain: AxisGain) -> float:
     """Relative standard uncertainty of a gain curve's slope (the torque scale the inertia is read through) from
     its fitted parameters' covariance (with the Student factor of its few points), at the middle of the torques the
-    campaign covered: what ``TorqueCalibration.u_gain_rel`` adds to U (it scales every inertia alike)."""
+    campaign covered: what ``TorqueCalibration.u_slope_rel_axes`` holds for the axis (the identification propagates
+    it axis by axis: a slope error of one axis is no common scale of the tensor, it moves the products of inertia)."""
     k = np.asarray(gain.params, float)
     cov = np.asarray(gain.covariance, float) * gain.student_factor()
     x = np.array([0.5 * max(abs(v) for v in gain.torque_range_nm)])
@@ -200,6 +201,16 @@ def gain_slope_u_rel(gain: AxisGain) -> float:
         jac[i] = (float(gain.slope(x, kp)[0]) - slope) / h
     var = float(jac @ cov @ jac)
     return math.sqrt(max(var, 0.0)) / abs(slope) if slope != 0 else math.inf
+
+
+def torque_calibration(gains: dict[int, AxisGain], fixture_mass_kg: float,
+                       fixture_cog_flange_m: Sequence[float]) -> inr.TorqueCalibration:
+    """The wrist axes' gain curves of a calibration (CAL.json's torsional section) as the identification takes
+    them, with what the tare run carries (MPA and fixture: the operating point) and the slopes' uncertainty."""
+    wrist = {ax: g for ax, g in gains.items() if ax in inr.WRIST_AXES}
+    fix = float(fixture_mass_kg)
+    return inr.TorqueCalibration(wrist, (fix, *(fix * float(c) for c in fixture_cog_flange_m)),  # type: ignore[arg-type]
+                                 u_slope_rel_axes={ax: gain_slope_u_rel(g) for ax, g in wrist.items()})
 
 
 def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | None = None,
@@ -230,11 +241,7 @@ def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | No
         tors = calfile.torsional(doc, calibration_path)
         if tors is None:
             raise DataError(f"{calibration_path}: no torsional section (the gain curves of A4..A6)")
-        gains = {ax: g for ax, g in tors.gains.items() if ax in inr.WRIST_AXES}
-        fix = man.fixture_mass_kg
-        u_rel = max((gain_slope_u_rel(g) for g in gains.values()), default=0.0)
-        cal = inr.TorqueCalibration(gains, (fix, *(fix * c for c in man.fixture_cog_flange_m)),  # type: ignore[arg-type]
-                                    u_gain_rel=u_rel)
+        cal = torque_calibration(tors.gains, man.fixture_mass_kg, man.fixture_cog_flange_m)
     try:
         return inr.identify(strokes, period, man.mass_kg, man.cog_flange_m, dut_abc_deg=man.dut_abc_deg,
                             calibration=cal, u_cog_flange_m=tuple(u / 2.0 for u in man.U_cog_flange_m),

@@ -231,6 +231,9 @@ class Operator:
         self.daemon_ref = daemon_ref
         self.view = view
         self._tasks: set[asyncio.Task[None]] = set()
+        self.dut_truth: Any = None
+        """The simulator's truth of the DuT's last trace, kept when the inertia's tare takes the DuT off (after that
+        the simulator's truth is the tare's: no DuT on the flange)."""
 
     def __call__(self, ev: Event) -> None:
         if ev.kind == "confirm":
@@ -243,6 +246,7 @@ class Operator:
         engine = self.daemon_ref[0].engine
         assert engine is not None
         if d.get(TARE_PROMPT) is True:  # the inertia's tare: the DuT comes off, MPA and fixture stay
+            self.dut_truth = await self.sim.truth()
             await self.sim.mount(ph.dut_payload(0.0, (0.0, 0.0, 0.0)))
             engine.confirm("operator took the DuT off")
             return
@@ -272,7 +276,8 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
         try:
             cfg = demo_config(sim, root / "data", mqtt_url, console_port)
             ref: list[Daemon] = []
-            daemon = Daemon(cfg, on_event=Operator(sim, ref, view))
+            operator = Operator(sim, ref, view)
+            daemon = Daemon(cfg, on_event=operator)
             ref.append(daemon)
             stop = asyncio.Event()
             service = asyncio.create_task(daemon.run(stop), name="rgse-demo-daemon")
@@ -298,7 +303,9 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
                                              DUT.dut_origin_flange_m, DUT.dut_abc_deg, inertia)),
                     "the properties run")
                 t_meas = time.monotonic() - t0
-                true_cog_m = _true_dut_cog_m(await sim.truth())
+                # the DuT as mounted for the run: with --inertia its truth from before the tare took it off
+                true_cog_m = _true_dut_cog_m(operator.dut_truth if operator.dut_truth is not None
+                                             else await sim.truth())
                 report_path = None
                 if report_dir is not None:
                     report_path = await _write_report(cfg, result["run_id"], report_dir)

@@ -40,8 +40,13 @@ smoothing), so a per-sample residual variance would be far too optimistic. The c
 *stroke bootstrap*: strokes are resampled with replacement within strata (the strokes of one axis in one direction)
 and the fit repeated (``N_BOOTSTRAP`` times), which keeps whatever correlation there is inside a stroke. The
 principal moments and axes are computed in every replicate, so their U (k = 2) needs no linearisation of the eigen-
-decomposition. A relative torque-scale uncertainty (the drive's gain, ``u_gain_rel``) is added in quadrature: it
-scales every inertia alike and no resampling can see it.
+decomposition. The torque scale no resampling can see enters axis by axis: each wrist axis' reading is taken
+through its own gain curve, whose slope is uncertain on its own (``TorqueCalibration.u_slope_rel_axes``, and the
+thermal drift of that axis' reading against the calibration's temperature). A slope error of one axis is not a common
+scale of the tensor: the products of inertia are read from how the torques of different axes compare, and for the
+wing box of the demo 2 % on A4 or A5 alone moves its I_yz (DuT frame, 0.39 kg·m²) by ~1.5 kg·m². So every bootstrap
+replicate adds the fit's linear response to a drawn slope error of each axis (``_axis_scale_sensitivity``). A common
+relative scale (``u_gain_rel``: one drive gain for all axes) is added in quadrature to every element.
 """
 
 from __future__ import annotations
@@ -236,11 +241,14 @@ class TorqueCalibration:
     """How the drive's torque reading depends on the payload torque: per wrist axis a gain curve (axes without one
     read the torque 1:1), and what is mounted in the tare run (``fixture_pi``: mass, m·c in the flange frame; the
     gain acts on the payload torque of MPA, fixture and DuT together, so the tare's sets the operating point).
-    ``u_gain_rel``: relative standard uncertainty of the slopes (the calibration's own)."""
+    ``u_slope_rel_axes``: per wrist axis the relative standard uncertainty of its curve's slope (the calibration's
+    own; independent between axes, propagated axis by axis). ``u_gain_rel``: a relative standard uncertainty common
+    to all axes (it scales every inertia alike)."""
 
     gains: dict[int, GainCurve]
     fixture_pi: tuple[float, float, float, float]
     u_gain_rel: float = 0.0
+    u_slope_rel_axes: dict[int, float] = field(default_factory=dict)
     calibration_temp_k: tuple[float, ...] | None = None
     """Motor temperatures A1..A6 (K) at which the gain curves were calibrated: with them the scale the fitted thermal
     drift implies between the runs' mean temperature and the calibration's enters U (not corrected)."""
@@ -349,12 +357,14 @@ def difference(dut: Stroke, tare: Stroke) -> Stroke:
 class StrokeData:
     """Rows of one stroke for the fit: per wrist axis the regressor of I and of a correction to m·c (n, 9), the
     per-axis nuisance columns (Coulomb, viscous, offset, load-dependent Coulomb, thermal drift: n, 5) and the
-    measured torque minus the known mass/CoG part; ``axis`` (n,) 4..6."""
+    measured torque minus the known mass/CoG part; ``axis`` (n,) 4..6; ``reading_nm`` (n,) the measured (smoothed,
+    tare-differenced) torque itself, which a slope error of the axis' gain curve scales."""
 
     y_inertia: np.ndarray
     y_nuisance: np.ndarray
     torque_nm: np.ndarray
     axis: np.ndarray
+    reading_nm: np.ndarray
 
 
 def stroke_rows(
@@ -406,7 +416,7 @@ def stroke_rows(
     jerk = np.abs(np.gradient(qdd_cmd, period_s, axis=0))
     peak = np.abs(qdd_cmd).max(axis=0)
     moving &= ~np.any(jerk > CORNER_JERK_FRACTION * peak / SMOOTH_SIGMA_S, axis=1)
-    rows_i, rows_n, axes, taus = [], [], [], []
+    rows_i, rows_n, axes, taus, readings = [], [], [], [], []
     for ax in WRIST_AXES:
         if not np.all(np.isfinite(stroke.torque_nm[:, ax - 1])):
             continue
@@ -433,9 +443,11 @@ def stroke_rows(
                                axis=1))
         axes.append(np.full(int(ok.sum()), ax))
         taus.append(tau[ok, j] - known)
+        readings.append(tau[ok, j])
     if not rows_i:
         return None
-    return StrokeData(np.vstack(rows_i), np.vstack(rows_n), np.concatenate(taus), np.concatenate(axes))
+    return StrokeData(np.vstack(rows_i), np.vstack(rows_n), np.concatenate(taus), np.concatenate(axes),
+                      np.concatenate(readings))
 
 
 def _design(data: Sequence[StrokeData]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -496,6 +508,14 @@ class InertiaResult:
             "coverage_k": COVERAGE_K,
             "warnings": list(self.warnings),
         }
+
+
+def _axis_scale_sensitivity(a: np.ndarray, reading_nm: np.ndarray, ax: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(3, n_params): the weighted fit's change per unit relative slope error of each wrist axis' gain curve.
+
+    With the slope of axis j off by δ the reading is (1 + δ) times what the calibration says, so the torques the
+    fit should have had are reading/(1 + δ) − known ≈ b − δ·reading on that axis' rows; the fit is linear in b."""
+    return np.array([_wls(a, -reading_nm * (ax == x), w) for x in WRIST_AXES])
 
 
 def _to_dut(i_o_six: np.ndarray, mass_kg: float, cog: np.ndarray, r_fd: np.ndarray) -> np.ndarray:
@@ -577,6 +597,20 @@ def identify(
     r_fd = dut_rotation(dut_abc_deg)
     t_dut = _to_dut(sol[:6], mass_kg, cog, r_fd)
     moments, axes = principal(t_dut)
+    # per wrist axis: relative standard uncertainty of its torque scale (the gain curve's slope; the thermal drift
+    # between the runs' temperature and the calibration's), and the fit's response to it
+    u_axis = np.zeros(len(WRIST_AXES))
+    if calibration is not None:
+        u_axis += np.array([calibration.u_slope_rel_axes.get(x, 0.0) for x in WRIST_AXES])
+        if calibration.calibration_temp_k is not None and temp_ref is not None:
+            # the reading's scale at the runs' mean motor temperature against the calibration's: β̂_j·(T̄_j − T_cal,j),
+            # not corrected, as a rectangular bound (β̂ is the fit's own, see TorqueCalibration.temp_ref_k)
+            t_cal = calibration.calibration_temp_k
+            drift = np.array([abs(sol[N_SHARED + N_AXIS * k + 4] / 1000.0 * (temp_ref[x - 1] - t_cal[x - 1]))
+                              for k, x in enumerate(WRIST_AXES)])
+            u_axis = np.hypot(u_axis, drift / math.sqrt(3.0))
+    reading = np.concatenate([d.reading_nm for d in data])
+    sens = _axis_scale_sensitivity(a, reading, ax, w) if np.any(u_axis > 0) else None
     # stroke bootstrap on per-stroke normal equations (a refit is a sum of small matrices)
     rng = np.random.default_rng(seed)
     n = len(data)
@@ -601,7 +635,10 @@ def identify(
         if np.linalg.cond(normal) > 1e12:
             continue
         s_b = np.linalg.solve(normal, np.tensordot(counts, atb, 1)) / scale
-        t_b = _to_dut(s_b[:6], mass_kg, cog + rng.normal(0.0, 1.0, 3) * u_cog, r_fd)
+        t_b_cog = cog + rng.normal(0.0, 1.0, 3) * u_cog
+        if sens is not None:  # each axis' own slope error, drawn
+            s_b = s_b + (rng.normal(0.0, 1.0, len(WRIST_AXES)) * u_axis) @ sens
+        t_b = _to_dut(s_b[:6], mass_kg, t_b_cog, r_fd)
         m_b, ax_b = principal(t_b)
         boot_i.append(s_b[:6])
         boot_t.append(t_b)
@@ -621,15 +658,6 @@ def identify(
     u_ang = np.sqrt(np.mean(np.array(boot_ang) ** 2, axis=0)) * finite
     if calibration is not None:
         u_gain_rel = math.hypot(u_gain_rel, calibration.u_gain_rel)
-    # the reading's scale at the runs' mean motor temperature against the calibration's: β̂_j·(T̄_j − T_cal,j) per
-    # axis; the largest, as a rectangular bound (it is not corrected: which axes set which moment is not separable)
-    u_thermal_rel = 0.0
-    if calibration is not None and calibration.calibration_temp_k is not None and temp_ref is not None:
-        t_cal = calibration.calibration_temp_k
-        drift = [abs(sol[N_SHARED + N_AXIS * k + 4] / 1000.0 * (temp_ref[x - 1] - t_cal[x - 1]))
-                 for k, x in enumerate(WRIST_AXES)]
-        u_thermal_rel = max(drift) / math.sqrt(3.0)
-    u_gain_rel = math.hypot(u_gain_rel, u_thermal_rel)
     u_t = np.sqrt(u_t**2 + (u_gain_rel * np.abs(t_dut)) ** 2)
     u_m = np.sqrt(u_m**2 + (u_gain_rel * moments) ** 2)
     friction = {}
