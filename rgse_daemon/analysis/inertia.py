@@ -20,8 +20,9 @@ manifest ``inertia.toml`` (docs/interfaces.md)::
     fixture_cog_flange_m = [0.0, 0.0, 0.04]
 
 With a CAL.json whose ``torsional`` section has gain curves for A4–A6, the readings are taken through them
-(``pipeline.inertia.TorqueCalibration``) and the relative uncertainty of each one's slope enters U, axis by axis
-(:func:`gain_slope_u_rel`); without one, 1:1.
+(``pipeline.inertia.TorqueCalibration``) and the relative uncertainty of each one's slope at the run's operating
+point (parameters and model form) enters U, axis by axis (:func:`gain_slope_u_rel`), with a warning where that
+operating point lies outside the torques the calibration covered; without one, 1:1.
 """
 
 from __future__ import annotations
@@ -184,33 +185,29 @@ def read_strokes(directory: Path, name: str, base_deg: tuple[float, ...]) -> tup
     return strokes, period
 
 
-def gain_slope_u_rel(gain: AxisGain) -> float:
-    """Relative standard uncertainty of a gain curve's slope (the torque scale the inertia is read through) from
-    its fitted parameters' covariance (with the Student factor of its few points), at the middle of the torques the
-    campaign covered: what ``TorqueCalibration.u_slope_rel_axes`` holds for the axis (the identification propagates
-    it axis by axis: a slope error of one axis is no common scale of the tensor, it moves the products of inertia)."""
-    k = np.asarray(gain.params, float)
-    cov = np.asarray(gain.covariance, float) * gain.student_factor()
-    x = np.array([0.5 * max(abs(v) for v in gain.torque_range_nm)])
-    slope = float(gain.slope(x, k)[0])
-    jac = np.empty(len(k))
-    for i in range(len(k)):
-        h = 1e-6 * max(abs(k[i]), 1e-6)
-        kp = k.copy()
-        kp[i] += h
-        jac[i] = (float(gain.slope(x, kp)[0]) - slope) / h
-    var = float(jac @ cov @ jac)
-    return math.sqrt(max(var, 0.0)) / abs(slope) if slope != 0 else math.inf
+def gain_slope_u_rel(gain: AxisGain, x_nm: float | None = None) -> float:
+    """Relative standard uncertainty of a gain curve's slope (the torque scale the inertia is read through) at
+    payload torque ``x_nm`` (None: the middle of the torques the campaign covered): its fitted parameters'
+    covariance (with the Student factor of its few points) and the spread of the candidate models the calibration
+    could not tell from the chosen one (model form; ``AxisGain.slope_u_rel``). The identification takes it at the
+    run's operating point, axis by axis (``TorqueCalibration.slope_u_rel_at``): a slope error of one axis is no
+    common scale of the tensor, it moves the products of inertia."""
+    if x_nm is None:
+        x_nm = 0.5 * max(abs(v) for v in gain.torque_range_nm)
+    return gain.slope_u_rel(x_nm)
 
 
 def torque_calibration(gains: dict[int, AxisGain], fixture_mass_kg: float,
                        fixture_cog_flange_m: Sequence[float]) -> inr.TorqueCalibration:
     """The wrist axes' gain curves of a calibration (CAL.json's torsional section) as the identification takes
-    them, with what the tare run carries (MPA and fixture: the operating point) and the slopes' uncertainty."""
+    them, with what the tare run carries (MPA and fixture: with the DuT the operating point), the slopes'
+    uncertainty as a function of the payload torque (taken at the run's operating point) and the torques each curve
+    covered (an operating point outside them gets a warning)."""
     wrist = {ax: g for ax, g in gains.items() if ax in inr.WRIST_AXES}
     fix = float(fixture_mass_kg)
     return inr.TorqueCalibration(wrist, (fix, *(fix * float(c) for c in fixture_cog_flange_m)),  # type: ignore[arg-type]
-                                 u_slope_rel_axes={ax: gain_slope_u_rel(g) for ax, g in wrist.items()})
+                                 slope_u_rel_at={ax: g.slope_u_rel for ax, g in wrist.items()},
+                                 covered_nm={ax: g.torque_range_nm for ax, g in wrist.items()})
 
 
 def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | None = None,

@@ -17,8 +17,9 @@ Torques are the controller's holding torques (sign as in ``rgse_daemon.kinematic
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import stats
@@ -152,6 +153,23 @@ def gain_slope(x_nm: np.ndarray, model: str, k: np.ndarray) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class GainCandidate:
+    """One gain model the leave-one-point-out validation fitted for an axis (CAL.json ``evaluation.models``): its
+    parameters on all points, the held-out RMS of whole points (Nm) and its parameters' jackknife covariance (None
+    when the file did not keep it)."""
+
+    model: str
+    params: tuple[float, ...]
+    heldout_rms_nm: float
+    covariance: tuple[tuple[float, ...], ...] | None = None
+
+
+#: One-sided level at which a candidate gain model's held-out error counts as no worse than the chosen model's
+#: (:meth:`AxisGain.admissible_candidates`).
+CANDIDATE_LEVEL = 0.95
+
+
+@dataclass(frozen=True)
 class AxisGain:
     """K of one axis for the CoG: reading r (bias-corrected, Nm) = basis(x) @ params for payload torque x, the
     basis of ``model`` (:data:`GAIN_MODELS`: polynomial or saturating gain).
@@ -171,12 +189,87 @@ class AxisGain:
     form, seating of the load in a tilted pose, drift); every CoG equation gets it as an independent error."""
     n_points: int = 0
     """Loaded points the jackknife covariance rests on (0: unknown, no Student factor)."""
+    candidates: tuple[GainCandidate, ...] = ()
+    """Every model the validation fitted (the chosen one among them), for the model-form part of the slope's
+    uncertainty (:meth:`slope_u_rel`); () when the calibration did not keep them (older CAL.json)."""
 
     def student_factor(self) -> float:
         """(t₀.₉₇₅(n − 1) / 1.96)²: the jackknife variance of a few points, widened so that k = 2 keeps ~95 %."""
         if self.n_points < 2:
             return 1.0
         return float((stats.t.ppf(0.975, self.n_points - 1) / stats.norm.ppf(0.975)) ** 2)
+
+    def admissible_candidates(self) -> tuple[GainCandidate, ...]:
+        """The candidate models the calibration's points cannot tell from the chosen one: those whose held-out mean
+        square (leave one point out) is within the F distribution's ``CANDIDATE_LEVEL`` quantile with
+        (n_points, n_points) degrees of freedom of the chosen model's. The points, not the poses, are the independent
+        samples of a held-out error (a mounting's error is shared by its poses), so with four points a candidate
+        up to ~2.5 times the chosen's held-out RMS still fits them as well as chance allows: the selection's 5 %
+        rule picks one of them, it does not rule out the others. Without ``n_points`` every validated candidate
+        counts."""
+        if not self.candidates:
+            return ()
+        own = [c.heldout_rms_nm for c in self.candidates if c.model == self.model]
+        ref = own[0] if own else min(c.heldout_rms_nm for c in self.candidates)
+        if self.n_points < 2:
+            return self.candidates
+        bound = float(np.sqrt(stats.f.ppf(CANDIDATE_LEVEL, self.n_points, self.n_points)))
+        return tuple(c for c in self.candidates if c.heldout_rms_nm <= bound * ref)
+
+    def _slope_and_u_par(self, model: str, params: Sequence[float], cov: np.ndarray | None, x_nm: float
+                         ) -> tuple[float, float]:
+        """Slope of ``model`` at x and its standard uncertainty from the parameters' covariance (widened by the
+        Student factor of the points; numerical Jacobian)."""
+        k = np.asarray(params, float)
+        xs = np.array([float(x_nm)])
+        slope = float(gain_slope(xs, model, k)[0])
+        if cov is None:
+            return slope, 0.0
+        jac = np.empty(len(k))
+        for i in range(len(k)):
+            h = 1e-6 * max(abs(k[i]), 1e-6)
+            kp = k.copy()
+            kp[i] += h
+            jac[i] = (float(gain_slope(xs, model, kp)[0]) - slope) / h
+        return slope, math.sqrt(max(float(jac @ (np.asarray(cov, float) * self.student_factor()) @ jac), 0.0))
+
+    def slope_u_rel_parts(self, x_nm: float) -> tuple[float, float]:
+        """Relative standard uncertainty of the slope dr/dx at payload torque ``x_nm``: (the chosen model's
+        parameters alone, with the model form).
+
+        *Parameters*: the chosen model's jackknife covariance (widened by the Student factor of its few points),
+        propagated to the slope at x. *With the model form*: the truth may follow any admissible candidate
+        (:meth:`admissible_candidates`, the chosen one among them) as well as the chosen model. For each candidate c
+        the chosen slope's error is then its deviation d_c = s_c(x) − s(x), taken as the half-width of a
+        rectangular distribution (/√3: the candidates are no random sample of models, five saturating scales lie
+        close together and the list is ours, so their standard deviation would depend on how densely the list is
+        populated; the largest deviation would not), plus the candidate's own parameter uncertainty u_c(x) (its
+        slope is fitted from the same few points). The slope's standard uncertainty is the largest
+        √(d_c²/3 + u_c²) over the candidates; for the chosen model itself that is its parameter part. Both parts
+        grow where the points lie far from x (an operating point beyond the calibrated torques).
+
+        Why not the chosen model's parameters alone: they are blind to a model that fits the points as well but has
+        another curvature between or beyond them. Why the candidates' own u_c too: when the points' scatter makes a
+        curved truth look straight, the curved candidates fitted to the same points come out too straight as well,
+        and their deviation alone is too small (on a curved truth G = 0.91 + 0.28·tanh(|x|/500 Nm), four points to
+        480 Nm with 11 Nm scatter each, the deviation alone covered the true slope error at k = 2 in 80 % of draws,
+        with u_c in 92–96 %; tests/physics/test_gain_slope.py)."""
+        slope, u_par = self._slope_and_u_par(self.model, self.params, np.asarray(self.covariance, float), x_nm)
+        if not slope > 0:
+            return math.inf, math.inf
+        u = u_par
+        for c in self.admissible_candidates():
+            if GAIN_MODELS.get(c.model) != len(c.params):
+                continue
+            cov = None if c.covariance is None else np.asarray(c.covariance, float)
+            s_c, u_c = self._slope_and_u_par(c.model, c.params, cov, x_nm)
+            u = max(u, math.sqrt((s_c - slope) ** 2 / 3.0 + u_c**2))
+        return u_par / slope, u / slope
+
+    def slope_u_rel(self, x_nm: float) -> float:
+        """Relative standard uncertainty of the slope at payload torque ``x_nm``, model form included
+        (:meth:`slope_u_rel_parts`)."""
+        return self.slope_u_rel_parts(x_nm)[1]
 
     def reading_nm(self, x_nm: np.ndarray, params: np.ndarray | None = None) -> np.ndarray:
         k = np.asarray(self.params if params is None else params, dtype=float)
@@ -201,9 +294,12 @@ class AxisGain:
         return x
 
     def to_dict(self) -> dict:
-        return {"model": self.model, "params": list(self.params), "covariance": [list(r) for r in self.covariance],
-                "u_point_nm": self.u_point_nm, "u_fit_nm": self.u_fit_nm, "torque_range_nm": list(self.torque_range_nm),
-                "n_points": self.n_points}
+        d = {"model": self.model, "params": list(self.params), "covariance": [list(r) for r in self.covariance],
+             "u_point_nm": self.u_point_nm, "u_fit_nm": self.u_fit_nm, "torque_range_nm": list(self.torque_range_nm),
+             "n_points": self.n_points}
+        if self.candidates:
+            d["evaluation"] = {"models": {c.model: _candidate_dict(c) for c in self.candidates}}
+        return d
 
     @staticmethod
     def from_dict(axis: int, d: dict) -> AxisGain:
@@ -215,7 +311,8 @@ class AxisGain:
             lo, hi = (float(v) for v in d["torque_range_nm"])
             u_fit = float(d.get("u_fit_nm", 0.0))
             n_points = int(d.get("n_points", 0))
-        except (KeyError, TypeError, ValueError) as exc:
+            candidates = _candidates(d.get("evaluation"))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise DataError(f"torsional.axes.A{axis}: malformed entry ({exc!r})") from None
         n = GAIN_MODELS.get(model)
         if n is None or len(params) != n or np.shape(cov) != (n, n):
@@ -225,7 +322,35 @@ class AxisGain:
             raise DataError(f"torsional.axes.A{axis}: non-finite parameters")
         if params[0] <= 0:
             raise DataError(f"torsional.axes.A{axis}: gain k0 must be > 0, got {params[0]}")
-        return AxisGain(axis, model, params, cov, u, (lo, hi), u_fit, n_points)
+        bad = [c.model for c in candidates if GAIN_MODELS.get(c.model) != len(c.params)
+               or not (np.all(np.isfinite(c.params)) and np.isfinite(c.heldout_rms_nm) and c.heldout_rms_nm >= 0)
+               or (c.covariance is not None and (np.shape(c.covariance) != (len(c.params),) * 2
+                                                 or not np.all(np.isfinite(c.covariance))))]
+        if bad:
+            raise DataError(f"torsional.axes.A{axis}.evaluation: malformed candidate model(s) {', '.join(bad)}")
+        return AxisGain(axis, model, params, cov, u, (lo, hi), u_fit, n_points, candidates)
+
+
+def _candidates(evaluation: object) -> tuple[GainCandidate, ...]:
+    """The candidate models of a CAL.json axis' ``evaluation`` record (optional: () without it, or for an entry
+    without its ``params``, as files written before they were kept)."""
+    if not isinstance(evaluation, dict) or not isinstance(evaluation.get("models"), dict):
+        return ()
+    out = []
+    for model, rec in evaluation["models"].items():
+        if not isinstance(rec, dict) or "params" not in rec:
+            continue
+        cov = rec.get("covariance")
+        out.append(GainCandidate(str(model), tuple(float(v) for v in rec["params"]), float(rec["heldout_rms_nm"]),
+                                 None if cov is None else tuple(tuple(float(v) for v in row) for row in cov)))
+    return tuple(out)
+
+
+def _candidate_dict(c: GainCandidate) -> dict:
+    d: dict = {"heldout_rms_nm": c.heldout_rms_nm, "params": list(c.params)}
+    if c.covariance is not None:
+        d["covariance"] = [list(r) for r in c.covariance]
+    return d
 
 
 def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray, group: np.ndarray, model: str,
@@ -303,12 +428,15 @@ def select_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndar
         except DataError:
             continue
         rms = float(np.sqrt(np.mean(heldout**2)))
-        evaluations[model] = {"heldout_rms_nm": rms, "params": list(gain.params)}
+        evaluations[model] = {"heldout_rms_nm": rms, "params": list(gain.params),
+                              "covariance": [list(r) for r in gain.covariance]}
         if best is None or rms < 0.95 * best[1]:
             best = (gain, rms)
     if best is None:
         raise DataError(f"A{axis}: too few torsional points to fit any gain model")
-    return best[0], {"chosen": best[0].model, "point_offsets": point_offsets, "models": evaluations}
+    candidates = _candidates({"models": evaluations})
+    chosen = replace(best[0], candidates=candidates)
+    return chosen, {"chosen": chosen.model, "point_offsets": point_offsets, "models": evaluations}
 
 
 # ---------------------------------------------------------------------------------------------------------------------

@@ -53,7 +53,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Protocol
 
@@ -249,6 +249,13 @@ class TorqueCalibration:
     fixture_pi: tuple[float, float, float, float]
     u_gain_rel: float = 0.0
     u_slope_rel_axes: dict[int, float] = field(default_factory=dict)
+    slope_u_rel_at: dict[int, Callable[[float], float]] = field(default_factory=dict)
+    """Per wrist axis the relative standard uncertainty of its curve's slope as a function of the payload torque
+    (Nm): :func:`identify` takes it at the run's operating point (the payload torque of MPA, fixture and DuT over
+    that axis' rows) and it replaces the axis' ``u_slope_rel_axes``."""
+    covered_nm: dict[int, tuple[float, float]] = field(default_factory=dict)
+    """Per wrist axis the payload torques (min, max, Nm) the calibration covered: an operating point outside them
+    reads through an extrapolated slope, which the result's warnings say."""
     calibration_temp_k: tuple[float, ...] | None = None
     """Motor temperatures A1..A6 (K) at which the gain curves were calibrated: with them the scale the fitted thermal
     drift implies between the runs' mean temperature and the calibration's enters U (not corrected)."""
@@ -358,13 +365,16 @@ class StrokeData:
     """Rows of one stroke for the fit: per wrist axis the regressor of I and of a correction to m·c (n, 9), the
     per-axis nuisance columns (Coulomb, viscous, offset, load-dependent Coulomb, thermal drift: n, 5) and the
     measured torque minus the known mass/CoG part; ``axis`` (n,) 4..6; ``reading_nm`` (n,) the measured (smoothed,
-    tare-differenced) torque itself, which a slope error of the axis' gain curve scales."""
+    tare-differenced) torque itself, which a slope error of the axis' gain curve scales; ``payload_nm`` (n,) the
+    payload torque (MPA, fixture and DuT; with a guess of the inertia) at which the axis' gain curve is taken for
+    the row: its operating point (the DuT's own without a calibration)."""
 
     y_inertia: np.ndarray
     y_nuisance: np.ndarray
     torque_nm: np.ndarray
     axis: np.ndarray
     reading_nm: np.ndarray
+    payload_nm: np.ndarray
 
 
 def stroke_rows(
@@ -416,7 +426,7 @@ def stroke_rows(
     jerk = np.abs(np.gradient(qdd_cmd, period_s, axis=0))
     peak = np.abs(qdd_cmd).max(axis=0)
     moving &= ~np.any(jerk > CORNER_JERK_FRACTION * peak / SMOOTH_SIGMA_S, axis=1)
-    rows_i, rows_n, axes, taus, readings = [], [], [], [], []
+    rows_i, rows_n, axes, taus, readings, payload = [], [], [], [], [], []
     for ax in WRIST_AXES:
         if not np.all(np.isfinite(stroke.torque_nm[:, ax - 1])):
             continue
@@ -444,10 +454,11 @@ def stroke_rows(
         axes.append(np.full(int(ok.sum()), ax))
         taus.append(tau[ok, j] - known)
         readings.append(tau[ok, j])
+        payload.append(x0[ok, j])
     if not rows_i:
         return None
     return StrokeData(np.vstack(rows_i), np.vstack(rows_n), np.concatenate(taus), np.concatenate(axes),
-                      np.concatenate(readings))
+                      np.concatenate(readings), np.concatenate(payload))
 
 
 def _design(data: Sequence[StrokeData]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -516,6 +527,34 @@ def _axis_scale_sensitivity(a: np.ndarray, reading_nm: np.ndarray, ax: np.ndarra
     With the slope of axis j off by δ the reading is (1 + δ) times what the calibration says, so the torques the
     fit should have had are reading/(1 + δ) − known ≈ b − δ·reading on that axis' rows; the fit is linear in b."""
     return np.array([_wls(a, -reading_nm * (ax == x), w) for x in WRIST_AXES])
+
+
+def operating_points_nm(data: Sequence[StrokeData]) -> dict[int, tuple[float, float, float]]:
+    """Per wrist axis the payload torque its gain curve works at during the excitation: (mean, min, max) over the
+    axis' rows (Nm; MPA, fixture and DuT, the torque :func:`stroke_rows` takes the gain's slope at)."""
+    ax = np.concatenate([d.axis for d in data])
+    x = np.concatenate([d.payload_nm for d in data])
+    return {a: (float(np.mean(x[ax == a])), float(np.min(x[ax == a])), float(np.max(x[ax == a])))
+            for a in WRIST_AXES if np.any(ax == a)}
+
+
+def _slope_u_at_operating_point(calibration: TorqueCalibration, data: Sequence[StrokeData],
+                                warnings: list[str]) -> np.ndarray:
+    """Per wrist axis the relative standard uncertainty of its gain's slope at the run's operating point (the mean
+    payload torque of its rows; ``u_slope_rel_axes`` where the calibration gives no function of the torque), and a
+    warning for every axis whose operating point lies outside the torques the calibration covered."""
+    ops = operating_points_nm(data)
+    out = np.zeros(len(WRIST_AXES))
+    for k, x in enumerate(WRIST_AXES):
+        f = calibration.slope_u_rel_at.get(x)
+        out[k] = f(ops[x][0]) if f is not None and x in ops else calibration.u_slope_rel_axes.get(x, 0.0)
+        covered = calibration.covered_nm.get(x)
+        if covered is not None and x in ops and not covered[0] <= ops[x][0] <= covered[1]:
+            mean, lo, hi = ops[x]
+            warnings.append(f"A{x}: the payload torque during the excitation ({mean:.0f} Nm; {lo:.0f} to {hi:.0f} "
+                            f"Nm) lies outside the torques the torsional calibration covered ({covered[0]:.0f} to "
+                            f"{covered[1]:.0f} Nm): its gain curve's slope is extrapolated there")
+    return out
 
 
 def _to_dut(i_o_six: np.ndarray, mass_kg: float, cog: np.ndarray, r_fd: np.ndarray) -> np.ndarray:
@@ -600,8 +639,9 @@ def identify(
     # per wrist axis: relative standard uncertainty of its torque scale (the gain curve's slope; the thermal drift
     # between the runs' temperature and the calibration's), and the fit's response to it
     u_axis = np.zeros(len(WRIST_AXES))
+    warnings = []
     if calibration is not None:
-        u_axis += np.array([calibration.u_slope_rel_axes.get(x, 0.0) for x in WRIST_AXES])
+        u_axis += _slope_u_at_operating_point(calibration, data, warnings)
         if calibration.calibration_temp_k is not None and temp_ref is not None:
             # the reading's scale at the runs' mean motor temperature against the calibration's: β̂_j·(T̄_j − T_cal,j),
             # not corrected, as a rectangular bound (β̂ is the fit's own, see TorqueCalibration.temp_ref_k)
@@ -665,7 +705,6 @@ def identify(
         fc, fv, off, mu, kappa = sol[N_SHARED + N_AXIS * k : N_SHARED + N_AXIS * (k + 1)]
         friction[f"A{x}"] = {"coulomb_nm": float(fc), "viscous_nm_s_rad": float(fv), "offset_nm": float(off),
                              "coulomb_per_knm": float(mu), "thermal_per_k": float(kappa) / 1000.0}
-    warnings = []
     gaps = np.diff(moments) / moments[1:]
     if np.any(gaps < 0.05):
         warnings.append("two principal moments lie within 5 % of each other: their axes are poorly defined")

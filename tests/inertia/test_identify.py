@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import inertia as ai
 from rgse_daemon.pipeline import excitation as ex
 from rgse_daemon.pipeline import inertia as inr
@@ -118,3 +119,35 @@ def test_U_holds_a_gain_slope_error_of_one_wrist_axis(design: ex.Excitation) -> 
     assert np.all(np.abs(err_m) <= r.U_principal_moments_kgm2), (err_m, r.U_principal_moments_kgm2)
     # and U is not a blanket: the largest product's U stays below a fifth of the largest moment
     assert np.max(r.U_inertia_cog_dut_kgm2[np.triu_indices(3, 1)]) < 0.2 * WING_PRINCIPAL_KGM2[-1]
+
+
+def _static_payload_torque_range_nm(strokes: list[inr.Stroke], axis: int) -> tuple[float, float]:
+    """The DuT's static torque on ``axis`` over every sample of the strokes (the gravity regressor at the traced
+    angles; no fixture): where the gain curve works during the excitation."""
+    theta = MASS_KG * np.array([1.0, *COG_M])
+    x = [float(kin.gravity_regressor(q)[axis - 1] @ theta) for s in strokes for q in s.q_deg]
+    return min(x), max(x)
+
+
+def test_an_operating_point_outside_the_calibrated_torques_is_warned(design: ex.Excitation) -> None:
+    strokes = _wing_strokes(design, 1.0)
+    lo5, hi5 = _static_payload_torque_range_nm(strokes, 5)
+    assert hi5 - lo5 > 50.0 and hi5 < 0.0  # A5 holds the DuT up: hundreds of Nm, one sign
+
+    def gains(a5_range: tuple[float, float]) -> dict[int, AxisGain]:
+        g = _unit_gains({4: 0.005, 5: 0.005, 6: 0.005})
+        return {**g, 5: AxisGain(5, "linear", (1.0,), ((0.005**2,),), 1.0, a5_range)}
+
+    inside = inr.identify(strokes, PERIOD_S, MASS_KG, COG_M, dut_abc_deg=WING_DUT_ABC_DEG, n_bootstrap=30,
+                          calibration=ai.torque_calibration(gains((lo5 - 20.0, hi5 + 20.0)), 0.0, (0.0, 0.0, 0.0)))
+    assert not any("outside the torques the torsional calibration covered" in w for w in inside.warnings)
+    # calibrated only on loads lighter than the DuT (its torques between the DuT's and zero): extrapolated
+    light = (0.5 * hi5, 0.0)
+    outside = inr.identify(strokes, PERIOD_S, MASS_KG, COG_M, dut_abc_deg=WING_DUT_ABC_DEG, n_bootstrap=30,
+                           calibration=ai.torque_calibration(gains(light), 0.0, (0.0, 0.0, 0.0)))
+    hits = [w for w in outside.warnings if "outside the torques the torsional calibration covered" in w]
+    assert len(hits) == 1 and hits[0].startswith("A5:"), outside.warnings
+    assert f"({light[0]:.0f} to {light[1]:.0f} Nm)" in hits[0]
+    mean = float(hits[0].split("(")[1].split(" Nm")[0])
+    assert lo5 - 10.0 <= mean <= hi5 + 10.0  # the torque named is the DuT's at A5
+    assert outside.to_json()["warnings"] == list(outside.warnings)
