@@ -501,6 +501,11 @@ class InertiaResult:
     condition_number: float
     covariance_inertia_flange: np.ndarray = field(repr=False)
     warnings: tuple[str, ...] = ()
+    torque_scale: dict[str, dict[str, float]] = field(default_factory=dict)
+    """Per wrist axis (``"A4"``..): the payload torque its gain curve worked at (``operating_point_nm``: mean, with
+    ``min_nm``/``max_nm`` over its rows) and the relative standard uncertainty of its torque scale that U holds
+    (``u_scale_rel``: the gain slope's there, with the model form, and the thermal scale); empty without a
+    calibration."""
 
     def to_json(self) -> dict:
         return {
@@ -518,6 +523,7 @@ class InertiaResult:
             "condition_number": self.condition_number,
             "coverage_k": COVERAGE_K,
             "warnings": list(self.warnings),
+            "torque_scale": self.torque_scale,
         }
 
 
@@ -649,6 +655,11 @@ def identify(
             drift = np.array([abs(sol[N_SHARED + N_AXIS * k + 4] / 1000.0 * (temp_ref[x - 1] - t_cal[x - 1]))
                               for k, x in enumerate(WRIST_AXES)])
             u_axis = np.hypot(u_axis, drift / math.sqrt(3.0))
+    torque_scale = {}
+    if calibration is not None:
+        for x, (mean, lo, hi) in operating_points_nm(data).items():
+            torque_scale[f"A{x}"] = {"operating_point_nm": mean, "min_nm": lo, "max_nm": hi,
+                                     "u_scale_rel": float(u_axis[WRIST_AXES.index(x)])}
     reading = np.concatenate([d.reading_nm for d in data])
     sens = _axis_scale_sensitivity(a, reading, ax, w) if np.any(u_axis > 0) else None
     # stroke bootstrap on per-stroke normal equations (a refit is a sum of small matrices)
@@ -723,4 +734,5 @@ def identify(
         condition_number=cond,
         covariance_inertia_flange=cov_i,
         warnings=tuple(warnings),
+        torque_scale=torque_scale,
     )

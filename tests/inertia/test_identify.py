@@ -151,3 +151,14 @@ def test_an_operating_point_outside_the_calibrated_torques_is_warned(design: ex.
     mean = float(hits[0].split("(")[1].split(" Nm")[0])
     assert lo5 - 10.0 <= mean <= hi5 + 10.0  # the torque named is the DuT's at A5
     assert outside.to_json()["warnings"] == list(outside.warnings)
+    # the record of each axis' operating point and the scale uncertainty U holds there (the unit gains' slope u,
+    # a linear curve's: its own u at any torque, no thermal term without temperatures)
+    scale = outside.to_json()["torque_scale"]
+    assert sorted(scale) == ["A4", "A5", "A6"]
+    assert scale["A5"]["operating_point_nm"] == pytest.approx(mean, abs=0.5)
+    # (the rows' payload torque holds the swing's inertial part too: its span reaches beyond the static one)
+    assert scale["A5"]["min_nm"] <= min(lo5 + 10.0, scale["A5"]["operating_point_nm"])
+    assert scale["A5"]["max_nm"] >= max(hi5 - 10.0, scale["A5"]["operating_point_nm"])
+    assert [scale[a]["u_scale_rel"] for a in ("A4", "A5", "A6")] == pytest.approx([0.005] * 3, rel=1e-6)
+    no_cal = inr.identify(strokes, PERIOD_S, MASS_KG, COG_M, dut_abc_deg=WING_DUT_ABC_DEG, n_bootstrap=30)
+    assert no_cal.to_json()["torque_scale"] == {}
