@@ -86,6 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--console", type=int, metavar="PORT", help="also serve the web console on 127.0.0.1:PORT")
     p.add_argument("--inertia", action="store_true",
                    help="the properties run also measures the inertia tensor (DuT and tare excitation)")
+    p.add_argument("--seed", type=int, default=2024, metavar="N",
+                   help="the simulated robot's seed (gains, offsets, noise; default 2024)")
 
     p = sub.add_parser("sim", help="run the simulated KR C4 as a server until SIGINT/SIGTERM")
     p.add_argument("--host", default="127.0.0.1")

@@ -263,14 +263,15 @@ async def _wait(task: asyncio.Task[Any], what: str) -> Any:
 
 
 async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None, bars: bool = False,
-                   console_port: int | None = None, inertia: bool = False) -> dict[str, Any]:
-    """The demo; progress on stderr: bars on a terminal if ``bars``, else plain lines unless ``quiet``."""
+                   console_port: int | None = None, inertia: bool = False, seed: int = SEED) -> dict[str, Any]:
+    """The demo; progress on stderr: bars on a terminal if ``bars``, else plain lines unless ``quiet``. ``seed``
+    draws the simulated robot (its gains, offsets, noise; bench/demo_repeat.py repeats the demo over seeds)."""
     t_start = time.monotonic()
     with demo_view(quiet=quiet, bars=bars) as view, tempfile.TemporaryDirectory(prefix="rgse-demo-") as tmp:
         root = Path(tmp)
         # the simulated controller in its own process, as a real KR C4 is its own machine: its CPU work must not
         # stall the daemon's event loop and its 20 Hz interlock monitor
-        sim = SimProcess(root / "share", seed=SEED, time_scale=TIME_SCALE, globals_dat=globals_dat_text(),
+        sim = SimProcess(root / "share", seed=seed, time_scale=TIME_SCALE, globals_dat=globals_dat_text(),
                          file_rate_bytes_s=INERTIA_FILE_RATE_BYTES_S if inertia else None)
         await asyncio.to_thread(sim.start)
         try:
@@ -319,6 +320,7 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
     robot_wall_s = float(timing["robot_time_s"])
     overhead_s = float(timing["overhead_s"])
     return {**_inertia_summary(result), **{
+        "seed": seed,
         "mass_kg": result["mass_kg"],
         "true_mass_kg": DUT_MASS_KG,
         "error_kg": result["mass_kg"] - DUT_MASS_KG,
@@ -400,7 +402,8 @@ async def _write_report(cfg: Config, run_id: str, out: Path) -> Path:
 def run(args: argparse.Namespace) -> int:
     summary = asyncio.run(run_demo(quiet=args.json, report_dir=args.report, mqtt_url=args.mqtt, bars=True,
                                    console_port=getattr(args, "console", None),
-                                   inertia=bool(getattr(args, "inertia", False))))
+                                   inertia=bool(getattr(args, "inertia", False)),
+                                   seed=int(getattr(args, "seed", SEED))))
     if args.json:
         print(json.dumps(summary))
         return 0

@@ -35,7 +35,7 @@ def test_demo_json_agrees_with_truth_within_u(tmp_path: Path) -> None:
     for key in ("mass_kg", "true_mass_kg", "U_kg", "loops", "robot_time_s", "overhead_s", "calibration"):
         assert key in out, key
     assert "loo_mean_abs_err_pct" in out["calibration"]
-    assert out["loops"] == 10 and out["true_mass_kg"] == 107.3
+    assert out["loops"] == 10 and out["true_mass_kg"] == 107.3 and out["seed"] == 2024
     # the measured mass agrees with the simulator's truth within its expanded uncertainty
     err = out["mass_kg"] - out["true_mass_kg"]
     assert abs(err) <= out["U_kg"], f"measured {out['mass_kg']:.3f} ± {out['U_kg']:.3f} kg, true 107.3 kg"
