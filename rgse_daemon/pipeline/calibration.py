@@ -99,6 +99,22 @@ class CalibrationPoints:
                                    ("kind", "mass_kg", "torque_a3_nm", "torque_a5_nm", "expected_a3_nm",
                                     "expected_a5_nm")), cov)
 
+    def lever_difference_m(self, g_m_s2: float, default_m: float) -> np.ndarray:
+        """Each point's own lever difference r_A3 − r_A5 (eq. 21's Δr), m: what its expected torques encode,
+        ``(M_A3,exp − M_A5,exp) / (g·m)`` (eq. 17/18); ``default_m`` (the measurement pose's) for the zero point.
+
+        A point recorded in another pose than the measurement pose has another Δr (Table 1's torque rows: 1.0204 m
+        against the mass rows' 1.0250 m); eq. 21 with the measurement pose's Δr would give such a point a mass
+        0.45 % off even when both of its corrected torques are exact."""
+        loaded = self.mass_kg > 0
+        dr = np.full(len(self), float(default_m))
+        dr[loaded] = (self.expected_a3_nm[loaded] - self.expected_a5_nm[loaded]) / (g_m_s2 * self.mass_kg[loaded])
+        if np.any(dr <= 0):
+            bad = int(np.flatnonzero(dr <= 0)[0])
+            raise CalibrationError(f"calibration point {bad + 1}: its expected torques give a lever difference "
+                                   f"of {dr[bad]:.4f} m (expected A3 torque must exceed A5's)")
+        return dr
+
     def with_masses(self, mass_kg: np.ndarray) -> CalibrationPoints:
         """The same points with other reference masses (expected torques scaled along)."""
         m = np.asarray(mass_kg, float)
@@ -304,6 +320,15 @@ class Calibration:
         return mass_eq.dut_mass_kg(self.k_a3.corrected_torque_nm(torque_a3_nm),
                                    self.k_a5.corrected_torque_nm(torque_a5_nm),
                                    self.g_m_s2, self.lever_difference_m, fixture_mass_kg)
+
+    def points_mass_kg(self, points: CalibrationPoints, index: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """Eq. 21 for calibration points, each with its own lever difference
+        (:meth:`CalibrationPoints.lever_difference_m`): the mass that the point's corrected torques give in the
+        geometry its expected torques were computed for."""
+        idx = np.arange(len(points))[index]
+        dr = points.lever_difference_m(self.g_m_s2, self.lever_difference_m)[idx]
+        return mass_eq.dut_mass_kg(self.k_a3.corrected_torque_nm(points.torque_a3_nm[idx]),
+                                   self.k_a5.corrected_torque_nm(points.torque_a5_nm[idx]), self.g_m_s2, dr)
 
     def out_of_range(self, torque_a3_nm: float, torque_a5_nm: float, margin: float = 0.05) -> list[str]:
         """Warnings for torques outside the fitted range (beyond ``margin`` of its span)."""
@@ -549,9 +574,9 @@ def _fit_gain(points: CalibrationPoints, method: str, g_m_s2: float, lever_diffe
                                f"points, got {int(loaded.sum())}")
     g3 = GainK(terms_a3, np.zeros(len(terms_a3)))
     g5 = GainK(terms_a5, np.zeros(len(terms_a5)))
-    denom = g_m_s2 * lever_difference_m
-    # eq. 21 is linear in the gain coefficients: m = (Φ3·c3 − Φ5·c5) / (g·Δr)
-    a = np.hstack([g3.design(points.torque_a3_nm), -g5.design(points.torque_a5_nm)]) / denom
+    denom = g_m_s2 * points.lever_difference_m(g_m_s2, lever_difference_m)
+    # eq. 21 is linear in the gain coefficients: m = (Φ3·c3 − Φ5·c5) / (g·Δr), each point with its own Δr
+    a = np.hstack([g3.design(points.torque_a3_nm), -g5.design(points.torque_a5_nm)]) / denom[:, None]
     y = points.mass_kg
     m_floor = float(points.mass_kg[loaded].min())
     w = 1.0 / np.maximum(y, m_floor)  # relative residuals: the paper's error measure
@@ -794,7 +819,7 @@ def _held_out(points: CalibrationPoints, method: str, g_m_s2: float, lever_diffe
     for i in range(n):
         keep = np.arange(n) != i
         cal = fit(points.subset(keep), method, g_m_s2, lever_difference_m)
-        mass[i] = float(cal.mass_kg(points.torque_a3_nm[i], points.torque_a5_nm[i]))
+        mass[i] = float(cal.points_mass_kg(points, np.array([i]))[0])
         resid[i] = _axis_residual_nm(cal, points, np.array([i]))[0]
     return mass, resid
 
@@ -811,13 +836,13 @@ def _lever_group_out(points: CalibrationPoints, method: str, g_m_s2: float, leve
     except CalibrationError:
         return mass
     idx = np.flatnonzero(group)
-    mass[idx] = cal.mass_kg(points.torque_a3_nm[idx], points.torque_a5_nm[idx])
+    mass[idx] = cal.points_mass_kg(points, idx)
     return mass
 
 
 def evaluate(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Evaluation:
     cal = fit(points, method, g_m_s2, lever_difference_m)
-    ins = cal.mass_kg(points.torque_a3_nm, points.torque_a5_nm)
+    ins = cal.points_mass_kg(points)
     loo, resid = _held_out(points, method, g_m_s2, lever_difference_m)
     lever = _lever_group_out(points, method, g_m_s2, lever_difference_m)
     held = np.isfinite(lever)
@@ -940,7 +965,7 @@ def nested_loo_auto_mass_kg(points: CalibrationPoints, g_m_s2: float, lever_diff
         sub = points.subset(keep)
         chosen = choose_auto(sub, evaluate_all(sub, g_m_s2, lever_difference_m))
         cal = fit(sub, chosen.method, g_m_s2, lever_difference_m)
-        out[i] = float(cal.mass_kg(points.torque_a3_nm[i], points.torque_a5_nm[i]))
+        out[i] = float(cal.points_mass_kg(points, np.array([i]))[0])
         if progress is not None:
             progress(i + 1, n)
     return out

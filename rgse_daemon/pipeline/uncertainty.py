@@ -218,7 +218,7 @@ def bootstrap_params(points: CalibrationPoints, method: str, g_m_s2: float, leve
     resid = resid - resid.mean(axis=0)  # centred: the refits scatter around the fit, not around its mean residual
     inflate = np.sqrt(len(loaded) / max(len(loaded) - len(cal.params) / 2, 1.0))
     rng = np.random.default_rng(seed)
-    denom = g_m_s2 * lever_difference_m
+    denom = g_m_s2 * points.lever_difference_m(g_m_s2, lever_difference_m)  # each point's own Δr (eq. 21)
     out = []
     for _ in range(n):
         e3, e5 = points.expected_a3_nm.copy(), points.expected_a5_nm.copy()
@@ -226,7 +226,7 @@ def bootstrap_params(points: CalibrationPoints, method: str, g_m_s2: float, leve
         e3[loaded] = fitted[loaded, 0] + draw[:, 0]
         e5[loaded] = fitted[loaded, 1] + draw[:, 1]
         mass = points.mass_kg.copy()
-        mass[loaded] = np.maximum((e3[loaded] - e5[loaded]) / denom, 1e-6)
+        mass[loaded] = np.maximum((e3[loaded] - e5[loaded]) / denom[loaded], 1e-6)
         star = CalibrationPoints(points.kind, mass, points.torque_a3_nm, points.torque_a5_nm, e3, e5,
                                  points.mass_cov_kg2)
         try:

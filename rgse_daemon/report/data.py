@@ -310,7 +310,7 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
             raise ReportConsistencyError(f"calibration {calibration_id}: K parameters of {name} refitted from the "
                                          f"archived campaign are {again.tolist()}, the store holds {stored.tolist()}")
     checks.append(f"K of A3 and A5 ({cal.method}) refitted from the archived campaign equals the stored parameters")
-    calc = np.asarray(cal.mass_kg(n3, n5), float)
+    calc = np.asarray(cal.points_mass_kg(points), float)  # each point in its own geometry (its Δr)
     views = [PointView(p.index, p.spec, loop_idx[i], float(n3[i]), float(n5[i]), float(e3[i]), float(e5[i]),
                        float(calc[i]), mass_sigma_cal_kg(cal, float(n3[i]), float(n5[i])))
              for i, p in enumerate(specs)]

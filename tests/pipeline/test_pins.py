@@ -504,7 +504,9 @@ def test_leave_one_out_by_hand():
     for i in range(len(pts)):
         o = np.arange(len(pts)) != i
         k3, k5 = (t3[o] @ e3[o]) / (t3[o] @ t3[o]), (t5[o] @ e5[o]) / (t5[o] @ t5[o])
-        want.append((k3 * t3[i] - k5 * t5[i]) / (G * DR))
+        # eq. 21 with the point's own lever difference, which its expected torques encode: (e3 − e5)/(g·m)
+        dr = (e3[i] - e5[i]) / (G * pts.mass_kg[i]) if pts.mass_kg[i] > 0 else DR
+        want.append((k3 * t3[i] - k5 * t5[i]) / (G * dr))
     np.testing.assert_allclose(C.leave_one_out_mass_kg(pts, "axis-linear", G, DR), want, rtol=1e-12, atol=1e-12)
 
 
