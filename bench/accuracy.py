@@ -6,7 +6,8 @@ mounting), the calibration, one DuT of random mass (20-230 kg) on the fixture, a
 code path as ``rgse calibrate --campaign`` / ``rgse mass`` after reading the trace files (offline, no socket).
 
 Scenarios: ``12ms`` (the paper's trace rate, DuT near the mass-stack pose), ``4ms`` (the same at 4 ms), ``lever``
-(DuT CoG out to the torque points' levers), ``no-mount`` (no per-mounting scatter), ``warm`` (DuT measured after
+(DuT CoG out to the torque points' levers), ``no-mount`` and ``lever-no-mount`` (no per-mounting scatter: what
+is left is each model's form error at the DuT, and the loops), ``warm`` (DuT measured after
 15 min of holding: a thermal mismatch with the campaign, corrected with the campaign's drift). Rows: ``paper``
 (eq. 19/20), ``auto`` (what ``--method auto`` chooses: the average of the best per-axis gain models) and the best
 single catalogue model of the scenario. Columns: mean |err| %, the signed mean error (kg) with its standard error
@@ -50,6 +51,7 @@ SCENARIOS = {
     "4ms": {"period_s": 0.004, "n_samples": 750, "cog": (0.05, 0.35)},
     "lever": {"period_s": 0.012, "n_samples": 250, "cog": (0.35, 0.95)},
     "no-mount": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35), "no_mount": True},
+    "lever-no-mount": {"period_s": 0.012, "n_samples": 250, "cog": (0.35, 0.95), "no_mount": True},
     "warm": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35), "warm_s": 900.0},
 }
 
