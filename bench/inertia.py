@@ -12,7 +12,16 @@ model (``simulators.krc4.dynamics.sample_motion_trace``) at 4 ms, and the identi
 A4–A6, the DuT's mass and CoG as the static measurement gives them (the truth here: the CoG's own error is the CoG
 bench's business; the simulator's per-mounting CoG shift stays unknown to it).
 
-Run: ``python bench/inertia.py [--seeds N] [--workers 2]``. Prints one table.
+Run: ``python bench/inertia.py [--seeds N] [--workers 2]``. Prints one table (T1 and 2xT1, ``excitation.REPEATS``
+= 2 swings of each axis per orientation).
+
+``--repeats 1,2,4,8`` adds a second table at T1 only: one row per number of swings per axis and orientation
+(``excitation.design(repeats=n)``; the daemon's ``[properties] inertia_repeats``), and per DuT and principal moment
+a fit of the RMS error against n — the robot time is T0 + dT·n, the repositioning and the moves to and from the
+swings being T0 — with the robot time each fit needs for 3 % RMS: the power law RMS = c·n^p (p = −0.5 for white
+torque noise alone) and noise plus a floor RMS² = A/n + B². ``--no-main`` skips the first table (the repeats table's
+n = 2 rows are the first table's T1 rows). ``--off noise,spikes,thermal,mount`` switches those error terms of the
+simulated reading off in every row (``scenario_without``): what is left is the floor the others leave.
 """
 
 from __future__ import annotations
@@ -43,17 +52,18 @@ LIMIT_MM_S = 200.0
 U_COG_M = 0.002
 DUTS = {"wing": ph.refex_wing_box, "cube": ph.compact_cube}
 #: Error terms of the simulated reading ``--off`` can switch off (the diagnosis of a floor): their scenario keys.
-OFF_TERMS = ("noise", "thermal", "mount")
+OFF_TERMS = ("noise", "spikes", "thermal", "mount")
 
 
 def scenario_without(off: tuple[str, ...]) -> Scenario:
-    """The default scenario with the error terms ``off`` (of OFF_TERMS) switched off: ``noise`` the white noise
-    and the spikes, ``thermal`` the reading's drift with motor temperature, ``mount`` the per-mounting reading
+    """The default scenario with the error terms ``off`` (of OFF_TERMS) switched off: ``noise`` the white noise,
+    ``spikes`` the spikes, ``thermal`` the reading's drift with motor temperature, ``mount`` the per-mounting reading
     offsets and CoG shift."""
     sc = default_scenario()
     zero: dict[str, float] = {}
     if "noise" in off:
         zero["noise_nm"] = 0.0
+    if "spikes" in off:
         sc = sc.model_copy(update={"spikes": sc.spikes.model_copy(update={"rate_per_sample": 0.0})})
     if "thermal" in off:
         zero["thermal_coeff_per_k"] = 0.0
@@ -177,22 +187,25 @@ def row_lines(label: str, d: str, rs: list[dict]) -> list[str]:
             f"{st[3, k]:8.2f} {st[4, k]:8.2f} {st[5, k]:7.2f} {robot_s:7.0f}" for k in range(3)]
 
 
-def fit_lines(d: str, rows: list[tuple[float, np.ndarray]], goal: float = 3.0) -> list[str]:
-    """Per principal moment, from (robot s, RMS err % per moment) of the repeats rows: the log-log slope p of RMS
-    against robot time (−0.5: white torque noise alone) and two extrapolations to RMS = ``goal`` %: the power law
-    RMS = c·T^p, and noise plus a floor RMS² = A/T + B² (least squares in 1/T; B ≥ goal: never)."""
-    t = np.array([r[0] for r in rows])
+def fit_lines(d: str, rows: list[tuple[int, float, np.ndarray]], goal: float = 3.0) -> list[str]:
+    """Per principal moment, from (repeats n, robot s, RMS err % per moment) of the repeats rows: the robot time is
+    linear in n (T = T0 + dT·n, the repositioning and the moves to and from the swings being T0), the noise averages
+    over the swings, so RMS is fitted against n: the log-log slope p (−0.5: white torque noise alone, 0: a floor) and
+    two extrapolations to RMS = ``goal`` %, the power law RMS = c·n^p and noise plus a floor RMS² = A/n + B² (least
+    squares in 1/n weighted by 1/RMS²; B ≥ goal: never), each as the robot time T0 + dT·n it needs."""
+    n = np.array([r[0] for r in rows], float)
+    dt, t0 = np.polyfit(n, [r[1] for r in rows], 1)
     out = []
     for k in range(3):
-        y = np.array([r[1][k] for r in rows])
-        p, logc = np.polyfit(np.log(t), np.log(y), 1)
-        t_pow = (goal / np.exp(logc)) ** (1.0 / p) if p < 0 else np.inf
-        a, b2 = np.polyfit(1.0 / t, y**2, 1)
+        y = np.array([r[2][k] for r in rows])
+        p, logc = np.polyfit(np.log(n), np.log(y), 1)
+        n_pow = (goal / np.exp(logc)) ** (1.0 / p) if p < 0 else np.inf
+        a, b2 = np.polyfit(1.0 / n, y**2, 1, w=1.0 / y**2)  # the RMS of a row is uncertain in proportion to it
         b = float(np.sqrt(max(b2, 0.0)))
-        t_nb = a / (goal**2 - max(b2, 0.0)) if b < goal and a > 0 else np.inf
-        fmt = lambda v: f"{v:7.0f}" if np.isfinite(v) and v < 1e7 else "  never"  # noqa: E731
-        out.append(f"{d:>5} {k + 1:>6} {p:8.2f} {fmt(t_pow)} {np.sqrt(max(a, 0.0) / t[-1]):9.2f} {b:8.2f} "
-                   f"{fmt(t_nb)}")
+        n_nf = a / (goal**2 - max(b2, 0.0)) if b < goal and a > 0 else np.inf
+        fmt = lambda v: f"{t0 + dt * v:8.0f}" if np.isfinite(v) and v < 1e6 else "   never"  # noqa: E731
+        out.append(f"{d:>5} {k + 1:>6} {p:8.2f} {fmt(n_pow)} {np.sqrt(max(a, 0.0) / n.max()):9.2f} {b:8.2f} "
+                   f"{fmt(n_nf)}")
     return out
 
 
@@ -243,16 +256,16 @@ def main() -> None:
                 print("\n".join(row_lines(f"{r}", d, by[(d, 1.0, r)])))
         print(f"{args.seeds} seeds per row; robot s: tare + DuT run (rests excluded){note}")
         if len(repeats) >= 2:
-            print("\nfit of RMS err % against robot time T over the repeats rows, and the robot time for 3 % RMS:")
-            print(f"{'DuT':>5} {'moment':>6} {'slope p':>8} {'T 3% pw':>7} {'noise %':>9} {'floor %':>8} "
-                  f"{'T 3% nf':>7}")
+            print("\nfit of RMS err % against the repeats n, and the robot time (tare + DuT) for 3 % RMS:")
+            print(f"{'DuT':>5} {'moment':>6} {'slope p':>8} {'T3% pw':>8} {'noise %':>9} {'floor %':>8} "
+                  f"{'T3% nf':>8}")
             for d in duts:
-                rows = [(summary(by[(d, 1.0, r)])[2], summary(by[(d, 1.0, r)])[0][1]) for r in sorted(repeats)]
+                rows = [(r, summary(by[(d, 1.0, r)])[2], summary(by[(d, 1.0, r)])[0][1]) for r in sorted(repeats)]
                 print("\n".join(fit_lines(d, rows)))
-            print("slope p: log-log slope of RMS against T (-0.5: torque noise alone, 0: a floor); T 3% pw: the power "
-                  "law RMS = c·T^p extrapolated; noise %, floor %: RMS² = A/T + B² fitted, sqrt(A/T) at the longest "
-                  "row and B; T 3% nf: that model's T for 3 %. The RMS of "
-                  f"{args.seeds} seeds is itself uncertain by ~{100 / np.sqrt(2 * args.seeds):.0f} % (1 s.e.).")
+            print(f"slope p: log-log slope of RMS against n (-0.5: torque noise alone, 0: a floor); T3% pw: the power "
+                  f"law RMS = c·n^p; noise %, floor %: RMS² = A/n + B² fitted, sqrt(A/n) at the largest n and B; "
+                  f"T3% nf: that model's; both as the robot time T0 + dT·n (linear in n). The RMS of {args.seeds} "
+                  f"seeds is itself uncertain by ~{100 / np.sqrt(2 * args.seeds):.0f} % (1 s.e.).")
     print(f"{time.time() - t0:.0f} s")
 
 
