@@ -12,12 +12,22 @@ model (``simulators.krc4.dynamics.sample_motion_trace``) at 4 ms, and the identi
 A4–A6, the DuT's mass and CoG as the static measurement gives them (the truth here: the CoG's own error is the CoG
 bench's business; the simulator's per-mounting CoG shift stays unknown to it).
 
-Run: ``python bench/inertia.py [--seeds N] [--workers 2]``. Prints one table.
+Run: ``python bench/inertia.py [--seeds N] [--workers 2]``. Prints one table (T1 and 2xT1, ``excitation.REPEATS``
+= 2 swings of each axis per orientation).
+
+``--repeats 1,2,4,8`` adds a second table at T1 only: one row per number of swings per axis and orientation
+(``excitation.design(repeats=n)``; the daemon's ``[properties] inertia_repeats``), and per DuT and principal moment
+a fit of the RMS error against n — the robot time is T0 + dT·n, the repositioning and the moves to and from the
+swings being T0 — with the robot time each fit needs for 3 % RMS: the power law RMS = c·n^p (p = −0.5 for white
+torque noise alone) and noise plus a floor RMS² = A/n + B². ``--no-main`` skips the first table (the repeats table's
+n = 2 rows are the first table's T1 rows). ``--off noise,spikes,thermal,mount`` switches those error terms of the
+simulated reading off in every row (``scenario_without``): what is left is the floor the others leave.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -32,6 +42,7 @@ from rgse_daemon.pipeline import inertia as inr
 from simulators.krc4 import physics as ph
 from simulators.krc4.dynamics import SERVO_LAG_S, RobotDynamics, sample_motion_trace
 from simulators.krc4.motion import T1_LIMIT_MM_S, MotionHistory, MotionSettings, plan_joint_move
+from simulators.krc4.scenario import AXIS_KEYS, Scenario, default_scenario
 
 PERIOD_S = 0.004
 REST_S = 0.3
@@ -40,6 +51,33 @@ LIMIT_MM_S = 200.0
 #: U (k = 2) of the static CoG measurement the identification is given (bench/cog.py's order of magnitude).
 U_COG_M = 0.002
 DUTS = {"wing": ph.refex_wing_box, "cube": ph.compact_cube}
+#: Error terms of the simulated reading ``--off`` can switch off (the diagnosis of a floor): their scenario keys.
+OFF_TERMS = ("noise", "spikes", "thermal", "mount")
+
+
+def scenario_without(off: tuple[str, ...]) -> Scenario:
+    """The default scenario with the error terms ``off`` (of OFF_TERMS) switched off: ``noise`` the white noise,
+    ``spikes`` the spikes, ``thermal`` the reading's drift with motor temperature, ``mount`` the per-mounting reading
+    offsets and CoG shift."""
+    sc = default_scenario()
+    zero: dict[str, float] = {}
+    if "noise" in off:
+        zero["noise_nm"] = 0.0
+    if "spikes" in off:
+        sc = sc.model_copy(update={"spikes": sc.spikes.model_copy(update={"rate_per_sample": 0.0})})
+    if "thermal" in off:
+        zero["thermal_coeff_per_k"] = 0.0
+    if "mount" in off:
+        zero["mount_offset_nm"] = 0.0
+        sc = sc.model_copy(update={"mounting": sc.mounting.model_copy(update={"cog_shift_m": 0.0})})
+    axes = {k: sc.axis(i).model_copy(update=zero) for i, k in enumerate(AXIS_KEYS, 1)}
+    return sc.model_copy(update={"axes": axes})
+
+
+@functools.lru_cache(maxsize=16)
+def design_of(dut_name: str, factor: float, repeats: int) -> ex.Excitation:
+    """The excitation of a DuT (deterministic: designed once per worker, not per seed)."""
+    return ex.design(payload_of(DUTS[dut_name]()), limit_mm_s=LIMIT_MM_S * factor, optimise=False, repeats=repeats)
 
 
 def payload_of(dut: ph.AsymmetricDut) -> ex.Payload:
@@ -102,10 +140,11 @@ def fixture_pi() -> tuple[float, float, float, float]:
     return tuple(float(v) for v in p.theta)  # type: ignore[return-value]
 
 
-def one(dut_name: str, seed: int, factor: float, gain: str = "ideal") -> dict[str, object]:
+def one(dut_name: str, seed: int, factor: float, repeats: int = ex.REPEATS, off: tuple[str, ...] = (),
+        gain: str = "ideal") -> dict[str, object]:
     dut = DUTS[dut_name]()
-    design = ex.design(payload_of(dut), limit_mm_s=LIMIT_MM_S * factor, optimise=False)
-    model = ph.RobotModel(seed=seed)
+    design = design_of(dut_name, factor, repeats)
+    model = ph.RobotModel(scenario_without(off) if off else None, seed=seed)
     dyn = RobotDynamics(model.scenario)
     t1 = T1_LIMIT_MM_S * factor
     tare = simulate(design, ph.dut_payload(0.0, (0.0, 0.0, 0.0)), model, dyn, t1)
@@ -120,9 +159,54 @@ def one(dut_name: str, seed: int, factor: float, gain: str = "ideal") -> dict[st
     res = inr.identify(strokes, PERIOD_S, dut.mass_kg, cog, dut_abc_deg=dut.dut_abc_deg, seed=seed,
                        calibration=cal, u_cog_flange_m=(U_COG_M / 2,) * 3)
     truth = dut.principal_moments_kgm2
-    return {"dut": dut_name, "seed": seed, "factor": factor, "est": res.principal_moments_kgm2,
+    return {"dut": dut_name, "seed": seed, "factor": factor, "repeats": repeats, "est": res.principal_moments_kgm2,
             "U": res.U_principal_moments_kgm2, "truth": truth, "robot_s": 2 * design.robot_time_s,
             "friction": res.friction, "rms": res.residual_rms_nm}
+
+
+HEADER = (f"{'DuT':>5} {'limit':>6} {'moment':>6} {'truth kg·m²':>11} {'mean err %':>10} {'rms err %':>9} "
+          f"{'max |err| %':>11} {'mean U %':>8} {'coverage':>8} {'in ±3 %':>7} {'robot s':>7}")
+
+
+def summary(rs: list[dict]) -> tuple[np.ndarray, np.ndarray, float]:
+    """Per principal moment of a row's seeds: mean err %, RMS err %, max |err| %, mean U %, coverage, share within
+    ±3 % (rows of a (6, 3) array), the truth, and the robot time."""
+    est = np.array([r["est"] for r in rs])
+    u = np.array([r["U"] for r in rs])
+    truth = np.asarray(rs[0]["truth"])
+    err = 100.0 * (est - truth) / truth
+    stats = np.array([err.mean(axis=0), np.sqrt(np.mean(err**2, axis=0)), np.abs(err).max(axis=0),
+                      100 * np.mean(u / truth, axis=0), np.mean(np.abs(est - truth) <= u, axis=0),
+                      np.mean(np.abs(err) <= 3.0, axis=0)])
+    return stats, truth, float(rs[0]["robot_s"])  # type: ignore[arg-type]
+
+
+def row_lines(label: str, d: str, rs: list[dict]) -> list[str]:
+    st, truth, robot_s = summary(rs)
+    return [f"{d:>5} {label:>6} {k + 1:>6} {truth[k]:11.3f} {st[0, k]:10.2f} {st[1, k]:9.2f} {st[2, k]:11.2f} "
+            f"{st[3, k]:8.2f} {st[4, k]:8.2f} {st[5, k]:7.2f} {robot_s:7.0f}" for k in range(3)]
+
+
+def fit_lines(d: str, rows: list[tuple[int, float, np.ndarray]], goal: float = 3.0) -> list[str]:
+    """Per principal moment, from (repeats n, robot s, RMS err % per moment) of the repeats rows: the robot time is
+    linear in n (T = T0 + dT·n, the repositioning and the moves to and from the swings being T0), the noise averages
+    over the swings, so RMS is fitted against n: the log-log slope p (−0.5: white torque noise alone, 0: a floor) and
+    two extrapolations to RMS = ``goal`` %, the power law RMS = c·n^p and noise plus a floor RMS² = A/n + B² (least
+    squares in 1/n weighted by 1/RMS²; B ≥ goal: never), each as the robot time T0 + dT·n it needs."""
+    n = np.array([r[0] for r in rows], float)
+    dt, t0 = np.polyfit(n, [r[1] for r in rows], 1)
+    out = []
+    for k in range(3):
+        y = np.array([r[2][k] for r in rows])
+        p, logc = np.polyfit(np.log(n), np.log(y), 1)
+        n_pow = (goal / np.exp(logc)) ** (1.0 / p) if p < 0 else np.inf
+        a, b2 = np.polyfit(1.0 / n, y**2, 1, w=1.0 / y**2)  # the RMS of a row is uncertain in proportion to it
+        b = float(np.sqrt(max(b2, 0.0)))
+        n_nf = a / (goal**2 - max(b2, 0.0)) if b < goal and a > 0 else np.inf
+        fmt = lambda v: f"{t0 + dt * v:8.0f}" if np.isfinite(v) and v < 1e6 else "   never"  # noqa: E731
+        out.append(f"{d:>5} {k + 1:>6} {p:8.2f} {fmt(n_pow)} {np.sqrt(max(a, 0.0) / n.max()):9.2f} {b:8.2f} "
+                   f"{fmt(n_nf)}")
+    return out
 
 
 def main() -> None:
@@ -130,30 +214,59 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--dut", choices=(*DUTS, "all"), default="all")
+    ap.add_argument("--repeats", default="",
+                    help="comma list of swings per axis and orientation (e.g. 1,2,4,8): a second table at T1 only, "
+                         f"one row per value, and the extrapolation to ±3 %% (default {ex.REPEATS})")
+    ap.add_argument("--main", action=argparse.BooleanOptionalAction, default=True,
+                    help="the T1 / 2xT1 table (--no-main: the repeats table alone)")
+    ap.add_argument("--off", default="", help=f"comma list of the simulator's error terms to switch off in every "
+                                              f"row ({', '.join(OFF_TERMS)}): the diagnosis of a floor")
     args = ap.parse_args()
     workers = min(max(args.workers, 1), 2)
     duts = list(DUTS) if args.dut == "all" else [args.dut]
-    jobs = [(d, s, f) for d in duts for f in (1.0, 2.0) for s in range(args.seeds)]
+    repeats = [int(v) for v in args.repeats.split(",") if v.strip()]
+    if any(r < 1 for r in repeats):
+        ap.error("--repeats: every value must be ≥ 1")
+    off = tuple(v.strip() for v in args.off.split(",") if v.strip())
+    if set(off) - set(OFF_TERMS):
+        ap.error(f"--off: one of {', '.join(OFF_TERMS)}")
+    keys = []  # (dut, seed, factor, repeats): the T1 rows of the main table are the repeats table's default row
+    if args.main:
+        keys += [(d, s, f, ex.REPEATS) for d in duts for f in (1.0, 2.0) for s in range(args.seeds)]
+    keys += [(d, s, 1.0, r) for d in duts for r in repeats for s in range(args.seeds)]
+    keys = list(dict.fromkeys(keys))
     t0 = time.time()
     with ProcessPoolExecutor(workers) as pool:
-        results = list(pool.map(one, *zip(*jobs, strict=True)))
-    print(f"{'DuT':>5} {'limit':>6} {'moment':>6} {'truth kg·m²':>11} {'mean err %':>10} {'rms err %':>9} "
-          f"{'max |err| %':>11} {'mean U %':>8} {'coverage':>8} {'in ±3 %':>7} {'robot s':>7}")
-    for d in duts:
-        for f in (1.0, 2.0):
-            rs = [r for r in results if r["dut"] == d and r["factor"] == f]
-            est = np.array([r["est"] for r in rs])
-            u = np.array([r["U"] for r in rs])
-            truth = rs[0]["truth"]
-            err = 100.0 * (est - truth) / truth
-            cover = np.abs(est - truth) <= u
-            for k in range(3):
-                print(f"{d:>5} {('T1' if f == 1 else '2xT1'):>6} {k + 1:>6} {truth[k]:11.3f} {err[:, k].mean():10.2f} "
-                      f"{np.sqrt(np.mean(err[:, k] ** 2)):9.2f} {np.abs(err[:, k]).max():11.2f} "
-                      f"{100 * np.mean(u[:, k] / truth[k]):8.2f} {cover[:, k].mean():8.2f} "
-                      f"{np.mean(np.abs(err[:, k]) <= 3.0):7.2f} {rs[0]['robot_s']:7.0f}")
-    print(f"{args.seeds} seeds per row; limit: the interlock's Cartesian limit on the envelope box ({LIMIT_MM_S:g} "
-          f"mm/s, 2xT1 simulation only); robot s: tare + DuT run; U with k = 2; {time.time() - t0:.0f} s")
+        results = list(pool.map(one, *zip(*keys, strict=True), [off] * len(keys)))
+    by = {k: [r for r in results if (r["dut"], r["factor"], r["repeats"]) == k]
+          for k in {(d, f, r) for d, _, f, r in keys}}
+    note = f"; simulator terms off: {', '.join(off)}" if off else ""
+    if args.main:
+        print(HEADER)
+        for d in duts:
+            for f in (1.0, 2.0):
+                print("\n".join(row_lines("T1" if f == 1 else "2xT1", d, by[(d, f, ex.REPEATS)])))
+        print(f"{args.seeds} seeds per row; limit: the interlock's Cartesian limit on the envelope box ({LIMIT_MM_S:g} "
+              f"mm/s, 2xT1 simulation only); robot s: tare + DuT run; U with k = 2{note}")
+    if repeats:
+        print(f"\nT1, swings per axis and orientation ({ex.N_BLOCKS} orientations; default {ex.REPEATS}):")
+        print(HEADER.replace(" limit", "reps  ", 1))
+        for d in duts:
+            for r in repeats:
+                print("\n".join(row_lines(f"{r}", d, by[(d, 1.0, r)])))
+        print(f"{args.seeds} seeds per row; robot s: tare + DuT run (rests excluded){note}")
+        if len(repeats) >= 2:
+            print("\nfit of RMS err % against the repeats n, and the robot time (tare + DuT) for 3 % RMS:")
+            print(f"{'DuT':>5} {'moment':>6} {'slope p':>8} {'T3% pw':>8} {'noise %':>9} {'floor %':>8} "
+                  f"{'T3% nf':>8}")
+            for d in duts:
+                rows = [(r, summary(by[(d, 1.0, r)])[2], summary(by[(d, 1.0, r)])[0][1]) for r in sorted(repeats)]
+                print("\n".join(fit_lines(d, rows)))
+            print(f"slope p: log-log slope of RMS against n (-0.5: torque noise alone, 0: a floor); T3% pw: the power "
+                  f"law RMS = c·n^p; noise %, floor %: RMS² = A/n + B² fitted, sqrt(A/n) at the largest n and B; "
+                  f"T3% nf: that model's; both as the robot time T0 + dT·n (linear in n). The RMS of {args.seeds} "
+                  f"seeds is itself uncertain by ~{100 / np.sqrt(2 * args.seeds):.0f} % (1 s.e.).")
+    print(f"{time.time() - t0:.0f} s")
 
 
 if __name__ == "__main__":

@@ -271,6 +271,9 @@ class PropertiesConfig(_Section):
     inertia: bool = False
     """Also the inertia tensor (issue #15): after the CoG poses the DuT's excitation, then, once the operator took
     the DuT off (a prompt), the tare's; needs the calibration's torque gains of A4..A6."""
+    inertia_repeats: int = Field(2, ge=1, le=16)
+    """Back-and-forth swings of each wrist axis per orientation in the inertia excitation (``excitation.REPEATS``);
+    more lower the noise part of the error and lengthen the run (README "Inertia")."""
     fixture: FixtureFrameConfig = FixtureFrameConfig()
 
 

@@ -69,6 +69,8 @@ DESIGN_TIMEOUT_S = 300.0
 COMPUTE_TIMEOUT_S = 600.0
 #: $TRACE.STATE while the trace still records (kuka-facts §5).
 RECORDING_STATES = ("TRIGGERED",)
+#: Swings of each wrist axis per orientation unless ``[properties] inertia_repeats`` says otherwise.
+REPEATS = ex.REPEATS
 #: The prompt data that marks the tare's mounting change (a client shows it; the demo's operator acts on it).
 TARE_PROMPT = "inertia_tare"
 
@@ -82,10 +84,12 @@ class InertiaPlan:
     programs: tuple[RenderedProgram, ...]
     planned_s: float
     trace_time_s: float
+    repeats: int = REPEATS
 
     def to_json(self) -> dict[str, Any]:
         return {"moves": len(self.design.moves), "parts": len(self.programs), "planned_robot_time_s": self.planned_s,
                 "trace_time_s": self.trace_time_s, "rest_s": REST_S, "trace_period_s": INERTIA_TRACE_PERIOD_S,
+                "repeats": self.repeats,
                 "condition_number": self.design.condition_number, "log_det": self.design.log_det,
                 "limit_mm_s": self.design.limit_mm_s, "max_point_speed_mm_s": self.design.max_point_speed_mm_s}
 
@@ -118,28 +122,33 @@ def split(design: ex.Excitation, n_blocks: int = ex.N_BLOCKS, repeats: int = ex.
     return parts
 
 
-def plan_excitation(s: RunSettings, payload: ex.Payload) -> InertiaPlan:
-    """The excitation for ``payload`` from the measurement pose, in parts that each fit the trace buffer at 4 ms;
-    DataError when a part does not (the cube of ``payload_lever_max_m`` sets the speeds, hence the duration)."""
+def plan_excitation(s: RunSettings, payload: ex.Payload, repeats: int = REPEATS) -> InertiaPlan:
+    """The excitation for ``payload`` from the measurement pose, ``repeats`` swings of each wrist axis per
+    orientation, in parts that each fit the trace buffer at 4 ms; DataError when a part does not (the cube of
+    ``payload_lever_max_m`` sets the speeds, the repeats the number of swings, hence the duration)."""
     limit_s = buffer_limit_s(INERTIA_TRACE_PERIOD_S)
+    if not (isinstance(repeats, int) and 1 <= repeats):
+        raise DataError(f"inertia: properties.inertia_repeats = {repeats!r}: must be an integer >= 1")
     try:
-        design = ex.design(payload, base_deg=s.meas_pose_deg, limit_mm_s=s.speed_limit_mm_s, optimise=False)
+        design = ex.design(payload, base_deg=s.meas_pose_deg, limit_mm_s=s.speed_limit_mm_s, optimise=False,
+                           repeats=repeats)
     except ValueError as exc:
         raise DataError(f"inertia: {exc}") from None
     planned = design.robot_time_s + REST_S * len(design.moves)
-    parts = split(design)
+    parts = split(design, repeats=repeats)
     longest = max(planned * len(moves) / len(design.moves) for _, moves in parts)  # the parts are alike
     if longest * (1.0 + TRACE_MARGIN_FRACTION) + TRACE_MARGIN_S > limit_s:
         raise DataError(f"inertia: a part of the excitation takes ~{longest:.0f} s of robot time, more than KUKA "
                         f"Trace holds at {1000 * INERTIA_TRACE_PERIOD_S:g} ms ({limit_s:g} s with margin): the "
                         f"swings are slow because every point within measurement.payload_lever_max_m = "
                         f"{s.payload_lever_max_m:g} m is kept under {s.speed_limit_mm_s:g} mm/s; a smaller (true) "
-                        "payload reach shortens them")
+                        f"payload reach shortens them, and fewer swings (properties.inertia_repeats = {repeats})")
     programs = tuple(moves_program(start, moves, REST_S) for start, moves in parts)
-    return InertiaPlan(design, programs, planned, limit_s)
+    return InertiaPlan(design, programs, planned, limit_s, repeats)
 
 
-def check_feasible(s: RunSettings, fixture: FixtureFrame, gains_axes: Sequence[int]) -> None:
+def check_feasible(s: RunSettings, fixture: FixtureFrame, gains_axes: Sequence[int], repeats: int = REPEATS
+                   ) -> None:
     """Refuse (PreconditionError, before the run opens) an inertia run that cannot succeed: no torque calibration of
     every wrist axis, or an excitation longer than the trace buffer (planned for the fixture alone; the DuT's own
     mass changes only the accelerations)."""
@@ -150,7 +159,7 @@ def check_feasible(s: RunSettings, fixture: FixtureFrame, gains_axes: Sequence[i
             f"the wrist torques would be taken 1:1 (the drive's gain is off by up to 20 %); calibrate A4..A6 "
             f"(torsional points in a scheme that traces them) first")
     try:
-        plan_excitation(s, payload_of(s, fixture, 0.0, (0.0, 0.0, 0.0)))
+        plan_excitation(s, payload_of(s, fixture, 0.0, (0.0, 0.0, 0.0)), repeats)
     except DataError as exc:
         raise PreconditionError(str(exc)) from None
 
@@ -210,15 +219,16 @@ def excite(index: int, trace: str, run: d.RunContext, s: RunSettings,
 
 def inertia_step(run: d.RunContext, s: RunSettings, fixture: FixtureFrame, dut_abc_deg: Sequence[float],
                  static: dict[str, Any] | None, tag: str, first_index: int,
-                 inputs: Callable[[], SafetyInputs] | None) -> Generator[m.Msg, Any, tuple[dict[str, Any] | None,
-                                                                                         list[LoopOutcome]]]:
+                 inputs: Callable[[], SafetyInputs] | None, repeats: int = REPEATS
+                 ) -> Generator[m.Msg, Any, tuple[dict[str, Any] | None, list[LoopOutcome]]]:
     """The inertia of the DuT (see the module docstring) from ``static``, the run's mass and CoG result (None in a
-    dry run: the design is then made for the fixture alone). Returns the result's inertia part (None in a dry run)
-    and the two excitation loops."""
+    dry run: the design is then made for the fixture alone), ``repeats`` swings of each wrist axis per orientation.
+    Returns the result's inertia part (None in a dry run) and the two excitation loops."""
     mass = float(static["mass_kg"]) if static is not None else 0.0
     cog = tuple(static["cog_m"]) if static is not None else (0.0, 0.0, 0.0)
     plan: InertiaPlan = yield m.Compute("design the inertia excitation", plan_excitation,
-                                        (s, payload_of(s, fixture, mass, cog)), timeout_s=DESIGN_TIMEOUT_S)
+                                        (s, payload_of(s, fixture, mass, cog), repeats),
+                                        timeout_s=DESIGN_TIMEOUT_S)
     yield m.PutFile(TRACE_DIR + INERTIA_TRACE_CONFIG_NAME, inertia_trace_xml(s, plan.trace_time_s).encode("utf-8"))
     n = len(plan.programs)
     dut_traces = [trace_name(tag, "dut", k) for k in range(1, n + 1)]

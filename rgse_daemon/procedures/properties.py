@@ -51,7 +51,7 @@ from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.directory import setup_toml, traces_toml
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
-from rgse_daemon.procedures.inertia import check_feasible, inertia_step
+from rgse_daemon.procedures.inertia import REPEATS, check_feasible, inertia_step
 from rgse_daemon.procedures.loop import LoopOutcome, loop
 from rgse_daemon.procedures.measurement import CALIBRATION_FILE, timing_summary
 from rgse_daemon.procedures.preconditions import PreconditionError
@@ -83,12 +83,14 @@ class PropertiesSettings:
     dut_abc_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
     inertia: bool = False
     """Also the inertia: DuT and tare excitation after the CoG poses (issue #15)."""
+    inertia_repeats: int = REPEATS
+    """Swings of each wrist axis per orientation in the excitation (``[properties] inertia_repeats``)."""
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> PropertiesSettings:
         p = cfg.properties
         base = cls(p.scheme, p.loops_per_pose, p.fixture.cog_flange_m, p.fixture.dut_origin_flange_m,
-                   p.fixture.dut_abc_deg, p.inertia)
+                   p.fixture.dut_abc_deg, p.inertia, p.inertia_repeats)
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def fixture(self, fixture_mass_kg: float) -> FixtureFrame:
@@ -115,7 +117,7 @@ class PropertiesSettings:
         return {"scheme": self.scheme, "loops_per_pose": self.loops_per_pose,
                 "fixture_cog_flange_m": None if self.fixture_cog_flange_m is None else list(self.fixture_cog_flange_m),
                 "dut_origin_flange_m": list(self.dut_origin_flange_m), "dut_abc_deg": list(self.dut_abc_deg),
-                "inertia": self.inertia}
+                "inertia": self.inertia, "inertia_repeats": self.inertia_repeats}
 
 
 def pose_trace_name(tag: str, pose_number: int, loop_number: int) -> str:
@@ -247,7 +249,8 @@ def properties_plan(
         yield m.Emit(Event("step", "inertia: DuT and tare excitation", step="inertia-start",
                            data={"phase": "inertia"}))
         inertia, inertia_loops = yield from inertia_step(run, s, fixture, p.dut_abc_deg, result, tag,
-                                                         1 + len(mass_loops) + len(pose_loops), inputs)
+                                                         1 + len(mass_loops) + len(pose_loops), inputs,
+                                                         repeats=p.inertia_repeats)
         if result is not None and inertia is not None:
             compute_s += float(inertia["inertia"]["compute_s"])
             result = {**result, **inertia,
@@ -324,7 +327,7 @@ async def run_properties(
                                 f"{', '.join(tors.poses)} ({tors.scheme}), not {', '.join(missing)} of scheme "
                                 f"{p.scheme!r}: use scheme {tors.scheme!r} or calibrate those poses")
     if p.inertia:  # gains of A4..A6, an excitation that fits the trace buffer: numeric work, off the event loop
-        await asyncio.to_thread(check_feasible, s, fixture, tuple(tors.gains))
+        await asyncio.to_thread(check_feasible, s, fixture, tuple(tors.gains), p.inertia_repeats)
     opening = d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json(), "calibration_id": cal.id,
                                                        "properties": p.to_json()})
     return await engine.execute(opening, lambda run: properties_plan(run, s, p, cal.document, inputs=inputs),

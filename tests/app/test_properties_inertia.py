@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,14 @@ import pytest
 from rgse_daemon.cli import main
 from rgse_daemon.client import PropertiesResult
 from rgse_daemon.config import Config, config_from_mapping
-from rgse_daemon.krl.render import globals_dat_text
+from rgse_daemon.errors import ConfigError
+from rgse_daemon.krl.render import cube_corners, globals_dat_text
+from rgse_daemon.pipeline import excitation as ex
+from rgse_daemon.procedures.inertia import check_feasible, payload_of, plan_excitation, split
+from rgse_daemon.procedures.preconditions import PreconditionError
+from rgse_daemon.procedures.properties import PropertiesSettings
+from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.safety.static import CheckContext, check_program
 from rgse_daemon.store import Repository, RunState
 from rgse_daemon.store.archive import archive_root
 from simulators.krc4 import physics as ph
@@ -159,3 +167,30 @@ async def test_inertia_is_refused_before_anything_moves_without_wrist_gains(
         no_gain = await command(op, "properties", {"fixture": FIXTURE, "inertia": True})
         assert no_gain["ok"] is False and "no gain of A5" in no_gain["error"], no_gain
         assert not rd.daemon.run_active and sim.moves == 0
+
+
+def test_inertia_repeats_from_the_config_reach_the_excitation_and_every_part_passes_the_static_check(
+        tmp_path: Path) -> None:
+    base = daemon_config(tmp_path, controller_port=1, fixture_mass_kg=ph.FIXTURE_MASS_KG).model_dump(mode="json")
+    for bad in (0, 17, 2.5):
+        with pytest.raises(ConfigError, match="inertia_repeats"):
+            config_from_mapping({**base, "properties": {"inertia_repeats": bad}}, "<test>")
+    assert PropertiesSettings.from_config(config_from_mapping(base, "<test>")).inertia_repeats == ex.REPEATS == 2
+    cfg = config_from_mapping({**base, "properties": {"inertia_repeats": 4, "fixture": FIXTURE}}, "<test>")
+    s, p = RunSettings.from_config(cfg), PropertiesSettings.from_config(cfg)
+    assert p.inertia_repeats == 4 and p.to_json()["inertia_repeats"] == 4
+    payload = payload_of(s, p.fixture(s.fixture_mass_kg), WING_BOX.mass_kg, tuple(WING_BOX.cog_flange_m))
+    two, four = plan_excitation(s, payload), plan_excitation(s, payload, p.inertia_repeats)
+    swings = [sum(mv.swing_axis is not None for mv in plan.design.moves) for plan in (two, four)]
+    assert swings == [ex.N_BLOCKS * 3 * 2 * 2, ex.N_BLOCKS * 3 * 2 * 4]
+    assert len(four.programs) == ex.N_BLOCKS and four.planned_s > 1.2 * two.planned_s
+    assert four.to_json()["repeats"] == 4
+    # every part as the daemon pushes it: the interlock's static check on the payload_lever_max_m cube, from the pose
+    # the previous part ended in
+    points = tuple(tuple(float(v) for v in c) for c in cube_corners(s.payload_lever_max_m))
+    for (start, _), prog in zip(split(four.design, repeats=4), four.programs, strict=True):
+        ctx = CheckContext(limits=cfg.limits, payload_points_flange_m=points, start_axes_deg=start)  # type: ignore[arg-type]
+        assert check_program(prog.src_text, prog.dat_text, ctx, "rgse_inertia.src") == []
+    # more swings than a part's trace holds: refused before the run opens, naming the key
+    with pytest.raises(PreconditionError, match="inertia_repeats = 16"):
+        check_feasible(replace(s, payload_lever_max_m=1.5), p.fixture(s.fixture_mass_kg), (4, 5, 6), 16)
