@@ -8,7 +8,9 @@ code path as ``rgse calibrate --campaign`` / ``rgse mass`` after reading the tra
 Scenarios: ``12ms`` (the paper's trace rate, DuT near the mass-stack pose), ``4ms`` (the same at 4 ms), ``lever``
 (DuT CoG out to the torque points' levers), ``no-mount`` and ``lever-no-mount`` (no per-mounting scatter: what
 is left is each model's form error at the DuT, and the loops), ``warm`` (DuT measured after
-15 min of holding: a thermal mismatch with the campaign, corrected with the campaign's drift). Rows: ``paper``
+15 min of holding: a thermal mismatch with the campaign, corrected with the campaign's drift), ``robots`` (a
+new robot per repetition: A3's and A5's drive gain curves drawn from :data:`ROBOT_FAMILY`, DuT anywhere from the
+mass-stack pose out to the torque points' levers: what carries over to robots Table 1 never saw). Rows: ``paper``
 (eq. 19/20), ``auto`` (what ``--method auto`` chooses: the average of the best per-axis gain models) and the best
 single catalogue model of the scenario. Columns: mean |err| %, the signed mean error (kg) with its standard error
 over the seeds (a bias shows here; with per-mounting scatter each seed's DuT carries its own mounting's offset, one
@@ -52,13 +54,30 @@ SCENARIOS = {
     "lever": {"period_s": 0.012, "n_samples": 250, "cog": (0.35, 0.95)},
     "no-mount": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35), "no_mount": True},
     "lever-no-mount": {"period_s": 0.012, "n_samples": 250, "cog": (0.35, 0.95), "no_mount": True},
+    "robots": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.95), "robots": True},
     "warm": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35), "warm_s": 900.0},
 }
 
 
-def _scenario(no_mount: bool):
+#: The ``robots`` scenario's family of drive gain curves (measured/true torque, ``AxisErrors``): each repetition draws
+#: A3's and A5's G(x) = gain0 + gain_sat·(1 − exp(−x/tau_sat_nm)) + slope·x/1000 + quad·(x/1000)² uniformly from
+#: these ranges (log-uniform tau): robots that Table 1 never saw, with gains from 15 % low to 15 % high, a saturating
+#: term of either sign at any torque scale from 100 Nm to 3 kNm, and a tilt and a bend over the 5 kNm range.
+ROBOT_FAMILY = {"gain0": (0.85, 1.15), "gain_sat": (-0.25, 0.25), "tau_sat_nm": (100.0, 3000.0),
+                "gain_slope_per_knm": (-0.03, 0.03), "gain_quad_per_knm2": (-0.005, 0.005)}
+
+
+def _scenario(spec: dict, seed: int = 0):
     sc = default_scenario()
-    if not no_mount:
+    if spec.get("robots"):
+        rng = np.random.default_rng(70_000 + seed)
+        axes = dict(sc.axes)
+        for key in ("A3", "A5"):
+            draw = {k: float(np.exp(rng.uniform(*np.log(r))) if k == "tau_sat_nm" else rng.uniform(*r))
+                    for k, r in ROBOT_FAMILY.items()}
+            axes[key] = axes[key].model_copy(update=draw)
+        sc = sc.model_copy(update={"axes": axes})
+    if not spec.get("no_mount", False):
         return sc
     axes = {k: a.model_copy(update={"mount_offset_nm": 0.0}) for k, a in sc.axes.items()}
     return sc.model_copy(update={"axes": axes, "mounting": sc.mounting.model_copy(update={"cog_shift_m": 0.0})})
@@ -66,7 +85,7 @@ def _scenario(no_mount: bool):
 
 def repetition(name: str, seed: int) -> dict:
     spec = SCENARIOS[name]
-    sc = _scenario(spec.get("no_mount", False))
+    sc = _scenario(spec, seed)
     camp, model = simulate_campaign(seed, period_s=spec["period_s"], n_samples=spec["n_samples"], scenario=sc)
     dr = camp.manifest.setup.lever_difference_m
     data = CampaignData(camp.manifest, [[(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point]
@@ -159,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         done = list(pool.map(_run, jobs, chunksize=4))
     for name in names:
         runs = [r for (n, _), r in zip(jobs, done, strict=True) if n == name]
-        sc = _scenario(SCENARIOS[name].get("no_mount", False))
+        sc = _scenario(SCENARIOS[name])
         mount_sigma_kg = float(np.hypot(sc.axis(3).mount_offset_nm, sc.axis(5).mount_offset_nm) / (G * 1.025))
         rows = {row: summarise(runs, row, mount_sigma_kg) for row in ("paper", "auto", *SINGLE)}
         best = min(SINGLE, key=lambda m: rows[m]["mean_abs_err_pct"])

@@ -35,6 +35,10 @@ from rgse_daemon.pipeline import mass as mass_eq
 
 #: Scale of the gain basis functions, Nm: keeps the coefficients of order one.
 GAIN_SCALE_NM = 1000.0
+#: Scales τ (Nm) a ``sat`` gain term is fitted at (log-spaced grid, 50 Nm to 3 kNm) ...
+SAT_SCALES_NM = tuple(float(v) for v in np.geomspace(50.0, 3000.0, 25))
+#: ... up to this fraction of the largest torque the calibration covers on that axis.
+SAT_MAX_FRACTION = 0.8
 #: Evaluations of the bounded least-squares polish of eq. 20 from the grid's best start (the grid start is close; on
 #: near-exact data the valley is flat and the polish would creep on for hundreds of steps without changing K).
 MAX_NFEV_DOUBLE_EXP = 40
@@ -184,7 +188,13 @@ class AxisK(ABC):
             if kind == DoubleExpK.kind:
                 return DoubleExpK(np.asarray(d["b"], float))
             if kind == GainK.kind:
-                return GainK(tuple(d["terms"]), np.asarray(d["coef"], float), float(d["scale_nm"]))
+                scales = d.get("scales_nm")
+                k = GainK(tuple(d["terms"]), np.asarray(d["coef"], float), float(d["scale_nm"]),
+                          None if scales is None else tuple(float(v) for v in scales))
+                if len(k.coef) != len(k.terms) or len(k.term_scales_nm) != len(k.terms) or not all(
+                        v > 0 and np.isfinite(v) for v in k.term_scales_nm):
+                    raise ValueError("terms, coef and scales_nm must match in length, scales positive")
+                return k
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"calibration model: malformed axis model {d!r}: {exc}") from exc
         raise DataError(f"calibration model: unknown axis model kind {kind!r}")
@@ -240,21 +250,32 @@ def _basis(term: str, torque_nm: np.ndarray, scale_nm: float) -> np.ndarray:
         return np.sign(m) * np.sqrt(np.abs(m) * s)
     if term == "log":
         return np.sign(m) * s * np.log1p(np.abs(m) / s)
+    if term == "sat":  # eq. 20's saturating exponential as a gain term: slope 1 at 0, none beyond a few s
+        return np.sign(m) * s * -np.expm1(-np.abs(m) / s)
     raise DataError(f"calibration model: unknown gain term {term!r}")
 
 
 @dataclass(frozen=True)
 class GainK(AxisK):
-    """A drive gain curve ``G(M) = Σ c_k·φ_k(M)`` linear in its parameters; ``K(M) = G(M)/M``."""
+    """A drive gain curve ``G(M) = Σ c_k·φ_k(M)`` linear in its parameters; ``K(M) = G(M)/M``.
+
+    Every term's torque scale is ``scale_nm`` unless ``scales_nm`` gives one per term (a ``sat`` term fitted at its
+    own scale, or an average of curves with different ones)."""
 
     terms: tuple[str, ...]
     coef: np.ndarray
     scale_nm: float = GAIN_SCALE_NM
+    scales_nm: tuple[float, ...] | None = None
     kind: ClassVar[str] = "gain"
+
+    @property
+    def term_scales_nm(self) -> tuple[float, ...]:
+        return self.scales_nm if self.scales_nm is not None else (self.scale_nm,) * len(self.terms)
 
     def design(self, torque_nm: np.ndarray) -> np.ndarray:
         """Columns φ_k(M): the Jacobian of G(M) with respect to the coefficients."""
-        return np.stack([_basis(t, torque_nm, self.scale_nm) for t in self.terms], axis=-1)
+        return np.stack([_basis(t, torque_nm, s) for t, s in zip(self.terms, self.term_scales_nm, strict=True)],
+                        axis=-1)
 
     def corrected_torque_nm(self, torque_nm: np.ndarray) -> np.ndarray:
         return self.design(torque_nm) @ np.asarray(self.coef, float)
@@ -262,7 +283,9 @@ class GainK(AxisK):
     def k(self, torque_nm: np.ndarray) -> np.ndarray:
         m = np.asarray(torque_nm, float)
         g = self.corrected_torque_nm(m)
-        slope0 = float(np.asarray(self.coef)[list(self.terms).index("lin")]) if "lin" in self.terms else np.nan
+        # the slope at 0: 1 per unit coefficient of lin, log and sat, 0 of quad (sqrt's is infinite: left out)
+        slope0 = (float(sum(c for t, c in zip(self.terms, self.coef, strict=True) if t in ("lin", "log", "sat")))
+                  if "lin" in self.terms else np.nan)
         with np.errstate(invalid="ignore"):  # G(0)/0 is replaced by the slope at 0
             return np.where(m != 0, g / m, slope0)
 
@@ -271,8 +294,11 @@ class GainK(AxisK):
         return np.asarray(self.coef, float)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"kind": self.kind, "terms": list(self.terms), "coef": [float(c) for c in self.coef],
-                "scale_nm": self.scale_nm}
+        d = {"kind": self.kind, "terms": list(self.terms), "coef": [float(c) for c in self.coef],
+             "scale_nm": self.scale_nm}
+        if self.scales_nm is not None:
+            d["scales_nm"] = [float(v) for v in self.scales_nm]
+        return d
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -350,7 +376,7 @@ def _replace_params(k: AxisK, p: np.ndarray) -> AxisK:
     if isinstance(k, DoubleExpK):
         return DoubleExpK(np.asarray(p, float))
     if isinstance(k, GainK):
-        return GainK(k.terms, np.asarray(p, float), k.scale_nm)
+        return GainK(k.terms, np.asarray(p, float), k.scale_nm, k.scales_nm)
     raise TypeError(type(k))
 
 
@@ -459,17 +485,33 @@ def _fit_ratio(points: CalibrationPoints, method: str, g_m_s2: float, lever_diff
 # ------------------------------------------------------------------------------------------------------------
 def fit_axis_gain(torque_nm: np.ndarray, expected_nm: np.ndarray, terms: tuple[str, ...]
                   ) -> tuple[GainK, np.ndarray, float]:
-    """Least-squares ``G(M) = Σ c_k·φ_k(M)`` of one axis to its expected torques (Nm residuals); K, cov, R²."""
-    if len(torque_nm) < len(terms) + 1:
-        raise CalibrationError(f"gain curve {'+'.join(terms)} needs at least {len(terms) + 1} points, "
+    """Least-squares ``G(M) = Σ c_k·φ_k(M)`` of one axis to its expected torques (Nm residuals); K, cov, R².
+
+    A ``sat`` term's scale τ is one more parameter: the curve is fitted at every τ of :data:`SAT_SCALES_NM` up to
+    :data:`SAT_MAX_FRACTION` of the largest covered torque (beyond it the term is the lin and quad terms over again)
+    and the τ with the least squares is kept (variable projection on a grid; the covariance is the coefficients'
+    at that τ, the bootstrap of the uncertainty refits τ)."""
+    n_par = len(terms) + ("sat" in terms)
+    if len(torque_nm) < n_par + 1:
+        raise CalibrationError(f"gain curve {'+'.join(terms)} needs at least {n_par + 1} points, "
                                f"got {len(torque_nm)}")
-    base = GainK(terms, np.zeros(len(terms)))
-    a = base.design(torque_nm)
-    coef, *_ = np.linalg.lstsq(a, expected_nm, rcond=None)
-    resid = expected_nm - a @ coef
-    dof = max(len(torque_nm) - len(terms), 1)
-    cov = float(resid @ resid) / dof * np.linalg.pinv(a.T @ a)
-    return GainK(terms, coef), cov, r_squared(expected_nm, a @ coef)
+    top = float(np.max(np.abs(torque_nm)))
+    taus = [t for t in SAT_SCALES_NM if t <= SAT_MAX_FRACTION * top] if "sat" in terms else [GAIN_SCALE_NM]
+    if not taus:
+        raise CalibrationError(f"gain curve {'+'.join(terms)}: the covered torques (up to {top:.0f} Nm) are too "
+                               f"small for a saturating term")
+    best = None
+    for tau in taus:
+        scales = tuple(float(tau) if t == "sat" else GAIN_SCALE_NM for t in terms) if "sat" in terms else None
+        a = GainK(terms, np.zeros(len(terms)), GAIN_SCALE_NM, scales).design(torque_nm)
+        coef, *_ = np.linalg.lstsq(a, expected_nm, rcond=None)
+        resid = expected_nm - a @ coef
+        if best is None or float(resid @ resid) < best[0]:
+            best = (float(resid @ resid), GainK(terms, coef, GAIN_SCALE_NM, scales), a)
+    sse, k, a = best
+    dof = max(len(torque_nm) - n_par, 1)
+    cov = sse / dof * np.linalg.pinv(a.T @ a)
+    return k, cov, r_squared(expected_nm, a @ k.coef)
 
 
 def _fit_axis(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
@@ -636,6 +678,12 @@ MODELS: dict[str, tuple[FitFn, str]] = {
                   "quadratic drive gain per axis (odd in torque), each axis fitted to its expected torque"),
     "axis-log": (_axis_model("axis-log", ("lin", "log"), ("lin", "sqrt")),
                  "A3 gain with a saturating log term, A5 with a square-root term, each axis fitted on its own"),
+    "axis-sat": (_axis_model("axis-sat", ("lin", "quad"), ("lin", "sat", "quad")),
+                 "A3 quadratic gain, A5 gain with eq. 20's saturating exponential (scale fitted) and a quadratic "
+                 "term, each axis fitted on its own"),
+    "axis-sat-sat": (_axis_model("axis-sat-sat", ("lin", "sat", "quad"), ("lin", "sat", "quad")),
+                     "saturating exponential (scale fitted) and quadratic gain terms on both axes, each axis fitted "
+                     "on its own"),
     "sur-linear": (_sur_model("sur-linear", ("lin",), ("lin",)),
                    "constant drive gain per axis, per-axis curves fitted together (axes' common mode, Huber, 1/m)"),
     "sur-quad": (_sur_model("sur-quad", ("lin", "quad"), ("lin", "quad")),
@@ -711,19 +759,27 @@ AVERAGE_PREFIX = "avg:"
 AVERAGEABLE = tuple(GAIN_TERMS)
 #: Members of the average: admissible per-axis gain models whose selection score is within this factor of the best.
 AVERAGE_FACTOR = 1.5
-_TERM_ORDER = ("lin", "quad", "sqrt", "log")
+_TERM_ORDER = ("lin", "quad", "sqrt", "log", "sat")
+
+
+def _term_keys(k: GainK) -> list[tuple[str, float]]:
+    """(term, scale) per term: ``lin`` does not depend on the scale, so every curve's lin terms are one."""
+    return [(t, GAIN_SCALE_NM if t == "lin" else float(s)) for t, s in zip(k.terms, k.term_scales_nm, strict=True)]
 
 
 def _mean_gain(ks: list[AxisK]) -> GainK:
-    """The mean of gain curves: G(M) = Σ G_k(M)/n is linear in the union of their terms."""
-    terms = tuple(t for t in _TERM_ORDER if any(t in k.terms for k in ks if isinstance(k, GainK)))
-    coef = np.zeros(len(terms))
+    """The mean of gain curves: G(M) = Σ G_k(M)/n is linear in the union of their (term, scale) pairs."""
     for k in ks:
         if not isinstance(k, GainK):
             raise CalibrationError(f"only gain curves can be averaged, got {k.kind}")
-        for t, c in zip(k.terms, k.coef, strict=True):
-            coef[terms.index(t)] += float(c) / len(ks)
-    return GainK(terms, coef)
+    keys = sorted({key for k in ks for key in _term_keys(k)}, key=lambda ts: (_TERM_ORDER.index(ts[0]), ts[1]))
+    coef = np.zeros(len(keys))
+    for k in ks:
+        for key, c in zip(_term_keys(k), k.coef, strict=True):
+            coef[keys.index(key)] += float(c) / len(ks)
+    scales = tuple(s for _, s in keys)
+    return GainK(tuple(t for t, _ in keys), coef, GAIN_SCALE_NM,
+                 None if all(s == GAIN_SCALE_NM for s in scales) else scales)
 
 
 def _fit_average(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Calibration:
@@ -741,7 +797,8 @@ def _fit_average(points: CalibrationPoints, method: str, g_m_s2: float, lever_di
     n3 = len(k3.terms)
     cov = np.zeros((n3 + len(k5.terms),) * 2)
     for f in fits:
-        idx = [k3.terms.index(t) for t in f.k_a3.terms] + [n3 + k5.terms.index(t) for t in f.k_a5.terms]
+        idx = ([_term_keys(k3).index(key) for key in _term_keys(f.k_a3)]
+               + [n3 + _term_keys(k5).index(key) for key in _term_keys(f.k_a5)])
         cov[np.ix_(idx, idx)] += np.asarray(f.covariance, float) / len(fits) ** 2
     loaded = points.mass_kg > 0
     return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[loaded]),

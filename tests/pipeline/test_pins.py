@@ -471,6 +471,60 @@ def test_gain_curve_k_by_hand():
     assert C.GainK(("quad", "lin"), np.array([0.5, 0.9])).k(np.array([0.0]))[0] == 0.9  # wherever "lin" sits
 
 
+def test_saturating_gain_term_by_hand():
+    """sat: sign(M)·τ·(1 − exp(−|M|/τ)), odd, slope 1 at 0 (so K(0) adds its coefficient, as log's), flat beyond τ;
+    each term at its own scale when ``scales_nm`` is given."""
+    k = C.GainK(("lin", "sat", "quad"), np.array([0.9, 0.2, 0.01]), 1000.0, (1000.0, 300.0, 1000.0))
+    m = np.array([-600.0, 150.0, 2500.0])
+    want = 0.9 * m + 0.2 * np.sign(m) * 300.0 * (1 - np.exp(-np.abs(m) / 300.0)) + 0.01 * m * np.abs(m) / 1000.0
+    np.testing.assert_allclose(k.corrected_torque_nm(m), want, rtol=1e-14)
+    assert k.k(np.array([0.0]))[0] == pytest.approx(1.1)
+    assert C.GainK(("lin", "log"), np.array([1.0, 0.05])).k(np.array([0.0]))[0] == pytest.approx(1.05)
+    assert k.term_scales_nm == (1000.0, 300.0, 1000.0) and C.GainK(("lin",), np.ones(1)).term_scales_nm == (1000.0,)
+
+
+def test_saturating_gain_fit_finds_its_scale_and_is_refused_below_it():
+    """An exact drive with a saturating gain at τ = 300 Nm on the grid: the fit picks that τ and reproduces every
+    expected torque; the grid stops at 0.8 of the largest covered torque, so a calibration up to 60 Nm has none."""
+    tau = min(C.SAT_SCALES_NM, key=lambda t: abs(t - 300.0))
+    true = C.GainK(("lin", "sat", "quad"), np.array([0.85, 0.25, 0.01]), 1000.0, (1000.0, tau, 1000.0))
+    torque = np.r_[0.0, np.linspace(60.0, 3200.0, 13)]
+    expected = true.corrected_torque_nm(torque)
+    k, cov, r2 = C.fit_axis_gain(torque, expected, ("lin", "sat", "quad"))
+    assert k.term_scales_nm == (1000.0, tau, 1000.0) and r2 == pytest.approx(1.0)
+    np.testing.assert_allclose(k.coef, true.coef, rtol=1e-8)
+    assert cov.shape == (3, 3)
+    with pytest.raises(C.CalibrationError, match=r"too small for a saturating term"):
+        C.fit_axis_gain(np.array([0.0, 10.0, 20.0, 40.0, 50.0, 60.0]), np.zeros(6), ("lin", "sat", "quad"))
+    with pytest.raises(C.CalibrationError, match=r"needs at least 5 points, got 4"):
+        C.fit_axis_gain(torque[:4], expected[:4], ("lin", "sat", "quad"))
+
+
+def test_average_of_curves_with_their_own_scales_is_their_mean():
+    """Curves with sat terms at different scales average over the union of (term, scale) pairs: the mean corrected
+    torque of the members, whose record keeps the scales and reads back; lin terms merge whatever the scale."""
+    a = C.GainK(("lin", "sat", "quad"), np.array([0.9, 0.2, 0.01]), 1000.0, (1000.0, 300.0, 1000.0))
+    b = C.GainK(("lin", "sat"), np.array([1.0, -0.1]), 1000.0, (1000.0, 800.0))
+    c = C.GainK(("lin", "quad"), np.array([1.1, 0.02]))
+    mean = C._mean_gain([a, b, c])
+    assert mean.terms == ("lin", "quad", "sat", "sat") and mean.term_scales_nm == (1000.0, 1000.0, 300.0, 800.0)
+    m = np.linspace(-3000.0, 3000.0, 13)
+    np.testing.assert_allclose(mean.corrected_torque_nm(m), (a.corrected_torque_nm(m) + b.corrected_torque_nm(m)
+                                                            + c.corrected_torque_nm(m)) / 3, rtol=1e-12)
+    back = C.AxisK.from_dict(json.loads(json.dumps(mean.to_dict())))
+    assert back.to_dict() == mean.to_dict() and back.to_dict()["scales_nm"] == [1000.0, 1000.0, 300.0, 800.0]
+    assert "scales_nm" not in C._mean_gain([c, c]).to_dict()  # one scale: the record as before
+    for bad in ([1000.0], [1000.0, -5.0]):
+        with pytest.raises(DataError, match=r"malformed axis model .*scales positive"):
+            C.AxisK.from_dict({"kind": "gain", "terms": ["lin", "sat"], "coef": [1.0, 0.1], "scale_nm": 1000.0,
+                               "scales_nm": bad})
+    pts = stack_points(scatter_nm=2.0, seed=5, n=12)
+    avg = C.fit(pts, "avg:axis-quad+axis-sat", G, DR)
+    members = [C.fit(pts, m, G, DR) for m in ("axis-quad", "axis-sat")]
+    np.testing.assert_allclose(avg.points_mass_kg(pts), np.mean([f.points_mass_kg(pts) for f in members], axis=0),
+                               rtol=1e-10)
+
+
 def test_axis_model_records_round_trip_and_name_their_faults():
     models = [C.PolyK(np.array([1e-8, -2e-5, 1.1])), C.DoubleExpK(np.array([0.5, -1e-3, 0.6, 1e-5])),
               C.GainK(("lin", "log"), np.array([1.05, 0.02]), 800.0)]
