@@ -6,7 +6,8 @@ mounting), the calibration, one DuT of random mass (20-230 kg) on the fixture, a
 code path as ``rgse calibrate --campaign`` / ``rgse mass`` after reading the trace files (offline, no socket).
 
 Scenarios: ``12ms`` (the paper's trace rate, DuT near the mass-stack pose), ``4ms`` (the same at 4 ms), ``lever``
-(DuT CoG out to the torque points' levers), ``no-mount`` and ``lever-no-mount`` (no per-mounting scatter: what
+(DuT CoG out to the torque points' levers), ``lever-6tp`` (the same DuTs after a campaign with six torque rows,
+:data:`TORQUE_ROWS_6`, instead of three), ``no-mount`` and ``lever-no-mount`` (no per-mounting scatter: what
 is left is each model's form error at the DuT, and the loops), ``warm`` (DuT measured after
 15 min of holding: a thermal mismatch with the campaign, corrected with the campaign's drift), ``robots`` (a
 new robot per repetition: A3's and A5's drive gain curves drawn from :data:`ROBOT_FAMILY`, DuT anywhere from the
@@ -47,6 +48,9 @@ from rgse_daemon.pipeline.envelope import Envelope, OperatingPointError
 from simulators.krc4.scenario import default_scenario
 from tests.support.simcampaign import G, simulate_campaign, simulate_measurement
 
+#: The ``lever-6tp`` campaign's torque rows (n_cb, CB lever to A5 in m): Table 1's three with ten bodies, one more
+#: further out, and two with five bodies that fill the A5 torques between the mass stack (840 Nm) and them (1.8 kNm).
+TORQUE_ROWS_6 = ((5, 0.761), (5, 1.261), (10, 0.761), (10, 1.011), (10, 1.261), (10, 1.45))
 SINGLE = ("axis-linear", "axis-quad", "axis-log", "ratio-linear")
 SCENARIOS = {
     "12ms": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35)},
@@ -54,6 +58,7 @@ SCENARIOS = {
     "lever": {"period_s": 0.012, "n_samples": 250, "cog": (0.35, 0.95)},
     "no-mount": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35), "no_mount": True},
     "lever-no-mount": {"period_s": 0.012, "n_samples": 250, "cog": (0.35, 0.95), "no_mount": True},
+    "lever-6tp": {"period_s": 0.012, "n_samples": 250, "cog": (0.35, 0.95), "torque_rows": TORQUE_ROWS_6},
     "robots": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.95), "robots": True},
     "warm": {"period_s": 0.012, "n_samples": 250, "cog": (0.05, 0.35), "warm_s": 900.0},
 }
@@ -86,7 +91,8 @@ def _scenario(spec: dict, seed: int = 0):
 def repetition(name: str, seed: int) -> dict:
     spec = SCENARIOS[name]
     sc = _scenario(spec, seed)
-    camp, model = simulate_campaign(seed, period_s=spec["period_s"], n_samples=spec["n_samples"], scenario=sc)
+    camp, model = simulate_campaign(seed, period_s=spec["period_s"], n_samples=spec["n_samples"], scenario=sc,
+                                    torque_rows=spec.get("torque_rows"))
     dr = camp.manifest.setup.lever_difference_m
     data = CampaignData(camp.manifest, [[(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point]
                                         for point in camp.loops], [],

@@ -71,10 +71,11 @@ def _bodies(masses_kg: np.ndarray, template: tuple[ph.RigidBody, ...]) -> tuple[
 
 
 def simulate_campaign(seed: int, n_loops: int = 3, n_samples: int = 250, period_s: float = 0.012,
-                      body_mass_u_kg: float = 0.01, scenario: Scenario | None = None
+                      body_mass_u_kg: float = 0.01, scenario: Scenario | None = None,
+                      torque_rows: tuple[tuple[int, float], ...] | None = None
                       ) -> tuple[SimCampaign, ph.RobotModel]:
-    """A Table-1-like campaign: MPA, MPA + 1..10 bodies, three torque rows (10 bodies on the test adapter); every
-    point a new mounting."""
+    """A Table-1-like campaign: MPA, MPA + 1..10 bodies, the torque rows (``(n_cb, cb_lever_a5_m)`` on the test
+    adapter; default Table 1's three, 10 bodies at :data:`TORQUE_ROW_LEVERS_A5_M`); every point a new mounting."""
     model = ph.RobotModel(scenario, seed=seed)
     rng = np.random.default_rng(10_000 + seed)
     true_cb = ph.CB_MASS_KG + rng.normal(0.0, body_mass_u_kg, ph.N_CB_MAX)
@@ -87,17 +88,18 @@ def simulate_campaign(seed: int, n_loops: int = 3, n_samples: int = 250, period_
         loops.append(_measure(model, payload, n_loops, n_samples, period_s, name))
         specs.append(PointSpec("zero" if n == 0 else "mass", round(ph.CB_MASS_KG * n, 2), l3, l5,
                                tuple(lp.trace for lp in loops[-1]), n))
-    nominal_torque_mass = ph.N_CB_MAX * ph.CB_MASS_KG + ph.TA_MASS_KG
-    for j, lever_a5 in enumerate(TORQUE_ROW_LEVERS_A5_M):
-        nominal = ph.torque_calibration_payload(ph.N_CB_MAX, lever_a5)
+    rows = torque_rows if torque_rows is not None else tuple((ph.N_CB_MAX, lv) for lv in TORQUE_ROW_LEVERS_A5_M)
+    for j, (n_cb, lever_a5) in enumerate(rows):
+        nominal_torque_mass = n_cb * ph.CB_MASS_KG + ph.TA_MASS_KG
+        nominal = ph.torque_calibration_payload(n_cb, lever_a5)
         mpa_b, ta, *cbs = nominal.bodies
-        payload = ph.Payload((mpa_b, replace(ta, mass_kg=float(true_ta)), *_bodies(true_cb, tuple(cbs))))
+        payload = ph.Payload((mpa_b, replace(ta, mass_kg=float(true_ta)), *_bodies(true_cb[:n_cb], tuple(cbs))))
         # the manifest's lever: the nominal load's torque about A5 over its nominal weight
-        lever = (ph.TA_TORQUE_A5_NM + G * ph.N_CB_MAX * ph.CB_MASS_KG * lever_a5) / (G * nominal_torque_mass)
+        lever = (ph.TA_TORQUE_A5_NM + G * n_cb * ph.CB_MASS_KG * lever_a5) / (G * nominal_torque_mass)
         name = f"cal{11 + j:02d}"
         loops.append(_measure(model, payload, n_loops, n_samples, period_s, name))
         specs.append(PointSpec("torque", round(nominal_torque_mass, 2), lever + DR, lever,
-                               tuple(lp.trace for lp in loops[-1]), ph.N_CB_MAX + 1))
+                               tuple(lp.trace for lp in loops[-1]), n_cb + 1))
     man = Manifest(Path("manifest.toml"), Setup(ROBOT, G, DR, body_mass_u_kg=body_mass_u_kg), specs)
     return SimCampaign(man, loops, np.r_[true_cb, true_ta]), model
 
