@@ -89,6 +89,12 @@ class CalibrationPoints:
                 raise CalibrationError(f"calibration points: column {name} holds NaN or infinite values")
         if np.any(self.mass_kg < 0):
             raise CalibrationError("calibration points: negative mass_kg")
+        flat = (self.mass_kg > 0) & ~(self.expected_a3_nm > self.expected_a5_nm)
+        if flat.any():  # its lever difference Δr (eq. 21, :meth:`lever_difference_m`) would be ≤ 0
+            bad = int(np.flatnonzero(flat)[0])
+            raise CalibrationError(f"calibration point {bad + 1}: expected A3 torque {self.expected_a3_nm[bad]:.2f} Nm "
+                                   f"is not above its expected A5 torque {self.expected_a5_nm[bad]:.2f} Nm "
+                                   f"(r_A3 − r_A5 must be positive)")
         if self.mass_cov_kg2 is not None and (np.shape(self.mass_cov_kg2) != (n, n)
                                               or not np.all(np.isfinite(self.mass_cov_kg2))):
             raise CalibrationError(f"calibration points: mass covariance must be a finite {n}x{n} matrix")
@@ -113,11 +119,7 @@ class CalibrationPoints:
         loaded = self.mass_kg > 0
         dr = np.full(len(self), float(default_m))
         dr[loaded] = (self.expected_a3_nm[loaded] - self.expected_a5_nm[loaded]) / (g_m_s2 * self.mass_kg[loaded])
-        if np.any(dr <= 0):
-            bad = int(np.flatnonzero(dr <= 0)[0])
-            raise CalibrationError(f"calibration point {bad + 1}: its expected torques give a lever difference "
-                                   f"of {dr[bad]:.4f} m (expected A3 torque must exceed A5's)")
-        return dr
+        return dr  # positive: checked when the points are made
 
     def with_masses(self, mass_kg: np.ndarray) -> CalibrationPoints:
         """The same points with other reference masses (expected torques scaled along)."""

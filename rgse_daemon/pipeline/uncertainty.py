@@ -227,9 +227,9 @@ def bootstrap_params(points: CalibrationPoints, method: str, g_m_s2: float, leve
         e5[loaded] = fitted[loaded, 1] + draw[:, 1]
         mass = points.mass_kg.copy()
         mass[loaded] = np.maximum((e3[loaded] - e5[loaded]) / denom[loaded], 1e-6)
-        star = CalibrationPoints(points.kind, mass, points.torque_a3_nm, points.torque_a5_nm, e3, e5,
-                                 points.mass_cov_kg2)
-        try:
+        try:  # (a draw whose expected A5 torque reaches A3's is not a load: refused by CalibrationPoints)
+            star = CalibrationPoints(points.kind, mass, points.torque_a3_nm, points.torque_a5_nm, e3, e5,
+                                     points.mass_cov_kg2)
             out.append(cal_mod.fit(star, method, g_m_s2, lever_difference_m).params)
         except CalibrationError:
             continue  # a degenerate resample: the others still estimate the spread

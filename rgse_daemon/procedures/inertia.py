@@ -127,8 +127,6 @@ def plan_excitation(s: RunSettings, payload: ex.Payload, repeats: int = REPEATS)
     orientation, in parts that each fit the trace buffer at 4 ms; DataError when a part does not (the cube of
     ``payload_lever_max_m`` sets the speeds, the repeats the number of swings, hence the duration)."""
     limit_s = buffer_limit_s(INERTIA_TRACE_PERIOD_S)
-    if not (isinstance(repeats, int) and 1 <= repeats):
-        raise DataError(f"inertia: properties.inertia_repeats = {repeats!r}: must be an integer >= 1")
     try:
         design = ex.design(payload, base_deg=s.meas_pose_deg, limit_mm_s=s.speed_limit_mm_s, optimise=False,
                            repeats=repeats)

@@ -190,7 +190,7 @@ def test_interior_points_by_hand():
     mass = np.array([0.0, 0.5, 10.0, 20.0, 30.0, 30.0])
     a3 = np.array([0.0, 10.0, 200.0, 900.0, 900.0, 100.0])
     a5 = np.array([0.0, 5.0, 50.0, 100.0, 80.0, 400.0])
-    pts = C.CalibrationPoints(kind, mass, a3, a5, a3, a5)
+    pts = C.CalibrationPoints(kind, mass, a3, a5, a5 + 1000.0 * (mass > 0), a5)  # (expected: any valid load)
     # 0.5 kg is a load; 900 Nm twice: neither is below the other's; the last is the largest on A5 only
     np.testing.assert_array_equal(unc.interior(pts), [False, True, True, False, False, False])
 
@@ -675,7 +675,7 @@ def test_selection_rules_by_hand():
 
 def test_average_of_members_by_hand():
     pts = C.CalibrationPoints(np.array(["zero", "mass"]), np.array([0.0, 10.0]), np.zeros(2), np.zeros(2),
-                              np.zeros(2), np.zeros(2))
+                              np.array([0.0, 130.0]), np.array([0.0, 30.0]))
     a = ev("axis-linear", 0.4, loo=(0.2, 10.4), lever=(np.nan, 9.0))
     b = ev("sur-quad", 0.6, 4, loo=(-0.2, 9.8), lever=(np.nan, 10.0))  # exactly 1.5 × the best: a member
     c = ev("axis-quad", 0.61, 4, loo=(5.0, 5.0))

@@ -82,13 +82,14 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     assert sim.truth is not None and sim.truth.payload_mass_kg > DUT_MASS_KG + FIXTURE_KG  # + the MPA
     err_kg = abs(result["mass_kg"] - DUT_MASS_KG)
     # One seed cannot test a 95 % coverage (tests/offline/test_coverage.py does, over 120 seeds): here a gross error
-    # is what fails, |err| beyond 2 U (4 σ; a sign error of the fixture mass is 20 kg). This seed's short campaign
-    # (7 loaded points, one loop each) gives 92.6 ± 2.1-2.7 kg (U moves with the run's timing: the simulated motor
-    # temperatures follow the wall clock), 0.9-1.2 U off: outside U, which a 95 % U allows one seed in twenty.
-    # Traced (issue #18): with the simulator's per-mounting offsets off the same run gives 94.39 ± 1.67 kg; this
-    # seed's mounting draws (the DuT's own one, which no number of loops averages out) put it low.
+    # is what fails, |err| beyond 1.5 U (3 σ). This seed's short campaign (7 loaded points, one loop each) gives
+    # 92.6 ± 2.1 kg, 1.1 U off (U 2.1-2.7 kg: the members `auto` averages depend on the run's timing, as the
+    # simulated motor temperatures follow the wall clock; once, under heavy load, it failed this bound): outside U,
+    # which a 95 % U allows one seed in twenty. Traced (issue #18): with the simulator's per-mounting offsets off the
+    # same run gives 94.39 ± 1.67 kg; this seed's mounting draws (the DuT's own one, which no number of loops
+    # averages out) put it low.
     assert 0.0 < result["U_kg"] < 0.05 * DUT_MASS_KG
-    assert err_kg <= 2.0 * result["U_kg"], (f"measured {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f}, "
+    assert err_kg <= 1.5 * result["U_kg"], (f"measured {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f}, "
                                             f"true {DUT_MASS_KG}")
     assert summary["warnings"] == [], summary["warnings"]
     assert not [w for w in result["warnings"] if w.startswith(("warm-up", "motor temperatures"))], result["warnings"]
