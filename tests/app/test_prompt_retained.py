@@ -59,11 +59,14 @@ async def _retained_prompt(broker: MosquittoProcess, pending: bool) -> list:
         got[:] = await retained("127.0.0.1", broker.port, f"{PREFIX}/prompt")
         return len(got) == 1 and json.loads(got[0].payload).get("pending") is pending
 
-    for _ in range(100):
+    # a hang guard like tests.support.polling.wait_until's (whose predicate cannot await), not a timing check: 5 s
+    # was one once, when the suite ran beside other work and the run's end took longer to reach the broker
+    deadline = asyncio.get_running_loop().time() + 15.0
+    while asyncio.get_running_loop().time() < deadline:
         if await check():
             return got
         await asyncio.sleep(0.05)
-    raise AssertionError(f"no retained prompt with pending = {pending}: {got!r}")
+    raise AssertionError(f"no retained prompt with pending = {pending} within 15 s: {got!r}")
 
 
 async def _ended(task: asyncio.Task) -> None:
