@@ -15,7 +15,7 @@ mass-stack pose out to the torque points' levers: what carries over to robots Ta
 (eq. 19/20), ``auto`` (what ``--method auto`` chooses: the average of the best per-axis gain models) and the best
 single catalogue model of the scenario. Columns: mean |err| %, the signed mean error (kg) with its standard error
 over the seeds (a bias shows here; with per-mounting scatter each seed's DuT carries its own mounting's offset, one
-draw that no loop averages, so the mean wanders by about ±0.15-0.3 kg at 40 seeds), max |err| kg, coverage of ±U
+draw that no loop averages, so the mean wanders by about ±0.1-0.2 kg at 120 seeds), max |err| kg, coverage of ±U
 (k = 2) with its Clopper-Pearson 95 % interval, mean U kg, refused (far outside the envelope), and the loop-and-mount
 noise floor. A last row per scenario, ``true form`` (simulation only), fits each axis by least squares in a basis that
 holds the simulated robot's own reading curve exactly (:func:`true_form_mass_kg`): no form error, only the campaign's
@@ -23,8 +23,8 @@ scatter. It is what these campaigns allow a method that knew the drive's shape; 
 
 Goals: mean |err| ≤ 0.3 % without per-mount scatter; ≤ 1.2 × the noise floor with it; coverage 90-99 %.
 
-Run: ``.venv/bin/python bench/accuracy.py [--seeds N] [--workers 1|2] [--json]`` (40 seeds by default; coverage
-with its Clopper-Pearson 95 % interval).
+Run: ``.venv/bin/python bench/accuracy.py [--seeds N] [--workers 1|2] [--json]`` (120 seeds by default, 11 min on 2
+cores: at 40 the |err|/floor ratio wanders by about ±0.1; coverage with its Clopper-Pearson 95 % interval).
 """
 
 from __future__ import annotations
@@ -222,7 +222,7 @@ def summarise(runs: list[dict], row: str, mount_sigma_kg: float) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=40)
+    ap.add_argument("--seeds", type=int, default=120, help="repetitions per scenario")
     ap.add_argument("--workers", type=int, default=2, choices=(1, 2), help="processes (at most 2 on this machine)")
     ap.add_argument("--scenario", action="append", choices=sorted(SCENARIOS))
     ap.add_argument("--json", action="store_true")
