@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from bench import accuracy as bench
+from rgse_daemon.pipeline.calibration import CalibrationPoints
 from simulators.krc4.physics import gain_curve
 from simulators.krc4.scenario import AxisErrors, default_scenario
 
@@ -45,7 +46,6 @@ def test_true_form_recovers_an_exact_campaign():
     e3, e5 = bench.G * mass * (l5 + 1.025), bench.G * mass * l5
     m3 = normalised_reading_nm(sc.axis(3), e3, 150.0)
     m5 = normalised_reading_nm(sc.axis(5), e5, 40.0)
-    from rgse_daemon.pipeline.calibration import CalibrationPoints
     pts = CalibrationPoints(np.array(["zero"] + ["mass"] * 10 + ["torque"] * 3), mass, m3, m5, e3, e5)
     dut_kg, l5_dut = 140.0, 0.7
     d3 = normalised_reading_nm(sc.axis(3), np.array([bench.G * dut_kg * (l5_dut + 1.025)]), 150.0)[0]
