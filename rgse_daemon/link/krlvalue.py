@@ -168,7 +168,10 @@ class _Parser:
             self.i = m.end()
             text = m.group()
             if _INT.fullmatch(text):
-                return int(text)
+                try:
+                    return int(text)
+                except ValueError:  # more digits than int() converts (4300): no KRL INT is that long
+                    raise self.fail("integer out of range") from None
             number = float(text)
             if not math.isfinite(number):
                 raise self.fail("number out of range")

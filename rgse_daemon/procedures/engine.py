@@ -277,6 +277,8 @@ class RunEngine:
                     result = await self._drive(finalize_wrapper(plan))
             else:
                 result = await self._drive(finalize_wrapper(plan))
+            if self._interrupt is not None:  # a trip or abort after the plan's last step: not a completed run
+                raise self._interrupt
             outcome = EngineState.DONE
             return result
         except PlanAborted:
@@ -309,6 +311,10 @@ class RunEngine:
             except StopIteration as stop:
                 if cancelled is not None:
                     raise cancelled from None
+                if self._interrupt is not None:
+                    # an abort or trip that the plan did not let through (it came during the finaliser, whose
+                    # steps log their errors and go on): the run still ends aborted or failed, never completed
+                    raise self._interrupt from None
                 return stop.value
             reply, error = None, None
             self._current = asyncio.get_running_loop().create_task(self._execute(msg), name=f"rgse:{msg.describe()}")

@@ -6,7 +6,8 @@ not ``if``\\ s scattered through the plans. A watcher whose fields are unreadabl
 
 Every ``poll_period_s`` (default 50 ms, i.e. 20 Hz) the monitor takes one :meth:`Controller.snapshot` (one
 multi-read with C3 Bridge) with a deadline of ``stale_periods`` poll periods; a failed or late snapshot is link
-loss. On a trip it, in this order and each step bounded by ``stop_timeout_s``:
+loss. If the monitor itself fails (a bug, a reply no check foresaw), that is a trip of the ``monitor`` watcher: the
+robot is never left moving unwatched. On a trip it, in this order and each step bounded by ``stop_timeout_s``:
 
 1. stops the robot program (``#10 STOP``) — a STOP 2 equivalent: the robot ramps down on its path and holds;
 2. stops the trace (``$TRACE.MODE = #T_STOP``) if one is armed or recording;
@@ -448,6 +449,29 @@ class Monitor:
                 await asyncio.wait({task})
 
     async def _poll(self, on_trip: TripHandler) -> None:
+        """:meth:`_watch`, and if the monitor itself fails (a bug, a reply no check foresaw) that is doubt too: the
+        robot is stopped as at a trip of the ``monitor`` watcher, never left moving unwatched."""
+        try:
+            await self._watch(on_trip)
+        except Exception as exc:
+            _log.critical("interlock: the monitor failed: %r", exc, exc_info=exc)
+            if self._confirming:
+                raise  # it had tripped already and handed the trip on; the stop confirmation itself failed
+            await self._trip(InterlockTrip("monitor", "the interlock monitor failed", repr(exc)[:200]), None,
+                             on_trip, time.monotonic())
+
+    async def _trip(self, trip: InterlockTrip, snap: Snapshot | None, on_trip: TripHandler, t0: float) -> None:
+        """Steps 1-4 of the module docstring: record the trip, make safe, hand it to the plan, confirm the stop."""
+        self.trip = trip
+        self._polled.set()
+        _log.error("%s", trip, extra={"watcher": trip.watcher, "detail": trip.detail})
+        await self.make_safe(snap)
+        self.stats.trip_latency_s = time.monotonic() - t0
+        self._confirming = True
+        on_trip(trip)
+        await self._confirm_stop(trip)
+
+    async def _watch(self, on_trip: TripHandler) -> None:
         last_good = time.monotonic()
         while True:
             t0 = time.monotonic()
@@ -460,6 +484,9 @@ class Monitor:
             except TimeoutError:
                 error = f"no snapshot within {self._allowed_s(t0) * 1e3:.0f} ms"
             except (LinkError, RgseError) as exc:
+                error = f"{type(exc).__name__}: {exc}"
+            except Exception as exc:  # a reply the decoder did not foresee: a failed poll, as a link error is
+                _log.error("interlock: snapshot failed: %r", exc)
                 error = f"{type(exc).__name__}: {exc}"
             now = time.monotonic()
             took_s = now - t0
@@ -489,15 +516,7 @@ class Monitor:
                 self._cleared_at = t0
             if found is not None:
                 watcher, detail = found
-                trip = InterlockTrip(watcher.name, watcher.message, detail)
-                self.trip = trip
-                self._polled.set()
-                _log.error("%s", trip, extra={"watcher": watcher.name, "detail": detail})
-                await self.make_safe(snap)
-                self.stats.trip_latency_s = time.monotonic() - t0
-                self._confirming = True
-                on_trip(trip)
-                await self._confirm_stop(trip)
+                await self._trip(InterlockTrip(watcher.name, watcher.message, detail), snap, on_trip, t0)
                 return
             self._polled.set()
             await asyncio.sleep(max(0.0, self.poll_period_s - (time.monotonic() - t0)))

@@ -78,6 +78,8 @@ def test_formatting_reals_keeps_them_real() -> None:
         "[1]",
         "{" * 40 + "}" * 40,
         "TRUE FALSE",
+        "9" * 5000,  # beyond int()'s 4300 digits: a ValueError escaped the parser once
+        "-" + "1" * 4301,
     ],
 )
 def test_garbage_is_protocol_error(bad: str) -> None:

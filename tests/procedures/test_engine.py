@@ -191,3 +191,17 @@ async def test_trace_files_deleted_over_the_link_without_a_share(sim, krc, cfg, 
     assert await pulled.delete_copies() == (True, "deleted over the link")
     assert not [p for p in (sim.share_dir / "TRACE").iterdir() if p.name.startswith("keep_me_")]
     assert len(pulled.files) >= 4 and all(f.path.is_file() for f in pulled.files)
+
+
+async def test_abort_during_the_finaliser_still_aborts_the_run(sim, engine: RunEngine):
+    """The finaliser logs a failed step and goes on (so a cleanup error cannot hide the cause); an abort delivered
+    into it must still end the run aborted, not done."""
+
+    def plan() -> m.Plan:
+        yield m.Checkpoint("the plan's only step")
+        engine.abort("operator pressed abort as the plan ended")  # arrives in the finaliser's first step
+        return "finished"
+
+    with pytest.raises(PlanAborted, match="as the plan ended"):
+        await asyncio.wait_for(engine.run(plan()), 30)
+    assert engine.state == "aborted"

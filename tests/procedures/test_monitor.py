@@ -135,3 +135,40 @@ RUNNING = WatchContext(expect=Expect.RUNNING)
 )
 def test_watchers(snap, ctx, watcher):
     assert _first_trip(snap, ctx, None if snap is not None else "LinkClosed: dropped") == watcher
+
+
+async def test_a_failing_monitor_is_a_trip_that_stops_the_robot(sim, engine: RunEngine, settings, monkeypatch):
+    """A bug in a watcher (or anything the poll did not foresee) must not end the monitor quietly while the robot
+    moves: it trips as the ``monitor`` watcher, and program and trace are stopped."""
+    task = asyncio.create_task(engine.run(long_motion(settings)))
+    await wait_until(lambda: moving(sim), what="warm-up moving with the trace recording")
+    assert engine.monitor is not None
+
+    def broken(obs: Observation, ctx: WatchContext) -> None:
+        raise RuntimeError("a watcher with a bug")
+
+    monkeypatch.setattr(engine.monitor, "check_once", broken)
+    with pytest.raises(InterlockTrip) as info:
+        await asyncio.wait_for(task, 30)
+    assert info.value.watcher == "monitor" and "a watcher with a bug" in info.value.detail
+    await wait_until(lambda: robot_still(sim), "program stopped, robot still", timeout_s=10)
+    await wait_until(lambda: trace_stopped(sim), "trace stopped", timeout_s=10)
+    assert engine.state == "failed"
+
+
+async def test_a_snapshot_that_raises_the_unforeseen_is_link_doubt(sim, engine: RunEngine, settings, monkeypatch):
+    """An exception from the snapshot that is not a link or protocol error counts as a failed poll: once the
+    snapshots stay failed past the stale limit, the link watcher trips and the robot stops."""
+    task = asyncio.create_task(engine.run(long_motion(settings)))
+    await wait_until(lambda: moving(sim), what="warm-up moving with the trace recording")
+
+    async def unforeseen() -> Snapshot:
+        raise ValueError("Exceeds the limit (4300 digits) for integer string conversion")
+
+    monkeypatch.setattr(engine.krc, "snapshot", unforeseen)
+    with pytest.raises(InterlockTrip) as info:
+        await asyncio.wait_for(task, 30)
+    assert info.value.watcher == "link" and "ValueError" in info.value.detail
+    monkeypatch.undo()  # the stop's read-backs use the real snapshot again
+    await wait_until(lambda: robot_still(sim), "program stopped, robot still", timeout_s=10)
+    await wait_until(lambda: trace_stopped(sim), "trace stopped", timeout_s=10)
