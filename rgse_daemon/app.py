@@ -255,7 +255,16 @@ class Daemon:
             log.exception("stopping %s failed", what)
 
     def _spawn(self, coro: Awaitable[Any], name: str) -> None:
-        self._tasks.append(asyncio.create_task(coro, name=f"rgse-{name}"))  # type: ignore[arg-type]
+        """A standing job of the daemon. If it ends with an error, that is an alarm at once (published, stack light
+        red), not a line in the log at shutdown."""
+        task = asyncio.create_task(coro, name=f"rgse-{name}")  # type: ignore[arg-type]
+
+        def ended(t: asyncio.Task[Any]) -> None:
+            if not t.cancelled() and t.exception() is not None:
+                self.alarms.raise_(f"task_failed_{name}", f"daemon job {name} ended: {t.exception()!r}")
+
+        task.add_done_callback(ended)
+        self._tasks.append(task)
 
     async def _cancel_tasks(self) -> None:
         for t in self._tasks:

@@ -54,6 +54,8 @@ HISTORY_RUNS = 30
 TERMINAL = ("done", "failed", "aborted")
 #: Torque history the page's plot shows (s).
 TORQUE_WINDOW_S = 60.0
+#: A page that takes one event longer than this (a stalled browser, a dead network) is dropped.
+WRITE_TIMEOUT_S = 10.0
 
 Handler = Any  # rgse_daemon.io.mqtt.CommandHandler: measure, calibrate, abort, confirm
 
@@ -162,6 +164,9 @@ class Console:
             except RgseError as exc:
                 log.warning("console: state not read: %s", exc)
                 continue
+            except Exception as exc:  # a bug here must not end the pages' state for the rest of the daemon's life
+                log.error("console: state not read: %r", exc)
+                continue
             self._keep_torque(self.last_state)
             self._send("state", self.last_state)
 
@@ -184,10 +189,12 @@ class Console:
                  "state": self._view(await self._state()), "torque": list(self.torque)}
         self._clients.add(q)
         try:
-            await resp.write(_sse("hello", hello))
+            async with asyncio.timeout(WRITE_TIMEOUT_S):
+                await resp.write(_sse("hello", hello))
             while (item := await q.get()) is not None:
-                await resp.write(_sse(*item))
-        except (ConnectionResetError, RuntimeError):  # the page went away
+                async with asyncio.timeout(WRITE_TIMEOUT_S):
+                    await resp.write(_sse(*item))
+        except (ConnectionResetError, RuntimeError, TimeoutError):  # the page went away, or stalled
             pass
         finally:
             self._clients.discard(q)

@@ -82,11 +82,12 @@ class StatePublisher:
             mqtt = self._mqtt()
             if mqtt is None:
                 continue
-            state = await self.document()
             try:
-                mqtt.publish_state(state)
+                mqtt.publish_state(await self.document())
             except RgseError as exc:  # a state this loop cannot publish must not end the loop
                 log.error("state not published: %s", exc)
+            except Exception as exc:  # nor a bug: the state stops for one period, not for the daemon's life
+                log.error("state not published: %r", exc)
 
 
 async def watchdog_loop(notifier: Notifier, store: Store, robot: str, interval_s: float) -> None:

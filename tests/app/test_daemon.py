@@ -25,6 +25,7 @@ from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.procedures.programs import program
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.monitor import InterlockTrip
+from rgse_daemon.services.state import StatePublisher
 from rgse_daemon.store import RunState, Store, StoreError
 from rgse_daemon.systemd import Notifier
 from simulators.krc4.physics import dut_payload, mass_calibration_payload, torque_calibration_payload
@@ -299,6 +300,30 @@ async def test_link_loss_then_recovery_reconnects_with_backoff(
         await op.sync()
         link_alarms = [a for a in op.json_on(f"{PREFIX}/alarm") if a.get("kind") == "link"]
         assert len(link_alarms) == 1 and "link lost" in link_alarms[0]["message"]
+
+
+async def test_a_standing_job_that_ends_with_an_error_is_an_alarm_at_once(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A daemon job (here the state publisher) that dies is published as an alarm while the daemon runs, not only
+    logged at shutdown."""
+    go = asyncio.Event()
+
+    async def dies(self: StatePublisher) -> None:
+        await go.wait()
+        raise RuntimeError("a bug in the state job")
+
+    monkeypatch.setattr(StatePublisher, "run", dies)
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
+                        broker_port=private_broker.port)
+    async with running_daemon(cfg) as rd, peer(private_broker) as op:
+        await wait_until(lambda: rd.daemon.mqtt is not None and rd.daemon.mqtt.connected, "mqtt connected")
+        go.set()
+
+        def alarms() -> list[dict[str, Any]]:
+            return [a for a in op.json_on(f"{PREFIX}/alarm") if a.get("kind") == "task_failed_state"]
+
+        await wait_until(lambda: len(alarms()) == 1, "the job's alarm published", timeout_s=WAIT_S)
+        assert "a bug in the state job" in alarms()[0]["message"] and not rd.task.done()
 
 
 # --- commands -------------------------------------------------------------------------------------------------------
