@@ -31,13 +31,14 @@ import os
 import re
 import shutil
 import time
-from collections.abc import AsyncIterator, Mapping
+from collections.abc import AsyncIterator, Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, TypeVar
 
 from rgse_daemon.config import ControllerConfig, Protocol
 from rgse_daemon.durable import write_atomic
-from rgse_daemon.errors import ConfigError, LinkError, NotAllowedError, ProtocolError, VariableError
+from rgse_daemon.errors import ConfigError, LinkError, LinkTimeout, NotAllowedError, ProtocolError, VariableError
 from rgse_daemon.filelayout import TRACE_DIR_CANDIDATES, FileLayout, is_trace_name
 from rgse_daemon.link import frames as fr
 from rgse_daemon.link.connection import ConnectionState
@@ -47,6 +48,7 @@ from rgse_daemon.link.pool import LinkPool
 from rgse_daemon.safety.allowlist import WRITABLE_PREFIX, WRITABLE_VARIABLES, writable
 
 log = logging.getLogger(__name__)
+_T = TypeVar("_T")
 
 AXES = range(1, 7)
 #: What one snapshot reads, in this order (26 variables: one #6 with C3 Bridge).
@@ -396,10 +398,20 @@ class Controller:
     def _use_share(self, msg_type: fr.MsgType = fr.MsgType.WRITE_CONTENT) -> bool:
         return not self.pool.supports(msg_type)
 
+    async def _on_share(self, what: str, timeout_s: float, fn: Callable[..., _T], *args: Any) -> _T:
+        """``fn(*args)`` on the mounted share in a worker thread, within ``timeout_s``: a hung network mount is a
+        :class:`LinkTimeout` like a silent controller (the thread itself cannot be cancelled; it is left to end)."""
+        try:
+            async with asyncio.timeout(timeout_s):
+                return await asyncio.to_thread(fn, *args)
+        except TimeoutError as exc:
+            raise LinkTimeout(f"{what} on the share: no answer within {timeout_s:.1f} s") from exc
+
     async def put_file(self, name: str, data: bytes) -> None:
         """Write ``data`` to the controller file ``name`` (overwriting): #29 in chunks ≤ 65525 bytes, or the share."""
         if self._use_share():
-            await asyncio.to_thread(_share_write, self._share_path(name), data)
+            await self._on_share(f"put {name}", self.file_timeout_s(len(data)), _share_write,
+                                 self._share_path(name), data)
             return
         name = await self._c3_name(name)
         what = f"put {name}"
@@ -430,7 +442,10 @@ class Controller:
         size must equal ``size_bytes`` when given; anything else is a ``ProtocolError``.
         """
         if self._use_share():
-            return await asyncio.to_thread(_share_read, self._share_path(name))
+            if size_bytes is None:
+                size_bytes = await self.file_size(name)
+            return await self._on_share(f"get {name}", self.file_timeout_s(size_bytes), _share_read,
+                                        self._share_path(name))
         name = await self._c3_name(name)
         if size_bytes is None:
             size_bytes = await self.file_size(name)
@@ -477,7 +492,7 @@ class Controller:
         if self._use_share(fr.MsgType.GET_PROPERTIES):
             path = self._share_path(name)
             try:
-                return (await asyncio.to_thread(path.stat)).st_size
+                return (await self._on_share(f"size of {name}", self.cfg.request_timeout_s, path.stat)).st_size
             except OSError as exc:
                 raise CommandError(f"size of {name}", exc.strerror or "cannot stat") from exc
         name = await self._c3_name(name)
@@ -490,7 +505,8 @@ class Controller:
     async def list_dir(self, path: str) -> list[DirEntry]:
         """Entries of a controller directory or mask (#21), e.g. ``C:\\KRC\\ROBOTER\\TRACE\\``."""
         if self._use_share():
-            return await asyncio.to_thread(_share_list, self._share_path(path), path)
+            return await self._on_share(f"list {path}", self.cfg.request_timeout_s, _share_list,
+                                        self._share_path(path), path)
         shown = path
         layout = await self.trace_layout() if is_trace_name(path) else None
         if layout is not None:
@@ -513,7 +529,8 @@ class Controller:
         (with the controller's code over #23, e.g. 3 for a missing file on the simulator).
         """
         if self._use_share(fr.MsgType.DELETE):
-            await asyncio.to_thread(_share_delete, self._share_path(name), name)
+            await self._on_share(f"delete {name}", self.cfg.request_timeout_s, _share_delete,
+                                 self._share_path(name), name)
             return
         name = await self._c3_name(name)
         await self._file_command(fr.Delete(always, name), fr.DeleteReply, f"delete {name}")
@@ -523,7 +540,8 @@ class Controller:
         (copy flag OverwriteExists)."""
         if self._use_share(fr.MsgType.COPY):
             src, dst = self._share_path(source), self._share_path(destination)
-            await asyncio.to_thread(_share_copy, src, dst, overwrite, False, f"copy {source}")
+            await self._on_share(f"copy {source}", await self._copy_timeout_s(source), _share_copy, src, dst,
+                                 overwrite, False, f"copy {source}")
             return
         source, destination = await self._c3_name(source), await self._c3_name(destination)
         req = fr.Copy(fr.CopyFlag.OVERWRITE_EXISTS if overwrite else 0, source, destination)
@@ -534,7 +552,8 @@ class Controller:
         """Move (rename) ``source`` to ``destination`` (#25, or on the share); ``overwrite`` as in :meth:`copy_file`."""
         if self._use_share(fr.MsgType.MOVE):
             src, dst = self._share_path(source), self._share_path(destination)
-            await asyncio.to_thread(_share_copy, src, dst, overwrite, True, f"move {source}")
+            await self._on_share(f"move {source}", await self._copy_timeout_s(source), _share_copy, src, dst,
+                                 overwrite, True, f"move {source}")
             return
         source, destination = await self._c3_name(source), await self._c3_name(destination)
         req = fr.Move(fr.CopyFlag.OVERWRITE_EXISTS if overwrite else 0, source, destination)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import os
+import threading
+import time
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -131,6 +133,37 @@ async def test_files_over_kvp_use_the_mounted_share(sim: KrcServer) -> None:
         with pytest.raises(NotSupportedError):
             await krc.select_program("KRC:\\R1\\PROGRAM\\RGSE_MEAS.SRC")
     assert share_path(Path("/s"), "C:\\KRC\\ROBOTER\\TRACE\\a.dat") == Path("/s/TRACE/a.dat")
+
+
+@pytest.mark.parametrize("op", ["get", "put", "list", "size", "delete", "copy", "move"])
+async def test_a_hung_share_is_a_link_timeout_not_a_hang(sim: KrcServer, monkeypatch: pytest.MonkeyPatch,
+                                                        op: str) -> None:
+    """A network mount that stops answering (a dead SMB server) must not block a run forever: every file operation
+    on the share has the same deadline as it would have over the wire."""
+    cfg = cfg_for(sim, protocol="kvp", share_dir=sim.files.root)
+    name = "KRC:\\R1\\PROGRAM\\RGSE_MEAS.SRC"
+    async with Controller.connect(cfg) as krc:
+        await krc.put_file(name, b"DEF RGSE_MEAS()\r\nEND\r\n")
+        release = threading.Event()
+
+        def hung(*_: object) -> None:
+            release.wait(10.0)
+
+        for fn in ("_share_read", "_share_write", "_share_list", "_share_delete", "_share_copy"):
+            monkeypatch.setattr(f"rgse_daemon.controller.{fn}", hung)
+        monkeypatch.setattr(Path, "stat", lambda self, **kw: hung() if self.name == "RGSE_MEAS.SRC" else
+                            os.stat(self, **kw))
+        calls = {"get": lambda: krc.get_file(name, size_bytes=22), "put": lambda: krc.put_file(name, b"x"),
+                 "list": lambda: krc.list_dir("KRC:\\R1\\PROGRAM"), "size": lambda: krc.file_size(name),
+                 "delete": lambda: krc.delete_file(name), "copy": lambda: krc.copy_file(name, name + "2"),
+                 "move": lambda: krc.move_file(name, name + "2")}
+        t0 = time.monotonic()
+        try:
+            with pytest.raises(LinkTimeout, match="on the share: no answer within"):
+                await calls[op]()
+        finally:
+            release.set()
+        assert time.monotonic() - t0 < 5.0  # the deadline (0.5 s, two for copy/move with their size), not 10 s
 
 
 async def test_delete_copy_move_create_attributes_over_c3(sim: KrcServer) -> None:
