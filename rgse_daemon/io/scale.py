@@ -195,8 +195,9 @@ class CraneScale:
         cfg = self.cfg
         loop = asyncio.get_running_loop()
         protocol = _LineProtocol(cfg.max_line_bytes)
+        transport: asyncio.BaseTransport | None = None
         try:
-            async with asyncio.timeout(cfg.open_timeout_s):
+            async with asyncio.timeout(cfg.open_timeout_s):  # the open and the buffer reset: a hung driver is doubt
                 transport, _ = await create_serial_connection(
                     loop,
                     lambda: protocol,
@@ -206,13 +207,17 @@ class CraneScale:
                     parity=cfg.parity,
                     stopbits=cfg.stopbits,
                 )
+                port = getattr(transport, "serial", None)
+                if port is not None and port.is_open:
+                    await loop.run_in_executor(None, port.reset_input_buffer)  # drop what the scale sent before
         except TimeoutError as exc:
+            if transport is not None:
+                transport.close()
             raise IoTimeout(self.name, f"open: not done within {cfg.open_timeout_s} s") from exc
         except (serial.SerialException, OSError, ValueError) as exc:
+            if transport is not None:
+                transport.close()
             raise IoLinkError(self.name, f"open: {exc}") from exc
-        port = getattr(transport, "serial", None)
-        if port is not None and port.is_open:
-            await loop.run_in_executor(None, port.reset_input_buffer)  # drop what the scale sent before we came
         self._transport, self._protocol = transport, protocol
         self.counters.opens += 1
 

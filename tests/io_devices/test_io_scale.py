@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+import asyncio
 import math
+import threading
+import time
 
 import pytest
+import serial
 from hypothesis import given
 from hypothesis import strategies as st
 from pydantic import ValidationError
@@ -13,6 +17,7 @@ from rgse_daemon.config import UNIT_TO_KG, ScaleConfig
 from rgse_daemon.io import IoFrameError, IoLinkError, IoTimeout
 from rgse_daemon.io.scale import CraneScale, parse_line, xor8
 from simulators.scale import ScaleSim, ScaleSimConfig, display_step
+from tests.support.polling import wait_until
 
 D_KG = 0.1  # Kern HFB 300K100
 TRANSPORTS = ["pty", "tcp"]
@@ -241,3 +246,21 @@ async def test_missing_device_is_a_link_error() -> None:
         await scale.read_stable(timeout_s=1.0)
     assert err.value.device == "scale /dev/does-not-exist-rgse"
     await scale.close()
+
+
+async def test_a_hung_buffer_reset_on_open_is_a_timeout(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Opening includes dropping what the scale sent before: a driver that hangs there is an open timeout, not a
+    read that never returns."""
+    release = threading.Event()
+    monkeypatch.setattr(serial.Serial, "reset_input_buffer", lambda self: release.wait(10.0))
+    before = asyncio.all_tasks()
+    async with ScaleSim(ScaleSimConfig(), "pty") as sim:  # (over socket:// there is no buffer to reset)
+        scale = CraneScale(client_cfg(sim, open_timeout_s=0.2))
+        t0 = time.monotonic()
+        with pytest.raises(IoTimeout, match=r"open: not done within 0\.2 s"):
+            await scale.read_stable(timeout_s=5.0)
+        assert time.monotonic() - t0 < 5.0
+        release.set()  # the driver comes back: the abandoned port's close can finish
+        await scale.close()
+    await wait_until(lambda: all(t.done() for t in asyncio.all_tasks() - before - {asyncio.current_task()}),
+                     "the abandoned port closed")
