@@ -59,6 +59,7 @@ import math
 import random
 import secrets
 import ssl
+import time
 from dataclasses import asdict, dataclass
 from datetime import datetime
 from enum import StrEnum
@@ -451,10 +452,10 @@ class MqttBridge:
         while not self._stopping.is_set():
             self._state = ConnectionState.CONNECTING
             connected = False
+            up_at = 0.0
             try:
                 async with self._client() as client:
-                    connected = True
-                    attempt = 0
+                    connected, up_at = True, time.monotonic()
                     self._log.resolved("connect", f"{where}: connected")
                     await self._session(client)
             except aiomqtt.MqttError as exc:
@@ -474,6 +475,9 @@ class MqttBridge:
             if self._stopping.is_set():
                 break
             self._state = ConnectionState.BACKOFF
+            if connected and time.monotonic() - up_at >= self._cfg.reconnect_max_s:
+                attempt = 0  # the session held: reconnect quick; one that drops right after CONNACK (another client
+                #              with our id kicking us off, an ACL refusing our subscriptions) keeps backing off
             delay = self._backoff_s(attempt)
             attempt += 1
             with contextlib.suppress(TimeoutError):  # the backoff elapsed: try again

@@ -15,6 +15,7 @@ from rgse_daemon.errors import LinkError, RgseError
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.safety.inputs import SafetyInputs
+from rgse_daemon.safety.makesafe import STOP_DEADLINE_S
 from rgse_daemon.services.link import DaemonCounters
 from rgse_daemon.store import Store
 
@@ -22,6 +23,9 @@ log = logging.getLogger("rgse_daemon.app")
 
 #: Bounded wait for a cancelled run to end (s).
 STOP_TIMEOUT_S = 15.0
+#: Bounded wait for a run to end by itself after the controller link was lost (s): the interlock's stop confirmation
+#: (at most :data:`~rgse_daemon.safety.makesafe.STOP_DEADLINE_S`) and the run's finaliser and records after it.
+LINK_LOSS_END_S = STOP_DEADLINE_S + STOP_TIMEOUT_S
 #: How long ``measure``/``calibrate`` wait for the run to start before answering without its run id (s).
 RUN_START_TIMEOUT_S = 10.0
 
@@ -162,6 +166,14 @@ class RunAdmission:
             log.error("the %s run did not end within %.0f s of its cancellation", self.kind, STOP_TIMEOUT_S)
 
     async def wait_end(self) -> None:
+        """After a lost link: the run ends by itself (the interlock trips on the lost link, then confirms its stop,
+        at most the make-safe deadline), bounded by :data:`LINK_LOSS_END_S`; a run still going then is stopped as
+        :meth:`stop` does."""
         task = self.task
-        if task is not None and not task.done():
-            await asyncio.wait({task})
+        if task is None or task.done():
+            return
+        done, _ = await asyncio.wait({task}, timeout=LINK_LOSS_END_S)
+        if not done:
+            log.error("the %s run did not end within %.0f s of the lost link: cancelling it", self.kind,
+                      LINK_LOSS_END_S)
+            await self.stop()

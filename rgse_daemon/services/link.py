@@ -12,6 +12,7 @@ import contextlib
 import dataclasses
 import logging
 import random
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -83,19 +84,20 @@ class ControllerLink:
         be lost: back off and connect anew."""
         attempt = 0
         while not stop.is_set():
+            up_at: float | None = None
             self.connecting = True
             try:
                 # the TRACE path form and listing format `rgse doctor` found on this controller (probed if none)
                 layout = load_layout(self.data_dir) if self.data_dir is not None else None
                 async with Controller.connect(self.cfg, layout=layout) as krc:
                     self.connecting = False
-                    attempt = 0
                     if prepare is not None:
                         await prepare(krc)
                     self.krc = krc
                     self.counters.controller_connects += 1
                     self.error = None
                     self.connected.set()
+                    up_at = time.monotonic()
                     log.info("%s connected (%s)", self.where, krc.protocol)
                     self.alarms.clear("link")
                     await on_up(krc)
@@ -120,6 +122,9 @@ class ControllerLink:
                 self.krc = None
             if stop.is_set():
                 return
+            if up_at is not None and time.monotonic() - up_at >= self.cfg.reconnect_max_s:
+                attempt = 0  # the link held: the next connect starts quick again (a link that fails right after
+                #              its connect, e.g. in ``prepare``, keeps backing off instead of retrying at once)
             with contextlib.suppress(TimeoutError):
                 await within(stop.wait(), self.backoff_s(attempt))
             attempt += 1

@@ -335,6 +335,30 @@ def test_controller_backoff_is_exponential_jittered_and_capped(tmp_path: Path) -
         assert all(0.5 * base <= x <= base for x in delays) and len(set(delays)) > 1, attempt
 
 
+async def test_a_link_that_fails_right_after_its_connect_keeps_backing_off(sim: SimulatedKrc4, tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch) -> None:
+    """The connect succeeds, then the link's preparation fails (a full disk in the recovery sweep, say): the next
+    attempts back off further each time instead of reconnecting at the minimum delay forever."""
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir)
+    d = Daemon(cfg)
+    attempts: list[int] = []
+    backoff = d.link.backoff_s
+    monkeypatch.setattr(d.link, "backoff_s", lambda attempt: attempts.append(attempt) or backoff(attempt))
+    stop = asyncio.Event()
+
+    async def prepare(krc: object) -> None:
+        if len(attempts) >= 4:
+            stop.set()
+        raise OSError(28, "No space left on device")
+
+    async def never(*_: object) -> None:
+        raise AssertionError("the link never comes up here")
+
+    await asyncio.wait_for(d.link.run(stop, never, never, prepare=prepare), WAIT_S)
+    assert attempts == [0, 1, 2, 3]
+    assert d.link.error == "OSError: [Errno 28] No space left on device"
+
+
 def test_calibrate_command_points_map_back_to_what_the_operator_mounts() -> None:
     for p in table1_points():
         got = campaign_point(CalibrationPoint(kind=p.kind, mass_kg=p.mass_kg, lever_a3_m=p.lever_a3_m,  # type: ignore

@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import aiomqtt
 import pytest
 
 from rgse_daemon.config import MqttConfig
@@ -301,3 +302,24 @@ async def test_stop_during_a_connect_that_gets_no_answer_is_prompt(store: Store)
             w.close()
         server.close()
         await server.wait_closed()
+
+
+async def test_a_session_that_drops_right_after_connack_keeps_backing_off(
+    system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler,
+    monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A broker that accepts the connection and drops the session at once (another client with our id, an ACL that
+    refuses our subscriptions) gets ever longer pauses, not a reconnect every reconnect_min_s forever."""
+    bridge = MqttBridge(mqtt_config(*system_broker, prefix), ROBOT, store, handler, "1", timeout_s=5)
+    attempts: list[int] = []
+    backoff = bridge._backoff_s
+    monkeypatch.setattr(bridge, "_backoff_s", lambda attempt: attempts.append(attempt) or backoff(attempt))
+
+    async def dropped(client: object) -> None:
+        raise aiomqtt.MqttError("session taken over by another client with this id")
+
+    monkeypatch.setattr(bridge, "_session", dropped)
+    async with bridge:
+        await wait_until(lambda: len(attempts) >= 4, "four reconnects", timeout_s=30)
+    assert attempts[:4] == [0, 1, 2, 3]
+    assert bridge.counters.connect_failures == 0  # each connect succeeded; the sessions were lost
