@@ -61,11 +61,35 @@ def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, 
     return seal(doc)
 
 
-def seal(doc: dict[str, Any]) -> dict[str, Any]:
-    """Set ``calibration_id``: a hash of the document's content (everything but the id and the creation time)."""
+def content_id(doc: dict[str, Any]) -> str:
+    """A hash of the document's content: everything but the id and the creation time."""
     body = json.dumps({k: v for k, v in doc.items() if k not in ("calibration_id", "created_utc")}, sort_keys=True)
-    doc["calibration_id"] = hashlib.sha256(body.encode()).hexdigest()[:16]
+    return hashlib.sha256(body.encode()).hexdigest()[:16]
+
+
+def seal(doc: dict[str, Any]) -> dict[str, Any]:
+    """Set ``calibration_id`` to :func:`content_id`."""
+    doc["calibration_id"] = content_id(doc)
     return doc
+
+
+#: Plausible ranges of a calibration's g (m/s², anywhere on Earth: 9.78 at the equator, 9.83 at the poles) and of
+#: the lever difference Δr between the A3 and A5 axes (m, any industrial robot's measurement pose).
+G_RANGE_M_S2 = (9.7, 9.9)
+LEVER_DIFFERENCE_RANGE_M = (0.05, 5.0)
+
+
+def _within(v: float, bounds: tuple[float, float], what: str, path: Path) -> float:
+    if not bounds[0] <= v <= bounds[1]:
+        raise DataError(f"{path}: {what} = {v!r} is outside the plausible {bounds[0]:g}..{bounds[1]:g}")
+    return v
+
+
+def plausible_g(g_m_s2: float, what: str) -> float:
+    """``g_m_s2`` if it is a gravity found on Earth (:data:`G_RANGE_M_S2`), else a DataError naming ``what``."""
+    if not (math.isfinite(g_m_s2) and G_RANGE_M_S2[0] <= g_m_s2 <= G_RANGE_M_S2[1]):
+        raise DataError(f"{what} = {g_m_s2!r} m/s² is outside the plausible {G_RANGE_M_S2[0]:g}..{G_RANGE_M_S2[1]:g}")
+    return g_m_s2
 
 
 def write(path: Path | str, doc: dict[str, Any]) -> None:
@@ -101,6 +125,9 @@ def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing |
         raise DataError(f"{path}: calibration file must hold a JSON object")
     if doc.get("schema") != SCHEMA:
         raise DataError(f"{path}: unsupported calibration schema {doc.get('schema')!r} (expected {SCHEMA})")
+    if doc.get("calibration_id") != content_id(doc):
+        raise DataError(f"{path}: the content does not match its calibration_id {doc.get('calibration_id')!r} "
+                        f"(edited after it was fitted, or damaged): refit it with rgse calibrate")
     models = _need(doc, "models", path)
     fit = _need(doc, "fit", path)
     bias = _need(doc, "bias_nm", path)
@@ -132,8 +159,9 @@ def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing |
         rng.append((_finite(r[0], f"torque_range_nm.{axis}", path), _finite(r[1], f"torque_range_nm.{axis}", path)))
         _finite(bias[axis], f"bias_nm.{axis}", path)
     cal = Calibration(str(_need(doc, "method", path)), k3, k5, cov, rng[0], rng[1],
-                      _finite(_need(doc, "g", path), "g", path),
-                      _finite(_need(doc, "lever_difference_m", path), "lever_difference_m", path),
+                      plausible_g(_finite(_need(doc, "g", path), "g", path), f"{path}: g"),
+                      _within(_finite(_need(doc, "lever_difference_m", path), "lever_difference_m", path),
+                              LEVER_DIFFERENCE_RANGE_M, "lever_difference_m", path),
                       dict(fit.get("r2") or {}), cov_ref)
     pre = None
     if doc.get("preprocessing") is not None:
@@ -159,6 +187,8 @@ def alternatives(path: Path | str, doc: dict[str, Any], cal: Calibration) -> lis
             k3, k5 = AxisK.from_dict(alt["models"]["A3"]), AxisK.from_dict(alt["models"]["A5"])
         except (DataError, KeyError, TypeError) as exc:
             raise DataError(f"{path}: fit.alternatives: malformed entry: {exc}") from exc
+        if not (np.all(np.isfinite(k3.params)) and np.all(np.isfinite(k5.params))):
+            raise DataError(f"{path}: fit.alternatives: model {alt.get('method')!r} has non-finite parameters")
         out.append(Calibration(str(alt.get("method", "?")), k3, k5, np.zeros((0, 0)), cal.torque_range_a3_nm,
                                cal.torque_range_a5_nm, cal.g_m_s2, cal.lever_difference_m))
     return out

@@ -67,6 +67,22 @@ def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: p
                       r.warnings, r.uncertainty.components(), operating_point=r.operating_point)
 
 
+#: How far the measurement's Δr (m) and g (m/s²) may differ from the calibration's: a calibration holds for its own
+#: measurement pose and site (1 mm and 0.01 m/s² are 0.1 % of the mass). Smaller differences draw a warning.
+POSE_TOLERANCE_M = 1e-3
+G_TOLERANCE_M_S2 = 0.01
+
+
+def check_pose(where: Path, lever_difference_m: float, g_m_s2: float, cal: Calibration) -> None:
+    """Refuse a measurement whose pose (Δr) or g is not the calibration's (eq. 21 uses the calibration's)."""
+    calfile.plausible_g(g_m_s2, f"{where}: g")
+    if abs(lever_difference_m - cal.lever_difference_m) > POSE_TOLERANCE_M or abs(g_m_s2 - cal.g_m_s2) > \
+            G_TOLERANCE_M_S2:
+        raise DataError(f"{where}: the measurement's Δr = {lever_difference_m} m and g = {g_m_s2} m/s² are not the "
+                        f"calibration's ({cal.lever_difference_m} m, {cal.g_m_s2} m/s²): a calibration holds for its "
+                        f"own measurement pose and site")
+
+
 def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None,
             envelope_limit: float = inline.env_mod.DEFAULT_LIMIT):
     """The in-line mass of a measurement directory (interfaces §2) with a calibration file: what ``rgse mass`` prints,
@@ -76,6 +92,7 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
         raise DataError(f"{man.path}: no [measurement] table (is this a calibration campaign?)")
     doc, cal, pre = calfile.read(calibration_path)
     calfile.check_robot(calibration_path, doc, man.setup.robot)
+    check_pose(man.path, man.setup.lever_difference_m, man.setup.g_m_s2, cal)
     fixture = fixture_mass_kg if fixture_mass_kg is not None else (man.fixture_mass_kg or 0.0)
     if not np.isfinite(fixture) or fixture < 0:
         raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")

@@ -5,11 +5,33 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from rgse_daemon import calfile
 from rgse_daemon.analysis.calibration import POINTS_ROBOT, calibrate, fit_campaign, parse_preprocessing
 from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import load_points_csv, source_sha256
+
+
+def make_room(out: Path) -> str | None:
+    """Refuse an ``--out`` that would overwrite anything but a calibration file (a campaign's manifest or trace
+    file, the points CSV, a device): raw data is never overwritten. An existing calibration file is kept beside
+    it as ``<stem>.<its id><suffix>``; returns a note saying so (None if there was nothing at ``out``)."""
+    if not (out.exists() or out.is_symlink()):
+        return None
+    if not out.is_file() or out.is_symlink():
+        raise DataError(f"--out {out}: exists and is not a regular file; choose another path")
+    try:
+        old, _, _ = calfile.read(out)
+    except DataError:
+        raise DataError(f"--out {out}: exists and is not a calibration file (an input of the fit?); it is not "
+                        f"overwritten, choose another path") from None
+    kept = out.with_name(f"{out.stem}.{old['calibration_id']}{out.suffix}")
+    if kept.exists():
+        raise DataError(f"--out {out}: the calibration it holds is to be kept as {kept}, which exists; "
+                        f"choose another path")
+    out.rename(kept)
+    return f"the calibration that was at {out} ({old['calibration_id']}) is kept as {kept}"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -22,7 +44,10 @@ def run(args: argparse.Namespace) -> int:
     else:
         pre = parse_preprocessing(getattr(args, "preprocessing", None))
         doc, summary = fit_campaign(args.campaign, args.method, pre)
+    note = make_room(Path(args.out))
     calfile.write(args.out, doc)
+    if note:
+        print(note, file=sys.stderr)
     if args.json:
         print(json.dumps(summary))
     else:

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import envelope as env_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
@@ -150,6 +151,10 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
             u_reproducibility_kg=uncertainty.reproducibility.u_kg(cal.g_m_s2, cal.lever_difference_m),
             u_thermal_kg=u_thermal,
         )
+    if gross - fixture_mass_kg < -u.expanded_kg:
+        raise DataError(f"the DuT's mass comes out at {gross - fixture_mass_kg:.3f} ± {u.expanded_kg:.3f} kg, below "
+                        f"zero: the gross load ({gross:.3f} kg) is less than the fixture's {fixture_mass_kg:.3f} kg "
+                        f"(is the DuT mounted, the fixture mass right, each torque channel's sign as calibrated?)")
     return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings, cal.method,
                       where)
 

@@ -7,6 +7,7 @@ take a 2-D array work on many signals at once (one row per filter window in the 
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -23,6 +24,10 @@ LOCATIONS = ("mean", "trimmed", "huber", "median")
 TRIM_FRACTION = 0.1
 #: Huber tuning constant (in robust standard deviations): 95 % efficiency for Gaussian noise.
 HUBER_C = 1.345
+#: Bounds of the parameters a CAL.json or ``--preprocessing`` may set: a filter window (samples; a trace holds at most
+#: some ten thousand) and the settle cut (s; a loop's trace lasts seconds to minutes).
+MAX_WINDOW = 100_000
+MAX_SETTLE_S = 3600.0
 
 
 class PreprocessError(DataError):
@@ -62,12 +67,14 @@ class Preprocessing:
             raise PreprocessError(f"pre-processing: unknown order {self.order!r} (one of {', '.join(ORDERS)})")
         if self.location not in LOCATIONS:
             raise PreprocessError(f"pre-processing: unknown location {self.location!r}")
-        if self.window < 1:
-            raise PreprocessError(f"pre-processing: window must be >= 1 sample, got {self.window}")
-        if self.crop_sigma is not None and self.crop_sigma <= 0:
-            raise PreprocessError(f"pre-processing: crop_sigma must be > 0, got {self.crop_sigma}")
-        if self.settle_s < 0:
-            raise PreprocessError(f"pre-processing: settle_s must be >= 0, got {self.settle_s}")
+        if isinstance(self.window, bool) or not isinstance(self.window, int) or not 1 <= self.window <= MAX_WINDOW:
+            raise PreprocessError(f"pre-processing: window must be a whole number of samples 1..{MAX_WINDOW}, "
+                                  f"got {self.window!r}")
+        if self.crop_sigma is not None and not (_number(self.crop_sigma) and 0 < self.crop_sigma < math.inf):
+            raise PreprocessError(f"pre-processing: crop_sigma must be a finite number > 0, got {self.crop_sigma!r}")
+        if not (_number(self.settle_s) and 0 <= self.settle_s <= MAX_SETTLE_S):
+            raise PreprocessError(f"pre-processing: settle_s must be a number 0..{MAX_SETTLE_S:g} s, "
+                                  f"got {self.settle_s!r}")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -78,6 +85,10 @@ class Preprocessing:
             return Preprocessing(**d)
         except TypeError as exc:
             raise PreprocessError(f"pre-processing: bad parameters {d!r}: {exc}") from exc
+
+
+def _number(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
 #: The paper's chosen method F (Table A2/A3): 1σ crop, then centred moving average of 150 samples.

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 
+from rgse_daemon import calfile
 from rgse_daemon.cli import main
 from rgse_daemon.config import ControllerConfig
 from rgse_daemon.controller import Controller
@@ -124,7 +125,7 @@ def test_cal_json_source_reference_with_a_path_is_refused(tmp_path, capsys, dirs
     doc = json.loads((dirs / "CAL.json").read_text())
     doc["source_sha256"]["../../etc/passwd"] = "0" * 64
     bad = tmp_path / "CAL.json"
-    bad.write_text(json.dumps(doc))
+    bad.write_text(json.dumps(calfile.seal(doc)))  # sealed: the reference itself is what must be refused
     err = mass_error(capsys, dirs / "dut", bad)
     assert "source_sha256" in err and "path separator" in err and str(bad) in err, err
 

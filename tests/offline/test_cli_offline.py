@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from rgse_daemon import calfile
 from rgse_daemon.cli import main
 from tests.support.campaign import Drive, write_campaign, write_measurement
 
@@ -208,7 +209,8 @@ def test_study_best_row_feeds_calibrate_and_mass(tmp_path, capsys, dirs):
     ("filter=kalman", "unknown filter"),
     ("colour=red", "KEY one of crop_sigma"),
     ("window=5,window=7", "window given twice"),
-    ("crop_sigma=-1", "crop_sigma must be > 0"),
+    ("crop_sigma=-1", "crop_sigma must be a finite number > 0"),
+    ("settle_s=inf", "settle_s must be a number 0..3600 s"),
 ])
 def test_calibrate_refuses_a_bad_preprocessing_spec(tmp_path, capsys, dirs, spec, needle):
     expect_error(capsys, ["calibrate", "--campaign", str(dirs / "cal"), "--out", str(tmp_path / "o.json"),
@@ -224,7 +226,7 @@ def test_calibration_file_of_the_former_schema_still_reads(tmp_path, capsys, dir
     for alt in doc["fit"]["alternatives"]:
         alt.pop("uncertainty", None)
     old = tmp_path / "old.json"
-    old.write_text(json.dumps(doc))
+    old.write_text(json.dumps(calfile.seal(doc)))  # as the former version wrote it, sealed over what it held
     res = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(old), "--json"])
     assert set(res["u_components_kg"]) == {"loops", "calibration", "model", "reference", "g"}
     new = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(dirs / "CAL.json"),
@@ -232,5 +234,5 @@ def test_calibration_file_of_the_former_schema_still_reads(tmp_path, capsys, dir
     assert "reproducibility" in new["u_components_kg"]
     assert res["mass_kg"] == pytest.approx(new["mass_kg"])
     doc["fit"]["uncertainty"] = {"reproducibility": {"rms_a3_nm": 1.0}}
-    old.write_text(json.dumps(doc))
+    old.write_text(json.dumps(calfile.seal(doc)))
     expect_error(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(old)], "fit.uncertainty")

@@ -153,7 +153,15 @@ def test_envelope_check():
     with pytest.raises(DataError):
         E.Envelope.from_dict({"torque_a3_nm": [1, 0], "torque_a5_nm": [0, 1], "ratio_a5_a3": [0, 1]})
     built = E.Envelope.from_torques(np.array([0.0, 100.0, -2000.0]), np.array([0.0, 30.0, -400.0]))
-    assert built == E.Envelope((0.0, 2000.0), (0.0, 400.0), (0.2, 0.3))
+    assert built == E.Envelope((0.0, 2000.0), (0.0, 400.0), (0.2, 0.3))  # both signs: magnitudes only
+    assert E.check(built, 1500.0, 300.0).status == E.check(built, -1500.0, -300.0).status == "inside"
+    signed = E.Envelope.from_torques(np.array([0.0, -100.0, -2000.0]), np.array([0.0, -30.0, -400.0]))
+    assert signed.sign == (-1.0, -1.0) and E.Envelope.from_dict(signed.to_dict()) == signed
+    assert E.check(signed, -1500.0, -300.0).status == "inside"
+    flipped = E.check(signed, 1500.0, 300.0)  # a sign-flipped channel lies below the zero-load point
+    assert flipped.status == "refused" and "A3 torque -1500 is 75 % of the span outside 0..2000" in flipped.detail
+    with pytest.raises(DataError, match="sign must be two of"):
+        E.Envelope.from_dict({**signed.to_dict(), "sign": [1, 0]})
 
 
 def test_outside_widens_u_by_the_models_spread_and_far_outside_is_refused():

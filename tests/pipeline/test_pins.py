@@ -207,9 +207,13 @@ def test_model_spread_without_alternatives_is_zero():
     ({"filter": "box"}, "pre-processing: unknown filter 'box' (one of none, moving_average, gaussian, median)"),
     ({"order": "sideways"}, "pre-processing: unknown order 'sideways' (one of backward, forward)"),
     ({"location": "mode"}, "pre-processing: unknown location 'mode'"),
-    ({"window": 0}, "pre-processing: window must be >= 1 sample, got 0"),
-    ({"crop_sigma": 0.0}, "pre-processing: crop_sigma must be > 0, got 0.0"),
-    ({"settle_s": -0.5}, "pre-processing: settle_s must be >= 0, got -0.5"),
+    ({"window": 0}, "pre-processing: window must be a whole number of samples 1..100000, got 0"),
+    ({"window": 2.5}, "pre-processing: window must be a whole number of samples 1..100000, got 2.5"),
+    ({"window": 100_001}, "pre-processing: window must be a whole number of samples 1..100000, got 100001"),
+    ({"crop_sigma": 0.0}, "pre-processing: crop_sigma must be a finite number > 0, got 0.0"),
+    ({"crop_sigma": float("nan")}, "pre-processing: crop_sigma must be a finite number > 0, got nan"),
+    ({"settle_s": -0.5}, "pre-processing: settle_s must be a number 0..3600 s, got -0.5"),
+    ({"settle_s": float("inf")}, "pre-processing: settle_s must be a number 0..3600 s, got inf"),
 ])
 def test_preprocessing_parameters_are_refused_by_name(kwargs, message):
     with pytest.raises(pp.PreprocessError) as err:
