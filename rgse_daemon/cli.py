@@ -95,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--share", type=Path, metavar="DIR", help="the controller's 'roboter' share directory")
     p.add_argument("--scenario", type=Path, metavar="FILE", help="scenario TOML (physics, errors, faults)")
     p.add_argument("--time-scale", type=float, default=1.0, metavar="X", help="simulated s per wall s")
+    p.add_argument("--globals", type=Path, metavar="FILE",
+                   help="install this rgse_globals.dat (from rgse krl render) at start, as done once on a real "
+                        "controller: without it the programs stop at their first handshake variable")
 
     p = sub.add_parser("daemon", help="run the service (systemd entry point)")
     p.add_argument("--config", type=Path, required=True, metavar="FILE")

@@ -231,7 +231,7 @@ async def _globals(krc: Controller) -> Check:
     if missing:
         return Check("handshake globals", False, f"not declared on the controller: {', '.join(missing)}",
                      "install krl/rgse_globals.dat in KRC:\\R1\\Program (or its globals in $CONFIG.DAT), see "
-                     "krl/README.md")
+                     "krl/README.md; on the simulator: rgse sim --globals rgse_globals.dat (from rgse krl render)")
     detail = f"all {len(names)} declared"
     try:
         installed = await krc.get_file(GLOBALS_FILE)

@@ -42,6 +42,8 @@ class SimOptions:
     scenario_path: Path | None = None
     scenario: dict[str, Any] = field(default_factory=dict)
     time_scale: float = 1.0
+    globals_dat: str | None = None
+    """The text of ``--globals FILE`` (``rgse krl render``'s rgse_globals.dat), installed at start."""
 
 
 def load_scenario(path: Path) -> dict[str, Any]:
@@ -68,7 +70,13 @@ def options_from_args(args: argparse.Namespace) -> SimOptions:
     if share is not None and share.exists() and not share.is_dir():
         raise ConfigError(f"--share {share}: not a directory")
     scenario = load_scenario(args.scenario) if args.scenario is not None else {}
-    return SimOptions(args.host, args.port, share, args.scenario, scenario, args.time_scale)
+    globals_dat = None
+    if getattr(args, "globals", None) is not None:
+        try:
+            globals_dat = args.globals.read_bytes().decode("iso-8859-1")
+        except OSError as exc:
+            raise ConfigError(f"--globals {args.globals}: cannot read: {exc.strerror or exc}") from exc
+    return SimOptions(args.host, args.port, share, args.scenario, scenario, args.time_scale, globals_dat)
 
 
 def build_simulator(options: SimOptions) -> SimulatedKrc4:
@@ -86,6 +94,9 @@ def build_simulator(options: SimOptions) -> SimulatedKrc4:
 async def serve(options: SimOptions, stop: asyncio.Event) -> None:
     """Listen until ``stop`` is set, then close every connection."""
     sim = build_simulator(options)
+    if options.globals_dat is not None:  # what installing it once on a real controller does (krl/README.md)
+        names = sim.install_globals(options.globals_dat)
+        log.info("handshake globals installed: %s", ", ".join(names))
     try:
         await sim.start()
     except OSError as exc:

@@ -468,7 +468,9 @@ class KrlInterpreter:
         self._set_state(ProState.END)
 
     def _fail(self, message: str) -> None:
-        """A runtime error stops the program where it is; only reset (or select) clears it."""
+        """A runtime error stops the program where it is; only reset (or select) clears it. The real controller shows
+        it in its message window; the simulator logs it (a program stopped for no visible reason helps nobody)."""
+        _log.warning("KRL runtime error, program stopped: %s", message)
         self.last_error = message
         self._set_state(ProState.STOP)
 

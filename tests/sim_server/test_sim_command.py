@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.link import frames as fr
 
 from .conftest import RawClient
@@ -56,6 +57,30 @@ async def test_sim_serves_until_signalled_and_exits_0(tmp_path: Path, sig: signa
             await proc.wait()
 
 
+async def test_sim_installs_the_handshake_globals_it_is_given(tmp_path: Path) -> None:
+    """``rgse sim --globals FILE`` does what installing rgse_globals.dat once on a real controller does: the programs'
+    handshake variables exist (without it every program stops at its first one)."""
+    dat = tmp_path / "rgse_globals.dat"
+    dat.write_bytes(globals_dat_text().encode("iso-8859-1"))
+    for args, exists in ((["--globals", str(dat)], True), ([], False)):
+        proc = await _start("--port", "0", "--share", str(tmp_path / "share"), *args)
+        try:
+            async with asyncio.timeout(DEADLINE_S):
+                line = (await proc.stdout.readline()).decode()
+            client = await RawClient.open(int(re.search(r":(\d+) \(share", line).group(1)))
+            reply = await client.call(fr.ReadVarAscii("RGSE_DONE"))
+            assert (reply == fr.ReadVarAsciiReply("FALSE")) is exists, reply
+            await client.close()
+            proc.send_signal(signal.SIGTERM)
+            async with asyncio.timeout(DEADLINE_S):
+                await proc.communicate()
+            assert proc.returncode == 0
+        finally:
+            if proc.returncode is None:
+                proc.kill()
+                await proc.wait()
+
+
 @pytest.mark.parametrize(
     ("make_args", "message"),
     [
@@ -66,6 +91,7 @@ async def test_sim_serves_until_signalled_and_exits_0(tmp_path: Path, sig: signa
         (lambda d: ["--time-scale", "nan"], "--time-scale nan"),
         (lambda d: ["--port", "70000"], "--port 70000"),
         (lambda d: ["--share", str(d / "bad.toml")], "not a directory"),
+        (lambda d: ["--globals", str(d / "missing.dat")], "--globals"),
     ],
 )
 async def test_bad_input_exits_2_naming_the_problem(tmp_path: Path, make_args, message: str) -> None:
