@@ -140,18 +140,37 @@ def _traces(d: dict[str, Any], where: str) -> tuple[str, ...]:
     return tuple(plain_name(x, f"{where}: traces[{i}]") for i, x in enumerate(t))
 
 
+def read_toml(path: Path) -> dict[str, Any]:
+    """The TOML document of ``path`` (a UTF-8 byte order mark is allowed); DataError naming the file otherwise."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise DataError(f"{path}: manifest not found") from None
+    except IsADirectoryError:
+        raise DataError(f"{path}: is a directory, not a manifest file") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        return tomllib.loads(raw.decode("utf-8-sig"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: not valid TOML: {exc}") from exc
+
+
+def _tables(doc: dict[str, Any], key: str, where: str) -> list[Any]:
+    """``[[key]]``: an array of tables (absent: none); DataError for any other type."""
+    value = doc.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise DataError(f"{where}: {key!r} must be [[{key}]] tables, got {value!r}")
+    return value
+
+
 def load_manifest(directory: Path | str) -> Manifest:
     """Read and validate ``DIR/manifest.toml``."""
     directory = Path(directory)
     path = directory / "manifest.toml"
     if not directory.is_dir():
         raise DataError(f"{directory}: directory not found")
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{path}: manifest not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: not valid TOML: {exc}") from exc
+    doc = read_toml(path)
     setup = doc.get("setup")
     if not isinstance(setup, dict):
         raise DataError(f"{path}: missing [setup] table")
@@ -167,10 +186,8 @@ def load_manifest(directory: Path | str) -> Manifest:
                                _num(setup, "lever_difference_m", where, positive=True),
                                _opt_num(setup, "body_mass_u_kg", where, DEFAULT_BODY_MASS_U_KG), corr,
                                _opt_num(setup, "g_u_m_s2", where, 0.0)))
-    for i, p in enumerate(doc.get("point", [])):
+    for i, p in enumerate(_tables(doc, "point", str(path))):
         where = f"{path} [[point]] #{i + 1}"
-        if not isinstance(p, dict):
-            raise DataError(f"{where}: must be a table")
         kind = p.get("kind")
         if kind == TORSIONAL_KIND:
             man.torsional_points.append(_torsional_point(p, where))

@@ -8,7 +8,6 @@ raw files (``compute_cog_dir``). The numbers are computed in :mod:`rgse_daemon.p
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,14 @@ from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import mass as mass_analysis
 from rgse_daemon.errors import DataError
-from rgse_daemon.manifest import TORQUE_CHANNEL, Manifest, TorsionalPointSpec, load_manifest, mean_temperature_k
+from rgse_daemon.manifest import (
+    TORQUE_CHANNEL,
+    Manifest,
+    TorsionalPointSpec,
+    load_manifest,
+    mean_temperature_k,
+    read_toml,
+)
 from rgse_daemon.pipeline import cog as cog_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline.cog import CogPose, cog_poses
@@ -333,7 +339,7 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
     """Read a properties run directory (``manifest.toml`` with ``[properties]``, trace files)."""
     directory = Path(directory)
     man = load_manifest(directory)
-    doc = tomllib.loads(man.path.read_text(encoding="utf-8"))
+    doc = read_toml(man.path)
     where = f"{man.path} [properties]"
     props = doc.get("properties")
     if not isinstance(props, dict):
