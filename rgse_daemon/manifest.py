@@ -313,22 +313,42 @@ def source_sha256(paths: list[Path]) -> dict[str, str]:
 # ------------------------------------------------------------------------------------------------------------
 POINTS_COLUMNS = ("calibration_type", "mass_kg", "m_a3_expected_nm", "m_a5_expected_nm", "m_a3_measured_nm",
                   "m_a5_measured_nm")
+#: Largest magnitude a points CSV value may have: a torque in Nm (columns ``*_nm``), else a mass in kg. Far beyond
+#: any KUKA axis or payload; a typo such as 1e300 would otherwise reach the fit.
+POINTS_MAX_NM = 1e6
+POINTS_MAX_KG = 1e5
+
+
+def _count(text: str | None, where: str) -> int:
+    """A CSV cell holding a count: an integer >= 0 (``3`` or ``3.0``)."""
+    try:
+        v = float(text or "")
+    except (TypeError, ValueError):
+        raise DataError(f"{where} is not a number: {text!r}") from None
+    if not (math.isfinite(v) and v >= 0 and v == int(v)):
+        raise DataError(f"{where} must be a whole number of bodies >= 0, got {text!r}")
+    return int(v)
 
 
 def load_points_csv(path: Path | str) -> CalibrationPoints:
     """Read calibration points in the format of ``paper/table1_calibration.csv`` (``#`` lines are comments)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise DataError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read: {exc}") from exc
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    rows = list(csv.DictReader(lines))
+    reader = csv.DictReader(lines)
+    header = list(reader.fieldnames or [])
+    twice = sorted({c for c in header if header.count(c) > 1})
+    if twice:
+        raise DataError(f"{path}: column(s) given twice in the header: {', '.join(twice)}")
+    rows = list(reader)
     if not rows:
         raise DataError(f"{path}: no data rows")
-    missing = [c for c in POINTS_COLUMNS if c not in (rows[0].keys())]
+    missing = [c for c in POINTS_COLUMNS if c not in header]
     if missing:
         raise DataError(f"{path}: missing column(s) {', '.join(missing)}")
     cols: dict[str, list] = {c: [] for c in POINTS_COLUMNS}
@@ -345,13 +365,14 @@ def load_points_csv(path: Path | str) -> CalibrationPoints:
                 raise DataError(f"{path}: data row {lineno - 1}: column {c} is not a number: {row[c]!r}") from None
             if not math.isfinite(v):
                 raise DataError(f"{path}: data row {lineno - 1}: column {c} is {v}")
+            limit, unit = (POINTS_MAX_NM, "Nm") if c.endswith("_nm") else (POINTS_MAX_KG, "kg")
+            if abs(v) > limit:
+                raise DataError(f"{path}: data row {lineno - 1}: column {c} is {v:g}, beyond the plausible "
+                                f"{limit:g} {unit}")
             cols[c].append(v)
     cov = None
-    if "n_cb" in rows[0]:  # Table 1: n_cb bodies, the torque rows on the test adapter (one more weighed body)
-        try:
-            n_cb = np.array([float(r["n_cb"]) for r in rows])
-        except (TypeError, ValueError):
-            raise DataError(f"{path}: column n_cb is not numeric") from None
+    if "n_cb" in header:  # Table 1: n_cb bodies, the torque rows on the test adapter (one more weighed body)
+        n_cb = np.array([_count(r["n_cb"], f"{path}: data row {i}: column n_cb") for i, r in enumerate(rows, 1)])
         bodies = n_cb + (np.array(cols["calibration_type"]) == "torque")
         var = np.where(np.array(cols["mass_kg"]) > 0, bodies * DEFAULT_BODY_MASS_U_KG**2, 0.0)
         cov = reference_mass_covariance(var, nested=True)

@@ -76,3 +76,56 @@ def test_manifest_with_a_utf8_bom_is_read(tmp_path, capsys, dirs):
     m.write_bytes(b"\xef\xbb\xbf" + m.read_bytes())
     assert main(["mass", "--traces", str(d), "--calibration", str(dirs / "CAL.json"), "--json"]) == 0
     assert capsys.readouterr().out == plain
+
+
+# --- the points CSV (rgse calibrate --points) ----------------------------------------------------------------------
+def points_error(capsys: pytest.CaptureFixture[str], tmp_path: Path, text: str) -> str:
+    p = tmp_path / "points.csv"
+    p.write_text(text)
+    err = one_line_error(capsys, ["calibrate", "--points", str(p), "--out", str(tmp_path / "o.json")])
+    assert str(p) in err and not (tmp_path / "o.json").exists(), err
+    return err
+
+
+def table1(paper_dir: Path) -> list[str]:
+    """The data lines of the paper's Table 1 (header first)."""
+    return [ln for ln in (paper_dir / "table1_calibration.csv").read_text().splitlines()
+            if ln.strip() and not ln.startswith("#")]
+
+
+@pytest.mark.parametrize("column", ["m_a3_measured_nm", "mass_kg"])
+def test_points_csv_with_a_duplicate_column_is_refused(tmp_path, capsys, paper_dir, column):
+    lines = table1(paper_dir)
+    k = lines[0].split(",").index(column)
+    lines = [",".join([*ln.split(","), ln.split(",")[k]]) for ln in lines]  # the column again, at the end
+    err = points_error(capsys, tmp_path, "\n".join(lines) + "\n")
+    assert "given twice" in err and column in err, err
+
+
+@pytest.mark.parametrize(("column", "value"), [("m_a3_measured_nm", "1e300"), ("m_a5_expected_nm", "-2e6"),
+                                               ("mass_kg", "1e200")])
+def test_points_csv_with_an_implausible_value_is_refused(tmp_path, capsys, paper_dir, column, value):
+    lines = table1(paper_dir)
+    k = lines[0].split(",").index(column)
+    cells = lines[3].split(",")
+    cells[k] = value
+    lines[3] = ",".join(cells)
+    err = points_error(capsys, tmp_path, "\n".join(lines) + "\n")
+    assert "data row 3" in err and f"column {column}" in err and "plausible" in err, err
+
+
+@pytest.mark.parametrize(("value", "problem"), [("nan", "whole number"), ("-3", "whole number"),
+                                                ("2.5", "whole number"), ("x", "not a number"), ("", "not a number")])
+def test_points_csv_n_cb_must_be_a_count(tmp_path, capsys, paper_dir, value, problem):
+    lines = table1(paper_dir)
+    cells = lines[2].split(",")
+    cells[lines[0].split(",").index("n_cb")] = value
+    lines[2] = ",".join(cells)
+    err = points_error(capsys, tmp_path, "\n".join(lines) + "\n")
+    assert "data row 2" in err and "column n_cb" in err and problem in err, err
+
+
+def test_points_csv_with_a_utf8_bom_is_read(tmp_path, capsys, paper_dir):
+    p = tmp_path / "points.csv"
+    p.write_bytes(b"\xef\xbb\xbf" + (paper_dir / "table1_calibration.csv").read_bytes())
+    assert main(["calibrate", "--points", str(p), "--out", str(tmp_path / "o.json")]) == 0
