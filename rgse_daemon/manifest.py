@@ -10,6 +10,7 @@ import csv
 import hashlib
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -113,6 +114,18 @@ class Manifest:
     torsional_points: list[TorsionalPointSpec] = field(default_factory=list)
     torsional_poses: list[TorsionalPose] = field(default_factory=list)
     torsional_scheme: str | None = None
+    trace_places: dict[str, str] = field(default_factory=dict)
+    """Where each trace name appears in the manifest (e.g. ``[[point]] #3``)."""
+
+    def claim_traces(self, traces: Sequence[str], where: str) -> None:
+        """Record that ``traces`` appear at ``where``; DataError when one of them already appears in the manifest
+        (a loop counted twice, or one load's loop taken for another's)."""
+        for t in traces:
+            first = self.trace_places.get(t)
+            if first is not None:
+                place = f"twice in {where}" if first == where else f"in {first} and in {where}"
+                raise DataError(f"{self.path}: trace {t!r} appears {place}; a trace may appear once in a manifest")
+            self.trace_places[t] = where
 
 
 def _num(d: dict[str, Any], key: str, where: str, *, minimum: float | None = None, positive: bool = False) -> float:
@@ -191,6 +204,8 @@ def load_manifest(directory: Path | str) -> Manifest:
         kind = p.get("kind")
         if kind == TORSIONAL_KIND:
             man.torsional_points.append(_torsional_point(p, where))
+            for pose, traces in man.torsional_points[-1].traces.items():
+                man.claim_traces(traces, f"[[point]] #{i + 1} poses.{pose}")
             continue
         if kind not in KINDS:
             raise DataError(f"{where}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
@@ -202,6 +217,7 @@ def load_manifest(directory: Path | str) -> Manifest:
                          _num(p, "lever_a5_m", where), _traces(p, where), bodies, mass_u)
         if (kind == "zero") != (spec.mass_kg == 0.0):
             raise DataError(f"{where}: a 'zero' point has mass_kg = 0 and only a 'zero' point has")
+        man.claim_traces(spec.traces, f"[[point]] #{i + 1}")
         man.points.append(spec)
     _torsional_poses(man, doc.get("torsional"), f"{path} [torsional]")
     meas = doc.get("measurement")
@@ -209,6 +225,7 @@ def load_manifest(directory: Path | str) -> Manifest:
         if not isinstance(meas, dict):
             raise DataError(f"{path}: [measurement] must be a table")
         man.measurement_traces = _traces(meas, f"{path} [measurement]")
+        man.claim_traces(man.measurement_traces, "[measurement]")
         if "fixture_mass_kg" in meas:
             man.fixture_mass_kg = _num(meas, "fixture_mass_kg", f"{path} [measurement]", minimum=0.0)
     return man

@@ -359,7 +359,7 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
     poses = props.get("pose")
     if not isinstance(poses, list) or not poses:
         raise DataError(f"{where}: needs [[properties.pose]] entries")
-    readings = []
+    specs = []
     for i, p in enumerate(poses):
         pw = f"{where} pose #{i + 1}"
         if not isinstance(p, dict) or not isinstance(p.get("name"), str):
@@ -373,7 +373,9 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
             raise DataError(f"{pw}: traces must be a non-empty list of trace names")
         for t in traces:
             plain_name(t, f"{pw}: traces")
-        readings.append(_pose_reading(directory, p["name"], tuple(float(v) for v in q), traces, pre))
+        man.claim_traces(traces, f"[[properties.pose]] #{i + 1}")
+        specs.append((p["name"], tuple(float(v) for v in q), traces))
+    readings = [_pose_reading(directory, name, q, traces, pre) for name, q, traces in specs]
     return PropertiesRun(man.setup.robot, man.setup.g_m_s2, str(props.get("scheme", "custom")), mass, u_mass,
                          fixture, readings)
 

@@ -129,3 +129,91 @@ def test_points_csv_with_a_utf8_bom_is_read(tmp_path, capsys, paper_dir):
     p = tmp_path / "points.csv"
     p.write_bytes(b"\xef\xbb\xbf" + (paper_dir / "table1_calibration.csv").read_bytes())
     assert main(["calibrate", "--points", str(p), "--out", str(tmp_path / "o.json")]) == 0
+
+
+# --- trace names: each appears once in a manifest ------------------------------------------------------------------
+def test_measurement_trace_listed_twice_is_refused(tmp_path, capsys, dirs):
+    d, m = copy(dirs, tmp_path, "dut")
+    m.write_text(m.read_text().replace('"dut_l02"', '"dut_l01"'))
+    err = mass_error(capsys, d, dirs / "CAL.json")
+    assert str(m) in err and "trace 'dut_l01' appears twice in [measurement]" in err, err
+
+
+@pytest.mark.parametrize(("old", "new", "places"), [
+    ('["cal03_l01", "cal03_l02"]', '["cal02_l01", "cal03_l02"]', "in [[point]] #3 and in [[point]] #4"),
+    ('["cal03_l01", "cal03_l02"]', '["cal03_l01", "cal03_l01"]', "twice in [[point]] #4"),
+])
+def test_campaign_trace_listed_twice_is_refused(tmp_path, capsys, dirs, old, new, places):
+    d, m = copy(dirs, tmp_path, "cal")
+    assert old in m.read_text()
+    m.write_text(m.read_text().replace(old, new))
+    err = one_line_error(capsys, ["calibrate", "--campaign", str(d), "--out", str(tmp_path / "o.json")])
+    trace = new.split('"')[1]
+    assert str(m) in err and f"trace {trace!r} appears {places}" in err, err
+    assert not (tmp_path / "o.json").exists()
+
+
+TORSIONAL = """
+[torsional]
+scheme = "paper"
+[[torsional.pose]]
+name = "meas"
+q_deg = [0.0, -90.0, 90.0, 0.0, 0.0, 0.0]
+[[torsional.pose]]
+name = "A6+90"
+q_deg = [0.0, -90.0, 90.0, 0.0, 0.0, 90.0]
+
+[[point]]
+kind = "torsional"
+mass_kg = 0.0
+cog_flange_m = [0.0, 0.0, 0.0]
+[point.poses]
+meas = ["cal00_l01"]
+"A6+90" = [{a6}]
+"""
+
+
+@pytest.mark.parametrize(("a6", "places"), [
+    ('"cal00_l01"', "in [[point]] #15 poses.meas and in [[point]] #15 poses.A6+90"),  # another pose's trace
+    ('"cal00_l02"', "in [[point]] #1 and in [[point]] #15 poses.A6+90"),  # a mass point's trace (here: loop 2)
+])
+def test_torsional_pose_with_traces_of_another_place_is_refused(tmp_path, capsys, dirs, a6, places):
+    d, m = copy(dirs, tmp_path, "cal")
+    m.write_text(m.read_text().replace('"cal00_l01", ', "") + TORSIONAL.format(a6=a6))
+    err = one_line_error(capsys, ["calibrate", "--campaign", str(d), "--out", str(tmp_path / "o.json")])
+    assert str(m) in err and f"appears {places}" in err, err
+
+
+def properties_manifest(dut: Path, meas: str, tilted: str) -> str:
+    """The measurement directory's manifest as a properties run: two poses with the traces given."""
+    return (dut / "manifest.toml").read_text() + f"""
+[properties]
+scheme = "paper"
+mass_kg = 100.0
+u_mass_kg = 0.1
+[properties.fixture]
+mass_kg = 10.288
+cog_flange_m = [0.0, 0.0, 0.005]
+[[properties.pose]]
+name = "meas"
+q_deg = [0.0, -90.0, 90.0, 0.0, 0.0, 0.0]
+traces = [{meas}]
+[[properties.pose]]
+name = "A6+90"
+q_deg = [0.0, -90.0, 90.0, 0.0, 0.0, 90.0]
+traces = [{tilted}]
+"""
+
+
+@pytest.mark.parametrize(("meas", "tilted", "trace", "places"), [
+    ('"cog_l01"', '"cog_l01"', "cog_l01", "in [[properties.pose]] #1 and in [[properties.pose]] #2"),
+    ('"dut_l01"', '"cog_l02"', "dut_l01", "in [measurement] and in [[properties.pose]] #1"),
+])
+def test_properties_pose_with_traces_of_another_place_is_refused(tmp_path, capsys, dirs, meas, tilted, trace,
+                                                                 places):
+    d, m = copy(dirs, tmp_path, "dut")
+    for f in d.glob("dut_l0[23]_*"):  # the poses' loops: copies of loops 2 and 3 under names of their own
+        shutil.copy(f, d / f.name.replace("dut_l0", "cog_l0").replace("cog_l03", "cog_l01"))
+    m.write_text(properties_manifest(d, meas, tilted))
+    err = one_line_error(capsys, ["cog", "--traces", str(d), "--calibration", str(dirs / "CAL.json")])
+    assert str(m) in err and f"trace {trace!r} appears {places}" in err, err
