@@ -7,6 +7,7 @@ This is the I/O side of the pipeline: it reads and validates, the numbers are co
 from __future__ import annotations
 
 import csv
+import difflib
 import hashlib
 import math
 import tomllib
@@ -19,6 +20,7 @@ import numpy as np
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.calibration import CalibrationPoints, reference_mass_covariance
+from rgse_daemon.pipeline.cog import SCHEMES
 from rgse_daemon.trace.diadem import read_trace_set
 from rgse_daemon.trace.names import plain_name
 
@@ -33,6 +35,18 @@ TORSIONAL_KIND = "torsional"
 #: Standard uncertainty of one weighed calibration body, kg, when the manifest states none (optional field).
 DEFAULT_BODY_MASS_U_KG = 0.01
 REFERENCE_CORRELATIONS = ("nested", "independent")
+#: Scheme names of ``[torsional]``/``[properties]``: the poses of :func:`rgse_daemon.pipeline.cog.cog_poses`, or
+#: ``custom`` (poses of their own).
+MANIFEST_SCHEMES = (*SCHEMES, "custom")
+#: The keys each table of a manifest may hold; any other key is refused (a misspelt optional key would otherwise
+#: silently take its default).
+TOP_KEYS = ("setup", "point", "measurement", "torsional", "properties")
+SETUP_KEYS = ("robot", "g", "lever_difference_m", "body_mass_u_kg", "reference_correlation", "g_u_m_s2")
+POINT_KEYS = ("kind", "mass_kg", "lever_a3_m", "lever_a5_m", "traces", "bodies", "mass_u_kg")
+TORSIONAL_POINT_KEYS = ("kind", "mass_kg", "cog_flange_m", "poses", "bodies", "mass_u_kg")
+MEASUREMENT_KEYS = ("traces", "fixture_mass_kg")
+TORSIONAL_KEYS = ("scheme", "pose")
+POSE_KEYS = ("name", "q_deg")
 
 
 @dataclass(frozen=True)
@@ -128,6 +142,22 @@ class Manifest:
             self.trace_places[t] = where
 
 
+def check_keys(table: dict[str, Any], known: Sequence[str], where: str) -> None:
+    """DataError naming the first key of ``table`` that is not one of ``known``, with a close match if any."""
+    for key in table:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise DataError(f"{where}: unknown key {key!r}{hint}; known keys: {', '.join(known)}")
+
+
+def check_scheme(value: Any, where: str) -> str:
+    """A scheme name of ``MANIFEST_SCHEMES``."""
+    if value not in MANIFEST_SCHEMES:
+        raise DataError(f"{where}: scheme must be one of {', '.join(MANIFEST_SCHEMES)}, got {value!r}")
+    return str(value)
+
+
 def _num(d: dict[str, Any], key: str, where: str, *, minimum: float | None = None, positive: bool = False) -> float:
     if key not in d:
         raise DataError(f"{where}: missing {key!r}")
@@ -184,9 +214,11 @@ def load_manifest(directory: Path | str) -> Manifest:
     if not directory.is_dir():
         raise DataError(f"{directory}: directory not found")
     doc = read_toml(path)
+    check_keys(doc, TOP_KEYS, str(path))
     setup = doc.get("setup")
     if not isinstance(setup, dict):
         raise DataError(f"{path}: missing [setup] table")
+    check_keys(setup, SETUP_KEYS, f"{path} [setup]")
     robot = setup.get("robot")
     if not isinstance(robot, str) or not robot:
         raise DataError(f"{path}: [setup] robot must be a non-empty string")
@@ -202,6 +234,7 @@ def load_manifest(directory: Path | str) -> Manifest:
     for i, p in enumerate(_tables(doc, "point", str(path))):
         where = f"{path} [[point]] #{i + 1}"
         kind = p.get("kind")
+        check_keys(p, TORSIONAL_POINT_KEYS if kind == TORSIONAL_KIND else POINT_KEYS, where)
         if kind == TORSIONAL_KIND:
             man.torsional_points.append(_torsional_point(p, where))
             for pose, traces in man.torsional_points[-1].traces.items():
@@ -224,6 +257,7 @@ def load_manifest(directory: Path | str) -> Manifest:
     if meas is not None:
         if not isinstance(meas, dict):
             raise DataError(f"{path}: [measurement] must be a table")
+        check_keys(meas, MEASUREMENT_KEYS, f"{path} [measurement]")
         man.measurement_traces = _traces(meas, f"{path} [measurement]")
         man.claim_traces(man.measurement_traces, "[measurement]")
         if "fixture_mass_kg" in meas:
@@ -252,9 +286,12 @@ def _torsional_poses(man: Manifest, table: Any, where: str) -> None:
         return
     if not isinstance(table, dict) or not isinstance(table.get("pose"), list) or not table["pose"]:
         raise DataError(f"{where}: needs [[torsional.pose]] entries (name, q_deg)")
-    man.torsional_scheme = str(table.get("scheme", "custom"))
+    check_keys(table, TORSIONAL_KEYS, where)
+    man.torsional_scheme = check_scheme(table.get("scheme", "custom"), where)
     for i, p in enumerate(table["pose"]):
         pw = f"{where} pose #{i + 1}"
+        if isinstance(p, dict):
+            check_keys(p, POSE_KEYS, pw)
         q = p.get("q_deg") if isinstance(p, dict) else None
         if not isinstance(p, dict) or not isinstance(p.get("name"), str) or not isinstance(q, list) or len(q) != 6 \
                 or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in q):

@@ -23,6 +23,8 @@ from rgse_daemon.manifest import (
     TORQUE_CHANNEL,
     Manifest,
     TorsionalPointSpec,
+    check_keys,
+    check_scheme,
     load_manifest,
     mean_temperature_k,
     read_toml,
@@ -335,6 +337,12 @@ def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any) ->
             f"{mass_analysis.THERMAL_MISMATCH_K:g} K): warm up until steady, or re-calibrate")
 
 
+#: The keys of ``[properties]``, ``[properties.fixture]`` and ``[[properties.pose]]``; others are refused.
+PROPERTIES_KEYS = ("scheme", "mass_kg", "u_mass_kg", "fixture", "pose")
+FIXTURE_KEYS = ("mass_kg", "cog_flange_m", "dut_origin_flange_m", "dut_abc_deg")
+PROPERTIES_POSE_KEYS = ("name", "q_deg", "traces")
+
+
 def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER) -> PropertiesRun:
     """Read a properties run directory (``manifest.toml`` with ``[properties]``, trace files)."""
     directory = Path(directory)
@@ -344,6 +352,10 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
     props = doc.get("properties")
     if not isinstance(props, dict):
         raise DataError(f"{man.path}: no [properties] table (is this a properties run?)")
+    check_keys(props, PROPERTIES_KEYS, where)
+    scheme = check_scheme(props.get("scheme", "custom"), where)
+    if isinstance(props.get("fixture"), dict):
+        check_keys(props["fixture"], FIXTURE_KEYS, f"{where} fixture")
     mass = u_mass = None
     if "mass_kg" in props:
         try:
@@ -364,6 +376,7 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
         pw = f"{where} pose #{i + 1}"
         if not isinstance(p, dict) or not isinstance(p.get("name"), str):
             raise DataError(f"{pw}: needs a name")
+        check_keys(p, PROPERTIES_POSE_KEYS, pw)
         q = p.get("q_deg")
         if not isinstance(q, list) or len(q) != 6 or not all(
                 isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in q):
@@ -376,7 +389,7 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
         man.claim_traces(traces, f"[[properties.pose]] #{i + 1}")
         specs.append((p["name"], tuple(float(v) for v in q), traces))
     readings = [_pose_reading(directory, name, q, traces, pre) for name, q, traces in specs]
-    return PropertiesRun(man.setup.robot, man.setup.g_m_s2, str(props.get("scheme", "custom")), mass, u_mass,
+    return PropertiesRun(man.setup.robot, man.setup.g_m_s2, scheme, mass, u_mass,
                          fixture, readings)
 
 

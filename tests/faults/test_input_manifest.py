@@ -168,18 +168,26 @@ kind = "torsional"
 mass_kg = 0.0
 cog_flange_m = [0.0, 0.0, 0.0]
 [point.poses]
-meas = ["cal00_l01"]
+meas = [{meas}]
 "A6+90" = [{a6}]
 """
 
 
+def torsional_campaign(dirs: Path, tmp_path: Path, meas: str, a6: str) -> tuple[Path, Path]:
+    """The campaign with a bare torsional point appended; its loops tor_l01/tor_l02 are copies of the zero point's."""
+    d, m = copy(dirs, tmp_path, "cal")
+    for f in d.glob("cal00_l0[12]_*"):
+        shutil.copy(f, d / f.name.replace("cal00_", "tor_"))
+    m.write_text(m.read_text() + TORSIONAL.format(meas=meas, a6=a6))
+    return d, m
+
+
 @pytest.mark.parametrize(("a6", "places"), [
-    ('"cal00_l01"', "in [[point]] #15 poses.meas and in [[point]] #15 poses.A6+90"),  # another pose's trace
-    ('"cal00_l02"', "in [[point]] #1 and in [[point]] #15 poses.A6+90"),  # a mass point's trace (here: loop 2)
+    ('"tor_l01"', "in [[point]] #15 poses.meas and in [[point]] #15 poses.A6+90"),  # another pose's trace
+    ('"cal00_l02"', "in [[point]] #1 and in [[point]] #15 poses.A6+90"),  # a mass point's trace
 ])
 def test_torsional_pose_with_traces_of_another_place_is_refused(tmp_path, capsys, dirs, a6, places):
-    d, m = copy(dirs, tmp_path, "cal")
-    m.write_text(m.read_text().replace('"cal00_l01", ', "") + TORSIONAL.format(a6=a6))
+    d, m = torsional_campaign(dirs, tmp_path, '"tor_l01"', a6)
     err = one_line_error(capsys, ["calibrate", "--campaign", str(d), "--out", str(tmp_path / "o.json")])
     assert str(m) in err and f"appears {places}" in err, err
 
@@ -217,3 +225,58 @@ def test_properties_pose_with_traces_of_another_place_is_refused(tmp_path, capsy
     m.write_text(properties_manifest(d, meas, tilted))
     err = one_line_error(capsys, ["cog", "--traces", str(d), "--calibration", str(dirs / "CAL.json")])
     assert str(m) in err and f"trace {trace!r} appears {places}" in err, err
+
+
+# --- unknown keys and values ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize(("old", "new", "key", "table", "hint"), [
+    ("fixture_mass_kg", "fixture_mas_kg", "fixture_mas_kg", "[measurement]", "fixture_mass_kg"),
+    ("lever_difference_m", "lever_difference_m = 1.025\ng_u_ms2 = 0.001\nx", "g_u_ms2", "[setup]", "g_u_m_s2"),
+    ("[measurement]", "[measurment]\nx = 1\n[measurement]", "measurment", "", "measurement"),
+])
+def test_measurement_manifest_unknown_key_is_refused(tmp_path, capsys, dirs, old, new, key, table, hint):
+    d, m = copy(dirs, tmp_path, "dut")
+    m.write_text(m.read_text().replace(old, new, 1))
+    err = mass_error(capsys, d, dirs / "CAL.json")
+    assert f"{m}{' ' + table if table else ''}: unknown key {key!r} (did you mean {hint!r}?)" in err, err
+    assert "known keys: " in err, err
+
+
+def test_campaign_point_unknown_key_is_refused(tmp_path, capsys, dirs):
+    d, m = copy(dirs, tmp_path, "cal")
+    text = m.read_text()
+    k = text.index("[[point]]", text.index("[[point]]") + 1)
+    m.write_text(text[:k] + text[k:].replace("mass_kg", "mass_u_kgs = 0.02\nmass_kg", 1))
+    err = one_line_error(capsys, ["calibrate", "--campaign", str(d), "--out", str(tmp_path / "o.json")])
+    assert f"{m} [[point]] #2: unknown key 'mass_u_kgs' (did you mean 'mass_u_kg'?)" in err, err
+    assert "known keys: kind, mass_kg, lever_a3_m, lever_a5_m, traces, bodies, mass_u_kg" in err, err
+
+
+@pytest.mark.parametrize(("old", "new", "expected"), [
+    ('scheme = "paper"', 'scheme = "bogus"', "[torsional]: scheme must be one of paper, full, custom, got 'bogus'"),
+    ('scheme = "paper"', 'scheme = "paper"\nposes = 2', "[torsional]: unknown key 'poses' (did you mean 'pose'?)"),
+    ('name = "meas"', 'name = "meas"\nq = 1', "[torsional] pose #1: unknown key 'q'"),
+    ('cog_flange_m', 'cog_flange = 1\ncog_flange_m',
+     "[[point]] #15: unknown key 'cog_flange' (did you mean 'cog_flange_m'?)"),
+])
+def test_torsional_unknown_key_or_scheme_is_refused(tmp_path, capsys, dirs, old, new, expected):
+    d, m = torsional_campaign(dirs, tmp_path, '"tor_l01"', '"tor_l02"')
+    text = m.read_text()
+    k = text.index("[torsional]")
+    m.write_text(text[:k] + text[k:].replace(old, new, 1))
+    err = one_line_error(capsys, ["calibrate", "--campaign", str(d), "--out", str(tmp_path / "o.json")])
+    assert f"{m} {expected}" in err, err
+
+
+@pytest.mark.parametrize(("old", "new", "expected"), [
+    ('scheme = "paper"', 'scheme = "bogus"', "[properties]: scheme must be one of paper, full, custom, got 'bogus'"),
+    ("u_mass_kg", "u_mass_kgs", "[properties]: unknown key 'u_mass_kgs' (did you mean 'u_mass_kg'?)"),
+    ("cog_flange_m = [0.0, 0.0, 0.005]", "cog_flange_m = [0.0, 0.0, 0.005]\ndut_abc = [0.0, 0.0, 0.0]",
+     "[properties] fixture: unknown key 'dut_abc' (did you mean 'dut_abc_deg'?)"),
+    ('name = "meas"', 'name = "meas"\ntrace = ["x"]', "[properties] pose #1: unknown key 'trace' (did you mean"),
+])
+def test_properties_unknown_key_or_scheme_is_refused(tmp_path, capsys, dirs, old, new, expected):
+    d, m = copy(dirs, tmp_path, "dut")
+    m.write_text(properties_manifest(d, '"dut_l02"', '"dut_l03"').replace('"dut_l02", "dut_l03"', "").replace(
+        old, new, 1))
+    err = one_line_error(capsys, ["cog", "--traces", str(d), "--calibration", str(dirs / "CAL.json")])
+    assert f"{m} {expected}" in err, err
