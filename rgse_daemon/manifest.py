@@ -35,6 +35,10 @@ TORSIONAL_KIND = "torsional"
 #: Standard uncertainty of one weighed calibration body, kg, when the manifest states none (optional field).
 DEFAULT_BODY_MASS_U_KG = 0.01
 REFERENCE_CORRELATIONS = ("nested", "independent")
+#: Plausible sample periods of a KUKA trace, s: the KR C4 offers 1, 4 and 12 ms (kuka-facts §5, ``trace.config``); a
+#: header period (code 241) outside this range is a corrupt or foreign file.
+PERIOD_MIN_S = 0.0005
+PERIOD_MAX_S = 1.0
 #: Scheme names of ``[torsional]``/``[properties]``: the poses of :func:`rgse_daemon.pipeline.cog.cog_poses`, or
 #: ``custom`` (poses of their own).
 MANIFEST_SCHEMES = (*SCHEMES, "custom")
@@ -308,6 +312,26 @@ def _torsional_poses(man: Manifest, table: Any, where: str) -> None:
         raise DataError(f"{where}: the torsional points need one with mass_kg = 0 (the bare MPA: the bias)")
 
 
+def plausible_period_s(period_s: float, source: Path | str) -> float:
+    """``period_s`` if it is a plausible KUKA Trace sample period; DataError naming ``source`` otherwise."""
+    if not (math.isfinite(period_s) and PERIOD_MIN_S <= period_s <= PERIOD_MAX_S):
+        raise DataError(f"{source}: sample period (code 241) {period_s:g} s is outside the {PERIOD_MIN_S:g} to "
+                        f"{PERIOD_MAX_S:g} s of a KUKA trace")
+    return period_s
+
+
+def check_one_period(periods: Sequence[tuple[str, float]], where: Path | str) -> None:
+    """DataError unless every ``(what, sample period in s)`` has the period of the first: the loops of one
+    measurement or one campaign are pre-processed alike, and the pre-processing counts its filter window in samples."""
+    if not periods:
+        return
+    first, p0 = periods[0]
+    for what, p in periods[1:]:
+        if not math.isclose(p, p0, rel_tol=1e-6):
+            raise DataError(f"{where}: {what} has sample period {p:g} s, {first} {p0:g} s; the loops of one "
+                            f"measurement or campaign need one sample period (the filter window counts samples)")
+
+
 def read_loop(directory: Path | str, trace: str) -> Loop:
     """The A3 and A5 ``Istmoment`` of one trace; DataError (naming the file) if absent, truncated or not finite."""
     ts = read_trace_set(directory, trace, (MODULE_A3, MODULE_A5))
@@ -319,6 +343,8 @@ def read_loop(directory: Path | str, trace: str) -> Loop:
             raise DataError(f"{tf.dat_path}: only {values.size} torque samples")
         if not np.all(np.isfinite(values)):
             raise DataError(f"{tf.dat_path}: torque channel {TORQUE_CHANNEL!r} holds NaN or infinite values")
+    for tf in (f3, f5):
+        plausible_period_s(tf.period_s, tf.dat_path)
     if f3.period_s != f5.period_s or a3.size != a5.size:
         raise DataError(f"{f5.dat_path}: sample period or length differs from {f3.dat_path.name}")
     return Loop(trace, a3, a5, float(f3.period_s), _mean_temperature_k(f3), _mean_temperature_k(f5))
@@ -351,7 +377,15 @@ def thermal_state_k(loops: list[Loop]) -> dict[str, float] | None:
 
 
 def read_loops(directory: Path | str, traces: tuple[str, ...]) -> list[Loop]:
-    return [read_loop(directory, t) for t in traces]
+    """The loops of ``traces``; DataError unless they share one sample period."""
+    loops = [read_loop(directory, t) for t in traces]
+    check_one_period(loop_periods(loops), directory)
+    return loops
+
+
+def loop_periods(loops: Sequence[Loop]) -> list[tuple[str, float]]:
+    """``(trace 'name', sample period)`` of each loop, for :func:`check_one_period`."""
+    return [(f"trace {lp.trace!r}", lp.period_s) for lp in loops]
 
 
 def source_sha256(paths: list[Path]) -> dict[str, str]:

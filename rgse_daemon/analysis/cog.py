@@ -24,9 +24,11 @@ from rgse_daemon.manifest import (
     Manifest,
     TorsionalPointSpec,
     check_keys,
+    check_one_period,
     check_scheme,
     load_manifest,
     mean_temperature_k,
+    plausible_period_s,
     read_toml,
 )
 from rgse_daemon.pipeline import cog as cog_mod
@@ -277,9 +279,10 @@ class PropertiesRun:
 
 
 def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequence[str],
-                  pre: pp.Preprocessing) -> PoseReading:
+                  pre: pp.Preprocessing, periods: list[tuple[str, float]]) -> PoseReading:
     """Mean torque per axis over the pose's loops (eq. 16's double average), its standard error: the loops'
-    scatter with two or more loops, else the within-loop standard error of the kept samples."""
+    scatter with two or more loops, else the within-loop standard error of the kept samples. Each trace file's
+    sample period is appended to ``periods`` (checked by the caller: one period for the whole run)."""
     per_axis: dict[int, list[tuple[float, float]]] = {}
     temps: dict[int, list[float]] = {}
     for t in traces:
@@ -289,6 +292,7 @@ def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequ
             if module not in ts.files:
                 continue
             tf = ts.files[module]
+            periods.append((f"trace {t!r} ({module})", plausible_period_s(tf.period_s, tf.dat_path)))
             values = np.asarray(ts.channel(module, TORQUE_CHANNEL).values, float)
             if values.size < 3 or not np.all(np.isfinite(values)):
                 raise DataError(f"{tf.dat_path}: torque channel {TORQUE_CHANNEL!r} is too short or not finite")
@@ -388,7 +392,9 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
             plain_name(t, f"{pw}: traces")
         man.claim_traces(traces, f"[[properties.pose]] #{i + 1}")
         specs.append((p["name"], tuple(float(v) for v in q), traces))
-    readings = [_pose_reading(directory, name, q, traces, pre) for name, q, traces in specs]
+    periods: list[tuple[str, float]] = []
+    readings = [_pose_reading(directory, name, q, traces, pre, periods) for name, q, traces in specs]
+    check_one_period(periods, man.path)
     return PropertiesRun(man.setup.robot, man.setup.g_m_s2, scheme, mass, u_mass,
                          fixture, readings)
 
@@ -419,10 +425,13 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
 # ---------------------------------------------------------------------------------------------------------------------
 # The torsional calibration of a campaign directory (CAL.json ``torsional``)
 # ---------------------------------------------------------------------------------------------------------------------
-def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing = pp.PAPER) -> dict[str, Any]:
+def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing = pp.PAPER, *,
+                          periods: Sequence[tuple[str, float]] = ()) -> dict[str, Any]:
     """The ``torsional`` section of CAL.json from a campaign's ``kind = "torsional"`` points: the bare MPA's mean
     torques per pose (the bias, with its standard error) and K per axis A3..A6 (:func:`pipeline.cog.fit_torsional`,
-    leave-one-point-out validation)."""
+    leave-one-point-out validation). ``periods``: the sample period of the campaign's mass loops (every loop of a
+    campaign has one period)."""
+    seen = list(periods)
     poses = [cog_mod.CogPose(p.name, p.q_deg) for p in man.torsional_poses]
     bias_specs = [pt for pt in man.torsional_points if pt.mass_kg == 0.0]
     if len(bias_specs) != 1:
@@ -434,7 +443,7 @@ def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing 
     def means(spec: TorsionalPointSpec) -> dict[str, cog_mod.PoseMean]:
         out = {}
         for p in poses:
-            r = _pose_reading(directory, p.name, p.q_deg, spec.traces[p.name], pre)
+            r = _pose_reading(directory, p.name, p.q_deg, spec.traces[p.name], pre, seen)
             every.append(r)
             out[p.name] = cog_mod.PoseMean(r.torque_nm, r.sigma_nm)
         return out
@@ -442,6 +451,7 @@ def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing 
     bias = means(bias_specs[0])
     loaded = [cog_mod.TorsionalPoint(pt.mass_kg, pt.cog_flange_m, means(pt))
               for pt in man.torsional_points if pt.mass_kg > 0]
+    check_one_period(seen, man.path)
     try:
         fit = cog_mod.fit_torsional(poses, bias, loaded, g_m_s2=man.setup.g_m_s2)
     except DataError as exc:

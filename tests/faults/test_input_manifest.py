@@ -280,3 +280,54 @@ def test_properties_unknown_key_or_scheme_is_refused(tmp_path, capsys, dirs, old
         old, new, 1))
     err = one_line_error(capsys, ["cog", "--traces", str(d), "--calibration", str(dirs / "CAL.json")])
     assert f"{m} {expected}" in err, err
+
+
+# --- sample periods (trace header code 241) ------------------------------------------------------------------------
+def set_period(directory: Path, trace: str, period: str) -> None:
+    """Rewrite the sample period (the implicit time channel's code 241, 4 ms here) in the headers of ``trace``."""
+    for dat in directory.glob(f"{trace}_NextGenDrive#*.dat"):
+        text = dat.read_text(encoding="iso-8859-1")
+        assert text.count("\n241,0.004\n") == 1
+        dat.write_text(text.replace("\n241,0.004\n", f"\n241,{period}\n"), encoding="iso-8859-1")
+
+
+@pytest.mark.parametrize("period", ["1e-300", "1e300", "0.0001", "2.5"])
+def test_implausible_sample_period_is_refused(tmp_path, capsys, dirs, period):
+    d, _ = copy(dirs, tmp_path, "dut")
+    set_period(d, "dut_l02", period)
+    err = mass_error(capsys, d, dirs / "CAL.json")
+    assert "dut_l02_NextGenDrive#3.dat" in err and f"sample period (code 241) {float(period):g} s" in err, err
+    assert "outside the 0.0005 to 1 s" in err, err
+
+
+def test_measurement_with_mixed_sample_periods_is_refused(tmp_path, capsys, dirs):
+    d, _ = copy(dirs, tmp_path, "dut")
+    set_period(d, "dut_l03", "0.008")
+    err = mass_error(capsys, d, dirs / "CAL.json")
+    assert f"{d}: trace 'dut_l03' has sample period 0.008 s, trace 'dut_l01' 0.004 s" in err, err
+
+
+def test_campaign_with_mixed_sample_periods_is_refused(tmp_path, capsys, dirs):
+    d, m = copy(dirs, tmp_path, "cal")
+    for trace in ("cal03_l01", "cal03_l02"):  # one whole point: each point alone has one period
+        set_period(d, trace, "0.012")
+    err = one_line_error(capsys, ["calibrate", "--campaign", str(d), "--out", str(tmp_path / "o.json")])
+    assert f"{m}: trace 'cal03_l01' has sample period 0.012 s, trace 'cal00_l01' 0.004 s" in err, err
+    assert not (tmp_path / "o.json").exists()
+
+
+def test_torsional_points_with_another_sample_period_are_refused(tmp_path, capsys, dirs):
+    d, m = torsional_campaign(dirs, tmp_path, '"tor_l01"', '"tor_l02"')
+    for trace in ("tor_l01", "tor_l02"):
+        set_period(d, trace, "0.012")
+    err = one_line_error(capsys, ["calibrate", "--campaign", str(d), "--out", str(tmp_path / "o.json")])
+    assert f"{m}: trace 'tor_l01' (NextGenDrive#3) has sample period 0.012 s, trace 'cal00_l01' 0.004 s" in err, err
+
+
+def test_properties_poses_with_mixed_sample_periods_are_refused(tmp_path, capsys, dirs):
+    d, m = copy(dirs, tmp_path, "dut")
+    m.write_text(properties_manifest(d, '"dut_l02"', '"dut_l03"').replace('"dut_l02", "dut_l03"', ""))
+    set_period(d, "dut_l03", "0.012")
+    err = one_line_error(capsys, ["cog", "--traces", str(d), "--calibration", str(dirs / "CAL.json")])
+    assert f"{m}: trace 'dut_l03' (NextGenDrive#3) has sample period 0.012 s, trace 'dut_l02' (NextGenDrive#3) " \
+           f"0.004 s" in err, err
