@@ -7,9 +7,11 @@ This is the I/O side of the pipeline: it reads and validates, the numbers are co
 from __future__ import annotations
 
 import csv
+import difflib
 import hashlib
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,6 +20,7 @@ import numpy as np
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.calibration import CalibrationPoints, reference_mass_covariance
+from rgse_daemon.pipeline.cog import SCHEMES
 from rgse_daemon.trace.diadem import read_trace_set
 from rgse_daemon.trace.names import plain_name
 
@@ -32,6 +35,22 @@ TORSIONAL_KIND = "torsional"
 #: Standard uncertainty of one weighed calibration body, kg, when the manifest states none (optional field).
 DEFAULT_BODY_MASS_U_KG = 0.01
 REFERENCE_CORRELATIONS = ("nested", "independent")
+#: Plausible sample periods of a KUKA trace, s: the KR C4 offers 1, 4 and 12 ms (kuka-facts §5, ``trace.config``); a
+#: header period (code 241) outside this range is a corrupt or foreign file.
+PERIOD_MIN_S = 0.0005
+PERIOD_MAX_S = 1.0
+#: Scheme names of ``[torsional]``/``[properties]``: the poses of :func:`rgse_daemon.pipeline.cog.cog_poses`, or
+#: ``custom`` (poses of their own).
+MANIFEST_SCHEMES = (*SCHEMES, "custom")
+#: The keys each table of a manifest may hold; any other key is refused (a misspelt optional key would otherwise
+#: silently take its default).
+TOP_KEYS = ("setup", "point", "measurement", "torsional", "properties")
+SETUP_KEYS = ("robot", "g", "lever_difference_m", "body_mass_u_kg", "reference_correlation", "g_u_m_s2")
+POINT_KEYS = ("kind", "mass_kg", "lever_a3_m", "lever_a5_m", "traces", "bodies", "mass_u_kg")
+TORSIONAL_POINT_KEYS = ("kind", "mass_kg", "cog_flange_m", "poses", "bodies", "mass_u_kg")
+MEASUREMENT_KEYS = ("traces", "fixture_mass_kg")
+TORSIONAL_KEYS = ("scheme", "pose")
+POSE_KEYS = ("name", "q_deg")
 
 
 @dataclass(frozen=True)
@@ -113,6 +132,34 @@ class Manifest:
     torsional_points: list[TorsionalPointSpec] = field(default_factory=list)
     torsional_poses: list[TorsionalPose] = field(default_factory=list)
     torsional_scheme: str | None = None
+    trace_places: dict[str, str] = field(default_factory=dict)
+    """Where each trace name appears in the manifest (e.g. ``[[point]] #3``)."""
+
+    def claim_traces(self, traces: Sequence[str], where: str) -> None:
+        """Record that ``traces`` appear at ``where``; DataError when one of them already appears in the manifest
+        (a loop counted twice, or one load's loop taken for another's)."""
+        for t in traces:
+            first = self.trace_places.get(t)
+            if first is not None:
+                place = f"twice in {where}" if first == where else f"in {first} and in {where}"
+                raise DataError(f"{self.path}: trace {t!r} appears {place}; a trace may appear once in a manifest")
+            self.trace_places[t] = where
+
+
+def check_keys(table: dict[str, Any], known: Sequence[str], where: str) -> None:
+    """DataError naming the first key of ``table`` that is not one of ``known``, with a close match if any."""
+    for key in table:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise DataError(f"{where}: unknown key {key!r}{hint}; known keys: {', '.join(known)}")
+
+
+def check_scheme(value: Any, where: str) -> str:
+    """A scheme name of ``MANIFEST_SCHEMES``."""
+    if value not in MANIFEST_SCHEMES:
+        raise DataError(f"{where}: scheme must be one of {', '.join(MANIFEST_SCHEMES)}, got {value!r}")
+    return str(value)
 
 
 def _num(d: dict[str, Any], key: str, where: str, *, minimum: float | None = None, positive: bool = False) -> float:
@@ -140,21 +187,42 @@ def _traces(d: dict[str, Any], where: str) -> tuple[str, ...]:
     return tuple(plain_name(x, f"{where}: traces[{i}]") for i, x in enumerate(t))
 
 
+def read_toml(path: Path) -> dict[str, Any]:
+    """The TOML document of ``path`` (a UTF-8 byte order mark is allowed); DataError naming the file otherwise."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise DataError(f"{path}: manifest not found") from None
+    except IsADirectoryError:
+        raise DataError(f"{path}: is a directory, not a manifest file") from None
+    except OSError as exc:
+        raise DataError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    try:
+        return tomllib.loads(raw.decode("utf-8-sig"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise DataError(f"{path}: not valid TOML: {exc}") from exc
+
+
+def _tables(doc: dict[str, Any], key: str, where: str) -> list[Any]:
+    """``[[key]]``: an array of tables (absent: none); DataError for any other type."""
+    value = doc.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise DataError(f"{where}: {key!r} must be [[{key}]] tables, got {value!r}")
+    return value
+
+
 def load_manifest(directory: Path | str) -> Manifest:
     """Read and validate ``DIR/manifest.toml``."""
     directory = Path(directory)
     path = directory / "manifest.toml"
     if not directory.is_dir():
         raise DataError(f"{directory}: directory not found")
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{path}: manifest not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise DataError(f"{path}: not valid TOML: {exc}") from exc
+    doc = read_toml(path)
+    check_keys(doc, TOP_KEYS, str(path))
     setup = doc.get("setup")
     if not isinstance(setup, dict):
         raise DataError(f"{path}: missing [setup] table")
+    check_keys(setup, SETUP_KEYS, f"{path} [setup]")
     robot = setup.get("robot")
     if not isinstance(robot, str) or not robot:
         raise DataError(f"{path}: [setup] robot must be a non-empty string")
@@ -167,13 +235,14 @@ def load_manifest(directory: Path | str) -> Manifest:
                                _num(setup, "lever_difference_m", where, positive=True),
                                _opt_num(setup, "body_mass_u_kg", where, DEFAULT_BODY_MASS_U_KG), corr,
                                _opt_num(setup, "g_u_m_s2", where, 0.0)))
-    for i, p in enumerate(doc.get("point", [])):
+    for i, p in enumerate(_tables(doc, "point", str(path))):
         where = f"{path} [[point]] #{i + 1}"
-        if not isinstance(p, dict):
-            raise DataError(f"{where}: must be a table")
         kind = p.get("kind")
+        check_keys(p, TORSIONAL_POINT_KEYS if kind == TORSIONAL_KIND else POINT_KEYS, where)
         if kind == TORSIONAL_KIND:
             man.torsional_points.append(_torsional_point(p, where))
+            for pose, traces in man.torsional_points[-1].traces.items():
+                man.claim_traces(traces, f"[[point]] #{i + 1} poses.{pose}")
             continue
         if kind not in KINDS:
             raise DataError(f"{where}: kind must be one of {', '.join(KINDS)}, got {kind!r}")
@@ -185,13 +254,16 @@ def load_manifest(directory: Path | str) -> Manifest:
                          _num(p, "lever_a5_m", where), _traces(p, where), bodies, mass_u)
         if (kind == "zero") != (spec.mass_kg == 0.0):
             raise DataError(f"{where}: a 'zero' point has mass_kg = 0 and only a 'zero' point has")
+        man.claim_traces(spec.traces, f"[[point]] #{i + 1}")
         man.points.append(spec)
     _torsional_poses(man, doc.get("torsional"), f"{path} [torsional]")
     meas = doc.get("measurement")
     if meas is not None:
         if not isinstance(meas, dict):
             raise DataError(f"{path}: [measurement] must be a table")
+        check_keys(meas, MEASUREMENT_KEYS, f"{path} [measurement]")
         man.measurement_traces = _traces(meas, f"{path} [measurement]")
+        man.claim_traces(man.measurement_traces, "[measurement]")
         if "fixture_mass_kg" in meas:
             man.fixture_mass_kg = _num(meas, "fixture_mass_kg", f"{path} [measurement]", minimum=0.0)
     return man
@@ -218,9 +290,12 @@ def _torsional_poses(man: Manifest, table: Any, where: str) -> None:
         return
     if not isinstance(table, dict) or not isinstance(table.get("pose"), list) or not table["pose"]:
         raise DataError(f"{where}: needs [[torsional.pose]] entries (name, q_deg)")
-    man.torsional_scheme = str(table.get("scheme", "custom"))
+    check_keys(table, TORSIONAL_KEYS, where)
+    man.torsional_scheme = check_scheme(table.get("scheme", "custom"), where)
     for i, p in enumerate(table["pose"]):
         pw = f"{where} pose #{i + 1}"
+        if isinstance(p, dict):
+            check_keys(p, POSE_KEYS, pw)
         q = p.get("q_deg") if isinstance(p, dict) else None
         if not isinstance(p, dict) or not isinstance(p.get("name"), str) or not isinstance(q, list) or len(q) != 6 \
                 or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in q):
@@ -237,6 +312,26 @@ def _torsional_poses(man: Manifest, table: Any, where: str) -> None:
         raise DataError(f"{where}: the torsional points need one with mass_kg = 0 (the bare MPA: the bias)")
 
 
+def plausible_period_s(period_s: float, source: Path | str) -> float:
+    """``period_s`` if it is a plausible KUKA Trace sample period; DataError naming ``source`` otherwise."""
+    if not (math.isfinite(period_s) and PERIOD_MIN_S <= period_s <= PERIOD_MAX_S):
+        raise DataError(f"{source}: sample period (code 241) {period_s:g} s is outside the {PERIOD_MIN_S:g} to "
+                        f"{PERIOD_MAX_S:g} s of a KUKA trace")
+    return period_s
+
+
+def check_one_period(periods: Sequence[tuple[str, float]], where: Path | str) -> None:
+    """DataError unless every ``(what, sample period in s)`` has the period of the first: the loops of one
+    measurement or one campaign are pre-processed alike, and the pre-processing counts its filter window in samples."""
+    if not periods:
+        return
+    first, p0 = periods[0]
+    for what, p in periods[1:]:
+        if not math.isclose(p, p0, rel_tol=1e-6):
+            raise DataError(f"{where}: {what} has sample period {p:g} s, {first} {p0:g} s; the loops of one "
+                            f"measurement or campaign need one sample period (the filter window counts samples)")
+
+
 def read_loop(directory: Path | str, trace: str) -> Loop:
     """The A3 and A5 ``Istmoment`` of one trace; DataError (naming the file) if absent, truncated or not finite."""
     ts = read_trace_set(directory, trace, (MODULE_A3, MODULE_A5))
@@ -248,6 +343,8 @@ def read_loop(directory: Path | str, trace: str) -> Loop:
             raise DataError(f"{tf.dat_path}: only {values.size} torque samples")
         if not np.all(np.isfinite(values)):
             raise DataError(f"{tf.dat_path}: torque channel {TORQUE_CHANNEL!r} holds NaN or infinite values")
+    for tf in (f3, f5):
+        plausible_period_s(tf.period_s, tf.dat_path)
     if f3.period_s != f5.period_s or a3.size != a5.size:
         raise DataError(f"{f5.dat_path}: sample period or length differs from {f3.dat_path.name}")
     return Loop(trace, a3, a5, float(f3.period_s), _mean_temperature_k(f3), _mean_temperature_k(f5))
@@ -280,7 +377,15 @@ def thermal_state_k(loops: list[Loop]) -> dict[str, float] | None:
 
 
 def read_loops(directory: Path | str, traces: tuple[str, ...]) -> list[Loop]:
-    return [read_loop(directory, t) for t in traces]
+    """The loops of ``traces``; DataError unless they share one sample period."""
+    loops = [read_loop(directory, t) for t in traces]
+    check_one_period(loop_periods(loops), directory)
+    return loops
+
+
+def loop_periods(loops: Sequence[Loop]) -> list[tuple[str, float]]:
+    """``(trace 'name', sample period)`` of each loop, for :func:`check_one_period`."""
+    return [(f"trace {lp.trace!r}", lp.period_s) for lp in loops]
 
 
 def source_sha256(paths: list[Path]) -> dict[str, str]:
@@ -296,22 +401,42 @@ def source_sha256(paths: list[Path]) -> dict[str, str]:
 # ------------------------------------------------------------------------------------------------------------
 POINTS_COLUMNS = ("calibration_type", "mass_kg", "m_a3_expected_nm", "m_a5_expected_nm", "m_a3_measured_nm",
                   "m_a5_measured_nm")
+#: Largest magnitude a points CSV value may have: a torque in Nm (columns ``*_nm``), else a mass in kg. Far beyond
+#: any KUKA axis or payload; a typo such as 1e300 would otherwise reach the fit.
+POINTS_MAX_NM = 1e6
+POINTS_MAX_KG = 1e5
+
+
+def _count(text: str | None, where: str) -> int:
+    """A CSV cell holding a count: an integer >= 0 (``3`` or ``3.0``)."""
+    try:
+        v = float(text or "")
+    except (TypeError, ValueError):
+        raise DataError(f"{where} is not a number: {text!r}") from None
+    if not (math.isfinite(v) and v >= 0 and v == int(v)):
+        raise DataError(f"{where} must be a whole number of bodies >= 0, got {text!r}")
+    return int(v)
 
 
 def load_points_csv(path: Path | str) -> CalibrationPoints:
     """Read calibration points in the format of ``paper/table1_calibration.csv`` (``#`` lines are comments)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise DataError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: cannot read: {exc}") from exc
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
-    rows = list(csv.DictReader(lines))
+    reader = csv.DictReader(lines)
+    header = list(reader.fieldnames or [])
+    twice = sorted({c for c in header if header.count(c) > 1})
+    if twice:
+        raise DataError(f"{path}: column(s) given twice in the header: {', '.join(twice)}")
+    rows = list(reader)
     if not rows:
         raise DataError(f"{path}: no data rows")
-    missing = [c for c in POINTS_COLUMNS if c not in (rows[0].keys())]
+    missing = [c for c in POINTS_COLUMNS if c not in header]
     if missing:
         raise DataError(f"{path}: missing column(s) {', '.join(missing)}")
     cols: dict[str, list] = {c: [] for c in POINTS_COLUMNS}
@@ -328,13 +453,14 @@ def load_points_csv(path: Path | str) -> CalibrationPoints:
                 raise DataError(f"{path}: data row {lineno - 1}: column {c} is not a number: {row[c]!r}") from None
             if not math.isfinite(v):
                 raise DataError(f"{path}: data row {lineno - 1}: column {c} is {v}")
+            limit, unit = (POINTS_MAX_NM, "Nm") if c.endswith("_nm") else (POINTS_MAX_KG, "kg")
+            if abs(v) > limit:
+                raise DataError(f"{path}: data row {lineno - 1}: column {c} is {v:g}, beyond the plausible "
+                                f"{limit:g} {unit}")
             cols[c].append(v)
     cov = None
-    if "n_cb" in rows[0]:  # Table 1: n_cb bodies, the torque rows on the test adapter (one more weighed body)
-        try:
-            n_cb = np.array([float(r["n_cb"]) for r in rows])
-        except (TypeError, ValueError):
-            raise DataError(f"{path}: column n_cb is not numeric") from None
+    if "n_cb" in header:  # Table 1: n_cb bodies, the torque rows on the test adapter (one more weighed body)
+        n_cb = np.array([_count(r["n_cb"], f"{path}: data row {i}: column n_cb") for i, r in enumerate(rows, 1)])
         bodies = n_cb + (np.array(cols["calibration_type"]) == "torque")
         var = np.where(np.array(cols["mass_kg"]) > 0, bodies * DEFAULT_BODY_MASS_U_KG**2, 0.0)
         cov = reference_mass_covariance(var, nested=True)

@@ -15,7 +15,15 @@ import numpy as np
 from rgse_daemon import calfile
 from rgse_daemon.analysis import cog as cog_analysis
 from rgse_daemon.errors import DataError
-from rgse_daemon.manifest import Manifest, load_manifest, read_loops, source_sha256, thermal_state_k
+from rgse_daemon.manifest import (
+    Manifest,
+    check_one_period,
+    load_manifest,
+    loop_periods,
+    read_loops,
+    source_sha256,
+    thermal_state_k,
+)
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import thermal as thermal_mod
@@ -39,6 +47,8 @@ class CampaignData:
     """Mean A3/A5 motor temperature over every loop (K), when the traces recorded it."""
     loop_temps_k: list[list[tuple[float, float]]] | None = None
     """Per point, per loop: the A3 and A5 motor temperature (K); None when a trace did not record it."""
+    period: list[tuple[str, float]] = dataclasses.field(default_factory=list)
+    """The campaign's one sample period, as ``(trace 'name', s)`` of its first loop (:func:`check_one_period`)."""
 
 
 def load_campaign(directory: Path) -> CampaignData:
@@ -55,9 +65,11 @@ def load_campaign(directory: Path) -> CampaignData:
         every_loop += point_loops
         loops.append([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point_loops])
         temps.append([(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in point_loops])
+    check_one_period(loop_periods(every_loop), man.path)
     files = [man.path, *sorted(p for p in Path(directory).iterdir() if p.suffix in (".dat", ".r64"))]
     state = thermal_state_k(every_loop)
-    return CampaignData(man, loops, files, state, temps if state is not None else None)
+    return CampaignData(man, loops, files, state, temps if state is not None else None,
+                        loop_periods(every_loop[:1]))
 
 
 def campaign_thermal(data: CampaignData, cfg: pp.Preprocessing) -> ThermalDrift | None:
@@ -238,7 +250,8 @@ def fit_campaign(directory: Path, method: str,
                              drift=campaign_thermal(data, pre))
     if data.manifest.torsional_points:
         # the CoG calibration (issue #14): bias per pose and K for A3..A6 from the torsional points
-        doc["torsional"] = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre)
+        doc["torsional"] = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre,
+                                                              periods=data.period)
         calfile.seal(doc)
         summary["calibration_id"] = doc["calibration_id"]
         summary["torsional"] = {ax: {"model": d["model"], "u_point_nm": d["u_point_nm"],

@@ -8,7 +8,6 @@ raw files (``compute_cog_dir``). The numbers are computed in :mod:`rgse_daemon.p
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,18 @@ from rgse_daemon import calfile
 from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import mass as mass_analysis
 from rgse_daemon.errors import DataError
-from rgse_daemon.manifest import TORQUE_CHANNEL, Manifest, TorsionalPointSpec, load_manifest, mean_temperature_k
+from rgse_daemon.manifest import (
+    TORQUE_CHANNEL,
+    Manifest,
+    TorsionalPointSpec,
+    check_keys,
+    check_one_period,
+    check_scheme,
+    load_manifest,
+    mean_temperature_k,
+    plausible_period_s,
+    read_toml,
+)
 from rgse_daemon.pipeline import cog as cog_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline.cog import CogPose, cog_poses
@@ -269,9 +279,10 @@ class PropertiesRun:
 
 
 def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequence[str],
-                  pre: pp.Preprocessing) -> PoseReading:
+                  pre: pp.Preprocessing, periods: list[tuple[str, float]]) -> PoseReading:
     """Mean torque per axis over the pose's loops (eq. 16's double average), its standard error: the loops'
-    scatter with two or more loops, else the within-loop standard error of the kept samples."""
+    scatter with two or more loops, else the within-loop standard error of the kept samples. Each trace file's
+    sample period is appended to ``periods`` (checked by the caller: one period for the whole run)."""
     per_axis: dict[int, list[tuple[float, float]]] = {}
     temps: dict[int, list[float]] = {}
     for t in traces:
@@ -281,6 +292,7 @@ def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequ
             if module not in ts.files:
                 continue
             tf = ts.files[module]
+            periods.append((f"trace {t!r} ({module})", plausible_period_s(tf.period_s, tf.dat_path)))
             values = np.asarray(ts.channel(module, TORQUE_CHANNEL).values, float)
             if values.size < 3 or not np.all(np.isfinite(values)):
                 raise DataError(f"{tf.dat_path}: torque channel {TORQUE_CHANNEL!r} is too short or not finite")
@@ -329,15 +341,25 @@ def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any) ->
             f"{mass_analysis.THERMAL_MISMATCH_K:g} K): warm up until steady, or re-calibrate")
 
 
+#: The keys of ``[properties]``, ``[properties.fixture]`` and ``[[properties.pose]]``; others are refused.
+PROPERTIES_KEYS = ("scheme", "mass_kg", "u_mass_kg", "fixture", "pose")
+FIXTURE_KEYS = ("mass_kg", "cog_flange_m", "dut_origin_flange_m", "dut_abc_deg")
+PROPERTIES_POSE_KEYS = ("name", "q_deg", "traces")
+
+
 def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER) -> PropertiesRun:
     """Read a properties run directory (``manifest.toml`` with ``[properties]``, trace files)."""
     directory = Path(directory)
     man = load_manifest(directory)
-    doc = tomllib.loads(man.path.read_text(encoding="utf-8"))
+    doc = read_toml(man.path)
     where = f"{man.path} [properties]"
     props = doc.get("properties")
     if not isinstance(props, dict):
         raise DataError(f"{man.path}: no [properties] table (is this a properties run?)")
+    check_keys(props, PROPERTIES_KEYS, where)
+    scheme = check_scheme(props.get("scheme", "custom"), where)
+    if isinstance(props.get("fixture"), dict):
+        check_keys(props["fixture"], FIXTURE_KEYS, f"{where} fixture")
     mass = u_mass = None
     if "mass_kg" in props:
         try:
@@ -353,11 +375,12 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
     poses = props.get("pose")
     if not isinstance(poses, list) or not poses:
         raise DataError(f"{where}: needs [[properties.pose]] entries")
-    readings = []
+    specs = []
     for i, p in enumerate(poses):
         pw = f"{where} pose #{i + 1}"
         if not isinstance(p, dict) or not isinstance(p.get("name"), str):
             raise DataError(f"{pw}: needs a name")
+        check_keys(p, PROPERTIES_POSE_KEYS, pw)
         q = p.get("q_deg")
         if not isinstance(q, list) or len(q) != 6 or not all(
                 isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) for v in q):
@@ -367,8 +390,12 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
             raise DataError(f"{pw}: traces must be a non-empty list of trace names")
         for t in traces:
             plain_name(t, f"{pw}: traces")
-        readings.append(_pose_reading(directory, p["name"], tuple(float(v) for v in q), traces, pre))
-    return PropertiesRun(man.setup.robot, man.setup.g_m_s2, str(props.get("scheme", "custom")), mass, u_mass,
+        man.claim_traces(traces, f"[[properties.pose]] #{i + 1}")
+        specs.append((p["name"], tuple(float(v) for v in q), traces))
+    periods: list[tuple[str, float]] = []
+    readings = [_pose_reading(directory, name, q, traces, pre, periods) for name, q, traces in specs]
+    check_one_period(periods, man.path)
+    return PropertiesRun(man.setup.robot, man.setup.g_m_s2, scheme, mass, u_mass,
                          fixture, readings)
 
 
@@ -398,10 +425,13 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
 # ---------------------------------------------------------------------------------------------------------------------
 # The torsional calibration of a campaign directory (CAL.json ``torsional``)
 # ---------------------------------------------------------------------------------------------------------------------
-def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing = pp.PAPER) -> dict[str, Any]:
+def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing = pp.PAPER, *,
+                          periods: Sequence[tuple[str, float]] = ()) -> dict[str, Any]:
     """The ``torsional`` section of CAL.json from a campaign's ``kind = "torsional"`` points: the bare MPA's mean
     torques per pose (the bias, with its standard error) and K per axis A3..A6 (:func:`pipeline.cog.fit_torsional`,
-    leave-one-point-out validation)."""
+    leave-one-point-out validation). ``periods``: the sample period of the campaign's mass loops (every loop of a
+    campaign has one period)."""
+    seen = list(periods)
     poses = [cog_mod.CogPose(p.name, p.q_deg) for p in man.torsional_poses]
     bias_specs = [pt for pt in man.torsional_points if pt.mass_kg == 0.0]
     if len(bias_specs) != 1:
@@ -413,7 +443,7 @@ def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing 
     def means(spec: TorsionalPointSpec) -> dict[str, cog_mod.PoseMean]:
         out = {}
         for p in poses:
-            r = _pose_reading(directory, p.name, p.q_deg, spec.traces[p.name], pre)
+            r = _pose_reading(directory, p.name, p.q_deg, spec.traces[p.name], pre, seen)
             every.append(r)
             out[p.name] = cog_mod.PoseMean(r.torque_nm, r.sigma_nm)
         return out
@@ -421,6 +451,7 @@ def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing 
     bias = means(bias_specs[0])
     loaded = [cog_mod.TorsionalPoint(pt.mass_kg, pt.cog_flange_m, means(pt))
               for pt in man.torsional_points if pt.mass_kg > 0]
+    check_one_period(seen, man.path)
     try:
         fit = cog_mod.fit_torsional(poses, bias, loaded, g_m_s2=man.setup.g_m_s2)
     except DataError as exc:

@@ -35,7 +35,7 @@ def test_calibrate_mass_and_cog_from_trace_files(tmp_path, capsys):
     assert doc["calibration_id"] == cal["calibration_id"] and len(doc["torsional"]["poses"]) == 8
     assert set(doc["torsional"]["thermal_state_k"]) == {"A3", "A4", "A5", "A6"}  # from the traces' Motortemperatur
 
-    # the properties run of the wing box; its measurement-pose loops double as the mass run's
+    # the properties run of the wing box; copies of its measurement-pose loops are the mass run's
     run = cc.simulate_properties(model, ph.refex_wing_box(), "full")
     prop = tmp_path / "prop"
     cc.write_properties_dir(prop, run, robot=sc.ROBOT, measurement_pose_traces=True)

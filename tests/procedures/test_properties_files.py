@@ -38,7 +38,7 @@ def test_the_stored_result_is_what_rgse_mass_and_cog_give_on_its_directory(tmp_p
     cc.warm_up(model)
     heavy = dataclasses.replace(ph.refex_wing_box(), mass_kg=300.0, cog_dut_m=(-0.02, 0.03, 0.45))
     run = cc.simulate_properties(model, heavy, "paper")
-    # the traces as the daemon pulls them: the measurement pose's loops double as the mass loops here
+    # the traces as the daemon pulls them (the mass loops are copies of the measurement pose's)
     src = tmp_path / "src"
     cc.write_properties_dir(src, run, robot=ROBOT, measurement_pose_traces=True)
     run_dir = tmp_path / "run"

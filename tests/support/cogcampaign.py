@@ -183,8 +183,8 @@ def write_properties_dir(directory: Path, run: PropertiesRun, *, robot: str, mas
     directory.mkdir(parents=True, exist_ok=True)
     poses = [(t.name, t.q_deg, _write_pose(directory, "prop", t)) for t in run.poses]
     setup = ["[setup]", f'robot = "{robot}"', f"g = {kin.G_PAPER_M_S2!r}", f"lever_difference_m = {kin.D4_M!r}", ""]
-    if measurement_pose_traces:  # the measurement pose's loops double as the mass run's
-        meas = next(names for name, _, names in poses if name == "meas")
+    if measurement_pose_traces:  # the measurement pose's loops, again under names of their own, are the mass run's
+        meas = _write_pose(directory, "mass", next(t for t in run.poses if t.name == "meas"))
         setup += ["[measurement]", f"fixture_mass_kg = {ph.FIXTURE_MASS_KG!r}",
                   "traces = [" + ", ".join(f'"{n}"' for n in meas) + "]", ""]
     text = "\n".join(setup) + "\n" + properties_manifest_toml(scheme, run.fixture, poses, mass_kg=mass_kg,
