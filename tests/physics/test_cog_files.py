@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pytest
 
+from rgse_daemon import calfile
 from rgse_daemon.cli import main
 from simulators.krc4 import physics as ph
 from tests.support import cogcampaign as cc
@@ -53,6 +54,6 @@ def test_calibrate_mass_and_cog_from_trace_files(tmp_path, capsys):
     assert "CoG (flange)" in capsys.readouterr().out
     del doc["torsional"]
     old = tmp_path / "OLD.json"
-    old.write_text(json.dumps(doc))
+    old.write_text(json.dumps(calfile.seal(doc)))  # a calibration fitted without torsional points
     assert main(["cog", "--traces", str(prop), "--calibration", str(old)]) == 2
     assert "no 'torsional' section" in capsys.readouterr().err
