@@ -220,3 +220,11 @@ def test_measurement_limit_from_the_environment(capsys, monkeypatch, config):
     err = loads(capsys, config)
     assert "measurement.brake_release_deg = 40 exceeds limits.brake_release_max_deg = 30" in err, err
 
+
+def test_krl_render_names_the_key(capsys, config, tmp_path):
+    """Within the limits but beyond the axis range: `rgse krl render` says so in one line naming the key (it dumped
+    pydantic's multi-line error naming only the template parameter)."""
+    config.write_text("[measurement]\nbrake_release_deg = 60\n[limits]\nbrake_release_max_deg = 90\n")
+    err = one_line_error(capsys, ["krl", "render", "--out", str(tmp_path / "out"), "--config", str(config)])
+    assert "rgse_brake_release" in err and "outside the axis range" in err, err
+    assert f"measurement.brake_release_deg = 60 in {config}" in err and "validation error" not in err, err
