@@ -7,15 +7,27 @@ and CI like to do.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import re
 import tomllib
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    Strict,
+    TypeAdapter,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, SettingsError
 
 from rgse_daemon.errors import ConfigError
@@ -26,6 +38,22 @@ T1_CONTROLLER_LIMIT_MM_S = 250.0
 Seconds = Annotated[float, Field(gt=0.0, le=3600.0)]
 
 
+T = TypeVar("T")
+
+
+def _non_empty_path(value: object) -> object:
+    # Path("") is Path("."): an empty path would silently mean the current directory
+    if isinstance(value, str) and not value.strip():
+        raise ValueError('must not be empty (write "." for the current directory)')
+    return value
+
+
+#: A path from the file: TOML has no path type, so a string is the path (strict mode would want a Path object).
+ConfigPath = Annotated[Path, Strict(False), BeforeValidator(_non_empty_path)]
+
+#: A TOML array (a list) is a tuple; its items stay strict (the model's mode).
+Array = Annotated[T, Strict(False)]
+
 
 # --- the Modbus safety I/O module (io/modbus.py) ---------------------------------------------------------------
 Address = int  # zero-based Modbus address of one bit
@@ -34,7 +62,9 @@ MAX_BITS_PER_READ = 2000  # Modbus application protocol limit for FC 1 / FC 2
 
 # --- configuration -------------------------------------------------------------------------------------------
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    # strict: a wrong type in the file is an error, never coerced (true is no port, "10" no loop count); an int is
+    # still a float. Environment overrides are text and are converted before (see _LaxEnvironment).
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
 
 class InputMap(_Strict):
@@ -101,7 +131,7 @@ _REQUIRED_GROUPS = {"value", "unit"}
 class ScaleConfig(BaseModel):
     """How to reach the crane scale and how to read its lines."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
     port: str = Field("/dev/ttyUSB0", min_length=1)
     """A device path or a pyserial URL such as ``socket://10.0.0.8:4001``."""
@@ -115,7 +145,7 @@ class ScaleConfig(BaseModel):
     resolution_kg: float = Field(0.1, gt=0.0, le=100.0)
     """The scale's d (HFB 300K100: 0.1 kg); sets the uncertainty and the agreement of consecutive frames."""
     line_regex: str = KERN_LINE_REGEX
-    stable_tokens: tuple[str, ...] = ("ST",)
+    stable_tokens: Array[tuple[str, ...]] = ("ST",)
     checksum: Literal["none", "xor8"] = "none"
     stable_frames_required: int = Field(1, ge=1, le=100)
     max_consecutive_bad_frames: int = Field(20, ge=1, le=10_000)
@@ -142,7 +172,8 @@ class ScaleConfig(BaseModel):
 
 class _Section(BaseModel):
     # NaN and inf are refused as such ("finite number"), not by a bound they happen to fail.
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    # strict as _Strict: wrong types are errors, not coerced
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
 
 class Protocol(StrEnum):
@@ -159,14 +190,14 @@ class RobotConfig(_Section):
 class ControllerConfig(_Section):
     host: str = Field("127.0.0.1", min_length=1)
     port: int = Field(7000, ge=1, le=65535)
-    protocol: Protocol = Protocol.AUTO
+    protocol: Annotated[Protocol, Strict(False)] = Protocol.AUTO  # the file gives the value, a str
     connect_timeout_s: Seconds = 3.0
     request_timeout_s: Seconds = 2.0
     pool_size: int = Field(4, ge=1, le=10)  # KVP serves at most 10 clients
     keepalive_s: float = Field(10.0, gt=0.0, lt=30.0)  # KVP drops clients idle for ~30 s
     reconnect_min_s: Seconds = 0.2
     reconnect_max_s: Seconds = 10.0
-    share_dir: Path | None = None
+    share_dir: ConfigPath | None = None
     """The controller's ``roboter`` share mounted locally: the file path used with plain KUKAVARPROXY."""
     file_rate_bytes_s: float = Field(40_000.0, gt=0.0)
     """The slowest rate (bytes/s) the controller's file work may run at: a file operation's deadline is
@@ -181,7 +212,7 @@ class ControllerConfig(_Section):
 
 
 class PathsConfig(_Section):
-    data_dir: Path = Path("./data")
+    data_dir: ConfigPath = Path("./data")
     """Run archive, raw trace files and the SQLite store live below this directory."""
 
 
@@ -250,11 +281,11 @@ class FixtureFrameConfig(_Section):
     """The fixture between MPA and DuT and the DuT's own frame, for the CoG (issue #14). The fixture's mass is
     ``measurement.fixture_mass_kg``."""
 
-    cog_flange_m: tuple[Coordinate_m, Coordinate_m, Coordinate_m] | None = None
+    cog_flange_m: Array[tuple[Coordinate_m, Coordinate_m, Coordinate_m]] | None = None
     """The fixture's CoG in the flange frame (m); needed when the fixture has a mass (its moment is subtracted)."""
-    dut_origin_flange_m: tuple[Coordinate_m, Coordinate_m, Coordinate_m] = (0.0, 0.0, 0.0)
+    dut_origin_flange_m: Array[tuple[Coordinate_m, Coordinate_m, Coordinate_m]] = (0.0, 0.0, 0.0)
     """Origin of the DuT's own frame in the flange frame (m)."""
-    dut_abc_deg: tuple[Angle_deg, Angle_deg, Angle_deg] = (0.0, 0.0, 0.0)
+    dut_abc_deg: Array[tuple[Angle_deg, Angle_deg, Angle_deg]] = (0.0, 0.0, 0.0)
     """Orientation of the DuT's frame in the flange frame: KUKA A, B, C (Z-Y-X, deg)."""
 
 
@@ -287,14 +318,14 @@ class MqttConfig(_Section):
     username: str | None = None
     password: str | None = None
     tls: bool = False
-    tls_ca_file: Path | None = None
+    tls_ca_file: ConfigPath | None = None
     client_id: str | None = None
     keepalive_s: int = Field(30, ge=5, le=3600)
     reconnect_min_s: Seconds = 0.5
     reconnect_max_s: Seconds = 30.0
     state_rate_hz: float = Field(2.0, gt=0.0, le=50.0)
     """Maximum rate of the retained ``state`` topic; high-rate state beyond the queue is dropped and counted."""
-    command_tokens: tuple[str, ...] = ()
+    command_tokens: Array[tuple[str, ...]] = ()
     """If not empty, a command must carry one of these in its ``token`` field (authorisation)."""
     command_auth: Literal["token", "broker_acl", "open_lab_bench"] = "token"
     """Who may send commands that move the robot (docs/security.md). ``token`` (default): only a client that knows
@@ -351,7 +382,7 @@ class Config(BaseSettings):
     """The whole configuration file."""
 
     model_config = SettingsConfigDict(
-        extra="forbid", frozen=True, env_prefix="RGSE_", env_nested_delimiter="__"
+        extra="forbid", frozen=True, env_prefix="RGSE_", env_nested_delimiter="__", strict=True
     )
 
     robot: RobotConfig = RobotConfig()
@@ -378,6 +409,33 @@ class Config(BaseSettings):
                              "properties.fixture.cog_flange_m (the fixture's CoG in the flange frame, m)")
         return self
 
+    @model_validator(mode="after")
+    def _measurement_within_limits(self) -> Config:
+        # the interlock refuses a program that breaks a limit: a measurement setting outside the limits would only
+        # fail at the push (or at `rgse krl render`), so it is refused here, where its key can be named
+        m, lim = self.measurement, self.limits
+        problems = []
+        refused = "(the interlock would refuse the move; raise the limit only as the cell's risk assessment allows)"
+        if m.brake_release_deg > lim.brake_release_max_deg:
+            problems.append(f"measurement.brake_release_deg = {m.brake_release_deg:g} exceeds "
+                            f"limits.brake_release_max_deg = {lim.brake_release_max_deg:g} {refused}")
+        if m.warmup_amplitude_deg > lim.brake_release_max_deg:
+            problems.append(f"measurement.warmup_amplitude_deg = {m.warmup_amplitude_deg:g} exceeds "
+                            f"limits.brake_release_max_deg = {lim.brake_release_max_deg:g} {refused}")
+        if m.fixture_mass_kg > lim.max_payload_kg:
+            problems.append(f"measurement.fixture_mass_kg = {m.fixture_mass_kg:g} exceeds "
+                            f"limits.max_payload_kg = {lim.max_payload_kg:g} (the fixture alone is over the payload "
+                            "limit)")
+        cog = self.properties.fixture.cog_flange_m
+        if cog is not None and math.hypot(*cog) > m.payload_lever_max_m:
+            # the speed bound counts only the points within payload_lever_max_m of the flange
+            problems.append(f"properties.fixture.cog_flange_m is {math.hypot(*cog):g} m from the flange, beyond "
+                            f"measurement.payload_lever_max_m = {m.payload_lever_max_m:g} (the farthest point of "
+                            "fixture + DuT, which the T1 speed bound covers)")
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
+
     @classmethod
     def settings_customise_sources(
         cls,
@@ -387,8 +445,57 @@ class Config(BaseSettings):
         dotenv_settings: PydanticBaseSettingsSource,
         file_secret_settings: PydanticBaseSettingsSource,
     ) -> tuple[PydanticBaseSettingsSource, ...]:
-        # Environment overrides the file's values (passed as init kwargs); no dotenv or secret dirs.
-        return (env_settings, init_settings)
+        # Environment overrides the file's values (passed as init kwargs); no dotenv or secret dirs. The models are
+        # strict for the file; an environment value is text and is converted first (_LaxEnvironment).
+        return (_LaxEnvironment(settings_cls, env_settings), init_settings)
+
+
+@functools.cache
+def _lax_adapter(annotation: Any) -> TypeAdapter[Any]:
+    return TypeAdapter(annotation)
+
+
+def _model_of(annotation: Any) -> type[BaseModel] | None:
+    """The model class of a section field (``ModbusConfig | None`` too), if it is one."""
+    for a in (annotation, *get_args(annotation)):
+        if isinstance(a, type) and issubclass(a, BaseModel):
+            return a
+    return None
+
+
+def _from_text(fields: dict[str, FieldInfo], data: dict[str, Any]) -> dict[str, Any]:
+    """The environment's values converted from text as pydantic's lax mode does (``"7000"`` is port 7000, ``"1"``
+    true, as docs/configuration.md promises), field by field; a value that does not convert is left as it is, so the
+    strict validation names it (and the variable it came from). Only the type is converted here: every bound and
+    check is the model's."""
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        f = fields.get(key)
+        model = _model_of(f.annotation) if f is not None else None
+        if f is None or f.annotation is None:
+            out[key] = value
+        elif model is not None:
+            out[key] = _from_text(model.model_fields, value) if isinstance(value, dict) else value
+        else:
+            try:
+                out[key] = _lax_adapter(f.annotation).validate_python(value)
+            except ValidationError:
+                out[key] = value
+    return out
+
+
+class _LaxEnvironment(PydanticBaseSettingsSource):
+    """pydantic-settings' environment source, its text values converted to the fields' types (see _from_text)."""
+
+    def __init__(self, settings_cls: type[BaseSettings], env: PydanticBaseSettingsSource) -> None:
+        super().__init__(settings_cls)
+        self._env = env
+
+    def get_field_value(self, field: FieldInfo, field_name: str) -> tuple[Any, str, bool]:
+        return self._env.get_field_value(field, field_name)
+
+    def __call__(self) -> dict[str, Any]:
+        return _from_text(self.settings_cls.model_fields, self._env())
 
 
 ENV_PREFIX = "RGSE_"
@@ -409,14 +516,31 @@ def _env_name(loc: tuple[int | str, ...], env: dict[str, str]) -> str | None:
     return None
 
 
+#: pydantic's error types for a value of the wrong type (strict mode: nothing is coerced).
+_TYPE_ERRORS = {"int_type", "float_type", "bool_type", "string_type", "tuple_type", "model_type", "dict_type",
+                "path_type", "is_instance_of"}
+
+
+def _toml_type(value: object) -> str:
+    """TOML's name of a parsed value's type (``controller.port: Input should be a valid integer, got a boolean``)."""
+    names = {bool: "a boolean", int: "an integer", float: "a float", str: "a string", list: "an array",
+             tuple: "an array", dict: "a table"}
+    return names.get(type(value), f"a {type(value).__name__}")
+
+
 def _format_validation_error(source: str, exc: ValidationError) -> str:
     env = _env_variables()
     problems = []
     for err in exc.errors():
-        where = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        where = ".".join(str(p) for p in err["loc"])
         msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
+        if err["type"] in _TYPE_ERRORS and "input" in err:
+            msg += f", got {_toml_type(err['input'])}"  # the type only: the value may be a password
         var = _env_name(err["loc"], env)
-        problems.append(f"{where} (from environment {var}): {msg}" if var else f"{where}: {msg}")
+        if not where:  # a check across sections: its message names the keys
+            problems.append(msg)
+        else:
+            problems.append(f"{where} (from environment {var}): {msg}" if var else f"{where}: {msg}")
     return f"{source}: " + "; ".join(problems)
 
 

@@ -48,6 +48,8 @@ from rgse_daemon.trace.diadem import read_trace_set
 #: $ACC_AXIS (%) of the first move, to the start pose.
 START_ACC_PCT = 20.0
 MANIFEST = "inertia.toml"
+#: The farthest plausible CoG from the flange (m): the KR 500's load diagram ends well within it.
+MAX_COG_M = 5.0
 #: ECSS-E-10-03C: the inertia tensor within ±3 %.
 ECSS_REL = 0.03
 
@@ -114,6 +116,15 @@ def _floats(d: dict[str, Any], key: str, n: int, where: str) -> tuple[float, ...
     return tuple(float(x) for x in v)
 
 
+def _cog(d: dict[str, Any], key: str, where: str) -> tuple[float, float, float]:
+    """A CoG in the flange frame: finite and within MAX_COG_M of the flange (the robot cannot carry one farther)."""
+    c = _floats(d, key, 3, where)
+    if math.hypot(*c) > MAX_COG_M:
+        raise DataError(f"{where}: {key} = {list(c)!r} is {math.hypot(*c):.3g} m from the flange, more than "
+                        f"{MAX_COG_M:g} m: not a CoG the robot can carry (metres, not millimetres?)")
+    return c  # type: ignore[return-value]
+
+
 def load_manifest(directory: Path) -> InertiaManifest:
     path = directory / MANIFEST
     try:
@@ -134,19 +145,26 @@ def load_manifest(directory: Path) -> InertiaManifest:
     if len(_names(sec["dut_trace"])) != len(_names(sec["tare_trace"])):
         raise DataError(f"{path}: {len(_names(sec['dut_trace']))} DuT traces but {len(_names(sec['tare_trace']))} "
                         "tare traces: they pair one by one")
+    same = [d for d, t in zip(_names(sec["dut_trace"]), _names(sec["tare_trace"]), strict=True) if d == t]
+    if same:
+        raise DataError(f"{path}: dut_trace and tare_trace both name {same[0]!r}: the tare is its own run (MPA and "
+                        "fixture without the DuT), its trace differs from the DuT's")
     mass = sec.get("mass_kg")
     if not isinstance(mass, int | float) or not mass > 0:
         raise DataError(f"{path}: mass_kg must be a positive number, got {mass!r}")
     fmass = sec.get("fixture_mass_kg", 0.0)
     if not isinstance(fmass, int | float) or not fmass >= 0:
         raise DataError(f"{path}: fixture_mass_kg must be >= 0, got {fmass!r}")
+    cog = _cog(sec, "cog_flange_m", str(path))
+    u_cog = _floats(sec, "U_cog_flange_m", 3, str(path)) if "U_cog_flange_m" in sec else (0.0, 0.0, 0.0)
+    if any(u < 0 for u in u_cog):
+        raise DataError(f"{path}: U_cog_flange_m must be >= 0 (an expanded uncertainty), got {list(u_cog)!r}")
     return InertiaManifest(
         sec["dut_trace"], sec["tare_trace"], _floats(sec, "base_deg", 6, str(path)), float(mass),
-        _floats(sec, "cog_flange_m", 3, str(path)),  # type: ignore[arg-type]
-        _floats(sec, "U_cog_flange_m", 3, str(path)) if "U_cog_flange_m" in sec else (0.0, 0.0, 0.0),  # type: ignore[arg-type]
+        cog, u_cog,  # type: ignore[arg-type]
         _floats(sec, "dut_abc_deg", 3, str(path)) if "dut_abc_deg" in sec else (0.0, 0.0, 0.0),  # type: ignore[arg-type]
         float(fmass),
-        _floats(sec, "fixture_cog_flange_m", 3, str(path)) if "fixture_cog_flange_m" in sec else (0.0, 0.0, 0.0),  # type: ignore[arg-type]
+        _cog(sec, "fixture_cog_flange_m", str(path)) if "fixture_cog_flange_m" in sec else (0.0, 0.0, 0.0),
     )
 
 
@@ -243,5 +261,8 @@ def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | No
         return inr.identify(strokes, period, man.mass_kg, man.cog_flange_m, dut_abc_deg=man.dut_abc_deg,
                             calibration=cal, u_cog_flange_m=tuple(u / 2.0 for u in man.U_cog_flange_m),
                             n_bootstrap=n_bootstrap)
+    except inr.NotPhysical as exc:
+        raise DataError(f"{directory}: {exc}; check {MANIFEST}: dut_trace / tare_trace swapped? cog_flange_m, "
+                        "mass_kg right?") from exc
     except ValueError as exc:
         raise DataError(f"{directory}: {exc}") from exc

@@ -25,7 +25,7 @@ import argparse
 from pathlib import Path
 
 from rgse_daemon.config import Config, LimitsConfig, load_config
-from rgse_daemon.errors import DataError
+from rgse_daemon.errors import ConfigError, DataError
 from rgse_daemon.kinematics import D6_M, G_PAPER_M_S2, measurement_pose
 from rgse_daemon.krl.render import (
     GLOBALS_DAT,
@@ -40,6 +40,13 @@ from rgse_daemon.safety.static import CheckContext, check_program
 
 EXIT_OK = 0
 EXIT_REFUSED = 3
+
+#: The config keys a template's parameters come from (named when a template has no safe parameters).
+CONFIG_KEYS: dict[str, tuple[str, ...]] = {
+    "rgse_warmup": ("measurement.warmup_amplitude_deg", "measurement.warmup_cycles"),
+    "rgse_brake_release": ("measurement.brake_release_deg",),
+    "rgse_resident": ("measurement.warmup_amplitude_deg", "measurement.warmup_cycles", "measurement.brake_release_deg"),
+}
 
 #: Margin below the A5 torque limit for the default payload's CoG.
 A5_TORQUE_MARGIN = 0.9
@@ -132,7 +139,13 @@ def render_all(args: argparse.Namespace) -> int:
 
     write(GLOBALS_DAT, globals_dat_text())
     for name in TEMPLATES:
-        program = render(name, default_params(name, defaults))
+        try:
+            params = default_params(name, defaults)
+        except ConfigError as exc:
+            source = args.config or "the defaults"
+            keys = ", ".join(f"{k} = {getattr(cfg.measurement, k.split('.')[1]):g}" for k in CONFIG_KEYS.get(name, ()))
+            raise ConfigError(f"{exc} (from {keys} in {source})" if keys else str(exc)) from exc
+        program = render(name, params)
         write(f"{name}.src", program.src_text)
         if program.dat_text is not None:
             write(f"{name}.dat", program.dat_text)

@@ -534,6 +534,16 @@ class TemplateDefaults:
     """Further template parameters (by name) that override the above."""
 
 
+def _one_line(exc: ValidationError) -> str:
+    """Each problem as ``parameter: message``, on one line (not pydantic's multi-line dump)."""
+    parts = []
+    for err in exc.errors():
+        where = ".".join(str(p) for p in err["loc"])
+        msg = err["msg"].removeprefix("Value error, ")
+        parts.append(f"{where}: {msg}" if where else msg)
+    return "; ".join(parts)
+
+
 def default_params(name: str, d: TemplateDefaults) -> TemplateParams:
     """The parameters of template ``name`` from ``d``, with the axis speed from :func:`safe_axis_velocity_pct`."""
     base: dict[str, Any] = {"vel_axis_pct": 100.0, "acc_axis_pct": d.acc_axis_pct}
@@ -560,6 +570,8 @@ def default_params(name: str, d: TemplateDefaults) -> TemplateParams:
         starts = sorted({tuple(d.start_deg), tuple(d.meas_pose), tuple(d.oper_pose), *map(tuple, d.cal_poses)})
         paths = [p for s in starts for p in model.paths(s)]
         pct = safe_axis_velocity_pct(paths, d.limit_mm_s, d.payload_points_flange_m, d.override_pct)
-    except (ValidationError, ValueError) as exc:
+    except ValidationError as exc:
+        raise ConfigError(f"KRL template {name}: no safe parameters: {_one_line(exc)}") from exc
+    except ValueError as exc:
         raise ConfigError(f"KRL template {name}: no safe parameters: {exc}") from exc
     return model.model_copy(update={"vel_axis_pct": pct})

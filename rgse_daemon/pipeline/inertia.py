@@ -573,6 +573,34 @@ def _axes_angles_deg(axes: np.ndarray, ref: np.ndarray) -> np.ndarray:
     return np.rad2deg(np.arccos(cos))
 
 
+class NotPhysical(ValueError):
+    """The identified tensor is no rigid body's beyond its uncertainty: the input is wrong, not the DuT."""
+
+
+def check_physical(moments_kgm2: np.ndarray, u_moments_kgm2: np.ndarray, triangle: bool = True) -> str | None:
+    """Refuse principal moments (ascending, U with k = 2) that no rigid body has, beyond their U: a moment below
+    zero, or (``triangle``) I1 + I2 < I3, the triangle inequality of a positive definite inertia tensor. Such a
+    result comes from wrong input (the DuT's and the tare's traces swapped: their difference changes sign; a wrong CoG
+    or mass: the parallel-axis shift to the CoG is wrong), never from the DuT; within U it is left to U.
+
+    Returns the triangle's problem when ``triangle`` is False (a warning for the caller): a flat DuT sits near
+    I1 + I2 = I3, and without a torque calibration each axis' scale error is not in U."""
+    m = np.asarray(moments_kgm2, float)
+    u = np.asarray(u_moments_kgm2, float)
+    if not (np.all(np.isfinite(m)) and np.all(np.isfinite(u))):
+        raise NotPhysical(f"inertia: principal moments {m.tolist()} ± {u.tolist()} kg·m² are not finite")
+    problems = [f"I{k + 1} = {m[k]:.3f} ± {u[k]:.3f} kg·m² is negative" for k in range(3) if m[k] < -u[k]]
+    tri = None
+    if m[0] + m[1] - m[2] < -float(np.sum(u)):
+        tri = f"I1 + I2 = {m[0] + m[1]:.3f} kg·m² < I3 = {m[2]:.3f} kg·m² beyond U (no rigid body: I1 + I2 >= I3)"
+        if triangle:
+            problems.append(tri)
+    if problems:
+        raise NotPhysical("inertia: the identified tensor is not a rigid body's: " + "; ".join(problems)
+                          + " (likely wrong input: the DuT and tare traces swapped, or a wrong CoG or mass)")
+    return tri
+
+
 def identify(
     strokes: Sequence[Stroke],
     period_s: float,
@@ -599,7 +627,8 @@ def identify(
     Raises
     ------
     ValueError
-        Fewer than 4 usable strokes, or the strokes do not determine all six inertia parameters.
+        Fewer than 4 usable strokes, or the strokes do not determine all six inertia parameters;
+        :class:`NotPhysical` if the tensor is no rigid body's beyond its U (:func:`check_physical`).
     """
     cog = np.asarray(cog_flange_m, float)
     u_cog = np.asarray(u_cog_flange_m, float)
@@ -716,6 +745,11 @@ def identify(
         fc, fv, off, mu, kappa = sol[N_SHARED + N_AXIS * k : N_SHARED + N_AXIS * (k + 1)]
         friction[f"A{x}"] = {"coulomb_nm": float(fc), "viscous_nm_s_rad": float(fv), "offset_nm": float(off),
                              "coulomb_per_knm": float(mu), "thermal_per_k": float(kappa) / 1000.0}
+    # without a calibration the readings are taken 1:1: each axis' scale error is not in U, so a flat DuT
+    # (I1 + I2 near I3) may cross the triangle; that is a warning then, a negative moment is refused always
+    tri = check_physical(moments, COVERAGE_K * u_m, triangle=calibration is not None)
+    if tri is not None:
+        warnings.append(f"{tri}: without a torque calibration each axis' scale error is not in U")
     gaps = np.diff(moments) / moments[1:]
     if np.any(gaps < 0.05):
         warnings.append("two principal moments lie within 5 % of each other: their axes are poorly defined")

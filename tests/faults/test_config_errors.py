@@ -124,3 +124,107 @@ def test_valid_overrides_still_apply(monkeypatch, config):
     monkeypatch.setenv("RGSE_MEASUREMENT__SETTLE_S", "2.5")
     cfg = load_config(config)
     assert cfg.mqtt.command_tokens == ("s3cret-token",) and cfg.measurement.settle_s == 2.5
+
+
+def loads(capsys: pytest.CaptureFixture[str], config: Path) -> str:
+    """The one-line error of the real loader through a command that exits right after its work (``rgse krl check``
+    of an empty program): ``rgse daemon`` would keep running on a config that wrongly loads."""
+    program = config.with_name("empty.src")
+    program.write_text("DEF empty()\nEND\n")
+    return one_line_error(capsys, ["krl", "check", str(program), "--config", str(config)])
+
+
+WRONG_TYPE_CASES = [
+    # (file, what the line must say): a wrong type is refused, never coerced (docs/configuration.md)
+    ("[controller]\nport = true\n", "controller.port: Input should be a valid integer, got a boolean"),
+    ('[controller]\nport = "7000"\n', "controller.port: Input should be a valid integer, got a string"),
+    ('[measurement]\nloops = "10"\n', "measurement.loops: Input should be a valid integer, got a string"),
+    ("[measurement]\nloops = 10.0\n", "measurement.loops: Input should be a valid integer, got a float"),
+    ('[measurement]\nwarmup_until_steady = "yes"\n',
+     "measurement.warmup_until_steady: Input should be a valid boolean, got a string"),
+    ("[measurement]\nwarmup_until_steady = 1\n", "measurement.warmup_until_steady: Input should be a valid boolean"),
+    ('[limits]\nt1_speed_mm_s = "200"\n', "limits.t1_speed_mm_s: Input should be a valid number, got a string"),
+    ("[mqtt]\ntls = 0\n", "mqtt.tls: Input should be a valid boolean, got an integer"),
+    ('[scale]\nport = 3\n', "scale.port: Input should be a valid string, got an integer"),
+    ('[properties.fixture]\ncog_flange_m = [0, 0, "0.05"]\n', "properties.fixture.cog_flange_m.2: Input should be"),
+    ('[paths]\ndata_dir = ""\n', 'paths.data_dir: must not be empty (write "." for the current directory)'),
+    ('[paths]\ndata_dir = "  "\n', "paths.data_dir: must not be empty"),
+    ('[controller]\nshare_dir = ""\n', "controller.share_dir: must not be empty"),
+    ("[paths]\ndata_dir = 5\n", "paths.data_dir: "),
+]
+
+
+@pytest.mark.parametrize(("text", "needle"), WRONG_TYPE_CASES, ids=[c[0] for c in WRONG_TYPE_CASES])
+def test_wrong_type_in_the_file_is_refused_not_coerced(capsys, config, text, needle):
+    config.write_text(text)
+    err = loads(capsys, config)
+    assert needle in err and str(config) in err, err
+
+
+def test_the_file_keeps_its_natural_types(config):
+    """Strict, yet an integer is a float, a string a path, an array a tuple, a string the protocol."""
+    from rgse_daemon.config import Protocol, load_config
+
+    config.write_text('[controller]\nprotocol = "kvp"\nshare_dir = "/mnt/krc4"\nport = 7001\n'
+                      '[paths]\ndata_dir = "."\n[measurement]\nsettle_s = 1\nloops = 3\nwarmup_until_steady = false\n'
+                      '[mqtt]\ncommand_tokens = ["s3cret-token"]\n[properties.fixture]\ncog_flange_m = [0, 0, 0.05]\n')
+    cfg = load_config(config)
+    assert cfg.controller.protocol is Protocol.KVP and cfg.controller.share_dir == Path("/mnt/krc4")
+    assert cfg.controller.port == 7001 and cfg.paths.data_dir == Path(".")
+    assert cfg.measurement.settle_s == 1.0 and isinstance(cfg.measurement.settle_s, float)
+    assert cfg.measurement.loops == 3 and cfg.measurement.warmup_until_steady is False
+    assert cfg.mqtt.command_tokens == ("s3cret-token",) and cfg.properties.fixture.cog_flange_m == (0.0, 0.0, 0.05)
+
+
+def test_environment_overrides_are_still_text(monkeypatch, config):
+    """An environment value is text: it is converted as before (docs: booleans ``true``/``false`` or ``1``/``0``)."""
+    from rgse_daemon.config import Protocol, load_config
+
+    for var, value in [("RGSE_CONTROLLER__PORT", "7001"), ("RGSE_MEASUREMENT__LOOPS", "4"),
+                       ("RGSE_MEASUREMENT__WARMUP_UNTIL_STEADY", "0"), ("RGSE_MQTT__TLS", "true"),
+                       ("RGSE_CONTROLLER__PROTOCOL", "kvp"), ("RGSE_PATHS__DATA_DIR", "/var/lib/rgse"),
+                       ("RGSE_MODBUS__INPUTS__ESTOP_OK", "7"), ("RGSE_LIMITS__T1_SPEED_MM_S", "150")]:
+        monkeypatch.setenv(var, value)
+    cfg = load_config(config)
+    assert cfg.controller.port == 7001 and cfg.measurement.loops == 4 and cfg.measurement.warmup_until_steady is False
+    assert cfg.mqtt.tls is True and cfg.controller.protocol is Protocol.KVP
+    assert cfg.paths.data_dir == Path("/var/lib/rgse")
+    assert cfg.modbus is not None and cfg.modbus.inputs.estop_ok == 7 and cfg.limits.t1_speed_mm_s == 150.0
+
+
+LIMIT_CASES = [
+    # measurement settings outside the configured limits: refused at load, naming both keys
+    ("[measurement]\nbrake_release_deg = 90\n",
+     "measurement.brake_release_deg = 90 exceeds limits.brake_release_max_deg = 45"),
+    ("[measurement]\nbrake_release_deg = 40\n[limits]\nbrake_release_max_deg = 30\n",
+     "measurement.brake_release_deg = 40 exceeds limits.brake_release_max_deg = 30"),
+    ("[measurement]\nbrake_release_deg = 20\nwarmup_amplitude_deg = 30\n[limits]\nbrake_release_max_deg = 25\n",
+     "measurement.warmup_amplitude_deg = 30 exceeds limits.brake_release_max_deg = 25"),
+    ("[measurement]\nfixture_mass_kg = 600\n[limits]\nmax_payload_kg = 500\n",
+     "measurement.fixture_mass_kg = 600 exceeds limits.max_payload_kg = 500"),
+    ("[measurement]\npayload_lever_max_m = 0.5\n[properties.fixture]\ncog_flange_m = [0, 0.4, 0.4]\n",
+     "properties.fixture.cog_flange_m is 0.565685 m from the flange, beyond measurement.payload_lever_max_m = 0.5"),
+]
+
+
+@pytest.mark.parametrize(("text", "needle"), LIMIT_CASES, ids=[c[1].split(" =")[0] for c in LIMIT_CASES])
+def test_measurement_outside_the_limits_is_refused_at_load(capsys, config, text, needle):
+    config.write_text(text)
+    err = loads(capsys, config)
+    assert needle in err and str(config) in err, err
+
+
+def test_measurement_limit_from_the_environment(capsys, monkeypatch, config):
+    config.write_text("[measurement]\nbrake_release_deg = 40\n")
+    monkeypatch.setenv("RGSE_LIMITS__BRAKE_RELEASE_MAX_DEG", "30")
+    err = loads(capsys, config)
+    assert "measurement.brake_release_deg = 40 exceeds limits.brake_release_max_deg = 30" in err, err
+
+
+def test_krl_render_names_the_key(capsys, config, tmp_path):
+    """Within the limits but beyond the axis range: `rgse krl render` says so in one line naming the key (it dumped
+    pydantic's multi-line error naming only the template parameter)."""
+    config.write_text("[measurement]\nbrake_release_deg = 60\n[limits]\nbrake_release_max_deg = 90\n")
+    err = one_line_error(capsys, ["krl", "render", "--out", str(tmp_path / "out"), "--config", str(config)])
+    assert "rgse_brake_release" in err and "outside the axis range" in err, err
+    assert f"measurement.brake_release_deg = 60 in {config}" in err and "validation error" not in err, err

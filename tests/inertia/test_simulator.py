@@ -4,6 +4,7 @@ model), written as KUKA Trace files and read back by ``rgse inertia``."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -103,3 +104,65 @@ def test_a_tare_of_another_program_is_refused(run_dir, tmp_path: Path, capsys) -
     (tmp_path / MANIFEST).write_text(text)
     assert main(["inertia", "--traces", str(tmp_path)]) != 0
     assert "inertia_dut_x" in capsys.readouterr().err
+
+
+def _copy_with(run_dir: Path, target: Path, **replace: str) -> Path:
+    """The run directory copied to ``target`` with manifest lines ``key = ...`` replaced by ``key = <value>``."""
+    for f in run_dir.iterdir():
+        (target / f.name).write_bytes(f.read_bytes())
+    lines = (target / MANIFEST).read_text().splitlines()
+    lines = [f"{k} = {replace[k]}" if (k := line.split(" =")[0]) in replace else line for line in lines]
+    (target / MANIFEST).write_text("\n".join(lines) + "\n")
+    return target
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], directory: Path) -> str:
+    capsys.readouterr()
+    rc = main(["inertia", "--traces", str(directory)])
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert rc == 2 and "I1 = " not in captured.out, (rc, captured.out, err)
+    assert err.count("\n") == 0 and "Traceback" not in err and "error:" in err, err
+    return err
+
+
+def test_swapped_dut_and_tare_traces_are_refused(run_dir, tmp_path: Path, capsys) -> None:
+    """As found: exit 0 with "I1 = -52.157 ± 3.436 kg·m²" (the difference changes sign: a negative moment)."""
+    directory = _copy_with(run_dir, tmp_path, dut_trace='"inertia_tare"', tare_trace='"inertia_dut"')
+    err = _one_line_error(capsys, directory)
+    assert "not a rigid body's" in err and "is negative" in err and "swapped" in err, err
+    assert "dut_trace / tare_trace" in err and "cog_flange_m" in err, err
+
+
+@pytest.mark.parametrize(("key", "value", "needle"), [
+    ("cog_flange_m", "[-40.1, -0.028, 0.345]", "cog_flange_m = [-40.1, -0.028, 0.345] is 40.1 m from the flange"),
+    ("cog_flange_m", "[0.0, 0.0, nan]", "cog_flange_m must be 3 finite numbers"),
+    ("fixture_cog_flange_m", "[0.0, 0.0, 40.0]", "fixture_cog_flange_m = [0.0, 0.0, 40.0] is 40 m from the flange"),
+    ("U_cog_flange_m", "[0.002, -0.002, 0.002]", "U_cog_flange_m must be >= 0"),
+])
+def test_an_implausible_cog_is_refused_naming_the_key(run_dir, tmp_path: Path, capsys, key, value, needle) -> None:
+    """As found: a CoG x of -40.1 m gave exit 0 with "I1 = -172535 kg·m²"."""
+    directory = _copy_with(run_dir, tmp_path, **{key: value})
+    err = _one_line_error(capsys, directory)
+    assert needle in err and MANIFEST in err, err
+
+
+@pytest.mark.parametrize(("dut", "tare"), [('"inertia_dut"', '"inertia_dut"'),
+                                           ('["inertia_dut", "x"]', '["inertia_dut", "x"]')])
+def test_the_same_trace_as_dut_and_tare_is_refused(run_dir, tmp_path: Path, capsys, dut, tare) -> None:
+    """As found: "400 of 400 resamples … too few strokes" instead of the real problem."""
+    directory = _copy_with(run_dir, tmp_path, dut_trace=dut, tare_trace=tare)
+    err = _one_line_error(capsys, directory)
+    assert "dut_trace and tare_trace both name 'inertia_dut'" in err and MANIFEST in err, err
+    assert "resamples" not in err, err
+
+
+def test_a_moment_below_zero_within_U_is_left_to_U() -> None:
+    inr.check_physical(np.array([-0.01, 1.0, 1.0]), np.array([0.02, 0.05, 0.05]))
+    inr.check_physical(np.array([0.5, 0.5, 1.05]), np.array([0.02, 0.02, 0.02]))
+    with pytest.raises(inr.NotPhysical, match=re.escape("I1 + I2 = 1.000 kg·m² < I3 = 1.500")):
+        inr.check_physical(np.array([0.5, 0.5, 1.5]), np.array([0.02, 0.02, 0.02]))
+    # without a calibration (the axes' scales not in U) the triangle is the caller's warning
+    assert "I1 + I2 = 1.000" in str(inr.check_physical(np.array([0.5, 0.5, 1.5]), np.full(3, 0.02), triangle=False))
+    with pytest.raises(inr.NotPhysical, match=re.escape("I1 = -0.100 ± 0.020 kg·m² is negative")):
+        inr.check_physical(np.array([-0.1, 1.0, 1.0]), np.array([0.02, 0.05, 0.05]))
