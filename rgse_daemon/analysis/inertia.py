@@ -28,7 +28,6 @@ operating point lies outside the torques the calibration covered; without one, 1
 from __future__ import annotations
 
 import math
-import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +38,7 @@ import numpy as np
 from rgse_daemon import calfile
 from rgse_daemon.errors import DataError
 from rgse_daemon.krl.render import InertiaMove, InertiaParams, RenderedProgram, render
+from rgse_daemon.manifest import check_keys, read_toml
 from rgse_daemon.pipeline import excitation as ex
 from rgse_daemon.pipeline import inertia as inr
 from rgse_daemon.pipeline.cog import AxisGain
@@ -125,17 +125,22 @@ def _cog(d: dict[str, Any], key: str, where: str) -> tuple[float, float, float]:
     return c  # type: ignore[return-value]
 
 
+#: The keys of ``[inertia]`` (docs/interfaces.md); any other is refused (a misspelt optional key would take its
+#: default).
+INERTIA_KEYS = ("dut_trace", "tare_trace", "base_deg", "mass_kg", "cog_flange_m", "U_cog_flange_m", "dut_abc_deg",
+                "fixture_mass_kg", "fixture_cog_flange_m")
+
+
 def load_manifest(directory: Path) -> InertiaManifest:
     path = directory / MANIFEST
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise DataError(f"{path}: no inertia manifest in the run directory") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise DataError(f"{path}: not valid TOML: {exc}") from exc
+    if not path.exists():
+        raise DataError(f"{path}: no inertia manifest in the run directory")
+    doc = read_toml(path)
+    check_keys(doc, ("inertia",), str(path))
     sec = doc.get("inertia")
     if not isinstance(sec, dict):
         raise DataError(f"{path}: no [inertia] table")
+    check_keys(sec, INERTIA_KEYS, f"{path} [inertia]")
     for key in ("dut_trace", "tare_trace"):
         v = sec.get(key)
         if isinstance(v, list) and v and all(isinstance(n, str) for n in v):

@@ -157,6 +157,15 @@ def test_the_same_trace_as_dut_and_tare_is_refused(run_dir, tmp_path: Path, caps
     assert "resamples" not in err, err
 
 
+def test_a_misspelt_key_is_refused_not_taken_as_its_default(run_dir, tmp_path: Path, capsys) -> None:
+    """As found: `fixture_mas_kg` was ignored, so the fixture's mass silently became 0."""
+    directory = _copy_with(run_dir, tmp_path)
+    text = (directory / MANIFEST).read_text()
+    (directory / MANIFEST).write_text(text.replace("[inertia]", "[inertia]\nfixture_mas_kg = 3.0", 1))
+    err = _one_line_error(capsys, directory)
+    assert "unknown key 'fixture_mas_kg' (did you mean 'fixture_mass_kg'?)" in err and MANIFEST in err, err
+
+
 def test_a_moment_below_zero_within_U_is_left_to_U() -> None:
     inr.check_physical(np.array([-0.01, 1.0, 1.0]), np.array([0.02, 0.05, 0.05]))
     inr.check_physical(np.array([0.5, 0.5, 1.05]), np.array([0.02, 0.02, 0.02]))
