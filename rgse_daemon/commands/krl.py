@@ -109,6 +109,9 @@ def check(args: argparse.Namespace) -> int:
     src = _read_text(src_path)
     dat_path = _dat_beside(src_path)
     dat = _read_text(dat_path) if dat_path is not None else None
+    if "{{" in src or (dat is not None and "{{" in dat):
+        raise DataError(f"{src_path}: an unrendered template (it holds {{{{...}}}} placeholders), not a program: "
+                        f"render it with rgse krl render --out DIR [--config FILE], then check DIR/{src_path.name}")
     cfg = load_config(args.config)
     violations = check_program(src, dat, default_context(cfg), file=str(src_path))
     for v in violations:

@@ -180,6 +180,10 @@ def test_cli_check_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     broken.write_text("DEF broken(\nEND\n", encoding="latin-1")
     assert cli.main(["krl", "check", str(broken)]) == 2
     assert cli.main(["krl", "check", str(tmp_path / "missing.src")]) == 2
+    capsys.readouterr()
+    template = Path(__file__).resolve().parents[2] / "krl" / "rgse_warmup.src"
+    assert cli.main(["krl", "check", str(template)]) == 2
+    assert "an unrendered template" in capsys.readouterr().err  # not a syntax error at its first placeholder
 
 
 def test_cli_check_reads_the_dat_beside(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
