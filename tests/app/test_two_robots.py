@@ -11,6 +11,7 @@ from typing import Any
 
 import pytest
 
+from rgse_daemon import calfile
 from rgse_daemon.client import CalibrationResult, MeasurementResult, Refused, RgseClient
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.krl.render import globals_dat_text
@@ -60,7 +61,8 @@ async def test_two_daemons_share_one_postgresql_and_one_broker(
     sim_a, sim_b = sims
     cfg_a = robot_config(tmp_path, ROBOT_A, sim_a, private_broker, pg_url)
     cfg_b = robot_config(tmp_path, ROBOT_B, sim_b, private_broker, pg_url)
-    cal_b = await seed_calibration(cfg_b, {**calibration_doc, "robot": ROBOT_B})  # B is calibrated, A is not
+    # B is calibrated (a calibration fitted for B, sealed as rgse calibrate writes it), A is not
+    cal_b = await seed_calibration(cfg_b, calfile.seal({**calibration_doc, "robot": ROBOT_B}))
 
     everything = Collector("127.0.0.1", private_broker.port, "rgse/#")
     async with (everything, running_daemon(cfg_a) as da, running_daemon(cfg_b) as db,
