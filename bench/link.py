@@ -9,7 +9,8 @@ Measures, and prints as ONE JSON object on stdout:
 * the ratio of this client's C3 snapshot rate to py-openshowvar's (goal ≥ 10).
 
 The simulator serialises requests across all clients, like the real single-threaded server, and each request
-takes ``--latency-ms`` (≈ 2 ms measured on real controllers, kuka-facts §3).
+takes ``--latency-ms`` (≈ 2 ms measured on real controllers: github.com/ivareri/KUKAVARPROXY_tests, listed in
+``docs/protocol.md``, Sources).
 
 Usage: ``.venv/bin/python bench/link.py [--latency-ms 2] [--reads 300] [--snapshots 60]``
 """

@@ -63,8 +63,13 @@ def run(args: argparse.Namespace) -> int:
                   f"{'-' if lever is None else f'{lever:.3f}':>8s}  {adm}{mark}")
         rms = summary["heldout_axis_rms_nm"]
         if summary["nested_mean_abs_err_pct"] is not None:
-            print(f"out of sample (nested: selection repeated without each configuration): mean |error| "
-                  f"{summary['nested_mean_abs_err_pct']:.3f} %")
+            # always auto's figure (its whole choice repeated without each configuration), whatever was fitted here
+            of = "" if args.method == "auto" else f", not of the {summary['method']} calibration written"
+            print(f"out of sample of --method auto (nested: its selection repeated without each configuration"
+                  f"{of}): mean |error| {summary['nested_mean_abs_err_pct']:.3f} %")
+        if summary.get("r2"):
+            r2 = ", ".join(f"{axis} {value:.4f}" for axis, value in sorted(summary["r2"].items()))
+            print(f"R² of the K fits: {r2} (CAL.json fit.r2)")
         print(f"held-out per-axis scatter A3 {rms['A3']:.1f} Nm, A5 {rms['A5']:.1f} Nm: reproducibility "
               f"u = {summary['u_reproducibility_kg']:.3f} kg")
         sys.stdout.flush()

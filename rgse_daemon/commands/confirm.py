@@ -6,8 +6,8 @@ Publishes a ``confirm`` command (interfaces §4; schema :class:`~rgse_daemon.io.
 daemon's broker, as configured in FILE, and waits for the daemon's reply to it. Without ``--run`` the run is the
 one the daemon's retained ``state`` names; the daemon itself checks that this run is the one waiting. Prints the
 reply (one JSON line on stdout). Exit 0 when the daemon accepted; 1 when it refused (its reason on stderr) or its
-state names no run; 2 on a bad configuration or command, an unreachable broker, or no reply within ``--timeout``
-(default 10 s). See :mod:`rgse_daemon.commands.status` for the client.
+state names no run; 2 on a bad configuration or command, an unreachable broker, a daemon whose retained status is
+offline, or no reply within ``--timeout`` (default 10 s). See :mod:`rgse_daemon.commands.status` for the client.
 """
 
 from __future__ import annotations
@@ -45,6 +45,12 @@ def run(args: argparse.Namespace) -> int:
                     f"{describe_status(conv.json_of(t.status))}); name the run with --run RUN_ID"
                 )
             target = state.get("run_id")
+            if not target and await conv.daemon_offline(wait_s):
+                # a stopped daemon's last state is stale: say it is offline, as rgse abort does (exit 2)
+                raise Unreachable(
+                    f"{ep.broker}: the daemon is not running (its retained status: {conv.describe_status()}); "
+                    f"nothing can be confirmed until it runs again"
+                )
             if not target:
                 print(
                     f"rgse confirm: nothing to confirm: the daemon's state (at {state.get('time', '?')}) names no run "

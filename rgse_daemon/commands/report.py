@@ -14,7 +14,7 @@ from pathlib import Path
 from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import ConfigError, DataError, RgseError
 from rgse_daemon.report import build_report
-from rgse_daemon.store import Repository
+from rgse_daemon.store import NotFound, Repository, describe_store, sqlite_path
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -26,18 +26,37 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def write(cfg: Config, *, run_id: str | None = None, calibration_id: str | None = None,
-          out_dir: Path | None = None) -> Path:
-    """Write the report of ``run_id`` or ``calibration_id`` from ``cfg``'s store; returns the HTML file's path."""
+          out_dir: Path | None = None, config_path: Path | None = None) -> Path:
+    """Write the report of ``run_id`` or ``calibration_id`` from ``cfg``'s store; returns the HTML file's path.
+
+    A run or calibration not in the store is a :class:`DataError` naming the store searched (and, without
+    ``config_path``, suggesting ``--config``); a SQLite store that does not exist is not created for that.
+    """
     if (run_id is None) == (calibration_id is None):
         raise DataError("give either RUN_ID or --calibration ID")
     data_dir = cfg.paths.data_dir
+    what = f"run {run_id!r}" if run_id is not None else f"calibration {calibration_id!r}"
+    hint = "" if config_path is not None else (
+        " (no --config given, so this is the default configuration's store; name the daemon's configuration "
+        "with --config FILE)")
+    db_file = sqlite_path(cfg.store.url, data_dir)
+    if db_file is not None and not db_file.exists():
+        raise DataError(f"{what}: not found: the {describe_store(cfg.store.url, data_dir)} does not exist{hint}")
     with Repository.open(cfg.store.url, data_dir) as repo:
+        try:
+            if run_id is not None:
+                repo.get_run(run_id)
+            else:
+                repo.get_calibration(calibration_id or "")
+        except NotFound as exc:
+            raise DataError(f"{exc} in the {repo.description}{hint}") from exc
         return build_report(repo, data_dir, out_dir if out_dir is not None else data_dir / "reports",
                             run_id=run_id, calibration_id=calibration_id)
 
 
 def run(args: argparse.Namespace) -> int:
-    print(write(load_config(args.config), run_id=args.run_id, calibration_id=args.calibration, out_dir=args.out))
+    print(write(load_config(args.config), run_id=args.run_id, calibration_id=args.calibration, out_dir=args.out,
+                config_path=args.config))
     return 0
 
 

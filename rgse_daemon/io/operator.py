@@ -126,6 +126,11 @@ def describe_status(status: Any) -> str:
     return text
 
 
+def daemon_offline(status: Any) -> bool:
+    """Whether the daemon's retained ``status`` says it is not on the broker (stopped, or its last will)."""
+    return isinstance(status, dict) and status.get("state") == "offline"
+
+
 def new_client(ep: Endpoint, purpose: str, timeout_s: float) -> aiomqtt.Client:
     """An operator's connection: a fresh client id (never the daemon's), a clean session, no will."""
     return aiomqtt.Client(
@@ -194,8 +199,18 @@ class Conversation:
     def _hint(self) -> str:
         if self.doing.startswith(("connecting", "subscribing")):
             return ""
-        status = self.json_of(self.ep.topics.status)
-        return f"; the daemon's retained status: {describe_status(status)}"
+        return f"; the daemon's retained status: {self.describe_status()}"
+
+    def describe_status(self) -> str:
+        """The daemon's retained status as received so far, in words (:func:`describe_status`)."""
+        return describe_status(self.json_of(self.ep.topics.status))
+
+    async def daemon_offline(self, wait_s: float) -> bool:
+        """Whether the daemon's retained status says it is offline; waits up to ``wait_s`` for that status if it
+        has not arrived yet (it is retained: normally at once). Subscribe to the status topic first."""
+        if self.ep.topics.status not in self.latest:
+            await self.read_retained(wait_s, until=self.ep.topics.status)
+        return daemon_offline(self.json_of(self.ep.topics.status))
 
     def json_of(self, topic: str) -> Any:
         message = self.latest.get(topic)

@@ -72,6 +72,7 @@ class RunAdmission:
         started = self._started
         if started is not None and not started.done():
             started.set_result(run_id)
+            self.counters.runs_started += 1
 
     def start(self, kind: str, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]], *,
               engine: RunEngine | None, krc: Controller | None, store: Store, connected: bool,
@@ -91,8 +92,7 @@ class RunAdmission:
             why = f" ({link_error})" if link_error else ""
             raise NotConnected(f"not connected: controller {c.host}:{c.port} is not connected{why}")
         self.kind = kind
-        self._started = asyncio.get_running_loop().create_future()
-        self.counters.runs_started += 1
+        self._started = started = asyncio.get_running_loop().create_future()
 
         async def runner() -> Any:
             try:
@@ -101,6 +101,8 @@ class RunAdmission:
             except asyncio.CancelledError:
                 raise
             except Exception as exc:
+                if not started.done():  # refused before it started (mode, no active calibration, ...): not a run
+                    self.counters.runs_refused += 1
                 self.last_error = f"{type(exc).__name__}: {exc}"
                 log.error("%s run failed: %s", kind, self.last_error)
                 self._on_failed(kind, self.run_id, self.last_error)

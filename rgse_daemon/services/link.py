@@ -39,7 +39,10 @@ class DaemonCounters:
     link_losses: int = 0
     """Losses of an established controller link."""
     runs_started: int = 0
+    """Runs that started (the engine ran them): a run refused in its start checks is not one."""
     runs_refused: int = 0
+    """Run requests refused: busy, stopping, not connected, safety latch, or the run's own start checks (mode,
+    no active calibration, ...) before it started."""
 
     def as_dict(self) -> dict[str, int]:
         return dataclasses.asdict(self)

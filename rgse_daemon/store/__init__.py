@@ -23,6 +23,7 @@ from rgse_daemon.store.archive import (
     relative_path,
     verify_file,
 )
+from rgse_daemon.store.backend import describe_store, sqlite_path
 from rgse_daemon.store.errors import (
     ArchiveConflict,
     ArchiveError,
@@ -77,8 +78,10 @@ __all__ = [
     "archive_file",
     "archive_file_async",
     "archive_root",
+    "describe_store",
     "discard_partial_copies",
     "file_digest",
     "relative_path",
+    "sqlite_path",
     "verify_file",
 ]

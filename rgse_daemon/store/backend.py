@@ -215,6 +215,27 @@ def _redact(url: str) -> str:
     return f"{scheme}://{user}@{host}" if user else f"{scheme}://{host}"
 
 
+def sqlite_path(url: str | None, data_dir: Path) -> Path | None:
+    """The SQLite file a store ``url`` names (as :func:`open_backend` resolves it), or None for any other URL."""
+    if url is None or url in ("sqlite:", "sqlite://"):
+        return Path(data_dir) / SQLITE_FILENAME
+    if url.startswith("sqlite:///"):
+        path = Path(url.removeprefix("sqlite:///"))
+        if not path.name:
+            raise StoreError(f"store URL {url!r}: no file name")
+        return path if path.is_absolute() else Path(data_dir) / path
+    return None
+
+
+def describe_store(url: str | None, data_dir: Path) -> str:
+    """The store ``url`` names, in words (a PostgreSQL password redacted), without opening it."""
+    path = sqlite_path(url, data_dir)
+    if path is not None:
+        return f"sqlite store {path}"
+    kind = "postgresql store" if (url or "").startswith(("postgresql://", "postgres://")) else "store"
+    return f"{kind} {_redact(url or '')}"
+
+
 def open_backend(url: str | None, data_dir: Path, timeout_s: float) -> Backend:
     """Open the store named by ``url``.
 
@@ -222,13 +243,10 @@ def open_backend(url: str | None, data_dir: Path, timeout_s: float) -> Backend:
     relative to ``data_dir``, ``sqlite:////abs/path`` is absolute); ``postgresql://…`` or ``postgres://…`` → that
     server. Anything else is a :class:`StoreError` naming the URL.
     """
-    if url is None or url in ("sqlite:", "sqlite://"):
-        return SqliteBackend(Path(data_dir) / SQLITE_FILENAME, timeout_s)
-    if url.startswith("sqlite:///"):
-        path = Path(url.removeprefix("sqlite:///"))
-        if not path.name:
-            raise StoreError(f"store URL {url!r}: no file name")
-        return SqliteBackend(path if path.is_absolute() else Path(data_dir) / path, timeout_s)
+    path = sqlite_path(url, data_dir)
+    if path is not None:
+        return SqliteBackend(path, timeout_s)
+    assert url is not None
     if url.startswith(("postgresql://", "postgres://")):
         return PostgresBackend(url, timeout_s)
     raise StoreError(f"store URL {_redact(url)!r}: unsupported (use sqlite:///PATH or postgresql://...)")

@@ -250,6 +250,19 @@ async def test_second_measure_is_refused_busy_with_the_reason_in_the_reply(
     assert sim.interpreter.state is not ProState.ACTIVE
 
 
+async def test_measure_without_an_active_calibration_counts_as_refused_not_started(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, tmp_path: Path) -> None:
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
+                        broker_port=private_broker.port)
+    async with running_daemon(cfg) as rd, peer(private_broker) as op:
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        reply = await command(op, "measure", {"loops": 1})
+        assert reply["ok"] is False and "no active calibration" in reply["error"], reply
+        c = rd.daemon.counters
+        await wait_until(lambda: c.runs_refused == 1, "the refusal counted")
+        assert c.runs_started == 0 and not rd.daemon.run_active
+
+
 async def test_measure_with_the_controller_unreachable_is_refused_not_connected(
         private_broker: MosquittoProcess, tmp_path: Path) -> None:
     port = free_port()  # nothing listens here

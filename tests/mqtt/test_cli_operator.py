@@ -215,6 +215,25 @@ async def test_a_stopped_daemon_is_named_offline(
     assert handler.calls == []
 
 
+async def test_confirm_and_abort_name_a_stopped_daemon_offline_after_a_failed_run(
+    system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler, config: Path
+) -> None:
+    """The daemon stopped after a failed run: its retained state names no run, its retained status is offline.
+    confirm (without --run) says offline and exits 2 as abort does, not "nothing to confirm" with exit 1."""
+    async with daemon(system_broker, prefix, store, handler) as bridge:
+        bridge.publish_state({"engine": "failed", "run_id": None, "run_kind": None})
+        await wait_until(lambda: bridge.counters.state_published >= 1, "state published")
+    confirm, abort = await asyncio.gather(
+        rgse("confirm", "--config", config, "--timeout", "2"),
+        rgse("abort", "--config", config, "--timeout", "2"),
+    )
+    for verb, ran in (("confirm", confirm), ("abort", abort)):
+        ran.one_line_error(f"rgse {verb}: error: mqtt broker", "status: offline since", VERSION)
+        assert ran.out == "", ran
+    assert "nothing to confirm" not in confirm.err and "not running" in confirm.err, confirm.err
+    assert handler.calls == []
+
+
 async def test_an_unreachable_broker_port_exits_2(tmp_path: Path) -> None:
     port = free_port()  # nothing listens there
     cfg = write_config(tmp_path / "rgse.toml", "127.0.0.1", port, "rgse-test/nobody")

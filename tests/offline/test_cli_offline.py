@@ -36,6 +36,20 @@ def test_calibrate_points_paper_and_auto(tmp_path, capsys, paper_dir):
     assert set(doc["source_sha256"]) == {"table1_calibration.csv"}
 
 
+def test_calibrate_text_output_says_whose_nested_figure_it_is_and_gives_r2(tmp_path, capsys, paper_dir):
+    """The nested out-of-sample figure is always auto's selection, whatever was fitted; R² is printed."""
+    csv = str(paper_dir / "table1_calibration.csv")
+    assert main(["calibrate", "--points", csv, "--out", str(tmp_path / "p.json"), "--method", "paper"]) == 0
+    out = capsys.readouterr().out
+    assert "out of sample of --method auto (nested: " in out and "not of the paper calibration written" in out
+    assert "R² of the K fits: A3 0.8922, A5 " in out and "(CAL.json fit.r2)" in out
+    r2 = json.loads((tmp_path / "p.json").read_text())["fit"]["r2"]
+    assert f"{r2['A3']:.4f}" == "0.8922"
+    assert main(["calibrate", "--points", csv, "--out", str(tmp_path / "a.json"), "--method", "auto"]) == 0
+    out = capsys.readouterr().out
+    assert "out of sample of --method auto (nested: " in out and "not of the" not in out
+
+
 @pytest.mark.parametrize(("seed", "sign", "period_s", "factor", "storage"), [
     (0, 1.0, 0.004, 1.0, "BLOCK"),
     (1, -1.0, 0.012, 0.5, "CHANNEL"),

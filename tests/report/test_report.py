@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -142,10 +143,25 @@ def test_report_command_and_module_entry(world: World, tmp_path: Path, capsys) -
                          check=False)
     assert bad.returncode == 2
     assert "no-such-run" in bad.stderr and "Traceback" not in bad.stderr
+    assert str(world.data_dir / "rgse.sqlite3") in bad.stderr  # the store it searched
     calib_as_run = subprocess.run([sys.executable, "-m", "rgse_daemon.commands.report", world.filled.calibration_run_id,
                                    "--config", str(cfg), "--out", str(tmp_path / "c")], cwd=REPO,
                                   capture_output=True, text=True, timeout=60, check=False)
     assert calib_as_run.returncode == 2 and "--calibration" in calib_as_run.stderr
+
+
+def test_report_of_a_missing_run_names_the_store_and_creates_none(tmp_path: Path) -> None:
+    """Without --config the default store is ./data/rgse.sqlite3: a report from a directory without one says so,
+    suggests --config, and leaves no empty store behind."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RGSE_")}
+    for args in (["no-such-run"], ["--calibration", "no-such-cal"]):
+        proc = subprocess.run([sys.executable, "-m", "rgse_daemon.commands.report", *args], cwd=tmp_path, env=env,
+                              capture_output=True, text=True, timeout=60, check=False)
+        assert proc.returncode == 2, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1 and "Traceback" not in proc.stderr, proc.stderr
+        for fragment in (args[-1], "sqlite store data/rgse.sqlite3 does not exist", "--config FILE"):
+            assert fragment in proc.stderr, (fragment, proc.stderr)
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_json_roundtrip_of_numbers_is_exact(world: World) -> None:
