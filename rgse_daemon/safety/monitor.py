@@ -422,6 +422,8 @@ class Monitor:
                 finally:
                     task.cancel()
                     await asyncio.wait({task})  # a cancel of *this* task still propagates from here
+                    if not task.cancelled() and task.exception() is not None:  # (only after a trip: see _poll)
+                        _log.critical("interlock: the stop after the trip failed: %r", task.exception())
                 if not self._confirming:
                     await self._confirm_idle()
 
