@@ -9,25 +9,13 @@ from pathlib import Path
 import pytest
 
 from rgse_daemon.cli import main
-from tests.support.campaign import write_campaign, write_measurement
+from tests.support.cli import fitted_dirs, one_line_error
 
 
 @pytest.fixture(scope="module")
 def dirs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("manifest")
-    write_campaign(root / "cal", seed=5, n_samples=300)
-    write_measurement(root / "dut", 100.0, seed=6, n_samples=300, n_loops=3)
-    assert main(["calibrate", "--campaign", str(root / "cal"), "--out", str(root / "CAL.json"),
-                 "--method", "gain-linear"]) == 0
-    return root
+    return fitted_dirs(tmp_path_factory.mktemp("manifest"), "gain-linear")
 
-
-def one_line_error(capsys: pytest.CaptureFixture[str], argv: list[str]) -> str:
-    capsys.readouterr()
-    assert main(argv) == 2
-    err = capsys.readouterr().err.strip()
-    assert err.count("\n") == 0 and "Traceback" not in err, err
-    return err
 
 
 def mass_error(capsys: pytest.CaptureFixture[str], traces: Path, cal: Path) -> str:
