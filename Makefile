@@ -35,13 +35,13 @@ bench: $(STAMP)
 	@for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 # Mutation testing (issue #18; README "Mutation testing"), not part of `make test`: mutmut's single-operator mutants
-# of the mass pipeline -- pipeline/mass.py, uncertainty.py, inline.py, preprocess.py, calibration.py, thermal.py --
-# each run against the fast pipeline tests only (tests/pipeline, `-m "not slow"`, ~15 s in all; per mutant mutmut
+# of the mass pipeline -- pipeline/mass.py, uncertainty.py, inline.py, preprocess.py, calibration.py, selection.py,
+# thermal.py -- each run against the fast pipeline tests only (tests/pipeline, `-m "not slow"`, ~15 s in all; per mutant mutmut
 # runs just the tests that reach the mutated function, fastest first, stopping at the first failure). One worker by
 # default (MUTATION_JOBS=2 for a machine of your own); about an hour on one core. Narrow it with
 # MUTATE="mass thermal" (module names or paths); MUTATE=all takes every module of pipeline/ (cog, inertia,
 # excitation, study, envelope too: ~8000 mutants, several hours). The per-file score is printed at the end.
-MASS_PIPELINE := mass uncertainty inline preprocess calibration thermal
+MASS_PIPELINE := mass uncertainty inline preprocess calibration selection thermal
 MUTATE ?= $(MASS_PIPELINE)
 MUTATION_JOBS ?= 1
 mutation: $(STAMP)

@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' simul
 
 from rgse_daemon.analysis.calibration import CampaignData, campaign_points, campaign_thermal
 from rgse_daemon.pipeline import calibration as cal_mod
-from rgse_daemon.pipeline import inline
+from rgse_daemon.pipeline import inline, selection
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.envelope import Envelope, OperatingPointError
@@ -146,8 +146,8 @@ def repetition(name: str, seed: int) -> dict:
                         loop_temps_k=[[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in point]
                                       for point in camp.loops])
     points, bias3, bias5 = campaign_points(data, pp.PAPER)
-    evaluations = cal_mod.evaluate_all(points, G, dr)
-    chosen = cal_mod.choose_auto(points, evaluations)
+    evaluations = selection.evaluate_all(points, G, dr)
+    chosen = selection.choose_auto(points, evaluations)
     by = {e.method: e for e in [*evaluations, chosen]}
     rng = np.random.default_rng(900 + seed)
     dut_kg, cog = float(rng.uniform(20.0, 230.0)), float(rng.uniform(*spec["cog"]))

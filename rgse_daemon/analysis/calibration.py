@@ -26,6 +26,7 @@ from rgse_daemon.manifest import (
 )
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import selection
 from rgse_daemon.pipeline import thermal as thermal_mod
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import CalibrationPoints
@@ -116,14 +117,14 @@ def points_from_raw(man: Manifest, raw3: np.ndarray, raw5: np.ndarray) -> tuple[
 
 def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float):
     """Evaluate every model (in-sample and LOO), pick ``method`` (or the auto choice) and fit it on all points."""
-    evaluations = cal_mod.evaluate_all(points, g, dr)
+    evaluations = selection.evaluate_all(points, g, dr)
     if method == "auto":
-        chosen = cal_mod.choose_auto(points, evaluations)
+        chosen = selection.choose_auto(points, evaluations)
     else:
         if not cal_mod.known_method(method):
             raise DataError(f"unknown calibration method {method!r}; use auto or one of {', '.join(cal_mod.MODELS)}")
         found = [e for e in evaluations if e.method == method]
-        chosen = found[0] if found else cal_mod.evaluate(points, method, g, dr)
+        chosen = found[0] if found else selection.evaluate(points, method, g, dr)
     cal = cal_mod.fit(points, chosen.method, g, dr)
     cov_ref = cal_mod.reference_mass_param_covariance(points, chosen.method, g, dr)
     cal.covariance = cal.covariance + cov_ref
@@ -131,8 +132,8 @@ def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float
     return cal, chosen, evaluations
 
 
-def plausible_alternatives(points: CalibrationPoints, chosen: cal_mod.Evaluation,
-                           evaluations: list[cal_mod.Evaluation], g: float, dr: float) -> list[dict]:
+def plausible_alternatives(points: CalibrationPoints, chosen: selection.Evaluation,
+                           evaluations: list[selection.Evaluation], g: float, dr: float) -> list[dict]:
     """The other admissible models whose held-out error is within ``PLAUSIBLE_LOO_FACTOR`` of the chosen one's,
     fitted on all points, each with its own uncertainty data (CAL.json ``fit.alternatives``: the model-form term,
     and the fallback where the chosen model's U is unusable)."""
@@ -143,11 +144,11 @@ def plausible_alternatives(points: CalibrationPoints, chosen: cal_mod.Evaluation
             for e in evaluations if e.method != chosen.method and e.admissible and e.loo_mean_abs_err_pct <= limit]
 
 
-def validation_record(points: CalibrationPoints, chosen: cal_mod.Evaluation, nested_pct: float | None
+def validation_record(points: CalibrationPoints, chosen: selection.Evaluation, nested_pct: float | None
                       ) -> dict[str, Any]:
     """CAL.json ``fit.validation``: the scheme, the chosen model's held-out per-axis residuals, the nested figure."""
     rms = chosen.axis_rms_nm
-    return {"scheme": cal_mod.VALIDATION_SCHEME,
+    return {"scheme": selection.VALIDATION_SCHEME,
             "heldout_axis_rms_nm": {"A3": float(rms[0]), "A5": float(rms[1])},
             "heldout_residual_nm": {"A3": chosen.heldout_residual_nm[:, 0].tolist(),
                                     "A5": chosen.heldout_residual_nm[:, 1].tolist()},
@@ -167,7 +168,7 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
     ``drift``: the campaign's thermal drift (CAL.json ``fit.thermal``), removed from the DuT's loops at measurement."""
     try:
         cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
-        nested_pct = (cal_mod.mean_abs_pct(points.mass_kg, cal_mod.nested_loo_auto_mass_kg(points, g, dr))
+        nested_pct = (cal_mod.mean_abs_pct(points.mass_kg, selection.nested_loo_auto_mass_kg(points, g, dr))
                       if nested else None)
         cu = unc.calibration_uncertainty(points, chosen.method, g, dr, chosen.heldout_residual_nm)
     except DataError as exc:
@@ -260,7 +261,7 @@ def fit_campaign(directory: Path, method: str,
     return doc, summary
 
 
-def loo_rms_rel(points: CalibrationPoints, ev: cal_mod.Evaluation) -> float:
+def loo_rms_rel(points: CalibrationPoints, ev: selection.Evaluation) -> float:
     """RMS of the relative LOO mass errors over the loaded points (the model term of the uncertainty)."""
     loaded = points.mass_kg > 0
     rel = (ev.loo_mass_kg[loaded] - points.mass_kg[loaded]) / points.mass_kg[loaded]

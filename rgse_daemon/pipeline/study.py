@@ -16,6 +16,7 @@ import numpy as np
 
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import selection
 from rgse_daemon.progress import ProgressFn
 
 #: Largest running-median window the study tries: its cost grows with the window (the paper's study found the
@@ -158,8 +159,8 @@ def run_study(points_loops: Sequence[Sequence[LoopData]],
 
 
 def rank_models(points: cal_mod.CalibrationPoints, g_m_s2: float = 9.81, lever_difference_m: float = 1.025,
-                progress: ProgressFn | None = None) -> list[cal_mod.Evaluation]:
-    """:func:`calibration.evaluate_all`, ranked by the leave-one-out mean absolute mass error."""
+                progress: ProgressFn | None = None) -> list[selection.Evaluation]:
+    """:func:`selection.evaluate_all`, ranked by the leave-one-out mean absolute mass error."""
     report = None if progress is None else (lambda done, total: progress(STAGE_MODELS, done, total))
-    evaluations = cal_mod.evaluate_all(points, g_m_s2, lever_difference_m, report)
+    evaluations = selection.evaluate_all(points, g_m_s2, lever_difference_m, report)
     return sorted(evaluations, key=lambda e: e.loo_mean_abs_err_pct)

@@ -261,7 +261,7 @@ def refit_spread_kg(cal: Calibration, params: np.ndarray, torque_a3_nm: float, t
 def calibration_uncertainty(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
                             heldout_residual_nm: np.ndarray) -> CalibrationUncertainty:
     """Everything :class:`CalibrationUncertainty` needs, from the calibration points and the method's held-out
-    per-axis residuals (:attr:`calibration.Evaluation.heldout_residual_nm`). The reproducibility counts the loaded
+    per-axis residuals (:attr:`selection.Evaluation.heldout_residual_nm`). The reproducibility counts the loaded
     *interior* configurations only: holding out the heaviest point on an axis is an extrapolation, which the
     operating-point check (:mod:`rgse_daemon.pipeline.envelope`) treats, not the reproducibility."""
     inner = interior(points)

@@ -22,7 +22,7 @@ from rich.console import Console
 from rgse_daemon.commands.demo import BarsView, PlainView, demo_view
 from rgse_daemon.manifest import load_points_csv
 from rgse_daemon.pipeline import calibration as cal_mod
-from rgse_daemon.pipeline import study
+from rgse_daemon.pipeline import selection, study
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.progress import stage_progress, terminal_console
 
@@ -109,7 +109,7 @@ def test_rank_models_is_evaluate_all_ranked(paper_dir) -> None:
     points = load_points_csv(paper_dir / "table1_calibration.csv")
     calls: list[tuple[str, int, int]] = []
     ranked = study.rank_models(points, 9.81, 1.025, lambda *a: calls.append(a))
-    expected = sorted(cal_mod.evaluate_all(points, 9.81, 1.025), key=lambda e: e.loo_mean_abs_err_pct)
+    expected = sorted(selection.evaluate_all(points, 9.81, 1.025), key=lambda e: e.loo_mean_abs_err_pct)
     assert [e.method for e in ranked] == [e.method for e in expected]
     assert [e.loo_mean_abs_err_pct for e in ranked] == [e.loo_mean_abs_err_pct for e in expected]
     n = len(cal_mod.MODELS)

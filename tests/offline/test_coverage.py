@@ -18,7 +18,7 @@ import pytest
 from rgse_daemon.analysis.calibration import CampaignData, campaign_points, campaign_thermal
 from rgse_daemon.cli import main
 from rgse_daemon.pipeline import calibration as cal_mod
-from rgse_daemon.pipeline import inline
+from rgse_daemon.pipeline import inline, selection
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.envelope import Envelope
@@ -43,7 +43,7 @@ def one_repetition(seed: int) -> tuple[float, inline.InlineMass]:
                                       for point in camp.loops])
     points, bias3, bias5 = campaign_points(data, pp.PAPER)
     dr = camp.manifest.setup.lever_difference_m
-    ev = cal_mod.evaluate(points, METHOD, G, dr)
+    ev = selection.evaluate(points, METHOD, G, dr)
     cal = cal_mod.fit(points, METHOD, G, dr)
     cu = unc.calibration_uncertainty(points, METHOD, G, dr, ev.heldout_residual_nm)
     dut_kg, cog_z_m = dut_of(seed)

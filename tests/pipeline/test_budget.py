@@ -16,6 +16,7 @@ from rgse_daemon.pipeline import envelope as E
 from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import mass as mass_eq
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import selection as S
 from rgse_daemon.pipeline import uncertainty as unc
 
 G, DR = 9.81, 1.025
@@ -199,7 +200,7 @@ def test_ill_conditioned_eq20_keeps_u_finite(table1):
                                     table1.torque_a5_nm + rng.normal(0, 15.0, len(table1)) * (table1.mass_kg > 0),
                                     table1.expected_a3_nm, table1.expected_a5_nm, table1.mass_cov_kg2)
     cal = C.fit(scattered, "paper", G, DR)
-    ev = C.evaluate(scattered, "paper", G, DR)
+    ev = S.evaluate(scattered, "paper", G, DR)
     cu = unc.calibration_uncertainty(scattered, "paper", G, DR, ev.heldout_residual_nm)
     m3, m5 = 1500.0, 420.0  # a 110 kg DuT in the mass-stack pose
     u_cal = cu.curve_spread_kg(cal, m3, m5)

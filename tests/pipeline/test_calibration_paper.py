@@ -8,6 +8,7 @@ import pytest
 from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import load_points_csv
 from rgse_daemon.pipeline import calibration as C
+from rgse_daemon.pipeline import selection as S
 
 
 @pytest.fixture
@@ -49,7 +50,7 @@ def test_paper_mass_from_table_a3_torques_is_eq21(table_a3):
 
 
 def test_paper_method_in_sample_close_to_paper(table1):
-    ev = C.evaluate(table1, "paper", 9.81, 1.025)
+    ev = S.evaluate(table1, "paper", 9.81, 1.025)
     assert ev.in_sample_mean_abs_err_pct == pytest.approx(0.6986, abs=0.05)
     # out of sample the paper's method is clearly worse: about 1 % and several kg at the high-torque points
     assert 0.9 < ev.loo_mean_abs_err_pct < 1.2
@@ -68,9 +69,9 @@ def test_double_exponential_fit_is_start_independent(table1):
 
 
 def test_auto_beats_paper_out_of_sample(table1):
-    evs = C.evaluate_all(table1, 9.81, 1.025)
+    evs = S.evaluate_all(table1, 9.81, 1.025)
     by = {e.method: e for e in evs}
-    chosen = C.select_auto(evs)
+    chosen = S.select_auto(evs)
     assert chosen.loo_mean_abs_err_pct < by["paper"].loo_mean_abs_err_pct - 0.2
     assert chosen.loo_max_abs_err_kg < by["paper"].loo_max_abs_err_kg
 

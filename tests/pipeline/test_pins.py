@@ -15,6 +15,7 @@ from rgse_daemon.pipeline import calibration as C
 from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import mass as mass_eq
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import selection as S
 from rgse_daemon.pipeline import thermal as T
 from rgse_daemon.pipeline import uncertainty as unc
 
@@ -462,7 +463,7 @@ def test_parameter_monte_carlo_is_the_sample_deviation_of_seeded_draws():
 
 
 # ------------------------------------------------------------------------------------------------------------
-# calibration.py: the gain curve's K, the model records, leave-one-out, the nested figure of auto
+# calibration.py and selection.py: the gain curve's K, the model records, leave-one-out, the nested figure of auto
 # ------------------------------------------------------------------------------------------------------------
 def test_gain_curve_k_by_hand():
     """K = G(M)/M of G = 1.1·M + 0.02·M·|M|/1000; at M = 0 the linear coefficient (the limit), NaN without one."""
@@ -565,14 +566,14 @@ def test_leave_one_out_by_hand():
         # eq. 21 with the point's own lever difference, which its expected torques encode: (e3 − e5)/(g·m)
         dr = (e3[i] - e5[i]) / (G * pts.mass_kg[i]) if pts.mass_kg[i] > 0 else DR
         want.append((k3 * t3[i] - k5 * t5[i]) / (G * dr))
-    np.testing.assert_allclose(C.leave_one_out_mass_kg(pts, "axis-linear", G, DR), want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(S.leave_one_out_mass_kg(pts, "axis-linear", G, DR), want, rtol=1e-12, atol=1e-12)
 
 
 def test_nested_out_of_sample_of_auto_on_an_exact_drive():
     """Constant drive gains, no scatter: whatever each fold selects recovers every held-out mass; progress per fold."""
     pts = stack_points(n=6)
     calls = []
-    got = C.nested_loo_auto_mass_kg(pts, G, DR, progress=lambda done, total: calls.append((done, total)))
+    got = S.nested_loo_auto_mass_kg(pts, G, DR, progress=lambda done, total: calls.append((done, total)))
     np.testing.assert_allclose(got, pts.mass_kg, rtol=1e-9, atol=1e-9)
     assert calls == [(i, 7) for i in range(1, 8)]
 
@@ -642,39 +643,39 @@ def test_out_of_range_limits_and_message():
 def test_evaluate_all_progress_and_refusal():
     pts = stack_points(scatter_nm=1.0, n=6)
     calls = []
-    evs = C.evaluate_all(pts, G, DR, progress=lambda done, total: calls.append((done, total)))
+    evs = S.evaluate_all(pts, G, DR, progress=lambda done, total: calls.append((done, total)))
     assert calls == [(i, len(C.MODELS)) for i in range(1, len(C.MODELS) + 1)] and len(evs) > 0
     one = C.CalibrationPoints(np.array(["zero", "mass"]), np.array([0.0, 10.0]), np.array([0.0, 100.0]),
                               np.array([0.0, 20.0]), np.array([0.0, 110.0]), np.array([0.0, 22.0]))
     with pytest.raises(C.CalibrationError, match=r"^no calibration model can be fitted to these points \(too few "
                                                  r"loaded points\)$"):
-        C.evaluate_all(one, G, DR)
+        S.evaluate_all(one, G, DR)
 
 
 def ev(method: str, loo_pct: float, n_params: int = 2, admissible: bool = True, lever_pct: float = np.nan,
-       loo: tuple[float, ...] = (0.0, 10.0), lever: tuple[float, ...] = (np.nan, np.nan)) -> C.Evaluation:
-    return C.Evaluation(method, np.array(loo) + 0.1, np.array(loo), 0.0, loo_pct, 0.0, n_params,
+       loo: tuple[float, ...] = (0.0, 10.0), lever: tuple[float, ...] = (np.nan, np.nan)) -> S.Evaluation:
+    return S.Evaluation(method, np.array(loo) + 0.1, np.array(loo), 0.0, loo_pct, 0.0, n_params,
                         np.zeros((len(loo), 2)), np.array(lever), lever_pct, admissible)
 
 
 def test_selection_rules_by_hand():
     # without any lever-group figure the score is the configuration error alone
-    assert C.selection_score([ev("axis-linear", 0.7), ev("sur-quad", 0.6)]) == {"axis-linear": 0.7, "sur-quad": 0.6}
-    assert C.selection_score([ev("axis-linear", 0.7), ev("sur-quad", 0.6, lever_pct=2.0)]) == {
+    assert S.selection_score([ev("axis-linear", 0.7), ev("sur-quad", 0.6)]) == {"axis-linear": 0.7, "sur-quad": 0.6}
+    assert S.selection_score([ev("axis-linear", 0.7), ev("sur-quad", 0.6, lever_pct=2.0)]) == {
         "axis-linear": pytest.approx(0.72), "sur-quad": pytest.approx(0.62)}
     # nothing admissible: the best of all
-    assert C.select_auto([ev("axis-linear", 0.7, admissible=False), ev("axis-quad", 0.5, 4, False)]).method == \
+    assert S.select_auto([ev("axis-linear", 0.7, admissible=False), ev("axis-quad", 0.5, 4, False)]).method == \
         "axis-quad"
     # no per-axis model: the joint one
-    assert C.select_auto([ev("gain-linear", 0.9)]).method == "gain-linear"
+    assert S.select_auto([ev("gain-linear", 0.9)]).method == "gain-linear"
     # a joint model exactly the margin better does not replace the per-axis model
     axis = 0.5
-    joint = axis - C.PREFER_AXIS_MARGIN_PCT
-    assert C.select_auto([ev("axis-linear", axis), ev("gain-linear", joint)]).method == "axis-linear"
-    assert C.select_auto([ev("axis-linear", axis), ev("gain-linear", joint - 1e-9)]).method == "gain-linear"
+    joint = axis - S.PREFER_AXIS_MARGIN_PCT
+    assert S.select_auto([ev("axis-linear", axis), ev("gain-linear", joint)]).method == "axis-linear"
+    assert S.select_auto([ev("axis-linear", axis), ev("gain-linear", joint - 1e-9)]).method == "gain-linear"
     # within 0.01 % the fewer parameters win (0.01 exactly included), beyond it the score
-    assert C.select_auto([ev("axis-quad", 0.5, 4), ev("axis-linear", 0.5 + 0.01, 2)]).method == "axis-linear"
-    assert C.select_auto([ev("axis-quad", 0.5, 4), ev("axis-linear", 0.52, 2)]).method == "axis-quad"
+    assert S.select_auto([ev("axis-quad", 0.5, 4), ev("axis-linear", 0.5 + 0.01, 2)]).method == "axis-linear"
+    assert S.select_auto([ev("axis-quad", 0.5, 4), ev("axis-linear", 0.52, 2)]).method == "axis-quad"
 
 
 def test_average_of_members_by_hand():
@@ -683,21 +684,21 @@ def test_average_of_members_by_hand():
     a = ev("axis-linear", 0.4, loo=(0.2, 10.4), lever=(np.nan, 9.0))
     b = ev("sur-quad", 0.6, 4, loo=(-0.2, 9.8), lever=(np.nan, 10.0))  # exactly 1.5 × the best: a member
     c = ev("axis-quad", 0.61, 4, loo=(5.0, 5.0))
-    avg = C.average_of(pts, [a, b, c, ev("gain-linear", 0.1)])  # the joint model is never averaged
+    avg = S.average_of(pts, [a, b, c, ev("gain-linear", 0.1)])  # the joint model is never averaged
     assert avg.method == "avg:axis-linear+sur-quad"
     np.testing.assert_allclose(avg.loo_mass_kg, [0.0, 10.1])
     np.testing.assert_allclose(avg.in_sample_mass_kg, [0.1, 10.2])
     np.testing.assert_allclose(avg.lever_mass_kg, [np.nan, 9.5])
     assert avg.lever_mean_abs_err_pct == pytest.approx(5.0) and avg.loo_mean_abs_err_pct == pytest.approx(0.5)
     assert avg.n_params == 4  # the union of the terms per axis: lin and quad on A3, lin and quad on A5
-    assert C.average_of(pts, [a]) is None
-    assert C.average_of(pts, [a, ev("axis-quad", 0.61, 4)]) is None
+    assert S.average_of(pts, [a]) is None
+    assert S.average_of(pts, [a, ev("axis-quad", 0.61, 4)]) is None
     # a per-axis model that is no gain curve sets the bar too: clearly better than every gain curve, no average
-    assert C.average_of(pts, [ev("paper", 0.39), a, b]) is None
-    assert C.average_of(pts, [ev("paper", 0.4), a, b]).method == "avg:axis-linear+sur-quad"
+    assert S.average_of(pts, [ev("paper", 0.39), a, b]) is None
+    assert S.average_of(pts, [ev("paper", 0.4), a, b]).method == "avg:axis-linear+sur-quad"
     # ... but an inadmissible or a joint one does not
-    assert C.average_of(pts, [ev("paper", 0.1, admissible=False), a, b]).method == "avg:axis-linear+sur-quad"
-    assert C.average_of(pts, [ev("gain-quad", 0.1), a, b]).method == "avg:axis-linear+sur-quad"
+    assert S.average_of(pts, [ev("paper", 0.1, admissible=False), a, b]).method == "avg:axis-linear+sur-quad"
+    assert S.average_of(pts, [ev("gain-quad", 0.1), a, b]).method == "avg:axis-linear+sur-quad"
 
 
 def test_axis_gain_fit_by_hand():
@@ -751,21 +752,21 @@ def test_calibration_uncertainty_record_needs_two_finite_refits():
         unc.CalibrationUncertainty.from_dict(record, 2)
 
 
-def ev_rms(method: str, rms3: float, rms5: float) -> C.Evaluation:
+def ev_rms(method: str, rms3: float, rms5: float) -> S.Evaluation:
     """An evaluation whose held-out per-axis residuals have exactly this RMS (±r on two configurations)."""
-    return C.Evaluation(method, np.zeros(2), np.zeros(2), 0.0, 0.5, 0.0, 2, np.array([[rms3, rms5], [-rms3, -rms5]]))
+    return S.Evaluation(method, np.zeros(2), np.zeros(2), 0.0, 0.5, 0.0, 2, np.array([[rms3, rms5], [-rms3, -rms5]]))
 
 
 def test_admissibility_by_hand():
     """A joint model is admissible unless an axis' held-out RMS exceeds 1.5 × the best per-axis model's (floored at
     1 Nm); with no per-axis model every joint one is inadmissible."""
-    out = C.admissibility([ev_rms("axis-linear", 4.0, 0.5), ev_rms("sur-quad", 6.0, 2.0),
+    out = S.admissibility([ev_rms("axis-linear", 4.0, 0.5), ev_rms("sur-quad", 6.0, 2.0),
                            ev_rms("gain-linear", 6.0, 1.5), ev_rms("gain-quad", 6.5, 1.6)])
     by = {e.method: e for e in out}
     assert by["axis-linear"].admissible and by["sur-quad"].admissible  # per-axis models are never judged
     assert by["gain-linear"].admissible and by["gain-linear"].note == ""  # exactly at 1.5 × 4.0 and 1.5 × max(0.5, 1)
     assert not by["gain-quad"].admissible
     assert by["gain-quad"].note == "A3 held-out 6.5 Nm vs per-axis 4.0 Nm; A5 held-out 1.6 Nm vs per-axis 0.5 Nm"
-    alone = C.admissibility([ev_rms("gain-linear", 1.0, 1.0), ev_rms("gain-quad", 1.0, 1.0)])
+    alone = S.admissibility([ev_rms("gain-linear", 1.0, 1.0), ev_rms("gain-quad", 1.0, 1.0)])
     refused = (False, "no per-axis model to check the A3/A5 split against")
     assert [(e.admissible, e.note) for e in alone] == [refused, refused]

@@ -8,6 +8,7 @@ import pytest
 
 from rgse_daemon.manifest import load_points_csv
 from rgse_daemon.pipeline import calibration as C
+from rgse_daemon.pipeline import selection as S
 
 G, DR = 9.81, 1.025
 
@@ -35,7 +36,7 @@ def mass_stack_campaign(seed: int = 4) -> C.CalibrationPoints:
 
 def test_selection_prefers_per_axis_model_where_the_joint_split_is_wrong():
     pts = mass_stack_campaign()
-    evs = C.evaluate_all(pts, G, DR)
+    evs = S.evaluate_all(pts, G, DR)
     by = {e.method: e for e in evs}
     # held out by configuration the joint gain fits look best on the mass ...
     assert by["gain-linear"].loo_mean_abs_err_pct < min(e.loo_mean_abs_err_pct for e in evs if not e.joint)
@@ -44,7 +45,7 @@ def test_selection_prefers_per_axis_model_where_the_joint_split_is_wrong():
         assert e.admissible == (not e.joint), e.method
         if e.joint:
             assert "A3 held-out" in e.note and e.axis_rms_nm.min() > 50.0
-    chosen = C.select_auto(evs)
+    chosen = S.select_auto(evs)
     assert not chosen.joint
     # a DuT at another lever (A5 lever 1.0 m, the torque points' pose) shows who was right
     m = 150.0
@@ -63,7 +64,7 @@ def test_joint_model_admitted_where_its_split_holds():
     pts = C.CalibrationPoints(np.array(["zero"] + ["mass"] * 10 + ["torque"] * 3), mass,
                               e3 / 1.1 + rng.normal(0, 0.5, 14) * (mass > 0),
                               e5 / 0.85 + rng.normal(0, 0.5, 14) * (mass > 0), e3, e5)
-    by = {e.method: e for e in C.evaluate_all(pts, G, DR)}
+    by = {e.method: e for e in S.evaluate_all(pts, G, DR)}
     assert by["gain-linear"].admissible, by["gain-linear"].note
     assert np.all(by["gain-linear"].axis_rms_nm < 5.0)
     assert np.isfinite(by["gain-linear"].lever_mean_abs_err_pct)
@@ -71,28 +72,28 @@ def test_joint_model_admitted_where_its_split_holds():
 
 def test_selection_rules():
     def ev(method, loo, lever=float("nan"), admissible=True, n=2):
-        return C.Evaluation(method, np.zeros(1), np.zeros(1), 0.0, loo, 0.0, n, lever_mean_abs_err_pct=lever,
+        return S.Evaluation(method, np.zeros(1), np.zeros(1), 0.0, loo, 0.0, n, lever_mean_abs_err_pct=lever,
                             admissible=admissible)
 
     # an inadmissible joint model never wins, however good it looks
-    assert C.select_auto([ev("gain-linear", 0.1, admissible=False), ev("axis-quad", 0.5)]).method == "axis-quad"
+    assert S.select_auto([ev("gain-linear", 0.1, admissible=False), ev("axis-quad", 0.5)]).method == "axis-quad"
     # an admissible joint model must beat the best per-axis one by more than the margin
-    margin = C.PREFER_AXIS_MARGIN_PCT
-    assert C.select_auto([ev("gain-linear", 0.5 - margin / 2), ev("axis-quad", 0.5)]).method == "axis-quad"
-    assert C.select_auto([ev("gain-linear", 0.5 - 2 * margin), ev("axis-quad", 0.5)]).method == "gain-linear"
+    margin = S.PREFER_AXIS_MARGIN_PCT
+    assert S.select_auto([ev("gain-linear", 0.5 - margin / 2), ev("axis-quad", 0.5)]).method == "axis-quad"
+    assert S.select_auto([ev("gain-linear", 0.5 - 2 * margin), ev("axis-quad", 0.5)]).method == "gain-linear"
     # the lever-group error counts in the score
-    picked = C.select_auto([ev("axis-quad", 0.50, lever=10.0), ev("axis-log", 0.55, lever=1.0)])
+    picked = S.select_auto([ev("axis-quad", 0.50, lever=10.0), ev("axis-log", 0.55, lever=1.0)])
     assert picked.method == "axis-log"
-    score = C.selection_score([ev("axis-quad", 0.5, lever=2.0), ev("axis-log", 0.4)])
-    assert score["axis-quad"] == pytest.approx(0.5 + C.LEVER_WEIGHT * 2.0)
-    assert score["axis-log"] == pytest.approx(0.4 + C.LEVER_WEIGHT * 2.0)  # unvalidated: the worst lever figure
+    score = S.selection_score([ev("axis-quad", 0.5, lever=2.0), ev("axis-log", 0.4)])
+    assert score["axis-quad"] == pytest.approx(0.5 + S.LEVER_WEIGHT * 2.0)
+    assert score["axis-log"] == pytest.approx(0.4 + S.LEVER_WEIGHT * 2.0)  # unvalidated: the worst lever figure
     # near-ties go to fewer parameters
-    assert C.select_auto([ev("axis-quad", 0.500, n=4), ev("axis-linear", 0.505, n=2)]).method == "axis-linear"
+    assert S.select_auto([ev("axis-quad", 0.500, n=4), ev("axis-linear", 0.505, n=2)]).method == "axis-linear"
 
 
 def test_held_out_residuals_are_per_axis_corrected_minus_expected(paper_dir):
     pts = load_points_csv(paper_dir / "table1_calibration.csv")
-    ev = C.evaluate(pts, "axis-linear", G, DR)
+    ev = S.evaluate(pts, "axis-linear", G, DR)
     i = 5
     keep = np.arange(len(pts)) != i
     cal = C.fit(pts.subset(keep), "axis-linear", G, DR)
@@ -128,7 +129,7 @@ def test_each_point_has_its_own_lever_difference(paper_dir):
     cal = C.fit(exact, "axis-linear", G, DR)
     np.testing.assert_allclose(cal.points_mass_kg(exact), mass, atol=1e-9)
     assert abs(float(cal.mass_kg(exact.torque_a3_nm[-1], exact.torque_a5_nm[-1])) - 150.0) > 6.0  # with 1.025 m
-    np.testing.assert_allclose(C.evaluate(exact, "axis-linear", G, DR).loo_mass_kg, mass, atol=1e-9)
+    np.testing.assert_allclose(S.evaluate(exact, "axis-linear", G, DR).loo_mass_kg, mass, atol=1e-9)
     with pytest.raises(C.CalibrationError, match=r"^calibration point 2: expected A3 torque .* is not above its "
                                                  r"expected A5 torque .* \(r_A3 − r_A5 must be positive\)$"):
         C.CalibrationPoints(exact.kind, mass, e3, e5, e5, e3)  # A5's expected torque above A3's
@@ -142,9 +143,9 @@ def test_table1_nested_out_of_sample_of_auto(paper_dir):
     once each point's mass is taken in its own geometry (the torque rows' Δr, 1.0204 m; the issue's 0.70 % is not
     reached), and the paper's method is above 1 %."""
     pts = load_points_csv(paper_dir / "table1_calibration.csv")
-    evs = C.evaluate_all(pts, G, DR)
+    evs = S.evaluate_all(pts, G, DR)
     assert not any(e.admissible for e in evs if e.joint)
-    nested = C.mean_abs_pct(pts.mass_kg, C.nested_loo_auto_mass_kg(pts, G, DR))
+    nested = C.mean_abs_pct(pts.mass_kg, S.nested_loo_auto_mass_kg(pts, G, DR))
     paper = next(e for e in evs if e.method == "paper")
     assert nested < 0.73
     assert nested < paper.loo_mean_abs_err_pct - 0.2
@@ -171,7 +172,7 @@ def test_sur_fit_uses_the_axes_common_mode():
     for seed in range(30):
         pts, gains = common_mode_campaign(seed, shift_m=0.02)
         sur, axis = C.fit(pts, "sur-linear", G, DR), C.fit(pts, "axis-linear", G, DR)
-        assert not C.Evaluation("sur-linear", *(np.zeros(1),) * 2, 0.0, 0.0, 0.0, 2).joint
+        assert not S.Evaluation("sur-linear", *(np.zeros(1),) * 2, 0.0, 0.0, 0.0, 2).joint
         gain_sur.append(np.abs(sur.params - gains))
         gain_axis.append(np.abs(axis.params - gains))
         m, l5 = 120.0, np.array([0.3, 0.6, 1.2])  # DuTs at the mass stack's, between and the torque points' levers
@@ -203,14 +204,14 @@ def test_sur_fit_is_robust_to_one_scattered_point():
 
 def test_auto_averages_the_best_per_axis_gain_models():
     pts, _ = common_mode_campaign(3)
-    evs = C.evaluate_all(pts, G, DR)
-    avg = C.choose_auto(pts, evs)
+    evs = S.evaluate_all(pts, G, DR)
+    avg = S.choose_auto(pts, evs)
     assert avg.method.startswith(C.AVERAGE_PREFIX) and C.known_method(avg.method)
     members = avg.method.removeprefix(C.AVERAGE_PREFIX).split("+")
-    score = C.selection_score(evs)
+    score = S.selection_score(evs)
     pool = [e.method for e in evs if e.method in C.AVERAGEABLE and e.admissible]
     best = min(score[e.method] for e in evs if e.admissible and not e.joint)  # paper and ratio-linear count too
-    assert members == [m for m in pool if score[m] <= C.AVERAGE_FACTOR * best] and len(members) >= 2
+    assert members == [m for m in pool if score[m] <= S.AVERAGE_FACTOR * best] and len(members) >= 2
     # eq. 21 is linear in the corrected torques: the average's mass is the members' mean, per axis a gain curve
     cal = C.fit(pts, avg.method, G, DR)
     t3, t5 = np.array([800.0, 2500.0]), np.array([300.0, 1500.0])
@@ -228,4 +229,4 @@ def test_auto_averages_the_best_per_axis_gain_models():
     with pytest.raises(C.CalibrationError, match="average"):
         C.fit(pts, "avg:axis-quad+paper", G, DR)
     one = [e for e in evs if e.method in ("axis-quad", "paper")]
-    assert C.choose_auto(pts, one).method in ("axis-quad", "paper")
+    assert S.choose_auto(pts, one).method in ("axis-quad", "paper")

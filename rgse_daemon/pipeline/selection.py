@@ -1,0 +1,253 @@
+"""Model selection by held-out configurations (issue #18): which calibration model ``--method auto`` uses.
+
+Every model of :data:`~rgse_daemon.pipeline.calibration.MODELS` is validated by holding out whole load
+configurations (every loop of a point together) and then the lever group (the torque-based points together).
+Joint models are admitted only where their A3/A5 split holds on held-out configurations (:func:`admissibility`);
+``auto`` averages the near-best admissible per-axis gain models (:func:`average_of`), and
+:func:`nested_loo_auto_mass_kg` repeats the whole choice without each configuration: the honest out-of-sample figure
+that ``rgse calibrate`` prints.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from rgse_daemon.pipeline.calibration import (
+    AVERAGE_PREFIX,
+    AVERAGEABLE,
+    GAIN_TERMS,
+    JOINT_MODELS,
+    MODELS,
+    Calibration,
+    CalibrationError,
+    CalibrationPoints,
+    fit,
+    mean_abs_pct,
+)
+
+#: Members of the average: admissible per-axis gain models whose selection score is within this factor of the best.
+AVERAGE_FACTOR = 1.5
+#: How the models are validated (recorded in CAL.json): every load configuration (all loops of a calibration point
+#: together) held out in turn, then the lever group of the torque-based points held out together.
+VALIDATION_SCHEME = {"configurations": "leave-one-configuration-out (all loops of a point together)",
+                     "lever_group": "leave-lever-group-out (the torque-based points together)",
+                     "selection": "lowest score = configuration mean |error| % + 0.01 x lever-group mean |error| % "
+                                  "among admissible models; per-axis models preferred"}
+#: A joint model is admissible only if, on every axis, its held-out corrected torques scatter around the expected
+#: torques (eq. 17/18) by at most this factor times the best per-axis model's.
+JOINT_AXIS_FACTOR = 1.5
+#: ... with this floor (Nm): a split error below it is immaterial (0.1 kg at Δr = 1.025 m).
+JOINT_AXIS_FLOOR_NM = 1.0
+#: A joint model replaces the best per-axis model only if its selection score is lower by more than this (%).
+PREFER_AXIS_MARGIN_PCT = 0.02
+#: Weight of the lever-group (extrapolation to other levers) error in the selection score.
+LEVER_WEIGHT = 0.01
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """In-sample and held-out mass errors of one method on one set of calibration points.
+
+    ``loo_*``: every configuration (point) predicted by the fit on all others. ``heldout_residual_nm`` (n, 2): the
+    held-out corrected torque ``K(M)·M`` minus the expected torque, A3 and A5 (the identifiability check of a
+    joint model, and the reproducibility of the uncertainty). ``lever_*``: the torque-based points predicted by
+    the fit on the others (NaN where there are none or the rest cannot carry the model): the selection's
+    extrapolation check.
+    """
+
+    method: str
+    in_sample_mass_kg: np.ndarray
+    loo_mass_kg: np.ndarray
+    in_sample_mean_abs_err_pct: float
+    loo_mean_abs_err_pct: float
+    loo_max_abs_err_kg: float
+    n_params: int
+    heldout_residual_nm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    lever_mass_kg: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    lever_mean_abs_err_pct: float = np.nan
+    admissible: bool = True
+    note: str = ""
+
+    @property
+    def joint(self) -> bool:
+        return self.method in JOINT_MODELS
+
+    @property
+    def axis_rms_nm(self) -> np.ndarray:
+        """RMS of the held-out per-axis residuals (A3, A5), Nm."""
+        r = np.asarray(self.heldout_residual_nm, float)
+        return np.sqrt(np.mean(r**2, axis=0)) if r.size else np.full(2, np.nan)
+
+
+def _axis_residual_nm(cal: Calibration, points: CalibrationPoints, index: np.ndarray) -> np.ndarray:
+    c3 = cal.k_a3.corrected_torque_nm(points.torque_a3_nm[index])
+    c5 = cal.k_a5.corrected_torque_nm(points.torque_a5_nm[index])
+    return np.stack([c3 - points.expected_a3_nm[index], c5 - points.expected_a5_nm[index]], axis=-1)
+
+
+def leave_one_out_mass_kg(points: CalibrationPoints, method: str, g_m_s2: float,
+                          lever_difference_m: float) -> np.ndarray:
+    """Mass of each point (configuration) predicted by the method fitted on all other points."""
+    return _held_out(points, method, g_m_s2, lever_difference_m)[0]
+
+
+def _held_out(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+    n = len(points)
+    mass, resid = np.empty(n), np.empty((n, 2))
+    for i in range(n):
+        keep = np.arange(n) != i
+        cal = fit(points.subset(keep), method, g_m_s2, lever_difference_m)
+        mass[i] = float(cal.points_mass_kg(points, np.array([i]))[0])
+        resid[i] = _axis_residual_nm(cal, points, np.array([i]))[0]
+    return mass, resid
+
+
+def _lever_group_out(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float
+                     ) -> np.ndarray:
+    """The torque-based points predicted together by the fit on the other points (NaN elsewhere / if unfittable)."""
+    mass = np.full(len(points), np.nan)
+    group = np.asarray(points.kind) == "torque"
+    if not group.any() or group.all():
+        return mass
+    try:
+        cal = fit(points.subset(~group), method, g_m_s2, lever_difference_m)
+    except CalibrationError:
+        return mass
+    idx = np.flatnonzero(group)
+    mass[idx] = cal.points_mass_kg(points, idx)
+    return mass
+
+
+def evaluate(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Evaluation:
+    cal = fit(points, method, g_m_s2, lever_difference_m)
+    ins = cal.points_mass_kg(points)
+    loo, resid = _held_out(points, method, g_m_s2, lever_difference_m)
+    lever = _lever_group_out(points, method, g_m_s2, lever_difference_m)
+    held = np.isfinite(lever)
+    lever_pct = mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else np.nan
+    return Evaluation(method, ins, loo, mean_abs_pct(points.mass_kg, ins), mean_abs_pct(points.mass_kg, loo),
+                      float(np.max(np.abs(loo - points.mass_kg))), len(cal.params), resid, lever, lever_pct)
+
+
+def evaluate_all(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float,
+                 progress: Callable[[int, int], None] | None = None) -> list[Evaluation]:
+    """Every model of the catalogue that can be fitted to these points, in catalogue order, with its admissibility
+    (:func:`admissibility`); ``progress(done, total)`` after each model (the held-out fits take seconds)."""
+    out = []
+    for done, name in enumerate(MODELS, 1):
+        try:
+            out.append(evaluate(points, name, g_m_s2, lever_difference_m))
+        except CalibrationError:
+            pass  # this model needs more points than there are: the others are still ranked
+        if progress is not None:
+            progress(done, len(MODELS))
+    if not out:
+        raise CalibrationError("no calibration model can be fitted to these points (too few loaded points)")
+    return admissibility(out)
+
+
+def admissibility(evaluations: list[Evaluation]) -> list[Evaluation]:
+    """Mark the joint models whose A3/A5 split is not borne out by held-out configurations as inadmissible.
+
+    On points where M_A3 and M_A5 rise together (a mass stack) a joint fit can move any part of the correction
+    from one axis to the other without changing eq. 21's mass there; the wrong split shows as soon as a DuT's A3/A5
+    torque ratio differs. It also shows in the held-out corrected torques per axis, which then miss the expected
+    torques (eq. 17/18) by much more than a per-axis model's do.
+    """
+    axis = [e for e in evaluations if not e.joint]
+    if not axis:
+        return [replace(e, admissible=False, note="no per-axis model to check the A3/A5 split against")
+                if e.joint else e for e in evaluations]
+    best = np.min([e.axis_rms_nm for e in axis], axis=0)
+    out = []
+    for e in evaluations:
+        if not e.joint:
+            out.append(e)
+            continue
+        # (the lever-group fold cannot judge the split: without the torque points no joint fit can find it)
+        bad = [f"{ax} held-out {v:.1f} Nm vs per-axis {b:.1f} Nm" for ax, v, b in
+               zip(("A3", "A5"), e.axis_rms_nm, best, strict=True)
+               if v > JOINT_AXIS_FACTOR * max(b, JOINT_AXIS_FLOOR_NM)]
+        out.append(replace(e, admissible=not bad, note="; ".join(bad)))
+    return out
+
+
+def selection_score(evaluations: list[Evaluation]) -> dict[str, float]:
+    """Per method: held-out configuration mean |error| % + :data:`LEVER_WEIGHT` × lever-group mean |error| % (a
+    model that cannot be validated on the lever group gets the worst lever figure of the others)."""
+    levers = [e.lever_mean_abs_err_pct for e in evaluations if np.isfinite(e.lever_mean_abs_err_pct)]
+    worst = max(levers, default=0.0)
+    return {e.method: e.loo_mean_abs_err_pct + LEVER_WEIGHT * (e.lever_mean_abs_err_pct if np.isfinite(
+        e.lever_mean_abs_err_pct) else worst) for e in evaluations}
+
+
+def select_auto(evaluations: list[Evaluation]) -> Evaluation:
+    """The admissible model with the lowest :func:`selection_score`. A joint model must beat the best per-axis model
+    by more than :data:`PREFER_AXIS_MARGIN_PCT`; near-ties (< 0.01 %) go to fewer parameters."""
+    score = selection_score(evaluations)
+    pool = [e for e in evaluations if e.admissible] or list(evaluations)
+    axis = [e for e in pool if not e.joint]
+    joint = [e for e in pool if e.joint]
+    best_axis = min((score[e.method] for e in axis), default=np.inf)
+    best_joint = min((score[e.method] for e in joint), default=np.inf)
+    group = joint if best_joint < best_axis - PREFER_AXIS_MARGIN_PCT else (axis or joint)
+    best = min(score[e.method] for e in group)
+    close = [e for e in group if score[e.method] <= best + 0.01]
+    return min(close, key=lambda e: (e.n_params, score[e.method]))
+
+
+def average_of(points: CalibrationPoints, evaluations: list[Evaluation]) -> Evaluation | None:
+    """The equal-weight average of the admissible per-axis gain models whose selection score is within
+    :data:`AVERAGE_FACTOR` of the best admissible per-axis model (averageable or not), as an :class:`Evaluation` (its
+    held-out masses and residuals are the members' means: eq. 21 is linear in the corrected torques); None if fewer
+    than two qualify. A model that is not a gain curve (``paper``, ``ratio-linear``) and clearly better than every
+    gain curve leaves no members: the average is for near-equal models, not for outvoting a better one."""
+    score = selection_score(evaluations)
+    pool = [e for e in evaluations if e.method in AVERAGEABLE and e.admissible]
+    if len(pool) < 2:
+        return None
+    best = min(score[e.method] for e in evaluations if e.admissible and not e.joint)
+    members = [e for e in pool if score[e.method] <= AVERAGE_FACTOR * best]
+    if len(members) < 2:
+        return None
+    method = AVERAGE_PREFIX + "+".join(e.method for e in members)
+    ins = np.mean([e.in_sample_mass_kg for e in members], axis=0)
+    loo = np.mean([e.loo_mass_kg for e in members], axis=0)
+    lever = np.mean([e.lever_mass_kg for e in members], axis=0)
+    held = np.isfinite(lever)
+    k3 = {t for e in members for t in GAIN_TERMS[e.method][0]}
+    k5 = {t for e in members for t in GAIN_TERMS[e.method][1]}
+    return Evaluation(method, ins, loo, mean_abs_pct(points.mass_kg, ins), mean_abs_pct(points.mass_kg, loo),
+                      float(np.max(np.abs(loo - points.mass_kg))), len(k3) + len(k5),
+                      np.mean([e.heldout_residual_nm for e in members], axis=0), lever,
+                      mean_abs_pct(points.mass_kg[held], lever[held]) if held.any() else np.nan)
+
+
+def choose_auto(points: CalibrationPoints, evaluations: list[Evaluation]) -> Evaluation:
+    """What ``--method auto`` uses: a joint model where :func:`select_auto` admits and prefers one, otherwise the
+    average of the best per-axis gain models (:func:`average_of`), or the single best model if there is no average."""
+    single = select_auto(evaluations)
+    if single.joint:
+        return single
+    return average_of(points, evaluations) or single
+
+
+def nested_loo_auto_mass_kg(points: CalibrationPoints, g_m_s2: float, lever_difference_m: float,
+                            progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+    """Honest out-of-sample figure of ``--method auto``: in each fold (one configuration held out) the model is
+    *selected* on the remaining points only, then fitted there and used to predict the held-out configuration."""
+    n = len(points)
+    out = np.empty(n)
+    for i in range(n):
+        keep = np.arange(n) != i
+        sub = points.subset(keep)
+        chosen = choose_auto(sub, evaluate_all(sub, g_m_s2, lever_difference_m))
+        cal = fit(sub, chosen.method, g_m_s2, lever_difference_m)
+        out[i] = float(cal.points_mass_kg(points, np.array([i]))[0])
+        if progress is not None:
+            progress(i + 1, n)
+    return out
