@@ -32,7 +32,7 @@ from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, Settings
 
 from rgse_daemon.errors import ConfigError
 
-#: ISO 10218-1 reduced speed that the controller itself enforces in T1 (kuka-facts §2).
+#: ISO 10218-1 reduced speed that the controller itself enforces in T1 (docs/controller.md §2).
 T1_CONTROLLER_LIMIT_MM_S = 250.0
 
 Seconds = Annotated[float, Field(gt=0.0, le=3600.0)]

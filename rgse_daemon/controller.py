@@ -71,7 +71,7 @@ SNAPSHOT_VARIABLES: tuple[str, ...] = (
     "$ROB_STOPPED",
 )
 
-#: #29 End copy flag: overwrite an existing file (c3bridge-protocol §3.9, copy flags).
+#: #29 End copy flag: overwrite an existing file (docs/protocol.md §2, file operation constants).
 COPY_OVERWRITE_EXISTS = 64
 #: How often a file read starts again from Begin after the connection (and with it the server's buffer) was lost.
 FILE_READ_ATTEMPTS = 3

@@ -2,7 +2,7 @@
 
 The public C3 Bridge source passes names unchanged to KUKA's Cross3 layer, so which forms a real KR C4 accepts
 for its TRACE folder (``C:\\KRC\\ROBOTER\\TRACE\\…`` or ``KRC:\\TRACE\\…``), and whether a folder to list is named with
-or without a trailing ``\\``, is not known before commissioning (c3bridge-real-server.md). ``rgse doctor`` tries
+or without a trailing ``\\``, is not known before commissioning (docs/protocol.md §3). ``rgse doctor`` tries
 them with a real file round trip and records the one that worked in ``<data_dir>/controller_layout.json``; the
 daemon then uses it (:class:`~rgse_daemon.controller.Controller` rewrites every TRACE name into that form). Without
 a record the controller probes the candidates once, in :data:`TRACE_DIR_CANDIDATES` order.
@@ -18,7 +18,7 @@ from pathlib import Path
 from rgse_daemon.errors import ConfigError
 
 LAYOUT_FILENAME = "controller_layout.json"
-#: Forms of the controller's TRACE folder, most likely first (kuka-facts §5 names the disk path).
+#: Forms of the controller's TRACE folder, most likely first (docs/controller.md §5.2 names the disk path).
 TRACE_DIR_CANDIDATES: tuple[str, ...] = ("C:\\KRC\\ROBOTER\\TRACE\\", "KRC:\\TRACE\\")
 #: A name in the TRACE folder, in any candidate form or as a KRC name ``/TRACE/…``: group 1 is the rest below it.
 _TRACE_NAME = re.compile(r"^(?:C:[\\/]+KRC[\\/]+ROBOTER[\\/]+TRACE|KRC:[\\/]*TRACE|/TRACE)(?:[\\/]+(.*))?$",

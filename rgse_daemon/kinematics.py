@@ -5,7 +5,7 @@ KR C4 (pose, gravity torques) and by the CoG estimator (gravity regressor).
 
 Convention
 ----------
-Modified (Craig) Denavit-Hartenberg, lengths in metres (kuka-facts §1: d1 = 1045, a1 = 500, a2 = 1300, a3 = 55,
+Modified (Craig) Denavit-Hartenberg, lengths in metres (docs/controller.md §1: d1 = 1045, a1 = 500, a2 = 1300, a3 = 55,
 d4 = 1025, d6 = 290 mm). Frame ``i`` is attached to the link moved by axis Ai; the transform from frame ``i-1`` is
 ``Rx(alpha[i-1]) · Tx(a[i-1]) · Rz(theta_i) · Tz(d_i)`` with ``theta_i = sign_i · A_i + offset_i``:
 
@@ -30,7 +30,7 @@ centre is at the published reach 2826 mm from A1.
 
 Torque sign: ``gravity_torques_nm`` returns the *holding* torque a drive must apply, about the KUKA-positive axis
 direction. A load in front of the robot in the measurement pose therefore gives negative A3 and A5 torques, as the
-controller reports them (``$TORQUE_AXIS_ACT[3] = -1320.46``, kuka-facts §4).
+controller reports them (``$TORQUE_AXIS_ACT[3] = -1320.46``, docs/controller.md §4).
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# --- geometry (kuka-facts §1) ---------------------------------------------------------------------------------------
+# --- geometry (docs/controller.md §1) -------------------------------------------------------------------------------
 D1_M = 1.045
 A1_M = 0.500
 A2_M = 1.300
@@ -63,7 +63,7 @@ MDH = np.array(
 AXIS_SIGN = np.array([-1.0, 1.0, 1.0, -1.0, 1.0, -1.0])
 THETA_OFFSET_RAD = np.array([0.0, 0.0, np.pi / 2, 0.0, 0.0, 0.0])
 
-#: Software axis ranges (deg), kuka-facts §1 (approximate, secondary source).
+#: Software axis ranges (deg), docs/controller.md §1 (approximate, secondary source).
 JOINT_LIMITS_DEG = np.array(
     [[-185.0, 185.0], [-130.0, 20.0], [-100.0, 144.0], [-350.0, 350.0], [-120.0, 120.0], [-350.0, 350.0]]
 )
@@ -72,7 +72,7 @@ JOINT_LIMITS_DEG = np.array(
 #: worst-case speed bound and the simulator's motion planner both use this one table.
 MAX_AXIS_SPEED_DEG_S: tuple[float, ...] = (80.0, 75.0, 70.0, 90.0, 80.0, 122.0)
 
-#: The paper's g (eq. 4, 14, 17, 18); local g in Bremen is 9.8134 m/s² (kuka-facts §7).
+#: The paper's g (eq. 4, 14, 17, 18); local g in Bremen is 9.8134 m/s² (docs/controller.md §7).
 G_PAPER_M_S2 = 9.81
 
 HOME_DEG = np.array([0.0, -90.0, 90.0, 0.0, 0.0, 0.0])
@@ -324,7 +324,7 @@ def gravity_regressor(q_deg: Sequence[float] | np.ndarray, g_m_s2: float = G_PAP
 
     m in kg, (cx, cy, cz) its CoG in the flange frame in m. Row i: τ_i = u_i · ((p − o_i) × m·g·ẑ) with p the CoG,
     split into the flange-origin part (∝ m) and the CoG-offset part (∝ m·c). Linear in the parameters, so several
-    static poses give mass and CoG by least squares (kuka-facts §7).
+    static poses give mass and CoG by least squares (docs/controller.md §7).
     """
     origins, dirs = axis_lines(q_deg)
     f = flange_frame(q_deg)

@@ -35,8 +35,8 @@ TORSIONAL_KIND = "torsional"
 #: Standard uncertainty of one weighed calibration body, kg, when the manifest states none (optional field).
 DEFAULT_BODY_MASS_U_KG = 0.01
 REFERENCE_CORRELATIONS = ("nested", "independent")
-#: Plausible sample periods of a KUKA trace, s: the KR C4 offers 1, 4 and 12 ms (kuka-facts §5, ``trace.config``); a
-#: header period (code 241) outside this range is a corrupt or foreign file.
+#: Plausible sample periods of a KUKA trace, s: the KR C4 offers 1, 4 and 12 ms (docs/controller.md §5.3,
+#: ``trace.config``); a header period (code 241) outside this range is a corrupt or foreign file.
 PERIOD_MIN_S = 0.0005
 PERIOD_MAX_S = 1.0
 #: Scheme names of ``[torsional]``/``[properties]``: the poses of :func:`rgse_daemon.pipeline.cog.cog_poses`, or
@@ -60,7 +60,7 @@ class Setup:
     ``body_mass_u_kg`` [0.01]: standard uncertainty of each weighed calibration body. ``reference_correlation``
     ["nested"]: the loads of the campaign contain each other (the paper's stack: point n holds the bodies of
     point n−1), so their mass errors are correlated; "independent" for separate loads. ``g_u_m_s2`` [0]: standard
-    uncertainty of ``g`` (local g vs the value used, kuka-facts §7).
+    uncertainty of ``g`` (local g vs the value used, docs/controller.md §7).
     """
 
     robot: str

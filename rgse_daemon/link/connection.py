@@ -1,7 +1,7 @@
 """One TCP connection to a KR C4 variable server (C3 Bridge or KUKAVARPROXY), with one request in flight.
 
 Why one request in flight: C3 Bridge *discards* bytes that arrive while it is still sending a reply, and
-KUKAVARPROXY serves requests one at a time (``c3bridge-protocol.md`` §6, ``kuka-facts.md`` §3). Concurrency comes
+KUKAVARPROXY serves requests one at a time (``docs/protocol.md`` §3, ``docs/controller.md`` §3). Concurrency comes
 from several connections (:mod:`rgse_daemon.link.pool`) and from multi-read (#6).
 
 Failure handling: every exchange has a deadline (``request_timeout_s``). After a timeout, a protocol error, a
@@ -59,7 +59,7 @@ LATENCY_BUCKETS_MS: tuple[float, ...] = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 1
 
 class ServerLoad:
     """File work in flight on one controller. The real C3 Bridge server does file work on its one thread, so every
-    other request, on every connection, waits behind it (c3bridge-real-server.md). Each file operation registers
+    other request, on every connection, waits behind it (docs/protocol.md §3). Each file operation registers
     the end of its own deadline here; a request sent meanwhile gets that much more time (:meth:`busy_until`), so a
     keep-alive or a status read queued behind a long pull is late, not lost."""
 
@@ -255,7 +255,7 @@ class Connection:
         value = getattr(rsp, "value", "")
         if not rsp.success:
             raise VariableError(name, f"read refused (code {rsp.code})", rsp.code)
-        if value == "":  # KVP may answer an unknown name with an empty value and success 1 (kuka-facts §3)
+        if value == "":  # KVP may answer an unknown name with an empty value and success 1 (docs/controller.md §3)
             raise VariableError(name, "read returned an empty value", rsp.code)
         return value
 

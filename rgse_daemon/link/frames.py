@@ -1,6 +1,6 @@
 """C3 Bridge / KUKAVARPROXY frame codec, both directions (client and simulated server use the same code).
 
-Wire format (``c3bridge-protocol.md`` §1): every integer big-endian; header ``tag u16 | length u16 | type u8``
+Wire format (``docs/protocol.md`` §1): every integer big-endian; header ``tag u16 | length u16 | type u8``
 where ``length`` = total bytes − 4; responses end with the footer ``error_code u16 | success u8`` (success
 code is **1**). Strings in #0/#1 are ``u16 byte count + ISO-8859-1``; everywhere else ``wstr`` =
 ``u16 UTF-16 unit count + UTF-16LE``. Strings carry no terminator.
@@ -35,7 +35,7 @@ Public API
 ``FrameReader(responses=...)``, ``split_frames(buffer, responses=...)``, ``await read_frame(stream, responses=...)``
     Cut a byte stream into whole frames. With ``responses=True`` a #0/#1 frame is sized from its value length
     (7 + LVV + 3 bytes) rather than the header's length field, because KUKAVARPROXY's length field is not
-    consistent across implementations (``kuka-facts.md`` §3).
+    consistent across implementations (``docs/protocol.md`` §3).
 
 Layouts are declared once
 -------------------------

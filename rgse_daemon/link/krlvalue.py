@@ -1,4 +1,4 @@
-"""KRL value strings as KUKAVARPROXY / C3 Bridge carry them (``kuka-facts.md`` §4), parsed and formatted.
+"""KRL value strings as KUKAVARPROXY / C3 Bridge carry them (``docs/controller.md`` §4), parsed and formatted.
 
 No dependencies beyond the standard library, so the simulator's variable store can use it too.
 

@@ -565,7 +565,7 @@ def estimate_cog_gls(poses: Sequence[PoseTorques], gains: dict[int, AxisGain], *
                      fit_offsets: bool | None = None, g_m_s2: float = kin.G_PAPER_M_S2) -> CogFit:
     """CoG of a DuT (flange frame, m) from bias-corrected readings in several poses, with the mass fixed.
 
-    Model per pose p and axis i (eq. 5–7 generalised to any pose, kuka-facts §7):
+    Model per pose p and axis i (eq. 5–7 generalised to any pose, docs/controller.md §7):
     r_pi = K_i(Y_pi · [m_DuT + m_fix, m_fix·c_fix + m_DuT·c]) (+ o_i, a reading offset of this mounting).
     Generalised least squares for m_DuT·c with the observation covariance (trace noise, bias, and, when the offsets
     are not fitted, the calibration's per-mounting scatter, fully correlated over the poses of an axis). The

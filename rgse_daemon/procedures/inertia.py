@@ -67,7 +67,7 @@ TRACE_MARGIN_S = 10.0
 DESIGN_TIMEOUT_S = 300.0
 #: Deadline of the identification (s): the stroke bootstrap.
 COMPUTE_TIMEOUT_S = 600.0
-#: $TRACE.STATE while the trace still records (kuka-facts §5).
+#: $TRACE.STATE while the trace still records (docs/controller.md §5.1).
 RECORDING_STATES = ("TRIGGERED",)
 #: Swings of each wrist axis per orientation unless ``[properties] inertia_repeats`` says otherwise.
 REPEATS = ex.REPEATS

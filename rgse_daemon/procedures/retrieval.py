@@ -38,7 +38,7 @@ from rgse_daemon.trace.names import plain_name
 
 _log = logging.getLogger(__name__)
 
-#: The controller's trace folder (kuka-facts §5).
+#: The controller's trace folder (docs/controller.md §5.2).
 TRACE_DIR = "C:\\KRC\\ROBOTER\\TRACE\\"
 #: Files the pipeline needs of every trace: the A3 and A5 drive modules, header and data.
 REQUIRED_SUFFIXES = tuple(f"_{mod}{ext}" for mod in (MODULE_A3, MODULE_A5) for ext in (".dat", ".r64"))

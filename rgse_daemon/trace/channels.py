@@ -1,4 +1,4 @@
-"""Names of the KUKA Trace modules and drive channels (kuka-facts.md §5).
+"""Names of the KUKA Trace modules and drive channels (docs/controller.md §5.6).
 
 Channels are identified by module and name (DIAdem code 200), never by position: the mapping of the numeric
 channel IDs in the trace configuration XML to names is not public.

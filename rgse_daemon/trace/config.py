@@ -1,4 +1,4 @@
-"""The KUKA Trace configuration XML that ``$TRACE.CONFIG[]`` names (kuka-facts.md §5).
+"""The KUKA Trace configuration XML that ``$TRACE.CONFIG[]`` names (docs/controller.md §5.2).
 
 Format, as kept in the controller's ``TRACE`` folder::
 
@@ -42,10 +42,10 @@ __all__ = [
     "render_trace_config",
 ]
 
-#: Sample periods the KR C4 trace offers, in µs (kuka-facts §5: 1, 4 and 12 ms).
+#: Sample periods the KR C4 trace offers, in µs (docs/controller.md §5.3: 1, 4 and 12 ms).
 SUPPORTED_RATES_US: frozenset[int] = frozenset({1000, 4000, 12000})
 
-#: Samples per channel the controller's trace buffer holds. kuka-facts §5 gives 600 s at 12 ms and 200 s at
+#: Samples per channel the controller's trace buffer holds. docs/controller.md §5.3 gives 600 s at 12 ms and 200 s at
 #: 4 ms, both exactly 50 000 samples; the ~50 s at 1 ms follows from the same buffer (an extrapolation).
 BUFFER_SAMPLES = 50_000
 

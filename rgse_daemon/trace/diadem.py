@@ -1,4 +1,4 @@
-"""Reader of KUKA Trace output: DIAdem ``.dat`` headers with their ``.r64`` data files (kuka-facts.md §5).
+"""Reader of KUKA Trace output: DIAdem ``.dat`` headers with their ``.r64`` data files (docs/controller.md §5.5).
 
 A KR C4 trace named ``N`` leaves one file pair per module, ``N_<module>.dat`` (text header) and
 ``N_<module>.r64`` (little-endian float64 values), e.g. ``N_NextGenDrive#3.dat``. The header is a global block

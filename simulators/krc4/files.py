@@ -47,7 +47,7 @@ from pathlib import Path
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import RgseError
 
-# C3 Bridge error codes (c3bridge-protocol §1).
+# C3 Bridge error codes (docs/protocol.md §1).
 CODE_GENERAL = 0
 CODE_ACCESS = 2
 CODE_ARGUMENT = 3
@@ -55,7 +55,7 @@ CODE_MEMORY = 4
 CODE_NOT_IMPLEMENTED = 7
 CODE_LONG_ANSWER = 10
 
-# Attributes, item types, list and copy flags (c3bridge-protocol §3.9).
+# Attributes, item types, list and copy flags (docs/protocol.md §2, file operation constants).
 ATTR_READONLY = 1
 ATTR_DIRECTORY = 16
 ATTR_ARCHIVE = 32
@@ -73,7 +73,7 @@ MAX_CHUNK_BYTES = 64512
 #: Largest file a #29 Begin may allocate in this simulator (answers code 4 above it, as a failed allocation).
 MAX_BUFFER_BYTES = 64 * 1024 * 1024
 
-#: #21 answer formats the simulator can give (the real info text is not known, c3bridge-real-server.md):
+#: #21 answer formats the simulator can give (the real info text is not known, docs/protocol.md §3):
 #: ``fields``: full names, info ``<itemType>;<sizeBytes>;<attributes>;<modifiedFILETIME>``;
 #: ``bare``: names without their folder, no info strings at all;
 #: ``text``: full names, info as free text ``<sizeBytes> <dd.mm.yyyy hh:mm:ss> <attribute letters>``.

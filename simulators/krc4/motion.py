@@ -200,7 +200,8 @@ class JointMove:
 
 
 def check_limits(q_deg: Sequence[float]) -> None:
-    """Refuse a target outside the axis software limits (kuka-facts §1), as the controller does before moving."""
+    """Refuse a target outside the axis software limits (docs/controller.md §1), as the controller does before
+    moving."""
     for i, (q, (lo, hi)) in enumerate(zip(q_deg, JOINT_LIMITS_DEG, strict=True), 1):
         if not lo <= q <= hi:
             raise MotionError(f"A{i} target {q:.3f} deg is outside the software limits {lo:g}..{hi:g} deg")

@@ -1,8 +1,8 @@
 """The simulated KR C4's network face: a C3 Bridge Interface server on TCP that a KUKAVARPROXY client can use unchanged.
 
-It speaks the frames of ``rgse_daemon.link.frames`` (c3bridge-protocol.md) over the :class:`VariableStore`, the
+It speaks the frames of ``rgse_daemon.link.frames`` (docs/protocol.md) over the :class:`VariableStore`, the
 :class:`ProgramHost` and the share directory (:mod:`simulators.krc4.files`), and reproduces the behaviour of the
-real servers that a client has to live with (kuka-facts §3, c3bridge-protocol §6):
+real servers that a client has to live with (docs/controller.md §3, docs/protocol.md §3):
 
 * requests are **serialised across all clients** (one lock: the real server is single-threaded) and each one
   takes ``latency_s`` (≈ 2 ms on a real KR C4);
@@ -19,7 +19,7 @@ real servers that a client has to live with (kuka-facts §3, c3bridge-protocol �
 * an unknown message type or a length of 0 closes the connection without a reply; #0/#1 with a malformed body
   fail with code 0 and an empty value, other malformed requests get code 9; trailing bytes after a well-formed
   body are ignored;
-* the variants that the public source does not settle (c3bridge-real-server.md: listing info text, accepted path
+* the variants that the public source does not settle (docs/protocol.md §3: listing info text, accepted path
   forms) are switched by ``listing`` and ``path_forms`` (see :data:`LISTING_VARIANTS`, :data:`PATH_FORM_VARIANTS`;
   defaults from the environment variables ``RGSE_SIM_LISTING`` / ``RGSE_SIM_PATHS``, so a whole test suite can be
   run against each variant);
@@ -339,7 +339,7 @@ class _Connection(asyncio.Protocol):
 
 
 class _Discovery(asyncio.DatagramProtocol):
-    """UDP discovery (c3bridge-protocol §4). Standard mode answers the sender's address and port; legacy mode
+    """UDP discovery (docs/protocol.md §2, discovery). Standard mode answers the sender's address and port; legacy mode
     (``reply_port`` set: KUKAVARPROXY's 6999 → 7000) answers the sender's address on ``reply_port``."""
 
     def __init__(self, server: KrcServer, reply_port: int | None = None) -> None:

@@ -1,6 +1,6 @@
 """KUKA Trace on the simulated KR C4: the ``$TRACE`` variables, their state machine, and the file set it leaves.
 
-Driven exactly as on a real controller (kuka-facts §5)::
+Driven exactly as on a real controller (docs/controller.md §5.1)::
 
     $TRACE.CONFIG[] = "meas.xml"     ; a file in DIR/TRACE (the ".xml" may be left out)
     $TRACE.NAME[]   = "dut_l01"      ; empty: the config's <Basename>

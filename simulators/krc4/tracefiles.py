@@ -1,4 +1,4 @@
-"""Writes a KUKA Trace file set the way a KR C4 leaves it in ``C:\\KRC\\ROBOTER\\TRACE`` (kuka-facts.md §5).
+"""Writes a KUKA Trace file set the way a KR C4 leaves it in ``C:\\KRC\\ROBOTER\\TRACE`` (docs/controller.md §5.4).
 
 For trace name ``N`` and each module ``M``: ``N_M.r64`` (little-endian float64), ``N_M.dat`` (DIAdem header:
 text, ISO-8859-1, CRLF), ``N_M.trc`` and, if program text is given, ``N_PROG.TXT``.

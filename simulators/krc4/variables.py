@@ -1,7 +1,7 @@
 """The simulated KR C4's variable store and program host: what C3 Bridge messages #0/#1/#4–#7 and #10 act on.
 
 Values are held as KRL value *strings*, exactly as a real controller returns them over KUKAVARPROXY / C3 Bridge
-(kuka-facts §4): ``#T1``, ``100``, ``TRUE``, ``"12_ms_v2.xml"``, ``{E6AXIS: A1 0.0, ...}``. Array elements
+(docs/controller.md §4): ``#T1``, ``100``, ``TRUE``, ``"12_ms_v2.xml"``, ``{E6AXIS: A1 0.0, ...}``. Array elements
 (``$TORQUE_AXIS_ACT[3]``) and structure members (``$TRACE.STATE``) are plain keys; names are case-insensitive as in
 KRL and stored upper-case.
 
@@ -38,7 +38,7 @@ from typing import Protocol, runtime_checkable
 from rgse_daemon.errors import ProtocolError, RgseError, VariableError
 from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, format_value, parse_value
 
-# C3 Bridge error codes used by the store and the program host (c3bridge-protocol §1).
+# C3 Bridge error codes used by the store and the program host (docs/protocol.md §1).
 CODE_GENERAL = 0
 CODE_ACCESS = 2
 CODE_ARGUMENT = 3
@@ -163,7 +163,8 @@ def e6axis(a_deg: Iterable[float]) -> str:
     return format_value(KrlStruct("E6AXIS", tuple(fields)))
 
 
-#: Where the robot rests when the simulator starts: the transport pose of kuka-facts §4 (deg).
+#: Where the robot rests when the simulator starts (deg): the pose of the ``$AXIS_ACT`` example in
+#: docs/controller.md §4.
 HOME_AXES_DEG = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
 
 
@@ -281,7 +282,7 @@ class VariableStore:
             raise VariableError(key or repr(name), "unknown variable", CODE_GENERAL)
         return var
 
-    # --- the system variables of a KR C4 (kuka-facts §4) ---------------------------------------------------------
+    # --- the system variables of a KR C4 (docs/controller.md §4) -------------------------------------------------
     def _seed(self, model_name: str, serial_no: int) -> None:
         ro = self.declare_system
         ro("$MODE_OP", Kind.ENUM, "#T1")
@@ -334,7 +335,7 @@ class ProgramControlError(RgseError):
 
 
 class ProState(StrEnum):
-    """``$PRO_STATE1`` values (kuka-facts §4)."""
+    """``$PRO_STATE1`` values (docs/controller.md §4)."""
 
     FREE = "#P_FREE"
     RESET = "#P_RESET"

@@ -16,7 +16,7 @@ def h(text: str) -> bytes:
     return bytes.fromhex(text.replace("\n", " "))
 
 
-# --- c3bridge-protocol.md §5 vectors ------------------------------------------------------------------------------
+# --- docs/protocol.md §4 vectors ----------------------------------------------------------------------------------
 REQUEST_VECTORS = [
     (0x0100, f.ReadVarAscii("$ACCU_STATE"), "01 00 00 0E 00 00 0B 24 41 43 43 55 5F 53 54 41 54 45"),
     (0x0100, f.WriteVarAscii("$OV_PRO", "35"), "01 00 00 0E 01 00 07 24 4F 56 5F 50 52 4F 00 02 33 35"),
@@ -166,7 +166,7 @@ def test_decoder_error_names_the_field(decode, hexstr: str, field: str) -> None:
         decode(h(hexstr))
 
 
-# --- #20 #22 #23 #24 #25 #28: layouts of c3bridge-protocol §3.9, computed by hand ------------------------------
+# --- #20 #22 #23 #24 #25 #28: layouts of docs/protocol.md §2, computed by hand ---------------------------------
 FILE_OP_REQUEST_LAYOUTS = [
     # #20: @5 INT32 attributes, @9 INT32 mask, @13 wstr name
     (1, f.SetAttribute(1, 1, "A"), "00 01 00 0D 14 00 00 00 01 00 00 00 01 00 01 41 00"),

@@ -1,4 +1,5 @@
-"""KRL value strings: the examples of kuka-facts §4, round trips of generated values, garbage → ProtocolError."""
+"""KRL value strings: the examples of docs/controller.md §4, round trips of generated values, garbage →
+ProtocolError."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The client copes with the real C3 Bridge server's behaviour (c3bridge-real-server.md), over a real socket:
+"""The client copes with the real C3 Bridge server's behaviour (docs/protocol.md §3), over a real socket:
 slow, blocking file work; buffers lost with the connection; request-text echoes; unknown path and listing forms."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The simulator behaves as the real C3 Bridge server does (c3bridge-real-server.md): one test per behaviour."""
+"""The simulator behaves as the real C3 Bridge server does (docs/protocol.md §3): one test per behaviour."""
 
 from __future__ import annotations
 
