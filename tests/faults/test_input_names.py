@@ -23,17 +23,14 @@ from rgse_daemon.procedures.retrieval import TRACE_DIR, pull_trace
 from rgse_daemon.trace.diadem import read_trace_set
 from rgse_daemon.trace.names import plain_name
 from simulators.krc4.sim import SimulatedKrc4
-from tests.support.campaign import write_campaign, write_measurement
+from tests.support.campaign import write_measurement
+from tests.support.cli import fitted_dirs
 
 
 @pytest.fixture(scope="module")
 def dirs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    root = tmp_path_factory.mktemp("names")
-    write_campaign(root / "cal", seed=5, n_samples=300)
-    write_measurement(root / "dut", 100.0, seed=6, n_samples=300, n_loops=3)
-    write_measurement(root / "other", 250.0, seed=7, n_samples=300, n_loops=3)
-    assert main(["calibrate", "--campaign", str(root / "cal"), "--out", str(root / "CAL.json"),
-                 "--method", "gain-linear"]) == 0
+    root = fitted_dirs(tmp_path_factory.mktemp("names"), "gain-linear")
+    write_measurement(root / "other", 250.0, seed=7, n_samples=300, n_loops=3)  # where the symlink attacks point
     return root
 
 

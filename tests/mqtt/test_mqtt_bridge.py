@@ -8,9 +8,9 @@ import os
 import signal
 import subprocess
 import sys
+import uuid
 from pathlib import Path
 
-import aiomqtt
 import pytest
 
 from rgse_daemon.config import MqttConfig
@@ -22,6 +22,7 @@ from tests.support.mqtt import (
     Collector,
     MosquittoProcess,
     RecordingHandler,
+    SessionThief,
     mqtt_config,
     retained,
     stored_result,
@@ -306,20 +307,26 @@ async def test_stop_during_a_connect_that_gets_no_answer_is_prompt(store: Store)
 
 async def test_a_session_that_drops_right_after_connack_keeps_backing_off(
     system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler,
-    monkeypatch: pytest.MonkeyPatch
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """A broker that accepts the connection and drops the session at once (another client with our id, an ACL that
-    refuses our subscriptions) gets ever longer pauses, not a reconnect every reconnect_min_s forever."""
-    bridge = MqttBridge(mqtt_config(*system_broker, prefix), ROBOT, store, handler, "1", timeout_s=5)
-    attempts: list[int] = []
+    """A broker that accepts the connection and drops the session at once (here: another client with our id takes
+    the session over right after each CONNACK, as a second daemon with the same client_id would) gets ever longer
+    pauses, not a reconnect every reconnect_min_s forever: a session shorter than reconnect_max_s resets nothing."""
+    client_id = f"rgse-test-{uuid.uuid4().hex[:12]}"
+    # A takeover that lands while the subscribe or the "online" publish awaits its ack is noticed only when that
+    # call times out (aiomqtt does not fail pending calls on a disconnect): such a session lasts up to timeout_s,
+    # so reconnect_max_s is well above it — every session here is "dropped right after CONNACK".
+    cfg = mqtt_config(*system_broker, prefix, client_id=client_id, reconnect_min_s=0.05, reconnect_max_s=3.0)
+    bridge = MqttBridge(cfg, ROBOT, store, handler, "1", timeout_s=1)
+    attempts: list[int] = []  # observation only: the attempt number each pause is computed for (not exposed)
     backoff = bridge._backoff_s
     monkeypatch.setattr(bridge, "_backoff_s", lambda attempt: attempts.append(attempt) or backoff(attempt))
-
-    async def dropped(client: object) -> None:
-        raise aiomqtt.MqttError("session taken over by another client with this id")
-
-    monkeypatch.setattr(bridge, "_session", dropped)
-    async with bridge:
+    async with SessionThief(*system_broker, client_id) as thief, bridge:
         await wait_until(lambda: len(attempts) >= 4, "four reconnects", timeout_s=30)
     assert attempts[:4] == [0, 1, 2, 3]
-    assert bridge.counters.connect_failures == 0  # each connect succeeded; the sessions were lost
+    # each connect succeeded (CONNACK) and each session was then lost to the thief: not connect failures
+    assert bridge.counters.connect_failures == 0
+    assert bridge.counters.connects >= 4 and bridge.counters.reconnects == bridge.counters.connects - 1
+    assert thief.takeovers >= bridge.counters.connects - 1  # the bridge's connect pushed the thief off each time
+    said = [r.message for r in caplog.records if r.name == "rgse_daemon.io.mqtt"]
+    assert any("connection lost" in m for m in said) and not any("cannot connect" in m for m in said)

@@ -12,6 +12,7 @@ import pytest
 from rgse_daemon import calfile
 from rgse_daemon.cli import main
 from tests.support.campaign import Drive, write_campaign, write_measurement
+from tests.support.cli import fitted_dirs
 
 
 def run_json(capsys, argv: list[str]) -> dict:
@@ -79,12 +80,7 @@ def test_campaign_then_mass_recovers_truth(tmp_path, capsys, seed, sign, period_
 
 @pytest.fixture(scope="module")
 def dirs(tmp_path_factory):
-    root = tmp_path_factory.mktemp("offline")
-    write_campaign(root / "cal", seed=5, n_samples=600)
-    write_measurement(root / "dut", 100.0, seed=6, n_samples=600, n_loops=3)
-    assert main(["calibrate", "--campaign", str(root / "cal"), "--out", str(root / "CAL.json"),
-                 "--method", "gain-linear"]) == 0
-    return root
+    return fitted_dirs(tmp_path_factory.mktemp("offline"), "gain-linear", n_samples=600)
 
 
 def expect_error(capsys, argv: list[str], needle: str) -> str:

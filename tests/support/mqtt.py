@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import signal
 import socket
@@ -86,6 +87,73 @@ class MosquittoProcess:
         except TimeoutError:
             proc.kill()
             await asyncio.wait_for(proc.wait(), 10)
+
+
+def _remaining_length(n: int) -> bytes:
+    """MQTT's variable-length integer (1-4 bytes, 7 bits each, high bit: more follows)."""
+    out = bytearray()
+    while True:
+        n, digit = divmod(n, 128)
+        out.append(digit | (0x80 if n else 0))
+        if not n:
+            return bytes(out)
+
+
+def connect_packet(client_id: str) -> bytes:
+    """A minimal MQTT 3.1.1 CONNECT: clean session, no keepalive (the broker never drops it for idling), no will."""
+    cid = client_id.encode()
+    body = b"\x00\x04MQTT\x04\x02\x00\x00" + len(cid).to_bytes(2, "big") + cid
+    return b"\x10" + _remaining_length(len(body)) + body
+
+
+class SessionThief:
+    """A tiny raw-socket MQTT client that keeps taking over the session of ``client_id``.
+
+    It connects with that client id and holds the connection; when the broker closes it (another client connected
+    with the same id: MQTT 3.1.1 §3.1.4, the older session is disconnected), it connects again at once — taking
+    the session back. A client with the same id (the bridge under test) thus loses every session right after its
+    CONNACK. ``takeovers`` counts how often the thief was pushed off, i.e. how many sessions the other one got.
+    """
+
+    def __init__(self, host: str, port: int, client_id: str) -> None:
+        self._host, self._port, self._packet = host, port, connect_packet(client_id)
+        self.takeovers = 0
+        self._first = asyncio.Event()
+        self._task: asyncio.Task[None] | None = None
+
+    async def __aenter__(self) -> Self:
+        self._task = asyncio.create_task(self._run(), name="session thief")
+        try:
+            async with asyncio.timeout(10):
+                await self._first.wait()  # holds the id before the other client comes
+        except BaseException:
+            await self.__aexit__(None, None, None)
+            raise
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        assert self._task is not None
+        self._task.cancel()
+        await asyncio.gather(self._task, return_exceptions=True)
+
+    async def _run(self) -> None:
+        while True:
+            reader, writer = await asyncio.open_connection(self._host, self._port)
+            try:
+                writer.write(self._packet)
+                connack = await reader.readexactly(4)
+                assert connack == b"\x20\x02\x00\x00", f"CONNACK refused: {connack.hex()}"
+                self._first.set()
+                with contextlib.suppress(ConnectionError):
+                    while await reader.read(256):  # nothing is sent to us (no subscriptions): EOF ends the session
+                        pass
+                self.takeovers += 1
+            finally:
+                writer.close()
+                with contextlib.suppress(ConnectionError):
+                    await writer.wait_closed()
 
 
 class Collector:
