@@ -290,6 +290,7 @@ class MqttBridge:
         self._stopping = asyncio.Event()
         self._outbox_wake = asyncio.Event()
         self._connected = False
+        self._online_at: float | None = None  # when the current session was subscribed and said online
         # Latest state snapshot not yet sent: (sequence, snapshot).
         self._state_pending: tuple[int, dict[str, Any]] | None = None
         self._state_seq = 0
@@ -452,10 +453,10 @@ class MqttBridge:
         while not self._stopping.is_set():
             self._state = ConnectionState.CONNECTING
             connected = False
-            up_at = 0.0
+            self._online_at = None
             try:
                 async with self._client() as client:
-                    connected, up_at = True, time.monotonic()
+                    connected = True
                     self._log.resolved("connect", f"{where}: connected")
                     await self._session(client)
             except aiomqtt.MqttError as exc:
@@ -475,9 +476,11 @@ class MqttBridge:
             if self._stopping.is_set():
                 break
             self._state = ConnectionState.BACKOFF
-            if connected and time.monotonic() - up_at >= self._cfg.reconnect_max_s:
-                attempt = 0  # the session held: reconnect quick; one that drops right after CONNACK (another client
-                #              with our id kicking us off, an ACL refusing our subscriptions) keeps backing off
+            if self._online_at is not None and time.monotonic() - self._online_at >= self._cfg.reconnect_max_s:
+                attempt = 0  # the session was online and held: reconnect quick. One that drops right after CONNACK
+                #              (another client with our id kicking us off, an ACL refusing our subscriptions) keeps
+                #              backing off, even when the loss shows only as the subscribe's or the online publish's
+                #              timeout (aiomqtt does not fail a pending call on a disconnect)
             delay = self._backoff_s(attempt)
             attempt += 1
             with contextlib.suppress(TimeoutError):  # the backoff elapsed: try again
@@ -495,6 +498,7 @@ class MqttBridge:
         await self._publish(client, _Out(self.topics.status, _dumps(online, "status"), qos=1, retain=True))
         self._connected = True
         self._state = ConnectionState.CONNECTED
+        self._online_at = time.monotonic()
         workers = [
             asyncio.create_task(self._receive(client), name="mqtt receive"),
             asyncio.create_task(self._send_queued(client), name="mqtt send"),

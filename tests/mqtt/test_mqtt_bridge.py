@@ -315,8 +315,8 @@ async def test_a_session_that_drops_right_after_connack_keeps_backing_off(
     client_id = f"rgse-test-{uuid.uuid4().hex[:12]}"
     # A takeover that lands while the subscribe or the "online" publish awaits its ack is noticed only when that
     # call times out (aiomqtt does not fail pending calls on a disconnect): such a session lasts up to timeout_s,
-    # so reconnect_max_s is well above it — every session here is "dropped right after CONNACK".
-    cfg = mqtt_config(*system_broker, prefix, client_id=client_id, reconnect_min_s=0.05, reconnect_max_s=3.0)
+    # here longer than reconnect_max_s. It never got online, so it does not count as a session that held.
+    cfg = mqtt_config(*system_broker, prefix, client_id=client_id, reconnect_min_s=0.05, reconnect_max_s=0.5)
     bridge = MqttBridge(cfg, ROBOT, store, handler, "1", timeout_s=1)
     attempts: list[int] = []  # observation only: the attempt number each pause is computed for (not exposed)
     backoff = bridge._backoff_s
