@@ -205,6 +205,8 @@ def parse_command(verb: str, payload: bytes | str, tokens: Sequence[str] = ()) -
         doc: Any = json.loads(payload)
     except (ValueError, UnicodeDecodeError) as exc:
         raise CommandRefused(verb, f"malformed JSON: {exc}") from exc
+    except RecursionError:  # e.g. 60 000 nested '[': a RuntimeError, not a ValueError, from the json module
+        raise CommandRefused(verb, "malformed JSON: nested too deeply") from None
     if not isinstance(doc, dict):
         raise CommandRefused(verb, f"malformed command: a JSON object expected, got {type(doc).__name__}")
     rid = doc.get("request_id")

@@ -613,6 +613,10 @@ class MqttBridge:
         except CommandRefused as exc:
             self._refuse(exc)
             return
+        except Exception as exc:  # a bug in the checks: refuse this one command, never end the command loop
+            log.error("mqtt %s: cmd/%s: checking the command failed", self.prefix, verb[:64], exc_info=True)
+            self._refuse(CommandRefused(verb, f"not checked: {type(exc).__name__}"))
+            return
         task = asyncio.create_task(self._run_command(cmd), name=f"mqtt cmd {verb} {cmd.request_id}")
         self._command_tasks.add(task)
         task.add_done_callback(self._command_tasks.discard)

@@ -160,6 +160,21 @@ async def test_bad_commands_are_refused_without_effect(
     assert session.bridge.counters.refused_commands == 1 and session.bridge.counters.commands == 0
 
 
+async def test_a_deeply_nested_payload_is_refused_and_the_next_command_is_served(
+    session: Session, handler: RecordingHandler
+) -> None:
+    """60 000 nested '[' make the json module raise RecursionError (not a ValueError): it is refused like any
+    malformed JSON, and the command loop goes on (no reconnect, the command behind it is not lost)."""
+    await session.send("measure", b"[" * 60000)
+    await session.send("measure", {"request_id": "after", "loops": 3})
+    (verb, refused), (_, served) = await session.replies(2)
+    assert verb == "measure" and refused == {"request_id": None, "ok": False,
+                                             "error": "malformed JSON: nested too deeply"}
+    assert served["request_id"] == "after" and served["ok"] is True
+    assert [cmd.request_id for _, cmd in handler.calls] == ["after"]
+    assert session.bridge.counters.connects == 1 and session.bridge.counters.refused_commands == 1
+
+
 async def test_a_retained_command_is_not_replayed_to_a_new_session(
     system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler
 ) -> None:
