@@ -205,6 +205,9 @@ class Console:
             body = await request.json()
         except ValueError:
             body = None
+        except RecursionError:  # nested too deeply for the json module: a RuntimeError, not a ValueError
+            return web.json_response({"ok": False, "error": "a JSON object expected: nested too deeply"},
+                                     status=400)
         if not isinstance(body, dict):
             return web.json_response({"ok": False, "error": "a JSON object expected"}, status=400)
         doc = {**{k: v for k, v in body.items() if v is not None}, "request_id": f"console-{secrets.token_hex(6)}"}
