@@ -56,6 +56,15 @@ TERMINAL = ("done", "failed", "aborted")
 TORQUE_WINDOW_S = 60.0
 #: A page that takes one event longer than this (a stalled browser, a dead network) is dropped.
 WRITE_TIMEOUT_S = 10.0
+#: A POST body not received within this is answered 408 (a client that never finishes it holds nothing longer).
+BODY_TIMEOUT_S = 10.0
+#: A connection that has not sent a whole request head within this after it opened (headers byte by byte, or
+#: nothing at all), or that stays idle this long between requests, is closed (aiohttp's ``keepalive_timeout``;
+#: its default is an hour).
+IDLE_TIMEOUT_S = 15.0
+#: On stop, requests still in progress (an event stream in a stalled write) get this long, then are cancelled
+#: (aiohttp's default, 60 s, is longer than the daemon waits for the console to stop).
+SHUTDOWN_TIMEOUT_S = 2.0
 
 Handler = Any  # rgse_daemon.io.mqtt.CommandHandler: measure, calibrate, abort, confirm
 
@@ -98,7 +107,8 @@ class Console:
                         web.post("/api/confirm", self._confirm), web.post("/api/abort", self._abort),
                         web.get("/api/history", self._history),
                         web.get(r"/report/{what:run|calibration}/{id:[A-Za-z0-9_.\-]+}", self._report)])
-        self._runner = web.AppRunner(app, handle_signals=False, access_log=None)
+        self._runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=SHUTDOWN_TIMEOUT_S,
+                                     keepalive_timeout=IDLE_TIMEOUT_S)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.cfg.host, self.cfg.port)
         await site.start()
@@ -202,7 +212,11 @@ class Console:
 
     async def _act(self, verb: str, request: web.Request) -> web.Response:
         try:
-            body = await request.json()
+            async with asyncio.timeout(BODY_TIMEOUT_S):
+                body = await request.json()
+        except TimeoutError:
+            return web.json_response({"ok": False, "error": f"request body not received within {BODY_TIMEOUT_S:g} s"},
+                                     status=408)
         except ValueError:
             body = None
         except RecursionError:  # nested too deeply for the json module: a RuntimeError, not a ValueError

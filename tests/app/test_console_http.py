@@ -1,5 +1,7 @@
 """The console's HTTP face (interfaces §4.4) as an unknown client meets it, over raw sockets against the daemon on
-the simulated KR C4: bad bodies get a 4xx with a reason, never a 500."""
+the simulated KR C4: bad bodies get a 4xx with a reason, never a 500; a client that stalls (a body never finished,
+headers byte by byte, nothing at all) holds its connection only until a deadline, and does not hold up the daemon's
+stop."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from rgse_daemon.config import config_from_mapping
+from rgse_daemon.services import console as console_module
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.daemon import RunningDaemon, daemon_config, running_daemon
 
@@ -18,8 +21,10 @@ IO_S = 10.0  # a hang guard on each socket read, not a timing check
 
 
 @pytest.fixture
-async def console(sim: SimulatedKrc4, tmp_path: Path) -> AsyncIterator[RunningDaemon]:
-    """The daemon with its console on a free port (tokens configured, no broker)."""
+async def console(sim: SimulatedKrc4, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[RunningDaemon]:
+    """The daemon with its console on a free port (tokens configured, no broker), its deadlines short."""
+    monkeypatch.setattr(console_module, "BODY_TIMEOUT_S", 0.5, raising=False)
+    monkeypatch.setattr(console_module, "IDLE_TIMEOUT_S", 1.0, raising=False)
     doc = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir).model_dump(mode="json")
     doc["console"] = {"enabled": True, "host": "127.0.0.1", "port": 0}
     cfg = config_from_mapping({k: v for k, v in doc.items() if v is not None}, "<console http test>")
@@ -54,3 +59,47 @@ async def test_a_body_nested_too_deeply_is_a_400_with_its_reason(console: Runnin
         assert (status, json.loads(text)) == (400, {"ok": False, "error": "a JSON object expected: nested too deeply"})
     status, text = await exchange(port, post("/api/abort", b'{"reason": "x"}'))
     assert status == 409 and json.loads(text)["error"] == "unauthorised: missing or wrong token"
+
+
+async def closed_by_server(reader: asyncio.StreamReader) -> bool:
+    """Whether the server closes the connection (EOF) within the hang guard, reading whatever it sends first."""
+    try:
+        async with asyncio.timeout(IO_S):
+            await reader.read()
+    except TimeoutError:
+        return False
+    return True
+
+
+async def test_stalled_clients_are_dropped_at_a_deadline_and_do_not_hold_up_the_stop(console: RunningDaemon) -> None:
+    port = console.daemon.console.port
+    conns = [await asyncio.open_connection("127.0.0.1", port) for _ in range(4)]
+    (body_r, body_w), (head_r, head_w), (idle_r, _), (sse_r, sse_w) = conns
+    body_w.write(b"POST /api/abort HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n"
+                 b"Content-Length: 100\r\n\r\n{\"re")  # and never the rest
+    head_w.write(b"GET / HTTP/1.1\r\nHo")  # and never the rest of the headers
+    sse_w.write(b"GET /events HTTP/1.1\r\nHost: t\r\n\r\n")  # a page that reads
+    try:
+        async with asyncio.timeout(IO_S):
+            head = await body_r.readuntil(b"\r\n\r\n")
+            assert head.startswith(b"HTTP/1.1 408 "), head
+            length = int(next(h for h in head.split(b"\r\n") if h.lower().startswith(b"content-length:"))[15:])
+            body = await body_r.readexactly(length)
+        assert json.loads(body) == {"ok": False, "error": "request body not received within 0.5 s"}
+        assert await closed_by_server(head_r), "a request head that never ends is closed"
+        assert await closed_by_server(idle_r), "a connection that never sends anything is closed"
+        # the idle deadline does not cut a page's event stream: it gets state events well beyond it
+        async with asyncio.timeout(IO_S):
+            await sse_r.readuntil(b"event: hello")
+            await asyncio.sleep(2.0)
+            assert b"event: state" in await sse_r.read(1 << 20) and not sse_r.at_eof()
+        # a body never finished and a head never finished, open while the daemon stops
+        late = [await asyncio.open_connection("127.0.0.1", port) for _ in range(2)]
+        late[0][1].write(b"POST /api/confirm HTTP/1.1\r\nHost: t\r\nContent-Length: 100\r\n\r\n{")
+        late[1][1].write(b"GET /events HTTP/1.1\r\nHo")
+        await asyncio.sleep(0.1)
+        assert await console.shutdown() < 5.0
+        conns += late
+    finally:
+        for _, writer in conns:
+            writer.close()
