@@ -25,6 +25,7 @@ import contextlib
 import json
 import logging
 import math
+import re
 import secrets
 import time
 from collections import deque
@@ -225,8 +226,10 @@ class Console:
         if not isinstance(body, dict):
             return web.json_response({"ok": False, "error": "a JSON object expected"}, status=400)
         doc = {**{k: v for k, v in body.items() if v is not None}, "request_id": f"console-{secrets.token_hex(6)}"}
-        record = {"source": "console", "verb": verb, "run_id": body.get("run_id"), "point": body.get("point"),
-                  "peer": request.remote}
+        # what the client sent, as far as it is a run id and a point: any other value (a list, NaN, a megabyte of
+        # text) is recorded by its type only, so that the record can always be stored
+        record = {"source": "console", "verb": verb, "run_id": _recordable(body.get("run_id"), RECORDED_RUN_ID),
+                  "point": _recordable(body.get("point"), RECORDED_POINT), "peer": request.remote}
         try:
             if not self._tokens and not self._open_bench:
                 raise RgseError("the console needs mqtt.command_tokens (broker_acl authenticates MQTT clients only, "
@@ -241,9 +244,16 @@ class Console:
         return web.json_response({"ok": True, **reply})
 
     async def _record(self, message: str, data: dict[str, Any]) -> None:
+        run_id = data.get("run_id")
         try:
-            await self._store.add_event("info", "console_action", message, run_id=data.get("run_id") or None,
-                                        data=data)
+            try:
+                await self._store.add_event("info", "console_action", message, data=data,
+                                            run_id=run_id if isinstance(run_id, str) and run_id else None)
+            except RgseError:
+                if not run_id:
+                    raise
+                # a run id of no stored run (a typo, a guess): the action is recorded, with the id in its data only
+                await self._store.add_event("info", "console_action", message, data=data)
         except RgseError as exc:
             log.error("console action not recorded: %s (%s)", message, exc)
 
@@ -281,6 +291,23 @@ class Console:
         except RgseError as exc:
             raise web.HTTPNotFound(text=f"no report of {what} {ident}: {exc}") from None
         return web.FileResponse(path, headers={"Content-Type": "text/html; charset=utf-8"})
+
+
+#: The shapes of a run id and a point that a console action's record keeps as sent (interfaces §4.3 bounds).
+RECORDED_RUN_ID = re.compile(r"[A-Za-z0-9_.\-]{1,128}")
+RECORDED_POINT = range(0, 1001)
+
+
+def _recordable(value: Any, shape: re.Pattern[str] | range) -> Any:
+    """``value`` if it has ``shape`` (or is absent), else what it was: ``"(invalid <type>)"``."""
+    if value is None:
+        return None
+    if isinstance(shape, range):
+        if isinstance(value, int) and not isinstance(value, bool) and value in shape:
+            return value
+    elif isinstance(value, str) and shape.fullmatch(value):
+        return value
+    return f"(invalid {type(value).__name__})"
 
 
 def _finite(v: Any) -> Any:

@@ -14,8 +14,9 @@ import pytest
 
 from rgse_daemon.config import config_from_mapping
 from rgse_daemon.services import console as console_module
+from rgse_daemon.store import Store
 from simulators.krc4.sim import SimulatedKrc4
-from tests.support.daemon import RunningDaemon, daemon_config, running_daemon
+from tests.support.daemon import COMMAND_TOKEN, RunningDaemon, daemon_config, running_daemon
 
 IO_S = 10.0  # a hang guard on each socket read, not a timing check
 
@@ -103,3 +104,29 @@ async def test_stalled_clients_are_dropped_at_a_deadline_and_do_not_hold_up_the_
     finally:
         for _, writer in conns:
             writer.close()
+
+
+async def test_every_action_is_recorded_whatever_its_run_id_and_point(console: RunningDaemon) -> None:
+    """Refused actions are recorded too (interfaces §4.4), also with fields of any type or a run id of no stored run:
+    the record keeps a value of the right shape as sent, anything else by its type."""
+    port = console.daemon.console.port
+    sent = [
+        ("/api/confirm", {"run_id": [1, 2], "point": {"a": 1}}, "unauthorised: missing or wrong token"),
+        ("/api/confirm", {"run_id": "r" * 5000, "point": 10**30, "token": COMMAND_TOKEN}, "schema: run_id"),
+        ("/api/abort", {"run_id": "no-such-run", "reason": "x", "token": COMMAND_TOKEN}, "no run in progress"),
+    ]
+    for path, body, error in sent:
+        status, text = await exchange(port, post(path, json.dumps(body).encode()))
+        assert status == 409 and json.loads(text)["error"].startswith(error)
+    status, text = await exchange(port, post("/api/confirm", b'{"run_id": "r", "point": NaN}'))
+    assert status == 409
+    await console.shutdown()
+    cfg = console.daemon.cfg
+    async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
+        actions = [e.data for e in await store.events() if e.kind == "console_action"]
+    assert [(a["verb"], a["run_id"], a["point"], a["ok"]) for a in actions] == [
+        ("confirm", "(invalid list)", "(invalid dict)", False),
+        ("confirm", "(invalid str)", "(invalid int)", False),
+        ("abort", "no-such-run", None, False),
+        ("confirm", "r", "(invalid float)", False),
+    ]
