@@ -54,14 +54,23 @@ Token = Annotated[str | None, Field(default=None, max_length=256, repr=False)]
 
 #: The largest command payload accepted, in bytes; anything longer is refused unread.
 MAX_PAYLOAD_BYTES = 64 * 1024
+#: How much of a verb a refusal repeats in its message, the log and the alarm (an unknown verb is a topic level of
+#: up to 64 KiB, chosen by whoever can publish, before any token is checked).
+VERB_SHOWN = 64
+
+
+def shown_verb(verb: str) -> str:
+    """``verb``, cut to :data:`VERB_SHOWN` characters (and ``…``) when longer."""
+    return verb if len(verb) <= VERB_SHOWN else verb[:VERB_SHOWN] + "…"
 
 
 class CommandRefused(RgseError):
     """A command that is refused without effect: malformed, unauthorised, of unknown verb or against the schema."""
 
     def __init__(self, verb: str, message: str, request_id: str | None = None) -> None:
-        super().__init__(f"cmd/{verb}: {message}")
+        super().__init__(f"cmd/{shown_verb(verb)}: {message}")
         self.verb = verb
+        """The whole verb (the reply goes to its topic); :func:`shown_verb` in messages."""
         self.problem = message
         self.request_id = request_id
 
@@ -198,13 +207,15 @@ def parse_command(verb: str, payload: bytes | str, tokens: Sequence[str] = ()) -
     Order: verb, size, JSON object, authorisation (if ``tokens``), schema.
     """
     if verb not in COMMANDS:
-        raise CommandRefused(verb, f"unknown verb {verb!r}; expected one of {', '.join(COMMANDS)}")
+        raise CommandRefused(verb, f"unknown verb {shown_verb(verb)!r}; expected one of {', '.join(COMMANDS)}")
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise CommandRefused(verb, f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
     try:
         doc: Any = json.loads(payload)
     except (ValueError, UnicodeDecodeError) as exc:
         raise CommandRefused(verb, f"malformed JSON: {exc}") from exc
+    except RecursionError:  # e.g. 60 000 nested '[': a RuntimeError, not a ValueError, from the json module
+        raise CommandRefused(verb, "malformed JSON: nested too deeply") from None
     if not isinstance(doc, dict):
         raise CommandRefused(verb, f"malformed command: a JSON object expected, got {type(doc).__name__}")
     rid = doc.get("request_id")

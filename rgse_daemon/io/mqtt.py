@@ -72,6 +72,7 @@ from rgse_daemon.aio import within
 from rgse_daemon.config import MqttConfig
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.io.commands import (
+    COMMANDS,
     AbortCommand,
     CalibrateCommand,
     Command,
@@ -80,6 +81,7 @@ from rgse_daemon.io.commands import (
     MeasureCommand,
     PropertiesCommand,
     parse_command,
+    shown_verb,
 )
 from rgse_daemon.io.topics import FORBIDDEN_IN_LEVEL, MqttError, Topics
 from rgse_daemon.logs import RepeatThrottle
@@ -617,13 +619,19 @@ class MqttBridge:
         except CommandRefused as exc:
             self._refuse(exc)
             return
+        except Exception as exc:  # a bug in the checks: refuse this one command, never end the command loop
+            log.error("mqtt %s: cmd/%s: checking the command failed", self.prefix, verb[:64], exc_info=True)
+            self._refuse(CommandRefused(verb, f"not checked: {type(exc).__name__}"))
+            return
         task = asyncio.create_task(self._run_command(cmd), name=f"mqtt cmd {verb} {cmd.request_id}")
         self._command_tasks.add(task)
         task.add_done_callback(self._command_tasks.discard)
 
     def _refuse(self, exc: CommandRefused) -> None:
         self.counters.refused_commands += 1
-        self._log.problem(f"refused {exc.verb}", f"mqtt {self.prefix}: refused command: {exc}")
+        # one key per verb of ours and one for all unknown verbs: keys chosen by the sender would grow without bound
+        key = f"refused {exc.verb}" if exc.verb in COMMANDS else "refused unknown verb"
+        self._log.problem(key, f"mqtt {self.prefix}: refused command: {exc}")
         reply = {"request_id": exc.request_id, "ok": False, "error": exc.problem}
         # An unknown verb is still answered on its own reply topic: the sender listens there.
         if all(c not in exc.verb for c in FORBIDDEN_IN_LEVEL) and exc.verb:
@@ -632,7 +640,7 @@ class MqttBridge:
             {
                 "kind": "refused_command",
                 "message": "refused command",
-                "verb": exc.verb,
+                "verb": shown_verb(exc.verb),
                 "request_id": exc.request_id,
                 "error": exc.problem,
             }

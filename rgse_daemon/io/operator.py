@@ -102,12 +102,12 @@ def payload_json(message: aiomqtt.Message) -> Any:
     if isinstance(raw, bytes | bytearray):
         try:
             return json.loads(raw)
-        except (ValueError, UnicodeDecodeError):
+        except (ValueError, UnicodeDecodeError, RecursionError):  # RecursionError: nested too deeply
             return bytes(raw).decode("utf-8", errors="replace")
     if isinstance(raw, str):
         try:
             return json.loads(raw)
-        except ValueError:
+        except (ValueError, RecursionError):
             return raw
     return raw
 
@@ -324,13 +324,16 @@ class Session:
                 if message.payload in (None, b"", ""):
                     continue  # a cleared retained topic
                 topic = message.topic.value
-                doc = payload_json(message)
-                if topic.endswith("/reply") and isinstance(doc, dict):
-                    waiter = self._replies.pop(str(doc.get("request_id")), None)
-                    if waiter is not None and not waiter.done():
-                        waiter.set_result(doc)
-                        continue
-                self._on_message(topic, doc, bool(message.retain))
+                try:
+                    doc = payload_json(message)
+                    if topic.endswith("/reply") and isinstance(doc, dict):
+                        waiter = self._replies.pop(str(doc.get("request_id")), None)
+                        if waiter is not None and not waiter.done():
+                            waiter.set_result(doc)
+                            continue
+                    self._on_message(topic, doc, bool(message.retain))
+                except Exception:  # one message it cannot take must not end the reading, unnoticed, for good
+                    log.error("%s: a message on %s not handled", self.ep.broker, topic, exc_info=True)
         except aiomqtt.MqttError as exc:
             self.failure = Unreachable(f"{self.ep.broker}: connection lost: {exc}")
             for waiter in self._replies.values():

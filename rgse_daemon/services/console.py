@@ -25,6 +25,7 @@ import contextlib
 import json
 import logging
 import math
+import re
 import secrets
 import time
 from collections import deque
@@ -56,6 +57,15 @@ TERMINAL = ("done", "failed", "aborted")
 TORQUE_WINDOW_S = 60.0
 #: A page that takes one event longer than this (a stalled browser, a dead network) is dropped.
 WRITE_TIMEOUT_S = 10.0
+#: A POST body not received within this is answered 408 (a client that never finishes it holds nothing longer).
+BODY_TIMEOUT_S = 10.0
+#: A connection that has not sent a whole request head within this after it opened (headers byte by byte, or
+#: nothing at all), or that stays idle this long between requests, is closed (aiohttp's ``keepalive_timeout``;
+#: its default is an hour).
+IDLE_TIMEOUT_S = 15.0
+#: On stop, requests still in progress (an event stream in a stalled write) get this long, then are cancelled
+#: (aiohttp's default, 60 s, is longer than the daemon waits for the console to stop).
+SHUTDOWN_TIMEOUT_S = 2.0
 
 Handler = Any  # rgse_daemon.io.mqtt.CommandHandler: measure, calibrate, abort, confirm
 
@@ -98,7 +108,8 @@ class Console:
                         web.post("/api/confirm", self._confirm), web.post("/api/abort", self._abort),
                         web.get("/api/history", self._history),
                         web.get(r"/report/{what:run|calibration}/{id:[A-Za-z0-9_.\-]+}", self._report)])
-        self._runner = web.AppRunner(app, handle_signals=False, access_log=None)
+        self._runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=SHUTDOWN_TIMEOUT_S,
+                                     keepalive_timeout=IDLE_TIMEOUT_S)
         await self._runner.setup()
         site = web.TCPSite(self._runner, self.cfg.host, self.cfg.port)
         await site.start()
@@ -202,14 +213,23 @@ class Console:
 
     async def _act(self, verb: str, request: web.Request) -> web.Response:
         try:
-            body = await request.json()
+            async with asyncio.timeout(BODY_TIMEOUT_S):
+                body = await request.json()
+        except TimeoutError:
+            return web.json_response({"ok": False, "error": f"request body not received within {BODY_TIMEOUT_S:g} s"},
+                                     status=408)
         except ValueError:
             body = None
+        except RecursionError:  # nested too deeply for the json module: a RuntimeError, not a ValueError
+            return web.json_response({"ok": False, "error": "a JSON object expected: nested too deeply"},
+                                     status=400)
         if not isinstance(body, dict):
             return web.json_response({"ok": False, "error": "a JSON object expected"}, status=400)
         doc = {**{k: v for k, v in body.items() if v is not None}, "request_id": f"console-{secrets.token_hex(6)}"}
-        record = {"source": "console", "verb": verb, "run_id": body.get("run_id"), "point": body.get("point"),
-                  "peer": request.remote}
+        # what the client sent, as far as it is a run id and a point: any other value (a list, NaN, a megabyte of
+        # text) is recorded by its type only, so that the record can always be stored
+        record = {"source": "console", "verb": verb, "run_id": _recordable(body.get("run_id"), RECORDED_RUN_ID),
+                  "point": _recordable(body.get("point"), RECORDED_POINT), "peer": request.remote}
         try:
             if not self._tokens and not self._open_bench:
                 raise RgseError("the console needs mqtt.command_tokens (broker_acl authenticates MQTT clients only, "
@@ -224,9 +244,16 @@ class Console:
         return web.json_response({"ok": True, **reply})
 
     async def _record(self, message: str, data: dict[str, Any]) -> None:
+        run_id = data.get("run_id")
         try:
-            await self._store.add_event("info", "console_action", message, run_id=data.get("run_id") or None,
-                                        data=data)
+            try:
+                await self._store.add_event("info", "console_action", message, data=data,
+                                            run_id=run_id if isinstance(run_id, str) and run_id else None)
+            except RgseError:
+                if not run_id:
+                    raise
+                # a run id of no stored run (a typo, a guess): the action is recorded, with the id in its data only
+                await self._store.add_event("info", "console_action", message, data=data)
         except RgseError as exc:
             log.error("console action not recorded: %s (%s)", message, exc)
 
@@ -264,6 +291,23 @@ class Console:
         except RgseError as exc:
             raise web.HTTPNotFound(text=f"no report of {what} {ident}: {exc}") from None
         return web.FileResponse(path, headers={"Content-Type": "text/html; charset=utf-8"})
+
+
+#: The shapes of a run id and a point that a console action's record keeps as sent (interfaces §4.3 bounds).
+RECORDED_RUN_ID = re.compile(r"[A-Za-z0-9_.\-]{1,128}")
+RECORDED_POINT = range(0, 1001)
+
+
+def _recordable(value: Any, shape: re.Pattern[str] | range) -> Any:
+    """``value`` if it has ``shape`` (or is absent), else what it was: ``"(invalid <type>)"``."""
+    if value is None:
+        return None
+    if isinstance(shape, range):
+        if isinstance(value, int) and not isinstance(value, bool) and value in shape:
+            return value
+    elif isinstance(value, str) and shape.fullmatch(value):
+        return value
+    return f"(invalid {type(value).__name__})"
 
 
 def _finite(v: Any) -> Any:

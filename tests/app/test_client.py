@@ -5,6 +5,8 @@ report, an abort, refusals with the daemon's reason, deadlines, and the blocking
 from __future__ import annotations
 
 import asyncio
+import json
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +31,7 @@ from simulators.krc4.physics import dut_payload
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.client import operator_at, write_points
 from tests.support.daemon import daemon_config, running_daemon, seed_calibration
-from tests.support.mqtt import MosquittoProcess, free_port
+from tests.support.mqtt import Collector, MosquittoProcess, free_port
 from tests.support.polling import wait_until
 
 DUT_MASS_KG = 95.0
@@ -150,6 +152,20 @@ async def test_no_broker_is_unreachable_within_the_deadline(tmp_path: Path) -> N
     with pytest.raises(Unreachable, match="cannot connect"):
         async with RgseClient.of(cfg, timeout_s=2):
             pass  # entering is what fails: no broker on that port
+
+
+async def test_a_message_nested_too_deeply_does_not_end_the_clients_reading(tmp_path: Path) -> None:
+    """Whoever may publish under the prefix can send anything; the client reads on (a RecursionError from json
+    ended its reader without a word, and every wait then ran to its deadline)."""
+    prefix = f"rgse-test/{uuid.uuid4().hex[:12]}"
+    cfg = config_from_mapping({"robot": {"name": "KR-X"}, "paths": {"data_dir": str(tmp_path)},
+                               "mqtt": {"enabled": True, "host": "127.0.0.1", "port": 1883, "prefix": prefix,
+                                        "command_tokens": ["t"]}}, "<test>")
+    async with RgseClient.of(cfg, timeout_s=5) as rgse, Collector("127.0.0.1", 1883, f"{prefix}/nothing") as peer:
+        await peer.publish(f"{prefix}/state", b"[" * 60000)
+        await peer.publish(f"{prefix}/state", json.dumps({"engine": "idle", "connected": True}))
+        state = await rgse.state(5)
+    assert state.engine == "idle" and state.connected
 
 
 def test_a_points_file_names_the_bad_point(tmp_path: Path) -> None:

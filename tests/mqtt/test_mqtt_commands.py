@@ -160,6 +160,43 @@ async def test_bad_commands_are_refused_without_effect(
     assert session.bridge.counters.refused_commands == 1 and session.bridge.counters.commands == 0
 
 
+async def test_a_deeply_nested_payload_is_refused_and_the_next_command_is_served(
+    session: Session, handler: RecordingHandler
+) -> None:
+    """60 000 nested '[' make the json module raise RecursionError (not a ValueError): it is refused like any
+    malformed JSON, and the command loop goes on (no reconnect, the command behind it is not lost)."""
+    await session.send("measure", b"[" * 60000)
+    await session.send("measure", {"request_id": "after", "loops": 3})
+    (verb, refused), (_, served) = await session.replies(2)
+    assert verb == "measure" and refused == {"request_id": None, "ok": False,
+                                             "error": "malformed JSON: nested too deeply"}
+    assert served["request_id"] == "after" and served["ok"] is True
+    assert [cmd.request_id for _, cmd in handler.calls] == ["after"]
+    assert session.bridge.counters.connects == 1 and session.bridge.counters.refused_commands == 1
+
+
+async def test_unknown_verbs_of_any_length_cost_bounded_memory_and_log(
+    session: Session, handler: RecordingHandler, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Anyone who can publish picks the verb (the topic level, up to 64 KiB, checked before any token): each is
+    answered on its own reply topic, but what the daemon keeps and writes about it is cut short."""
+    verbs = [f"v{i}-" + "x" * 20000 for i in range(20)]
+    for verb in verbs:
+        await session.send(verb, {"request_id": "u"})
+    replies = await session.replies(len(verbs))
+    assert [v for v, _ in replies] == verbs  # the sender hears its refusal where it listens
+    assert all(r["error"] == f"unknown verb {v[:64] + '…'!r}; expected one of measure, properties, calibrate, "
+               "abort, confirm" for v, r in replies)
+    await session.client.wait_for(lambda ms: len(session.alarms()) == len(verbs), "the alarms")
+    assert all(a["verb"] == v[:64] + "…" for v, a in zip(verbs, session.alarms(), strict=True))
+    refusals = [r.getMessage() for r in caplog.records if "refused command" in r.getMessage()]
+    assert refusals and all(len(m) < 400 for m in refusals)
+    # what the bridge remembers to log each problem once: one entry for every unknown verb together (it kept one
+    # per verb, 20 kB each, for the daemon's lifetime)
+    assert len(session.bridge._log._last) == 1
+    assert handler.calls == []
+
+
 async def test_a_retained_command_is_not_replayed_to_a_new_session(
     system_broker: tuple[str, int], prefix: str, store: Store, handler: RecordingHandler
 ) -> None:

@@ -1,0 +1,132 @@
+"""The console's HTTP face (interfaces §4.4) as an unknown client meets it, over raw sockets against the daemon on
+the simulated KR C4: bad bodies get a 4xx with a reason, never a 500; a client that stalls (a body never finished,
+headers byte by byte, nothing at all) holds its connection only until a deadline, and does not hold up the daemon's
+stop."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator
+from pathlib import Path
+
+import pytest
+
+from rgse_daemon.config import config_from_mapping
+from rgse_daemon.services import console as console_module
+from rgse_daemon.store import Store
+from simulators.krc4.sim import SimulatedKrc4
+from tests.support.daemon import COMMAND_TOKEN, RunningDaemon, daemon_config, running_daemon
+
+IO_S = 10.0  # a hang guard on each socket read, not a timing check
+
+
+@pytest.fixture
+async def console(sim: SimulatedKrc4, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[RunningDaemon]:
+    """The daemon with its console on a free port (tokens configured, no broker), its deadlines short."""
+    monkeypatch.setattr(console_module, "BODY_TIMEOUT_S", 0.5, raising=False)
+    monkeypatch.setattr(console_module, "IDLE_TIMEOUT_S", 1.0, raising=False)
+    doc = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir).model_dump(mode="json")
+    doc["console"] = {"enabled": True, "host": "127.0.0.1", "port": 0}
+    cfg = config_from_mapping({k: v for k, v in doc.items() if v is not None}, "<console http test>")
+    async with running_daemon(cfg) as rd:
+        yield rd
+
+
+async def exchange(port: int, request: bytes) -> tuple[int, bytes]:
+    """Send ``request`` on a fresh connection; the response's status and body (the server closes)."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    try:
+        writer.write(request)
+        async with asyncio.timeout(IO_S):
+            raw = await reader.read()
+    finally:
+        writer.close()
+        await writer.wait_closed()
+    head, _, body = raw.partition(b"\r\n\r\n")
+    return int(head.split(b" ")[1]), body
+
+
+def post(path: str, body: bytes) -> bytes:
+    return (f"POST {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\nContent-Type: application/json\r\n"
+            f"Content-Length: {len(body)}\r\n\r\n").encode() + body
+
+
+async def test_a_body_nested_too_deeply_is_a_400_with_its_reason(console: RunningDaemon) -> None:
+    port = console.daemon.console.port
+    for path, body in (("/api/confirm", b"[" * 50000 + b"]" * 50000),
+                       ("/api/abort", b'{"reason": "x", "a": ' + b"[" * 5000 + b"]" * 5000 + b"}")):
+        status, text = await exchange(port, post(path, body))
+        assert (status, json.loads(text)) == (400, {"ok": False, "error": "a JSON object expected: nested too deeply"})
+    status, text = await exchange(port, post("/api/abort", b'{"reason": "x"}'))
+    assert status == 409 and json.loads(text)["error"] == "unauthorised: missing or wrong token"
+
+
+async def closed_by_server(reader: asyncio.StreamReader) -> bool:
+    """Whether the server closes the connection (EOF) within the hang guard, reading whatever it sends first."""
+    try:
+        async with asyncio.timeout(IO_S):
+            await reader.read()
+    except TimeoutError:
+        return False
+    return True
+
+
+async def test_stalled_clients_are_dropped_at_a_deadline_and_do_not_hold_up_the_stop(console: RunningDaemon) -> None:
+    port = console.daemon.console.port
+    conns = [await asyncio.open_connection("127.0.0.1", port) for _ in range(4)]
+    (body_r, body_w), (head_r, head_w), (idle_r, _), (sse_r, sse_w) = conns
+    body_w.write(b"POST /api/abort HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n"
+                 b"Content-Length: 100\r\n\r\n{\"re")  # and never the rest
+    head_w.write(b"GET / HTTP/1.1\r\nHo")  # and never the rest of the headers
+    sse_w.write(b"GET /events HTTP/1.1\r\nHost: t\r\n\r\n")  # a page that reads
+    try:
+        async with asyncio.timeout(IO_S):
+            head = await body_r.readuntil(b"\r\n\r\n")
+            assert head.startswith(b"HTTP/1.1 408 "), head
+            length = int(next(h for h in head.split(b"\r\n") if h.lower().startswith(b"content-length:"))[15:])
+            body = await body_r.readexactly(length)
+        assert json.loads(body) == {"ok": False, "error": "request body not received within 0.5 s"}
+        assert await closed_by_server(head_r), "a request head that never ends is closed"
+        assert await closed_by_server(idle_r), "a connection that never sends anything is closed"
+        # the idle deadline does not cut a page's event stream: it gets state events well beyond it
+        async with asyncio.timeout(IO_S):
+            await sse_r.readuntil(b"event: hello")
+            await asyncio.sleep(2.0)
+            assert b"event: state" in await sse_r.read(1 << 20) and not sse_r.at_eof()
+        # a body never finished and a head never finished, open while the daemon stops
+        late = [await asyncio.open_connection("127.0.0.1", port) for _ in range(2)]
+        late[0][1].write(b"POST /api/confirm HTTP/1.1\r\nHost: t\r\nContent-Length: 100\r\n\r\n{")
+        late[1][1].write(b"GET /events HTTP/1.1\r\nHo")
+        await asyncio.sleep(0.1)
+        assert await console.shutdown() < 5.0
+        conns += late
+    finally:
+        for _, writer in conns:
+            writer.close()
+
+
+async def test_every_action_is_recorded_whatever_its_run_id_and_point(console: RunningDaemon) -> None:
+    """Refused actions are recorded too (interfaces §4.4), also with fields of any type or a run id of no stored run:
+    the record keeps a value of the right shape as sent, anything else by its type."""
+    port = console.daemon.console.port
+    sent = [
+        ("/api/confirm", {"run_id": [1, 2], "point": {"a": 1}}, "unauthorised: missing or wrong token"),
+        ("/api/confirm", {"run_id": "r" * 5000, "point": 10**30, "token": COMMAND_TOKEN}, "schema: run_id"),
+        ("/api/abort", {"run_id": "no-such-run", "reason": "x", "token": COMMAND_TOKEN}, "no run in progress"),
+    ]
+    for path, body, error in sent:
+        status, text = await exchange(port, post(path, json.dumps(body).encode()))
+        assert status == 409 and json.loads(text)["error"].startswith(error)
+    status, text = await exchange(port, post("/api/confirm", b'{"run_id": "r", "point": NaN}'))
+    assert status == 409
+    await console.shutdown()
+    cfg = console.daemon.cfg
+    async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
+        actions = [e.data for e in await store.events() if e.kind == "console_action"]
+    assert [(a["verb"], a["run_id"], a["point"], a["ok"]) for a in actions] == [
+        ("confirm", "(invalid list)", "(invalid dict)", False),
+        ("confirm", "(invalid str)", "(invalid int)", False),
+        ("abort", "no-such-run", None, False),
+        ("confirm", "r", "(invalid float)", False),
+    ]
