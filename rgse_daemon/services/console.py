@@ -66,6 +66,9 @@ IDLE_TIMEOUT_S = 15.0
 #: On stop, requests still in progress (an event stream in a stalled write) get this long, then are cancelled
 #: (aiohttp's default, 60 s, is longer than the daemon waits for the console to stop).
 SHUTDOWN_TIMEOUT_S = 2.0
+#: Event streams open at once; one more is answered 503. Each page costs a queue and its writes; the controller
+#: reads do not grow with the pages (one state loop, and a new page's first state is the loop's latest).
+MAX_STREAMS = 32
 
 Handler = Any  # rgse_daemon.io.mqtt.CommandHandler: measure, calibrate, abort, confirm
 
@@ -91,6 +94,9 @@ class Console:
         self.port: int | None = None
         self.run: dict[str, Any] | None = None  # {run_id, kind?, events, prompt, state}
         self.last_state: dict[str, Any] | None = None
+        self._last_state_at = -math.inf  # time.monotonic() of last_state
+        self._reading: asyncio.Future[dict[str, Any]] | None = None  # the state read in flight, shared
+        self._streams = 0
         self.torque: deque[tuple[float, float, float]] = deque(maxlen=int(TORQUE_WINDOW_S * rate_hz) + 1)
         """(Unix time s, A3 N·m, A5 N·m) of the live state, for the plot of a page that (re)connects."""
         self._clients: set[asyncio.Queue[tuple[str, Any] | None]] = set()
@@ -171,15 +177,31 @@ class Console:
             if not self._clients:
                 continue
             try:
-                self.last_state = self._view(await self._state())
+                state = await self._read_state()
             except RgseError as exc:
                 log.warning("console: state not read: %s", exc)
                 continue
             except Exception as exc:  # a bug here must not end the pages' state for the rest of the daemon's life
                 log.error("console: state not read: %r", exc)
                 continue
-            self._keep_torque(self.last_state)
-            self._send("state", self.last_state)
+            self._keep_torque(state)
+            self._send("state", state)
+
+    async def _read_state(self) -> dict[str, Any]:
+        """Read the state (the controller's snapshot among it) once for everyone who asks while the read is in
+        flight: the state loop and the pages that open meanwhile."""
+        if self._reading is None or self._reading.done():
+            self._reading = asyncio.ensure_future(self._state())
+        state = self._view(await asyncio.shield(self._reading))
+        self.last_state, self._last_state_at = state, time.monotonic()
+        return state
+
+    async def _fresh_state(self) -> dict[str, Any]:
+        """A new page's first state: the state loop's latest if younger than two of its periods, else one read.
+        Opening pages never costs a controller read each (the link that the interlock polls)."""
+        if self.last_state is not None and time.monotonic() - self._last_state_at <= 2 * self.period_s:
+            return self.last_state
+        return await self._read_state()
 
     def _keep_torque(self, state: dict[str, Any]) -> None:
         ctl = state.get("controller") or {}
@@ -193,11 +215,21 @@ class Console:
         return web.Response(text=html, content_type="text/html", charset="utf-8")
 
     async def _events(self, request: web.Request) -> web.StreamResponse:
+        if self._streams >= MAX_STREAMS:
+            return web.json_response({"ok": False, "error": f"{MAX_STREAMS} event streams are open already: "
+                                      f"close a page and reload"}, status=503)
+        self._streams += 1
+        try:
+            return await self._stream(request)
+        finally:
+            self._streams -= 1
+
+    async def _stream(self, request: web.Request) -> web.StreamResponse:
         resp = web.StreamResponse(headers={"Content-Type": "text/event-stream", "Cache-Control": "no-store"})
         await resp.prepare(request)
         q: asyncio.Queue[tuple[str, Any] | None] = asyncio.Queue(CLIENT_QUEUE)
         hello = {"robot": self.robot, "token_required": bool(self._tokens), "run": self.run,
-                 "state": self._view(await self._state()), "torque": list(self.torque)}
+                 "state": await self._fresh_state(), "torque": list(self.torque)}
         self._clients.add(q)
         try:
             async with asyncio.timeout(WRITE_TIMEOUT_S):

@@ -130,3 +130,37 @@ async def test_every_action_is_recorded_whatever_its_run_id_and_point(console: R
         ("abort", "no-such-run", None, False),
         ("confirm", "r", "(invalid float)", False),
     ]
+
+
+async def open_stream(port: int) -> tuple[int, asyncio.StreamWriter]:
+    """Open ``/events``; the status, and the writer (the stream stays open) once the hello or the refusal is in."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    writer.write(b"GET /events HTTP/1.1\r\nHost: t\r\n\r\n")
+    async with asyncio.timeout(IO_S):
+        head = await reader.readuntil(b"\r\n\r\n")
+        status = int(head.split(b" ")[1])
+        if status == 200:
+            await reader.readuntil(b"event: hello")
+    return status, writer
+
+
+async def test_pages_that_open_together_share_one_controller_read_and_their_number_is_capped(
+        sim: SimulatedKrc4, console: RunningDaemon, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Opening a page must not cost a controller read each (the link the interlock polls): pages that open together
+    get one read between them; beyond MAX_STREAMS a page is answered 503 with its reason."""
+    page = console.daemon.console
+    monkeypatch.setattr(console_module, "MAX_STREAMS", 12)
+    page.period_s = 60.0  # the state loop sleeps through the test: every read here is a page's hello
+    await asyncio.sleep(0.5)  # (the loop's current short sleep ends; the next is the long one)
+    reads = sim.server.counters.by_type[6]  # #6: the snapshot's read of several variables at once
+    opened = await asyncio.gather(*(open_stream(page.port) for _ in range(12)))
+    try:
+        assert [status for status, _ in opened] == [200] * 12
+        assert sim.server.counters.by_type[6] - reads == 1
+        status, text = await exchange(page.port, b"GET /events HTTP/1.1\r\nHost: t\r\nConnection: close\r\n\r\n")
+        assert (status, json.loads(text)) == (503, {"ok": False, "error": "12 event streams are open already: "
+                                                                          "close a page and reload"})
+    finally:
+        for _, writer in opened:
+            writer.close()
+    await console.shutdown()
