@@ -93,7 +93,8 @@ class ProgressEvent:
     """One engine event of a run (§4.2 ``progress``)."""
 
     kind: str
-    time: float
+    time: str | None
+    """When the engine emitted it: ISO 8601 UTC as the daemon sends it (§4.2), like :attr:`DaemonState.time`."""
     run_id: str
     message: str = ""
     step: str | None = None
@@ -105,7 +106,7 @@ class ProgressEvent:
     @classmethod
     def of(cls, run_id: str, doc: dict[str, Any]) -> ProgressEvent:
         data = doc.get("data")
-        return cls(kind=str(doc.get("kind", "?")), time=_f(doc, "time") or 0.0, run_id=run_id,
+        return cls(kind=str(doc.get("kind", "?")), time=_s(doc, "time"), run_id=run_id,
                    message=_s(doc, "message") or "", step=_s(doc, "step"), loop_index=_i(doc, "loop_index"),
                    loop_count=_i(doc, "loop_count"), eta_s=_f(doc, "eta_s"),
                    data=data if isinstance(data, dict) else {})

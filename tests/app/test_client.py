@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import json
 import uuid
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +65,9 @@ async def test_a_campaign_from_a_points_file_confirmed_prompt_by_prompt(
         assert result.run_id == run.run_id and result.points == len(points) == 5
         assert result.loo_mean_abs_err_pct is not None and result.loo_mean_abs_err_pct > 0  # 5 points: a few %
         kinds = [ev.kind for ev in rgse.events_of(run.run_id)]
+        # each event's time as the daemon sent it, in order
+        times = [datetime.fromisoformat(str(ev.time)) for ev in rgse.events_of(run.run_id)]
+        assert times == sorted(times) and all(t.utcoffset() == timedelta(0) for t in times)
         assert kinds.count("confirm") == 5 and "loop" in kinds
         assert [ev.state for ev in rgse.events_of(run.run_id) if ev.kind == "state"][-1] == "done"
         # the retained result is there for a client that connects later, too
