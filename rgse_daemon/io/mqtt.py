@@ -96,6 +96,9 @@ _client_log.addFilter(_client_throttle)
 
 #: Command handler calls in flight at once; more are refused ("busy") rather than queued without bound.
 MAX_COMMANDS_IN_FLIGHT = 8
+#: (verb, request_id) of the latest commands run, with their replies: a command seen again (a QoS 1 redelivery after
+#: a lost PUBACK, a script that sends twice) is answered with the first one's reply and not run a second time.
+REMEMBERED_COMMANDS = 1000
 
 
 #: Deadline of the retained "offline" publish when stopping (s).
@@ -131,6 +134,8 @@ class MqttCounters:
     command_errors: int = 0
     """Valid commands whose handler raised or timed out."""
     refused_commands: int = 0
+    duplicate_commands: int = 0
+    """Commands whose verb and request_id were seen before: answered again, not run again."""
     outbox_published: int = 0
     """Outbox rows (results) published and marked published in the store."""
     outbox_sweeps: int = 0
@@ -300,6 +305,8 @@ class MqttBridge:
         self._outq: collections.deque[_Out] = collections.deque()
         self._outq_wake = asyncio.Event()
         self._command_tasks: set[asyncio.Task[None]] = set()
+        # (verb, request_id) -> the reply sent, None while the command runs (REMEMBERED_COMMANDS, oldest dropped)
+        self._remembered: collections.OrderedDict[tuple[str, str], str | None] = collections.OrderedDict()
         self._log = _LogOnce(log)
 
     # --- properties ----------------------------------------------------------------------------------------------
@@ -614,6 +621,10 @@ class MqttBridge:
                 # restart it would start a motion nobody asked for now. Commands count only when sent live.
                 raise CommandRefused(verb, "retained command ignored: publish commands with retain=false",
                                      cmd.request_id)
+            key = (verb, cmd.request_id)
+            if key in self._remembered:
+                self._answer_again(key)
+                return
             if len(self._command_tasks) >= MAX_COMMANDS_IN_FLIGHT:
                 raise CommandRefused(verb, f"busy: {MAX_COMMANDS_IN_FLIGHT} commands in flight", cmd.request_id)
         except CommandRefused as exc:
@@ -623,9 +634,23 @@ class MqttBridge:
             log.error("mqtt %s: cmd/%s: checking the command failed", self.prefix, verb[:64], exc_info=True)
             self._refuse(CommandRefused(verb, f"not checked: {type(exc).__name__}"))
             return
+        self._remembered[key] = None
+        while len(self._remembered) > REMEMBERED_COMMANDS:
+            self._remembered.popitem(last=False)
         task = asyncio.create_task(self._run_command(cmd), name=f"mqtt cmd {verb} {cmd.request_id}")
         self._command_tasks.add(task)
         task.add_done_callback(self._command_tasks.discard)
+
+    def _answer_again(self, key: tuple[str, str]) -> None:
+        """A command seen before: its reply again if it has one (the sender may have missed it), nothing while it
+        still runs (its reply is on the way); never run a second time."""
+        verb, request_id = key
+        self.counters.duplicate_commands += 1
+        reply = self._remembered[key]
+        log.info("mqtt %s: cmd/%s request_id %s seen before: %s", self.prefix, verb, request_id,
+                 "answered again, not run again" if reply is not None else "still running, not run again")
+        if reply is not None:
+            self._enqueue(_Out(self.topics.reply(verb), reply, qos=1))
 
     def _refuse(self, exc: CommandRefused) -> None:
         self.counters.refused_commands += 1
@@ -669,4 +694,6 @@ class MqttBridge:
                 exc_info=not isinstance(exc, RgseError),
             )
             payload = _dumps({"request_id": cmd.request_id, "ok": False, "error": error}, "reply")
+        if (verb, cmd.request_id) in self._remembered:
+            self._remembered[(verb, cmd.request_id)] = payload
         self._enqueue(_Out(self.topics.reply(verb), payload, qos=1))

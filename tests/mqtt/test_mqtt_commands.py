@@ -123,6 +123,23 @@ async def test_valid_commands_reach_the_handler_and_are_answered_ok(
     assert session.alarms() == []
 
 
+async def test_a_command_seen_again_is_answered_again_and_not_run_twice(
+    session: Session, handler: RecordingHandler
+) -> None:
+    """A QoS 1 redelivery (a PUBACK lost with the connection) or a script that sends twice: the same verb and
+    request_id run once; the second copy gets the first one's reply. Another verb with that id is another command."""
+    await session.send("measure", {"request_id": "m-1", "loops": 3})
+    first = await session.replies(1)
+    await session.send("measure", {"request_id": "m-1", "loops": 3})
+    await session.send("abort", {"request_id": "m-1", "reason": "operator"})
+    got = await session.replies(3)
+    assert got[0] == got[1] == ("measure", {"accepted": True, "run_id": "run-1", "request_id": "m-1", "ok": True})
+    assert first == got[:1] and got[2][0] == "abort" and got[2][1]["run_id"] == "run-2"
+    assert [(verb, cmd.request_id) for verb, cmd in handler.calls] == [("measure", "m-1"), ("abort", "m-1")]
+    assert session.bridge.counters.duplicate_commands == 1 and session.bridge.counters.commands == 2
+    assert session.alarms() == []  # not a refusal
+
+
 @pytest.mark.parametrize(
     ("verb", "payload", "request_id", "error"),
     [
