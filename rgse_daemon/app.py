@@ -135,7 +135,7 @@ class Daemon:
         self.alarms = Alarms(self._publish_alarm, self.light)
         self.link = ControllerLink(cfg.controller, self.counters, self.alarms, busy=lambda: self.run_active,
                                    data_dir=cfg.paths.data_dir)
-        self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed)
+        self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed, self._run_refused)
         self._confirm_data: dict[str, Any] = {}
         self._prompt_open = False
         self._tasks: list[asyncio.Task[Any]] = []
@@ -381,14 +381,20 @@ class Daemon:
                              "message": f"{kind} run failed: {error}"})
         self.light.want("red")
 
+    def _run_refused(self, kind: str, reason: str) -> None:
+        """A run request answered "no" before anything was recorded or moved: published as such, and the stack light
+        is left as it is (red stays the colour of something that happened to the robot or a run)."""
+        self._publish_alarm({"kind": "run_refused", "run_kind": kind, "reason": reason,
+                             "message": f"{kind} run refused: {reason}"})
+
     # --- runs ----------------------------------------------------------------------------------------------------
     def _start_run(self, kind: str, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]],
                    engine: RunEngine | None = None) -> asyncio.Task[Any]:
         assert self.store is not None
         try:
             self.latch.check()
-        except RgseError:
-            self.counters.runs_refused += 1
+        except RgseError as exc:
+            self.admission.refuse(kind, exc)
             raise
         self._confirm_data = {}
         return self.admission.start(kind, coro_factory, engine=engine if engine is not None else self.engine,

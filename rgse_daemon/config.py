@@ -478,10 +478,18 @@ def _from_text(fields: dict[str, FieldInfo], data: dict[str, Any]) -> dict[str, 
             out[key] = _from_text(model.model_fields, value) if isinstance(value, dict) else value
         else:
             try:
-                out[key] = _lax_adapter(f.annotation).validate_python(value)
+                out[key] = _lax_adapter(_with_validators(f)).validate_python(value)
             except ValidationError:
                 out[key] = value
     return out
+
+
+def _with_validators(f: FieldInfo) -> Any:
+    """The field's type with its own before-validators (pydantic keeps those of a top-level ``Annotated`` in
+    ``metadata``): without them ``""`` converts to ``Path(".")`` and the model's empty-path check never sees the
+    text, so ``RGSE_PATHS__DATA_DIR=`` silently meant the current directory. Bounds stay the model's."""
+    validators = tuple(m for m in f.metadata if isinstance(m, BeforeValidator))
+    return Annotated[(f.annotation, *validators)] if validators else f.annotation
 
 
 class _LaxEnvironment(PydanticBaseSettingsSource):
@@ -495,7 +503,25 @@ class _LaxEnvironment(PydanticBaseSettingsSource):
         return self._env.get_field_value(field, field_name)
 
     def __call__(self) -> dict[str, Any]:
-        return _from_text(self.settings_cls.model_fields, self._env())
+        return _blank_paths_as_text(_from_text(self.settings_cls.model_fields, self._env()))
+
+
+def _blank_paths_as_text(data: dict[str, Any]) -> dict[str, Any]:
+    """A variable set to empty (or blank) text for a path key gives that text back to the model, whose empty-path
+    check then refuses it naming the variable. pydantic-settings converts a key's text by its bare type, so ``""``
+    arrived here as ``Path(".")``: ``RGSE_PATHS__DATA_DIR=`` (an easy slip in a systemd ``EnvironmentFile``) ran the
+    daemon with its store in its working directory instead of refusing to start."""
+    for upper, name in _env_variables().items():
+        raw = os.environ.get(name)
+        if raw is None or raw.strip():
+            continue
+        *sections, key = upper[len(ENV_PREFIX):].lower().split("__")
+        where: Any = data
+        for section in sections:
+            where = where.get(section) if isinstance(where, dict) else None
+        if isinstance(where, dict) and isinstance(where.get(key), Path):
+            where[key] = raw
+    return data
 
 
 ENV_PREFIX = "RGSE_"

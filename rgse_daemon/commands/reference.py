@@ -9,6 +9,7 @@ import json
 from typing import Any
 
 from rgse_daemon.analysis import reference as ref
+from rgse_daemon.commands import absent_store
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import ConfigError
 from rgse_daemon.io.scale import CraneScale
@@ -17,9 +18,13 @@ from rgse_daemon.store import Store
 
 
 async def _reference(args: argparse.Namespace) -> dict[str, Any]:
-    cfg = load_config(getattr(args, "config", None))
+    config_path = getattr(args, "config", None)
+    cfg = load_config(config_path)
     if cfg.scale is None:
         raise ConfigError(f"{args.config or '<defaults>'}: no [scale] section; the crane scale is not configured")
+    absent = absent_store(cfg, f"run {args.run!r}", config_path)  # no empty store created just to say so
+    if absent is not None:
+        raise absent
     async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
         await run_and_result(store, args.run)  # before the scale is opened: fail fast on a wrong run
         async with CraneScale(cfg.scale) as scale:

@@ -11,10 +11,11 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from rgse_daemon.commands import absent_store, config_hint
 from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import ConfigError, DataError, RgseError
 from rgse_daemon.report import build_report
-from rgse_daemon.store import NotFound, Repository, describe_store, sqlite_path
+from rgse_daemon.store import NotFound, Repository
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -35,13 +36,11 @@ def write(cfg: Config, *, run_id: str | None = None, calibration_id: str | None 
     if (run_id is None) == (calibration_id is None):
         raise DataError("give either RUN_ID or --calibration ID")
     data_dir = cfg.paths.data_dir
-    what = f"run {run_id!r}" if run_id is not None else f"calibration {calibration_id!r}"
-    hint = "" if config_path is not None else (
-        " (no --config given, so this is the default configuration's store; name the daemon's configuration "
-        "with --config FILE)")
-    db_file = sqlite_path(cfg.store.url, data_dir)
-    if db_file is not None and not db_file.exists():
-        raise DataError(f"{what}: not found: the {describe_store(cfg.store.url, data_dir)} does not exist{hint}")
+    absent = absent_store(cfg, f"run {run_id!r}" if run_id is not None else f"calibration {calibration_id!r}",
+                          config_path)
+    if absent is not None:
+        raise absent
+    hint = config_hint(config_path)
     with Repository.open(cfg.store.url, data_dir) as repo:
         try:
             if run_id is not None:

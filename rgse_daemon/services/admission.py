@@ -42,14 +42,20 @@ class RunAdmission:
     """Admits one run at a time and holds it: ``task``, ``kind``, its run id once started, its outcome.
 
     ``on_failed(kind, run_id, error)`` is told when a run ends in an error (the daemon alarms and lights red).
+    ``on_refused(kind, reason)`` is told when a run request is refused before the run started — busy, stopping, not
+    connected, the safety latch (:meth:`refuse`), or the run's own start checks (:class:`PreconditionError`: mode,
+    no active calibration, ...). A refusal is a request answered "no": nothing was recorded or moved, so it is not a
+    failed run (the daemon publishes ``run_refused`` and leaves the stack light as it is).
     """
 
     def __init__(self, cfg: Config, counters: DaemonCounters, inputs: Callable[[], SafetyInputs | None],
-                 on_failed: Callable[[str, str | None, str], None]) -> None:
+                 on_failed: Callable[[str, str | None, str], None],
+                 on_refused: Callable[[str, str], None]) -> None:
         self.cfg = cfg
         self.counters = counters
         self._inputs = inputs
         self._on_failed = on_failed
+        self._on_refused = on_refused
         self.task: asyncio.Task[Any] | None = None
         self.kind: str | None = None
         self.stopping = False
@@ -74,23 +80,27 @@ class RunAdmission:
             started.set_result(run_id)
             self.counters.runs_started += 1
 
+    def refuse(self, kind: str, exc: RgseError) -> RgseError:
+        """Count and report the refusal of a ``kind`` run request for the reason ``exc``; returns ``exc`` to raise."""
+        self.counters.runs_refused += 1
+        log.warning("%s run refused: %s", kind, exc)
+        self._on_refused(kind, str(exc))
+        return exc
+
     def start(self, kind: str, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]], *,
               engine: RunEngine | None, krc: Controller | None, store: Store, connected: bool,
               link_error: str | None) -> asyncio.Task[Any]:
         """Reserve the robot for one run (synchronously: no second request can slip in) and start it in a task."""
         if self.stopping:
-            self.counters.runs_refused += 1
-            raise Busy("busy: the daemon is stopping")
+            raise self.refuse(kind, Busy("busy: the daemon is stopping"))
         if self.active:
-            self.counters.runs_refused += 1
             run_id = self.run_id
-            raise Busy(f"busy: a {self.kind} run{f' ({run_id})' if run_id else ''} is in progress; "
-                       "abort it first or wait")
+            raise self.refuse(kind, Busy(f"busy: a {self.kind} run{f' ({run_id})' if run_id else ''} is in progress; "
+                                         "abort it first or wait"))
         if engine is None or krc is None or not connected:
-            self.counters.runs_refused += 1
             c = self.cfg.controller
             why = f" ({link_error})" if link_error else ""
-            raise NotConnected(f"not connected: controller {c.host}:{c.port} is not connected{why}")
+            raise self.refuse(kind, NotConnected(f"not connected: controller {c.host}:{c.port} is not connected{why}"))
         self.kind = kind
         self._started = started = asyncio.get_running_loop().create_future()
 
@@ -100,12 +110,14 @@ class RunAdmission:
                 result = await coro_factory(engine, store)
             except asyncio.CancelledError:
                 raise
-            except Exception as exc:
-                if not started.done():  # refused before it started (mode, no active calibration, ...): not a run
-                    self.counters.runs_refused += 1
-                self.last_error = f"{type(exc).__name__}: {exc}"
-                log.error("%s run failed: %s", kind, self.last_error)
-                self._on_failed(kind, self.run_id, self.last_error)
+            except PreconditionError as exc:
+                if started.done():  # a check inside the run (the plan's 'verify'): the run failed
+                    self._failed(kind, exc)
+                else:  # refused in its start checks (mode, no active calibration, ...): not a run
+                    self.refuse(kind, exc)
+                raise
+            except Exception as exc:  # link, store, a bug: a failure even before the run started
+                self._failed(kind, exc)
                 raise
             self.last_result = result
             return result
@@ -113,6 +125,11 @@ class RunAdmission:
         self.task = asyncio.create_task(runner(), name=f"rgse-run-{kind}")
         self.task.add_done_callback(lambda t: t.cancelled() or t.exception())  # retrieved: logged above
         return self.task
+
+    def _failed(self, kind: str, exc: Exception) -> None:
+        self.last_error = f"{type(exc).__name__}: {exc}"
+        log.error("%s run failed: %s", kind, self.last_error)
+        self._on_failed(kind, self.run_id, self.last_error)
 
     async def check_start_mode(self, krc: Controller, engine: RunEngine) -> None:
         """Before anything is recorded or moved: AUT only with the safety I/O module's inputs all good (area

@@ -42,7 +42,8 @@ class DaemonCounters:
     """Runs that started (the engine ran them): a run refused in its start checks is not one."""
     runs_refused: int = 0
     """Run requests refused: busy, stopping, not connected, safety latch, or the run's own start checks (mode,
-    no active calibration, ...) before it started."""
+    no active calibration, ...) before it started; each is also published as a ``run_refused`` alarm. A run that
+    fails before it started for another reason (link, store) is a failed run, counted in neither."""
 
     def as_dict(self) -> dict[str, int]:
         return dataclasses.asdict(self)

@@ -474,8 +474,9 @@ async def test_aut_only_with_area_cleared_and_key_switch(
             with pytest.raises(PreconditionError, match="AUT needs the area cleared, the AUT key and E-stop OK"):
                 await run_end(rd)
             assert await d.store.list_runs(robot=ROBOT) == []
-            if modbus_up:
-                await wait_until(lambda: modbus_sim.light == "red" and not modbus_sim.running, "stack light red")
+            if modbus_up:  # a refusal is a request answered "no", not a failure: the light stays green
+                assert d.light.color == "green"
+                await wait_until(lambda: modbus_sim.light == "green" and not modbus_sim.running, "stack light green")
     assert sim.interpreter.state is not ProState.ACTIVE
 
 

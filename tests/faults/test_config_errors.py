@@ -228,3 +228,60 @@ def test_krl_render_names_the_key(capsys, config, tmp_path):
     err = one_line_error(capsys, ["krl", "render", "--out", str(tmp_path / "out"), "--config", str(config)])
     assert "rgse_brake_release" in err and "outside the axis range" in err, err
     assert f"measurement.brake_release_deg = 60 in {config}" in err and "validation error" not in err, err
+
+
+EMPTY_PATH_OVERRIDES = [
+    # (variable, value, the key it sets): an EnvironmentFile line `RGSE_PATHS__DATA_DIR=` is an easy mistake
+    ("RGSE_PATHS__DATA_DIR", "", "paths.data_dir"),
+    ("RGSE_PATHS__DATA_DIR", "   ", "paths.data_dir"),
+    ("rgse_paths__data_dir", "", "paths.data_dir"),
+    ("RGSE_PATHS", '{"data_dir": ""}', "paths.data_dir"),
+    ("RGSE_CONTROLLER__SHARE_DIR", "", "controller.share_dir"),
+    ("RGSE_MQTT__TLS_CA_FILE", "", "mqtt.tls_ca_file"),
+]
+
+
+@pytest.mark.parametrize(("var", "value", "key"), EMPTY_PATH_OVERRIDES,
+                         ids=[f"{c[0]}={c[1]!r}" for c in EMPTY_PATH_OVERRIDES])
+def test_an_empty_path_override_is_an_error_naming_the_variable(capsys, monkeypatch, config, var, value, key):
+    """An empty path from the environment is refused as one from the file is: it does not silently become the
+    current directory (``Path("")`` is ``.``) nor leave the file's value in place."""
+    config.write_text(f'[robot]\nname = "KR500R2830"\n[paths]\ndata_dir = "{config.parent / "data"}"\n')
+    monkeypatch.setenv(var, value)
+    monkeypatch.chdir(config.parent)
+    err = one_line_error(capsys, ["safety", "status", "--config", str(config)])  # loads the config, reads data_dir
+    assert f"{key} (from environment {var}): must not be empty" in err and str(config) in err, err
+
+
+def test_a_path_override_that_is_not_empty_still_applies(monkeypatch, config, tmp_path):
+    from rgse_daemon.config import load_config
+
+    config.write_text(f'[robot]\nname = "KR500R2830"\n[paths]\ndata_dir = "{tmp_path / "file"}"\n')
+    monkeypatch.setenv("RGSE_PATHS__DATA_DIR", str(tmp_path / "env"))
+    assert load_config(config).paths.data_dir == tmp_path / "env"
+    monkeypatch.setenv("RGSE_PATHS__DATA_DIR", ".")  # the current directory, said explicitly
+    assert load_config(config).paths.data_dir == Path(".")
+
+
+def test_an_empty_data_dir_line_of_an_environment_file_stops_the_daemon(tmp_path):
+    """As systemd's ``EnvironmentFile=`` passes ``RGSE_PATHS__DATA_DIR=``: the daemon, a process of its own, ends at
+    once with one line naming the variable (exit 2), before it opens a store in whatever its working directory is."""
+    config = tmp_path / "rgse.toml"
+    config.write_text(f'[robot]\nname = "KR500R2830"\n[paths]\ndata_dir = "{tmp_path / "data"}"\n')
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    clean = {k: v for k, v in os.environ.items() if not k.upper().startswith("RGSE_")}
+    daemon = subprocess.Popen([sys.executable, "-m", "rgse_daemon", "daemon", "--config", str(config)], cwd=cwd,
+                              env={**clean, "PYTHONPATH": str(ROOT), "RGSE_PATHS__DATA_DIR": ""},
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        _, stderr = daemon.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        daemon.kill()
+        _, stderr = daemon.communicate()
+        pytest.fail(f"the daemon started (data_dir: {sorted(p.name for p in cwd.iterdir())} in its working "
+                    f"directory): {stderr}")
+    assert daemon.returncode == 2, stderr
+    assert stderr.count("\n") == 1 and "Traceback" not in stderr, stderr
+    assert "paths.data_dir (from environment RGSE_PATHS__DATA_DIR): must not be empty" in stderr, stderr
+    assert list(cwd.iterdir()) == [] and not (tmp_path / "data").exists()

@@ -7,6 +7,9 @@ import argparse
 import asyncio
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -21,7 +24,8 @@ from rgse_daemon.report import build_report
 from rgse_daemon.store import Repository
 from simulators.scale import ScaleSim, ScaleSimConfig
 from tests.report.conftest import FIXTURE_KG, World, write_config
-from tests.support.chromium import Dom
+from tests.support.chromium import REPO, Dom
+from tests.support.cli import one_line_error
 
 D_KG = 0.1
 
@@ -126,3 +130,35 @@ def test_reference_needs_a_scale_and_an_in_line_result(world: World, tmp_path: P
         reference_cmd.run(_args(scale, world.filled.calibration_run_id))
     with pytest.raises(DataError, match="no-such-run"):
         reference_cmd.run(_args(scale, "no-such-run"))
+
+
+@pytest.mark.parametrize("data_dir_exists", [False, True], ids=["fresh", "empty-data-dir"])
+def test_reference_of_a_run_in_a_store_that_does_not_exist_creates_no_store(tmp_path: Path, capsys,
+                                                                            data_dir_exists: bool) -> None:
+    """A wrong --config (or a data_dir without a store yet): the command says which store it searched, exit 2, and
+    leaves no empty rgse.sqlite3 (nor its data_dir) behind — as ``rgse report`` does."""
+    data_dir = tmp_path / "data"
+    if data_dir_exists:
+        data_dir.mkdir()
+    cfg = write_config(tmp_path / "rgse.toml", data_dir, {"port": "socket://127.0.0.1:9", "resolution_kg": D_KG})
+    err = one_line_error(capsys, ["reference", "--run", "no-such-run", "--config", str(cfg)])
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["data", "rgse.toml"] if data_dir_exists else ["rgse.toml"])
+    assert not data_dir_exists or list(data_dir.iterdir()) == []
+    assert "no-such-run" in err and f"sqlite store {data_dir / 'rgse.sqlite3'} does not exist" in err, err
+
+
+def test_reference_without_config_in_a_fresh_directory_creates_nothing(tmp_path: Path) -> None:
+    """As an operator types it in the wrong directory: one line, exit 2, the directory left as it was."""
+    env = {k: v for k, v in os.environ.items() if not k.upper().startswith("RGSE_")}
+    env["PYTHONPATH"] = str(REPO)
+    proc = subprocess.run([sys.executable, "-m", "rgse_daemon", "reference", "--run", "no-such-run"], cwd=tmp_path,
+                          env=env, capture_output=True, text=True, timeout=60, check=False)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert "no [scale] section" in proc.stderr, proc.stderr
+    scale_env = {**env, "RGSE_SCALE__PORT": "socket://127.0.0.1:9"}  # a scale from the environment, no --config
+    proc = subprocess.run([sys.executable, "-m", "rgse_daemon", "reference", "--run", "no-such-run"], cwd=tmp_path,
+                          env=scale_env, capture_output=True, text=True, timeout=60, check=False)
+    assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert list(tmp_path.iterdir()) == []
+    for fragment in ("no-such-run", "sqlite store data/rgse.sqlite3 does not exist", "--config FILE"):
+        assert fragment in proc.stderr, (fragment, proc.stderr)
