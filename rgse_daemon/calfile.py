@@ -20,6 +20,7 @@ from rgse_daemon.pipeline.envelope import Envelope
 from rgse_daemon.pipeline.preprocess import Preprocessing
 from rgse_daemon.pipeline.thermal import ThermalDrift
 from rgse_daemon.pipeline.uncertainty import CalibrationUncertainty
+from rgse_daemon.trace.config import PERIOD_MAX_S, PERIOD_MIN_S
 from rgse_daemon.trace.names import plain_name
 
 SCHEMA = 1
@@ -28,9 +29,12 @@ SCHEMA = 1
 def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, bias_a3_nm: float,
           bias_a5_nm: float, in_sample_pct: float, loo_pct: float, loo_max_kg: float,
           source_sha256: dict[str, str], extra_fit: dict[str, Any] | None = None,
-          g_u_m_s2: float = 0.0, thermal_state_k: dict[str, float] | None = None) -> dict[str, Any]:
+          g_u_m_s2: float = 0.0, thermal_state_k: dict[str, float] | None = None,
+          sample_period_s: float | None = None) -> dict[str, Any]:
     """The CAL.json document of a fitted calibration; ``calibration_id`` is a hash of its content.
-    ``thermal_state_k``: mean A3/A5 motor temperature of the campaign's traces (K), if they recorded it."""
+    ``thermal_state_k``: mean A3/A5 motor temperature of the campaign's traces (K), if they recorded it.
+    ``sample_period_s``: the campaign's one KUKA Trace sample period (``fit.sample_period_s``); None for points that
+    come averaged (a points CSV)."""
     doc: dict[str, Any] = {
         "schema": SCHEMA,
         "calibration_id": "",
@@ -52,6 +56,7 @@ def build(cal: Calibration, *, robot: str, preprocessing: Preprocessing | None, 
             "covariance": np.asarray(cal.covariance, float).tolist(),
             **({} if cal.covariance_reference is None else
                {"covariance_reference_mass": np.asarray(cal.covariance_reference, float).tolist()}),
+            **({} if sample_period_s is None else {"sample_period_s": float(sample_period_s)}),
             **(extra_fit or {}),
         },
         "source_sha256": source_sha256,
@@ -176,7 +181,21 @@ def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing |
         raise DataError(f"{path}: source_sha256 must be an object of file name -> SHA-256")
     for name in sources:
         plain_name(name, f"{path}: source_sha256")
+    sample_period_s(path, doc)
     return doc, cal, pre
+
+
+def sample_period_s(path: Path | str, doc: dict[str, Any]) -> float | None:
+    """``fit.sample_period_s``: the KUKA Trace sample period the campaign was recorded at (s), validated; None in
+    files written before it existed and in calibrations fitted from a points CSV (nothing to compare with)."""
+    v = (doc.get("fit") or {}).get("sample_period_s")
+    if v is None:
+        return None
+    period_s = _finite(v, "fit.sample_period_s", path)
+    if not PERIOD_MIN_S <= period_s <= PERIOD_MAX_S:
+        raise DataError(f"{path}: fit.sample_period_s = {v!r} s is outside the plausible {PERIOD_MIN_S:g}.."
+                        f"{PERIOD_MAX_S:g} s of a KUKA trace")
+    return period_s
 
 
 def alternatives(path: Path | str, doc: dict[str, Any], cal: Calibration) -> list[Calibration]:

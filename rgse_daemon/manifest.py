@@ -21,6 +21,7 @@ import numpy as np
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.calibration import CalibrationPoints, reference_mass_covariance
 from rgse_daemon.pipeline.cog import SCHEMES
+from rgse_daemon.trace.config import PERIOD_MAX_S, PERIOD_MIN_S
 from rgse_daemon.trace.diadem import read_trace_set
 from rgse_daemon.trace.names import plain_name
 
@@ -35,10 +36,6 @@ TORSIONAL_KIND = "torsional"
 #: Standard uncertainty of one weighed calibration body, kg, when the manifest states none (optional field).
 DEFAULT_BODY_MASS_U_KG = 0.01
 REFERENCE_CORRELATIONS = ("nested", "independent")
-#: Plausible sample periods of a KUKA trace, s: the KR C4 offers 1, 4 and 12 ms (docs/controller.md §5.3,
-#: ``trace.config``); a header period (code 241) outside this range is a corrupt or foreign file.
-PERIOD_MIN_S = 0.0005
-PERIOD_MAX_S = 1.0
 #: Scheme names of ``[torsional]``/``[properties]``: the poses of :func:`rgse_daemon.pipeline.cog.cog_poses`, or
 #: ``custom`` (poses of their own).
 MANIFEST_SCHEMES = (*SCHEMES, "custom")

@@ -73,6 +73,11 @@ def load_campaign(directory: Path) -> CampaignData:
                         loop_periods(every_loop[:1]))
 
 
+def campaign_period_s(data: CampaignData) -> float | None:
+    """The campaign's one sample period (s; :func:`check_one_period` made it one); None without loops."""
+    return data.period[0][1] if data.period else None
+
+
 def campaign_thermal(data: CampaignData, cfg: pp.Preprocessing) -> ThermalDrift | None:
     """The thermal drift of the torque estimate from the campaign's loops (:mod:`rgse_daemon.pipeline.thermal`);
     None when the traces carry no motor temperature or it does not vary within the points."""
@@ -161,11 +166,14 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
               pre: pp.Preprocessing | None, bias3: float, bias5: float, g_u: float,
               sources: dict[str, str], where: Path,
               thermal: dict[str, float] | None = None, nested: bool = True,
-              drift: ThermalDrift | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+              drift: ThermalDrift | None = None,
+              sample_period_s: float | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit and describe a calibration: (CAL.json document, the ``--json`` summary). One code path for the CLI and
     the daemon's campaign, so a stored calibration is always reproducible from its campaign directory.
     ``nested``: also the nested held-out figure of ``auto`` (selection repeated inside every fold; seconds).
-    ``drift``: the campaign's thermal drift (CAL.json ``fit.thermal``), removed from the DuT's loops at measurement."""
+    ``drift``: the campaign's thermal drift (CAL.json ``fit.thermal``), removed from the DuT's loops at measurement.
+    ``sample_period_s``: the campaign's trace sample period (CAL.json ``fit.sample_period_s``; None for a points
+    CSV), compared with the DuT's at measurement."""
     try:
         cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
         nested_pct = (cal_mod.mean_abs_pct(points.mass_kg, selection.nested_loo_auto_mass_kg(points, g, dr))
@@ -183,7 +191,7 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
                                                                      points.torque_a5_nm).to_dict(),
                                    "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr),
                                    **({} if drift is None else {"thermal": drift.to_dict()})},
-                        g_u_m_s2=g_u, thermal_state_k=thermal)
+                        g_u_m_s2=g_u, thermal_state_k=thermal, sample_period_s=sample_period_s)
     summary = {
         "calibration_id": doc["calibration_id"],
         "method": cal.method,
@@ -248,7 +256,7 @@ def fit_campaign(directory: Path, method: str,
     doc, summary = calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot,
                              pre=pre, bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2,
                              sources=source_sha256(data.files), where=directory, thermal=data.thermal_state_k,
-                             drift=campaign_thermal(data, pre))
+                             drift=campaign_thermal(data, pre), sample_period_s=campaign_period_s(data))
     if data.manifest.torsional_points:
         # the CoG calibration (issue #14): bias per pose and K for A3..A6 from the torsional points
         doc["torsional"] = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre,

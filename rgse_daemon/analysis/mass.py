@@ -5,6 +5,7 @@ its raw files."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -99,6 +100,9 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
     loops = read_loops(directory, man.measurement_traces)
     result = measure(loops, cal, doc, pre or pp.PAPER, fixture, man.setup.g_m_s2, man.setup.g_u_m_s2 or 0.0,
                      calfile.alternatives(calibration_path, doc, cal), envelope_limit)
+    rate = period_mismatch(loops[0].period_s, calfile.sample_period_s(calibration_path, doc), pre or pp.PAPER)
+    if rate is not None:
+        result.warnings.append(rate)
     if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
         result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
     result.motor_temp_k = thermal_state_k(loops)
@@ -107,6 +111,25 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
     if mismatch is not None:
         result.warnings.append(mismatch)
     return result
+
+
+def _ms(period_s: float) -> str:
+    return f"{period_s * 1e3:g} ms"
+
+
+def period_mismatch(trace_period_s: float, calibration_period_s: float | None, pre: pp.Preprocessing) -> str | None:
+    """A warning when the measurement's trace sample period (s; one for all its loops) is not the calibration
+    campaign's (CAL.json ``fit.sample_period_s``): the pre-processing counts its filter window in samples, so the
+    window spans another time, and the calibration was not validated at this rate. None when they agree (to float
+    tolerance) or the calibration file does not record its period (older files, a points CSV: nothing to compare)."""
+    if calibration_period_s is None or math.isclose(trace_period_s, calibration_period_s, rel_tol=1e-6):
+        return None
+    window = ("" if pre.filter == "none" else
+              f"the {pre.filter} window of {pre.window} samples spans {pre.window * trace_period_s:g} s instead of "
+              f"{pre.window * calibration_period_s:g} s, and ")
+    return (f"trace sample period {_ms(trace_period_s)} differs from the calibration campaign's "
+            f"{_ms(calibration_period_s)}: {window}the calibration was not validated at this rate; record the DuT at "
+            f"{_ms(calibration_period_s)} or calibrate at {_ms(trace_period_s)}")
 
 
 def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any, corrected: bool = False) -> str | None:

@@ -33,6 +33,8 @@ from rgse_daemon.errors import DataError
 
 __all__ = [
     "BUFFER_SAMPLES",
+    "PERIOD_MAX_S",
+    "PERIOD_MIN_S",
     "SUPPORTED_RATES_US",
     "TraceConfig",
     "TraceModule",
@@ -44,6 +46,11 @@ __all__ = [
 
 #: Sample periods the KR C4 trace offers, in µs (docs/controller.md §5.3: 1, 4 and 12 ms).
 SUPPORTED_RATES_US: frozenset[int] = frozenset({1000, 4000, 12000})
+
+#: Plausible sample periods of a KUKA trace, s, around those offered: a header period (code 241) outside this range
+#: is a corrupt or foreign file, and so is such a period in a calibration file (CAL.json ``fit.sample_period_s``).
+PERIOD_MIN_S = 0.0005
+PERIOD_MAX_S = 1.0
 
 #: Samples per channel the controller's trace buffer holds. docs/controller.md §5.3 gives 600 s at 12 ms and 200 s at
 #: 4 ms, both exactly 50 000 samples; the ~50 s at 1 ms follows from the same buffer (an extrapolation).

@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import pytest
 
 from rgse_daemon import calfile
 from rgse_daemon.cli import main
+from rgse_daemon.errors import DataError
 from tests.support.campaign import Drive, write_measurement
 from tests.support.cli import fitted_dirs, one_line_error
 
@@ -97,11 +99,19 @@ def test_a_calibration_edited_after_its_fit_is_refused(capsys, dirs, tmp_path, e
     (lambda d: d["preprocessing"].update(settle_s=float("nan")), "settle_s must be a number"),
     (lambda d: d["preprocessing"].update(settle_s=1e308), "settle_s must be a number"),
     (lambda d: d["preprocessing"].update(window=2.5), "window must be a whole number"),
+    (lambda d: d["fit"].update(sample_period_s="4 ms"), "fit.sample_period_s must be a finite number, got '4 ms'"),
+    (lambda d: d["fit"].update(sample_period_s=float("nan")), "fit.sample_period_s must be a finite number, got nan"),
+    (lambda d: d["fit"].update(sample_period_s=True), "fit.sample_period_s must be a finite number, got True"),
+    (lambda d: d["fit"].update(sample_period_s=12), "fit.sample_period_s = 12 s is outside the plausible 0.0005..1 s"),
+    (lambda d: d["fit"].update(sample_period_s=0.0), "fit.sample_period_s = 0.0 s is outside the plausible"),
+    (lambda d: d["fit"].update(sample_period_s=-0.004), "fit.sample_period_s = -0.004 s is outside the plausible"),
 ])
 def test_implausible_values_in_a_sealed_calibration_name_their_key(capsys, dirs, tmp_path, edit, needle):
     bad = _edited(dirs, tmp_path, edit, reseal=True)
     err = one_line_error(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(bad)])
-    assert needle in err, err
+    assert needle in err and str(bad) in err, err
+    with pytest.raises(DataError, match=re.escape(needle)):  # refused on reading, whatever reads it
+        calfile.read(bad)
 
 
 # --- a DuT the calibration cannot have measured ------------------------------------------------------------------

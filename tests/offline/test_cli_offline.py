@@ -73,6 +73,9 @@ def test_campaign_then_mass_recovers_truth(tmp_path, capsys, seed, sign, period_
     assert res["loops"] == 5 and res["fixture_mass_kg"] == pytest.approx(10.288)
     assert 0 < res["samples_used"] <= res["samples_total"] == 5 * 1500
     assert res["calibration_id"] == cal["calibration_id"]
+    # CAL.json records the campaign's period; a DuT traced at the same one draws no period warning
+    assert json.loads((tmp_path / "CAL.json").read_text())["fit"]["sample_period_s"] == period_s
+    assert not any("sample period" in w for w in res["warnings"]), res["warnings"]
     fixed = run_json(capsys, ["mass", "--traces", str(tmp_path / "dut"), "--calibration",
                               str(tmp_path / "CAL.json"), "--fixture-mass", "0", "--json"])
     assert fixed["mass_kg"] == pytest.approx(res["gross_mass_kg"])
@@ -246,3 +249,40 @@ def test_calibration_file_of_the_former_schema_still_reads(tmp_path, capsys, dir
     doc["fit"]["uncertainty"] = {"reproducibility": {"rms_a3_nm": 1.0}}
     old.write_text(json.dumps(calfile.seal(doc)))
     expect_error(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(old)], "fit.uncertainty")
+
+
+PERIOD_WARNING = ("trace sample period 12 ms differs from the calibration campaign's 4 ms: the moving_average window "
+                  "of 150 samples spans 1.8 s instead of 0.6 s, and the calibration was not validated at this rate; "
+                  "record the DuT at 4 ms or calibrate at 12 ms")
+
+
+def test_a_measurement_at_another_trace_period_than_the_calibration_draws_a_warning(tmp_path, capsys, dirs):
+    """The campaign was traced at 4 ms (CAL.json fit.sample_period_s); a DuT traced at 12 ms is measured, with a
+    warning naming both periods in the JSON result and the printed one. A warning only: U is not widened for it."""
+    assert json.loads((dirs / "CAL.json").read_text())["fit"]["sample_period_s"] == 0.004
+    write_measurement(tmp_path / "dut12", 100.0, seed=6, n_samples=600, n_loops=3, period_s=0.012)
+    argv = ["mass", "--traces", str(tmp_path / "dut12"), "--calibration", str(dirs / "CAL.json")]
+    res = run_json(capsys, [*argv, "--json"])
+    assert PERIOD_WARNING in res["warnings"], res["warnings"]
+    assert abs(res["mass_kg"] - 100.0) <= res["U_kg"]
+    same = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(dirs / "CAL.json"), "--json"])
+    assert not any("sample period" in w for w in same["warnings"]), same["warnings"]
+    assert set(res["u_components_kg"]) == set(same["u_components_kg"])
+    assert main(argv) == 0
+    assert f"warning: {PERIOD_WARNING}\n" in capsys.readouterr().out
+
+
+def test_a_calibration_without_its_sample_period_still_measures_unchecked(tmp_path, capsys, dirs):
+    """A CAL.json written before fit.sample_period_s existed loads and measures a DuT at any period, the same mass
+    as with the period recorded; there is nothing to compare, so no period warning (interfaces §3)."""
+    doc = json.loads((dirs / "CAL.json").read_text())
+    del doc["fit"]["sample_period_s"]
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(calfile.seal(doc)))  # as the former version wrote it, sealed over what it held
+    write_measurement(tmp_path / "dut12", 100.0, seed=6, n_samples=600, n_loops=3, period_s=0.012)
+    res = run_json(capsys, ["mass", "--traces", str(tmp_path / "dut12"), "--calibration", str(old), "--json"])
+    assert not any("sample period" in w for w in res["warnings"]), res["warnings"]
+    new = run_json(capsys, ["mass", "--traces", str(tmp_path / "dut12"), "--calibration", str(dirs / "CAL.json"),
+                            "--json"])
+    assert PERIOD_WARNING in new["warnings"]
+    assert res["mass_kg"] == new["mass_kg"] and res["U_kg"] == new["U_kg"]

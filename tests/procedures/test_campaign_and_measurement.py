@@ -96,6 +96,9 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     # the thermal state of calibration and measurement, from the traces' Motortemperatur: the same within 3 K
     assert cal.document["thermal_state_k"]["A3"] > 300.0
     assert abs(result["motor_temp_k"]["A3"] - cal.document["thermal_state_k"]["A3"]) <= 3.0
+    # the campaign's trace period is in its CAL.json; the DuT traced at the same one draws no period warning
+    assert cal.document["fit"]["sample_period_s"] == cfg.measurement.trace_period_s == 0.012
+    assert not [w for w in result["warnings"] if "sample period" in w], result["warnings"]
     assert result["calibration_id"] == cal.id and result["loops"] == 3
 
     # raw files: archived, hashed, indexed, reproducible; controller copies gone
@@ -121,12 +124,20 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     assert [(e.loop_index, e.loop_count) for e in loops] == [(1, 3), (2, 3), (3, 3)]
     assert loops[-1].eta_s == 0.0 and all(e.data["robot_s"] > 0 and e.data["overhead_s"] > 0 for e in loops)
     assert next(e for e in events if e.kind == "result").data["mass_kg"] == result["mass_kg"]
-    # the same DuT after an hour with the brakes applied, measured without a warm-up: the result says so
+    # the same DuT after an hour with the brakes applied, measured without a warm-up and traced at 4 ms (the campaign
+    # at 12 ms): the result says both, and so does its MQTT message
     sim.model.apply_brakes(3600.0)
-    cold = await run_measurement(engine, store, cfg, settings=short(cfg, loops=1, trace_samples=300, warmup_cycles=0))
+    cold = await run_measurement(engine, store, cfg, settings=short(cfg, loops=1, trace_samples=300, warmup_cycles=0,
+                                                                    trace_period_s=0.004))
     assert cold is not None
     assert any(w.startswith("motor temperatures differ from the calibration campaign's (A3 -") for w in
                cold["warnings"]), cold["warnings"]
+    period = [w for w in cold["warnings"] if "sample period" in w]
+    assert len(period) == 1 and period[0].startswith("trace sample period 4 ms differs from the calibration "
+                                                     "campaign's 12 ms"), cold["warnings"]
+    outbox = await store.pending_outbox()
+    assert [json.loads(o.payload)["warnings"] for o in outbox if o.topic.endswith(f"/run/{cold['run_id']}/result")
+            ] == [cold["warnings"]]
     timing = result["timing"]
     print(f"\nper loop: robot {timing['robot_time_s'] / 3:.3f} s, overhead {timing['overhead_s'] / 3:.3f} s (wall);"
           f" mass {result['mass_kg']:.3f} ± {result['U_kg']:.3f} kg, true {DUT_MASS_KG}")

@@ -4,6 +4,7 @@ Chromium: every figure must load, and every number shown must be the stored one.
 from __future__ import annotations
 
 import argparse
+import html
 import json
 import os
 import subprocess
@@ -15,8 +16,10 @@ import pytest
 from rgse_daemon.commands import report as report_cmd
 from rgse_daemon.report import ReportConsistencyError, build_report
 from rgse_daemon.store import ArchiveError, Repository, archive_root
-from tests.report.conftest import World, write_config
+from tests.report.conftest import DUT_KG, FIXTURE_KG, World, write_config
+from tests.support.campaign import write_campaign, write_measurement
 from tests.support.chromium import REPO, Dom, dump_dom, screenshot
+from tests.support.storefill import fill
 
 
 def _assert_all_images_loaded(dom: Dom, n_expected: int) -> None:
@@ -99,6 +102,23 @@ def test_calibration_report_in_chromium(world: World, tmp_path: Path) -> None:
     assert [float(v) for v in dom.fields["point.mass_kg"]] == [p.spec["mass_kg"] for p in points]
     assert sorted(dom.fields["cal_file.sha256"]) == sorted(f.sha256 for f in files)
     assert sorted(dom.fields["source_sha256"]) == sorted(doc["source_sha256"].values())
+
+
+def test_measurement_report_shows_the_trace_period_warning(tmp_path: Path) -> None:
+    """A DuT traced at 12 ms with a calibration campaign traced at 4 ms: the stored result carries a warning naming
+    both periods, and the report shows it where it shows the other warnings of the result."""
+    write_campaign(tmp_path / "campaign", seed=3, n_samples=600)
+    write_measurement(tmp_path / "dut", DUT_KG, fixture_mass_kg=FIXTURE_KG, seed=11, n_loops=3, n_samples=600,
+                      period_s=0.012)
+    with Repository.open(None, tmp_path / "data") as repo:
+        filled = fill(repo, tmp_path / "data", tmp_path / "campaign", tmp_path / "dut", tmp_path,
+                      method="axis-linear")
+        path = build_report(repo, tmp_path / "data", tmp_path / "out", run_id=filled.run_id)
+    assert filled.cal_doc["fit"]["sample_period_s"] == 0.004
+    period = [w for w in filled.result["warnings"] if "sample period" in w]
+    assert len(period) == 1 and period[0].startswith("trace sample period 12 ms differs from the calibration "
+                                                     "campaign's 4 ms"), filled.result["warnings"]
+    assert f'<p class="warn">warning: {period[0]}</p>' in html.unescape(path.read_text(encoding="utf-8"))
 
 
 def test_report_refuses_a_corrupted_raw_file(world: World, tmp_path: Path) -> None:
