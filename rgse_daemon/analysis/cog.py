@@ -7,6 +7,7 @@ raw files (``compute_cog_dir``). The numbers are computed in :mod:`rgse_daemon.p
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -276,6 +277,8 @@ class PropertiesRun:
     u_mass_kg: float | None
     fixture: FixtureFrame
     readings: list[PoseReading]
+    period_s: float | None = None
+    """The pose loops' one KUKA Trace sample period (s)."""
 
 
 def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequence[str],
@@ -396,7 +399,7 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
     readings = [_pose_reading(directory, name, q, traces, pre, periods) for name, q, traces in specs]
     check_one_period(periods, man.path)
     return PropertiesRun(man.setup.robot, man.setup.g_m_s2, scheme, mass, u_mass,
-                         fixture, readings)
+                         fixture, readings, periods[0][1] if periods else None)
 
 
 def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass_kg: float | None = None,
@@ -416,10 +419,13 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
             mass = mass_analysis.compute(Path(directory), Path(calibration_path))
             mass_kg, u_mass_kg = mass.mass_kg, mass.u_kg
     try:
-        return compute_cog(run.readings, doc, mass_kg=mass_kg, u_mass_kg=u_mass_kg or 0.0, fixture=run.fixture,
-                           g_m_s2=run.g_m_s2)
+        result = compute_cog(run.readings, doc, mass_kg=mass_kg, u_mass_kg=u_mass_kg or 0.0, fixture=run.fixture,
+                             g_m_s2=run.g_m_s2)
     except DataError as exc:
         raise DataError(str(exc).replace("CAL.json", str(calibration_path))) from None
+    cal_period_s = calfile.sample_period_s(calibration_path, doc)
+    rate = None if run.period_s is None else mass_analysis.period_mismatch(run.period_s, cal_period_s, pre or pp.PAPER)
+    return result if rate is None else dataclasses.replace(result, warnings=(*result.warnings, rate))
 
 
 # ---------------------------------------------------------------------------------------------------------------------

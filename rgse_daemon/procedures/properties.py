@@ -148,7 +148,9 @@ def compute_properties(run_dir: Path) -> dict[str, Any]:
     cog = compute_cog_dir(run_dir, cal, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
     c = cog.to_json()
     return {**mass, "cog_m": c["cog_flange_m"], "U_cog_m": c["U_cog_flange_m"], "cog_dut_m": c["cog_dut_m"],
-            "U_cog_dut_m": c["U_cog_dut_m"], "cog": c, "warnings": [*mass.get("warnings", []), *cog.warnings]}
+            "U_cog_dut_m": c["U_cog_dut_m"], "cog": c,
+            # (a trace-period warning is the mass loops' and the poses' alike: said once)
+            "warnings": list(dict.fromkeys([*mass.get("warnings", []), *cog.warnings]))}
 
 
 def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, fixture: FixtureFrame,

@@ -5,12 +5,14 @@ mass and torsional points → ``rgse calibrate`` (CAL.json with a torsional sect
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
 
 from rgse_daemon import calfile
 from rgse_daemon.cli import main
+from rgse_daemon.procedures.properties import compute_properties
 from simulators.krc4 import physics as ph
 from tests.support import cogcampaign as cc
 from tests.support import simcampaign as sc
@@ -48,6 +50,21 @@ def test_calibrate_mass_and_cog_from_trace_files(tmp_path, capsys):
     assert np.all(np.abs(err_mm) <= np.array(res["U_cog_flange_m"]) * 1000.0), (err_mm, res["U_cog_flange_m"])
     assert res["scheme"] == "full" and res["n_poses"] == 8 and res["budget"]["calibration_id"] == cal["calibration_id"]
     assert res["mass_kg"] == pytest.approx(mass["mass_kg"]) and res["U_mass_kg"] == pytest.approx(mass["U_kg"])
+
+    assert not [w for w in res["warnings"] if "sample period" in w]
+    # a calibration campaign traced at another period: the CoG says so, as the mass does (the filter window counts
+    # samples), and the properties run's one result says it once
+    doc_other = {**doc, "fit": {**doc["fit"], "sample_period_s": doc["fit"]["sample_period_s"] / 3}}
+    other = tmp_path / "prop_other"
+    shutil.copytree(prop, other)
+    (other / "CAL.json").write_text(json.dumps(calfile.seal(doc_other)))
+    period_ms = doc["fit"]["sample_period_s"] * 1000
+    said = f"trace sample period {period_ms:g} ms differs from the calibration campaign's {period_ms / 3:g} ms"
+    res_other = _json(capsys, ["cog", "--traces", str(other), "--calibration", str(other / "CAL.json"), "--json"])
+    assert [w for w in res_other["warnings"] if w.startswith(said)], res_other["warnings"]
+    assert res_other["cog_flange_m"] == res["cog_flange_m"]  # a warning only
+    both = compute_properties(other)
+    assert len([w for w in both["warnings"] if w.startswith(said)]) == 1, both["warnings"]
 
     # the human form, and a calibration without the torsional section refused with the reason
     assert main(["cog", "--traces", str(prop), "--calibration", str(cal_json)]) == 0
