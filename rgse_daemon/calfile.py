@@ -126,6 +126,8 @@ def read(path: Path | str) -> tuple[dict[str, Any], Calibration, Preprocessing |
         raise DataError(f"{path}: calibration file not found") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DataError(f"{path}: not a readable JSON calibration file: {exc}") from exc
+    except RecursionError:  # the json module's answer to arrays nested thousands deep
+        raise DataError(f"{path}: not a readable JSON calibration file: nested too deeply") from None
     if not isinstance(doc, dict):
         raise DataError(f"{path}: calibration file must hold a JSON object")
     if doc.get("schema") != SCHEMA:

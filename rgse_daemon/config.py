@@ -617,4 +617,6 @@ def load_config(path: Path | str | None) -> Config:
         data = tomllib.loads(raw.decode("utf-8"))
     except (UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise ConfigError(f"{p}: not valid TOML: {exc}") from exc
+    except RecursionError:  # tomllib's answer to arrays nested thousands deep
+        raise ConfigError(f"{p}: not valid TOML: nested too deeply") from None
     return config_from_mapping(data, str(p))

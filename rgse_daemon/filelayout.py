@@ -75,7 +75,7 @@ def load_layout(data_dir: Path) -> FileLayout | None:
             listing=str(data.get("listing", "unknown")),
             file_rate_bytes_s=float(data.get("file_rate_bytes_s", 0.0)),
         )
-    except (ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:  # RecursionError: JSON nested too deeply
         raise ConfigError(f"{path}: not a controller layout record ({exc}); rerun `rgse doctor`") from exc
     if layout.trace_dir not in TRACE_DIR_CANDIDATES:
         raise ConfigError(f"{path}: trace_dir {layout.trace_dir!r} is not one of {', '.join(TRACE_DIR_CANDIDATES)}")

@@ -198,6 +198,8 @@ def read_toml(path: Path) -> dict[str, Any]:
         return tomllib.loads(raw.decode("utf-8-sig"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise DataError(f"{path}: not valid TOML: {exc}") from exc
+    except RecursionError:  # tomllib's answer to arrays nested thousands deep
+        raise DataError(f"{path}: not valid TOML: nested too deeply") from None
 
 
 def _tables(doc: dict[str, Any], key: str, where: str) -> list[Any]:

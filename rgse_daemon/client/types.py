@@ -312,6 +312,8 @@ def load_points(path: Path) -> list[CampaignPoint]:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
         raise DataError(f"{path}: cannot read the points file: {exc}") from exc
+    except RecursionError:  # tomllib's answer to arrays nested thousands deep
+        raise DataError(f"{path}: cannot read the points file: nested too deeply") from None
     raw = doc.get("point")
     if not isinstance(raw, list) or not raw:
         raise DataError(f"{path}: no [[point]] tables")

@@ -58,6 +58,8 @@ def load_scenario(path: Path) -> dict[str, Any]:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: scenario is not valid TOML: {exc}") from exc
+    except RecursionError:  # tomllib's answer to arrays nested thousands deep
+        raise ConfigError(f"{path}: scenario is not valid TOML: nested too deeply") from None
 
 
 def options_from_args(args: argparse.Namespace) -> SimOptions:

@@ -61,7 +61,7 @@ def read_latch(data_dir: Path) -> Latch | None:
     try:
         doc = json.loads(text)
         return Latch(str(doc["reason"]), str(doc.get("time_utc", "")), dict(doc.get("data") or {}))
-    except (ValueError, KeyError, TypeError) as exc:
+    except (ValueError, KeyError, TypeError, RecursionError) as exc:  # RecursionError: JSON nested too deeply
         return Latch(f"{path}: latch file not valid JSON ({exc}); it is still a latch", "")
 
 
