@@ -284,6 +284,22 @@ class AbstractInterpreter(ABC):
             return UNKNOWN
         return narrow
 
+    def index(self, expr: k.Expr, st: State, pos: k.Pos) -> Value:
+        """An array index as written (``A[i] = ...``, ``$VEL_AXIS[i] = ...``): an INT, else refused.
+
+        A REAL index is not converted: whether the controller rounds it (1.6 → 2), cuts it (1.6 → 1) or stops is not
+        documented, and the two pick different elements (``UNSURE``; UNKNOWN returned)."""
+        value = self.sink(expr, st, None, pos)
+        if value is UNKNOWN or is_int(value):
+            return value
+        self.report(
+            "UNSURE",
+            pos,
+            f"array index {describe(value)} is not an INT: whether the controller rounds it, cuts off its decimals "
+            "or stops is not documented, refused",
+        )
+        return UNKNOWN
+
     def check_calls(self, expr: k.Expr) -> None:
         if expr_depth(expr) > MAX_EXPR_DEPTH:
             return  # refused by sink() as COMPLEXITY; not walked (it could exhaust Python's stack)
@@ -511,7 +527,7 @@ class AbstractInterpreter(ABC):
                 return st.with_var(name, UNKNOWN)
             return st.with_var(name, convert(type_name, KrlStruct(type_name, ((target.member, value),)), old, pos))
         if isinstance(target, k.Index) and isinstance(target.base, k.Name) and isinstance(old, KrlArray):
-            idx = tuple(self.sink(i, st, "INT", pos) for i in target.indices)
+            idx = tuple(self.index(i, st, pos) for i in target.indices)
             value = self.sink(value_expr, st, old.type_name, pos, UNKNOWN)
             if value is UNKNOWN or any(i is UNKNOWN for i in idx):
                 return st.with_var(name, UNKNOWN)  # which element changed is not known

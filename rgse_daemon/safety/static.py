@@ -157,7 +157,7 @@ class _Checker(AbstractInterpreter):
         if name in ("$VEL_AXIS", "$ACC_AXIS"):
             idx: Value = UNKNOWN
             if isinstance(target, k.Index) and isinstance(target.base, k.Name) and len(target.indices) == 1:
-                idx = self.sink(target.indices[0], st, "INT", pos)
+                idx = self.index(target.indices[0], st, pos)
             if not (isinstance(idx, int) and not isinstance(idx, bool) and 1 <= idx <= 6):
                 self.report("VELOCITY", pos, f"{name} must be set per axis with a constant index 1..6")
                 idx = UNKNOWN

@@ -137,6 +137,16 @@ BYPASSES: dict[str, str] = {
     "7_sin_last_bit": program("", "  PTP {A1 (SIN(30.0) - 0.5) * 1.0E9}\n"),
     "8_uninitialised_element": program("  DECL REAL A[2]\n", "  $VEL_AXIS[1] = A[2]\n  PTP {A1 10.0}\n"),
     "8_long_chain": (program("", "  $VEL_AXIS[1] = 1.0" + " + 0.0" * 3000 + "\n  PTP {A1 10.0}\n")),
+    # 9. a REAL array index: the check rounded 1.6 to 2, the simulated controller truncates it to 1 (which one the
+    # KR C4 does, or whether it stops, is not documented): axis 1 at 100 % while the check saw axis 2 there
+    "9_real_index_vel_axis": program("", "  $VEL_AXIS[1.6] = 100.0\n  PTP {A1 10.0}\n"),
+    "9_real_index_vel_axis_variable": program(
+        "  DECL REAL X\n", "  X = 1.6\n  $VEL_AXIS[X] = 100.0\n  PTP {A1 10.0}\n"
+    ),
+    "9_real_index_own_array": program(
+        "  DECL REAL A[2]\n",
+        "  A[1] = 1.0\n  A[2] = 1.0\n  A[1.6] = 100.0\n  $VEL_AXIS[1] = A[1]\n  PTP {A1 10.0}\n",
+    ),
 }
 
 
