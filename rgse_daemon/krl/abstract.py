@@ -517,7 +517,17 @@ class AbstractInterpreter(ABC):
             if old is not UNKNOWN and isinstance(old, KrlArray):
                 self.report("RUNTIME", pos, f"cannot assign to the whole array {name}")
                 return st.with_var(name, UNKNOWN)
-            return st.with_var(name, self.sink(value_expr, st, type_name, pos, old))
+            value = self.sink(value_expr, st, type_name, pos, old)
+            if (
+                type_name in STRUCT_FIELDS
+                and not isinstance(old, KrlStruct)
+                and isinstance(value, KrlStruct)
+                and not set(STRUCT_FIELDS[type_name]) <= set(value)
+            ):
+                # the fields the aggregate leaves out keep values that are not known (the join of two branches, a
+                # loop, a parameter): not "uninitialised", which would let the check take the axis as staying put
+                value = UNKNOWN
+            return st.with_var(name, value)
         if isinstance(target, k.Member) and isinstance(target.base, k.Name) and type_name in STRUCT_FIELDS:
             if target.member not in STRUCT_FIELDS[type_name]:
                 self.report("RUNTIME", pos, f"{type_name} has no field {target.member}")

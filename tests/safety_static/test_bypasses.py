@@ -147,6 +147,18 @@ BYPASSES: dict[str, str] = {
         "  DECL REAL A[2]\n",
         "  A[1] = 1.0\n  A[2] = 1.0\n  A[1.6] = 100.0\n  $VEL_AXIS[1] = A[1]\n  PTP {A1 10.0}\n",
     ),
+    # 10. a partial aggregate assigned to a structure whose value is not known (the join of two branches): the check
+    # took the fields left out as uninitialised (the axis stays), the controller keeps the ones a branch set (A5 100)
+    "10_partial_aggregate_after_join": program(
+        "  DECL E6AXIS P\n",
+        f"  IF $IN[1] THEN\n    P = {{A1 0.0, {REST}}}\n  ELSE\n    P = {{A1 0.0, A2 -90.0, A3 90.0, A4 0.0, A5 100.0, "
+        "A6 0.0}\n  ENDIF\n  P = {A1 10.0}\n  $VEL_AXIS[5] = 100.0\n  PTP P\n",
+    ),
+    "10_partial_aggregate_after_loop": program(
+        "  DECL E6AXIS P\n  DECL INT I\n",
+        f"  P = {{A1 0.0, {REST}}}\n  FOR I = 1 TO $OV_PRO\n    P.A5 = P.A5 + 1.0\n  ENDFOR\n  P = {{A1 10.0}}\n"
+        "  $VEL_AXIS[5] = 100.0\n  PTP P\n",
+    ),
 }
 
 
