@@ -55,7 +55,7 @@ from rgse_daemon.kinematics import (
     max_point_speed_mm_s,
 )
 from rgse_daemon.krl import ast as k
-from rgse_daemon.krl.abstract import AbstractInterpreter, Pose, State, TooComplex, pose_key
+from rgse_daemon.krl.abstract import AbstractInterpreter, Pose, State, TooComplex, pose_key, written_names
 from rgse_daemon.krl.lexer import Tok, tokenize
 from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.values import UNKNOWN, Value, describe, is_number
@@ -420,12 +420,18 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
         checker.found.update(_start_pose(checker, ctx, violations))
         state = State(None, (100.0,) * 6, 0.0, ())
         if data is not None:
+            # Data-list values are persistent: a run leaves what it wrote in the .dat, and a later run of the same
+            # program (reset and started again without a new push) begins with those values, not the pushed ones.
+            rewritten = written_names(main.body)
             for decl in data.decls:
                 if decl.is_global or any(ctx.link_writable(dn.name) for dn in decl.names):
                     if decl.init is not None:
                         checker.check_calls(decl.init)
                     continue  # the daemon (or anyone on the link) may change it: never a constant
                 state = checker.declare(decl, state)
+                for dn in decl.names:
+                    if dn.name in rewritten:
+                        state = state.with_var(dn.name, UNKNOWN)
         checker.params = {p.name for p in main.params}
         checker.own.update(checker.params)
         state = replace(state, poses=checker.start_poses)

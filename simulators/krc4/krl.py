@@ -16,11 +16,13 @@ default). Releasing the enabling switch is a STOP 2: the motion ramps down on it
 ``$STOPMESS`` stays TRUE until :meth:`KrlInterpreter.acknowledge`; releasing the start key stops the same way without
 a message. In T1 the flange speed is clamped to 250 mm/s (see :mod:`simulators.krc4.motion`).
 
-Variables: routine locals and non-GLOBAL data-list entries live in the interpreter; ``DECL GLOBAL`` entries of the
-module's ``.dat`` become store globals at select (so the daemon reads and writes them over the link and ``WAIT FOR``
-sees its writes); system variables the store knows (``$OV_PRO``, ``$TRACE.MODE``, ``$TRACE.NAME[]``, ``$AXIS_ACT``
-…) are read and written *through the store*, so registered getters and setters (the trace engine) see them. The
-motion settings (``$VEL_AXIS[i]``, ``$ACC_AXIS[i]``, ``$VEL.CP``, ``$ACC.CP``, ``$APO``) are the interpreter's own.
+Variables: routine locals and non-GLOBAL data-list entries live in the interpreter (data-list values are persistent,
+as on the controller: reset keeps them, and so does a new select while the module's ``.dat`` text is unchanged);
+``DECL GLOBAL`` entries of the module's ``.dat`` become store globals at select (so the daemon reads and writes them
+over the link and ``WAIT FOR`` sees its writes); system variables the store knows (``$OV_PRO``, ``$TRACE.MODE``,
+``$TRACE.NAME[]``, ``$AXIS_ACT`` …) are read and written *through the store*, so registered getters and setters (the
+trace engine) see them. The motion settings (``$VEL_AXIS[i]``, ``$ACC_AXIS[i]``, ``$VEL.CP``, ``$ACC.CP``,
+``$APO``) are the interpreter's own.
 
 Simplifications (said, not hidden): no advance run, so approximation (``C_PTP``/``C_DIS``) is accepted and ignored;
 motions to Cartesian targets are refused (no inverse kinematics) and LIN is joint-interpolated; ``BAS`` knows
@@ -241,6 +243,8 @@ class KrlInterpreter:
         self._program: _Program | None = None
         self._module_data: dict[str, Value] = {}
         self._module_types: dict[str, str] = {}
+        #: Module name → (.dat text, values, types): data-list values persist across reset and a new select.
+        self._data_lists: dict[str, tuple[str | None, dict[str, Value], dict[str, str]]] = {}
         self._global_types: dict[str, str] = {}
         self._task: asyncio.Task[None] | None = None
         self._resume = asyncio.Event()
@@ -302,6 +306,10 @@ class KrlInterpreter:
         self._drop_task()
         self._program = _Program(mod_name, module, data, f"{mod_name}.SRC")
         self._load_data(data)
+        kept = self._data_lists.get(mod_name)
+        if kept is not None and kept[0] == dat:  # the same .dat: its values are those the last run left
+            self._module_data, self._module_types = kept[1], kept[2]
+        self._data_lists[mod_name] = (dat, self._module_data, self._module_types)
         self.last_error = None
         self.store.update("$PRO_NAME1[]", f'"{mod_name}"')
         self._set_state(ProState.RESET)
@@ -320,7 +328,9 @@ class KrlInterpreter:
         if state is ProState.FREE or self._program is None:
             raise ProgramControlError("no program selected")
         self._drop_task()
+        module_data, module_types = self._module_data, self._module_types
         self._load_data(self._program.data)
+        self._module_data, self._module_types = module_data, module_types  # persistent: reset keeps them
         self.last_error = None
         self._set_state(ProState.RESET)
 

@@ -356,3 +356,34 @@ async def test_programs_load_from_the_share(tmp_path, store) -> None:
             interp.select("/R1/NOPE", "", False)
     finally:
         await interp.aclose()
+
+
+PERSIST_SRC = """DEF persist()
+  runs = runs + 1
+  r_runs = runs
+END
+"""
+PERSIST_DAT = """DEFDAT persist
+  DECL INT runs = 0
+  DECL GLOBAL INT r_runs = 0
+ENDDAT
+"""
+
+
+async def test_data_list_values_persist_across_reset_and_select(interp: KrlInterpreter, store, programs) -> None:
+    """As on the KR C4, a run leaves its data-list values behind: the next run starts from them (the interlock must
+    not take the pushed initial value of a data-list variable the program writes)."""
+    programs.add("PERSIST", PERSIST_SRC, PERSIST_DAT)
+    await run_to_end(interp, "PERSIST")
+    assert store.read("R_RUNS") == "1"
+    interp.reset(1)
+    interp.start(1)
+    assert await interp.wait_state(ProState.END, ProState.STOP) is ProState.END, interp.last_error
+    assert store.read("R_RUNS") == "2"
+    interp.cancel(1)
+    await run_to_end(interp, "PERSIST")  # selected again, same .dat
+    assert store.read("R_RUNS") == "3"
+    interp.cancel(1)
+    programs.add("PERSIST", PERSIST_SRC, PERSIST_DAT.replace("runs = 0", "runs = 10", 1))  # a new .dat pushed
+    await run_to_end(interp, "PERSIST")
+    assert store.read("R_RUNS") == "11"

@@ -266,3 +266,36 @@ def test_an_internal_failure_of_the_check_is_a_refusal(
     path.write_text(program("", "  PTP {A1 10.0}\n"), encoding="latin-1")
     assert cli.main(["krl", "check", str(path)]) == 3
     assert "INTERNAL" in capsys.readouterr().out
+
+
+# --- data-list values persist between runs ----------------------------------------------------------------------------
+#: A data list's (non-GLOBAL) values are persistent on the controller: a run leaves what it wrote in the .dat, and the
+#: next run (the operator resets and starts it again without a new push) begins with those values, not the pushed ones.
+PERSISTENT: dict[str, tuple[str, str]] = {
+    "counter": (
+        program("", "  IF RUNS > 0 THEN\n    $VEL_AXIS[1] = 100.0\n  ENDIF\n  RUNS = RUNS + 1\n  PTP {A1 10.0}\n"),
+        "DEFDAT bypass\n  DECL INT RUNS = 0\nENDDAT\n",
+    ),
+    "pose": (
+        program("", "  P = {A1 10.0}\n  $VEL_AXIS[5] = 100.0\n  PTP P\n  P = {A5 100.0}\n"),
+        f"DEFDAT bypass\n  DECL E6AXIS P = {{A1 0.0, {REST}}}\nENDDAT\n",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(PERSISTENT))
+def test_a_data_list_value_the_program_writes_is_not_known_at_its_start(name: str) -> None:
+    src, dat = PERSISTENT[name]
+    ctx = CheckContext(start_axes_deg=(0.0, -90.0, 90.0, 0.0, 0.0, 0.0))
+    found = check_program(src, dat, ctx, "bypass.src")
+    assert any(v.line > 9 for v in found), found  # a line after the slow start
+    cfg = Config()
+    with pytest.raises(InterlockError):
+        static_checker(cfg.limits, cfg.measurement.payload_lever_max_m)(_Program("bypass", src, dat), _snapshot())
+
+
+def test_a_data_list_value_the_program_only_reads_stays_known() -> None:
+    """What the program never writes keeps the pushed value: a constant from the .dat still counts as one."""
+    src = program("", "  IF FAST THEN\n    $VEL_AXIS[1] = 100.0\n  ENDIF\n  PTP {A1 10.0}\n")
+    dat = "DEFDAT bypass\n  DECL BOOL FAST = FALSE\nENDDAT\n"
+    assert check_program(src, dat, CheckContext(start_axes_deg=(0.0, -90.0, 90.0, 0.0, 0.0, 0.0)), "bypass.src") == []

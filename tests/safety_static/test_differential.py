@@ -146,9 +146,18 @@ DAT = (
 )
 
 
+#: The data list's values set again at the start of the run: data-list values persist between runs, so the check
+#: takes those a program writes as unknown at its start; assigned here, they are known on every run.
+INITS = [
+    "  " + line.strip().split(" ", 2)[2]
+    for line in DAT.splitlines()
+    if line.strip().startswith("DECL ")
+]
+
+
 def program(tree: list[Any]) -> str:
     slow = [f"  $VEL_AXIS[{i}] = 1.0" for i in range(1, 7)]
-    return "\n".join(["DEF prop( )", *slow, *krl(tree), "END", ""])
+    return "\n".join(["DEF prop( )", *slow, *INITS, *krl(tree), "END", ""])
 
 
 # --- the reference: float32 and INT as documented ---
