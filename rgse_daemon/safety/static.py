@@ -355,12 +355,13 @@ def _forbidden_tokens(text: str, file: str) -> list[Violation]:
 
 def _line_end_violations(text: str) -> list[Violation]:
     """Characters whose meaning on the controller is not known: a CR not followed by LF, form feed, vertical tab,
-    and other control characters (KRL files are ISO-8859-1 text with CR LF line ends)."""
+    and other control characters, the C1 ones of ISO-8859-1 too (0x80..0x9F: NEL, U+0085, is a line end to some
+    readers), and the Unicode line and paragraph separators (KRL files are ISO-8859-1 text with CR LF line ends)."""
     found = []
     for line_no, line in enumerate(text.split("\n"), 1):
         body = line[:-1] if line.endswith("\r") else line
         for col, ch in enumerate(body, 1):
-            if ch == "\r" or (ord(ch) < 32 and ch != "\t") or ord(ch) == 127:
+            if ch == "\r" or (ord(ch) < 32 and ch != "\t") or 127 <= ord(ch) <= 159 or ch in "\u2028\u2029":
                 what = "a CR without LF" if ch == "\r" else f"control character {ch!r}"
                 found.append(
                     Violation(line_no, col, "LINE_END", f"{what}: how the controller reads it is not known, refused")

@@ -117,6 +117,10 @@ BYPASSES: dict[str, str] = {
         program("", "  $VEL_AXIS[1] = 100.0\n  ; slow down\r  $VEL_AXIS[1] = 1.0\n  PTP {A1 10.0}\n")
     ),
     "7_lone_cr": (program("", "  PTP {A1 10.0}\r  PTP {A1 0.0}\n")),
+    # 7. an ISO-8859-1 C1 control character (NEL, U+0085) in a comment: if the controller ends the line there, the
+    # write after it runs; the check read it as part of the comment
+    "7_nel_in_comment": (program("", "  ; slow down\x85  $VEL_AXIS[1] = 100.0\n  PTP {A1 10.0}\n")),
+    "7_c1_control_in_comment": (program("", "  ; slow down\x9b  $VEL_AXIS[1] = 100.0\n  PTP {A1 10.0}\n")),
     # 7. $TRACE members other than the ones the daemon writes
     "7_trace_member": (program("", "  $TRACE.STATE = #T_END\n  PTP {A1 10.0}\n")),
     "7_trace_whole": (program("", "  $TRACE.OTHER = 1\n  PTP {A1 10.0}\n")),
