@@ -590,6 +590,10 @@ class AbstractInterpreter(ABC):
                 return None
             if n in AXIS_FIELDS:
                 fields[n] = float(v)
+            elif float(v) != 0.0:  # the cell has no external axes; one that moved would move unverified
+                self.report("EXTERNAL_AXIS", stmt.pos,
+                            f"{stmt.kind} target {n} {float(v):g}: external axes are not verified, only 0 is allowed")
+                return None
         # A field the target leaves out (or a variable's field never assigned) keeps the axis where it is: on the
         # controller it does, or the uninitialised field stops the program; either way no other motion happens.
         return fields

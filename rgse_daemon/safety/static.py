@@ -15,7 +15,8 @@ Rules (``Violation.rule``):
                   can raise it on the smartPAD at any time).
 ``JOINT_LIMIT``   every target within the axis ranges; ``A1_ENVELOPE``: |A1| ≤ ``limits.a1_range_deg``.
 ``START_UNKNOWN`` a motion whose start pose is unknown cannot be verified.
-``TARGET``        a target that does not resolve to constant axis angles; ``CARTESIAN``: Cartesian targets (no IK).
+``TARGET``        a target that does not resolve to constant axis angles; ``CARTESIAN``: Cartesian targets (no IK);
+                  ``EXTERNAL_AXIS``: a target with a non-zero E1..E6 (the cell has none; their motion is not verified).
 ``PAYLOAD``       payload mass ≤ ``limits.max_payload_kg``; ``A5_TORQUE``: static A5 torque of the payload along
                   every motion ≤ ``limits.max_a5_torque_nm`` (load diagram, paper Fig. 16).
 ``REL_AMPLITUDE`` a relative (brake-release) move of more than ``limits.brake_release_max_deg`` on any axis.
@@ -31,7 +32,8 @@ Rules (``Violation.rule``):
 ``UNSURE``        the controller's result is not documented (INT overflow, a REAL rounding tie, 32-bit and 64-bit
                   REAL evaluation disagree, an uninitialised field); ``RUNTIME``: the controller would stop with an
                   error (division by zero, a type mismatch); ``LINE_END``: a line end or character whose meaning on
-                  the controller is not known (lone CR, form feed); ``INTERNAL``: the check itself failed.
+                  the controller is not known (lone CR, form feed), or a line longer than :data:`MAX_LINE_CHARS`
+                  (whether the controller cuts it is not known); ``INTERNAL``: the check itself failed.
 
 Any doubt refuses: the check may be stricter than the robot needs, never looser.
 """
@@ -353,6 +355,12 @@ def _forbidden_tokens(text: str, file: str) -> list[Violation]:
     return found
 
 
+#: Longest source or data-list line the check accepts (characters). The templates' longest is 118; how the controller
+#: reads a line beyond its editor's length (cut, wrapped, refused) is not documented, and a cut line can change
+#: meaning (``$VEL_AXIS[1] = 100.0 <spaces> - 99.0``).
+MAX_LINE_CHARS = 250
+
+
 def _line_end_violations(text: str) -> list[Violation]:
     """Characters whose meaning on the controller is not known: a CR not followed by LF, form feed, vertical tab,
     and other control characters, the C1 ones of ISO-8859-1 too (0x80..0x9F: NEL, U+0085, is a line end to some
@@ -360,6 +368,11 @@ def _line_end_violations(text: str) -> list[Violation]:
     found = []
     for line_no, line in enumerate(text.split("\n"), 1):
         body = line[:-1] if line.endswith("\r") else line
+        if len(body) > MAX_LINE_CHARS:
+            found.append(Violation(line_no, MAX_LINE_CHARS + 1, "LINE_END",
+                                   f"line of {len(body)} characters (limit {MAX_LINE_CHARS}): whether the controller "
+                                   f"cuts it is not known, refused"))
+            continue
         for col, ch in enumerate(body, 1):
             if ch == "\r" or (ord(ch) < 32 and ch != "\t") or 127 <= ord(ch) <= 159 or ch in "\u2028\u2029":
                 what = "a CR without LF" if ch == "\r" else f"control character {ch!r}"

@@ -20,7 +20,7 @@ from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError
 from rgse_daemon.krl.abstract import AbstractInterpreter
 from rgse_daemon.procedures.programs import static_checker
-from rgse_daemon.safety.static import CheckContext, Violation, check_program
+from rgse_daemon.safety.static import MAX_LINE_CHARS, CheckContext, Violation, check_program
 
 SLOW = "".join(f"  $VEL_AXIS[{i}] = 1.0\n" for i in range(1, 7))
 #: The rest of a measurement-pose target, so that a motion changes A1 only.
@@ -163,6 +163,12 @@ BYPASSES: dict[str, str] = {
         f"  P = {{A1 0.0, {REST}}}\n  FOR I = 1 TO $OV_PRO\n    P.A5 = P.A5 + 1.0\n  ENDFOR\n  P = {{A1 10.0}}\n"
         "  $VEL_AXIS[5] = 100.0\n  PTP P\n",
     ),
+    # 11. an external axis target: neither the check nor the simulator models E1..E6 (the cell has none); on a cell
+    # that had one, it would move unverified
+    "11_external_axis": program("", f"  PTP {{A1 10.0, {REST}, E1 1000.0}}\n"),
+    "11_external_axis_variable": program("  DECL E6AXIS P\n", f"  P = {{A1 10.0, {REST}, E2 -5.0}}\n  PTP P\n"),
+    # 12. a line longer than the controller's editor is known to read: if it cut the line, 100.0 - 99.0 became 100.0
+    "12_long_line": program("", "  $VEL_AXIS[1] = 100.0" + " " * 300 + "- 99.0\n  PTP {A1 10.0}\n"),
 }
 
 
@@ -229,7 +235,10 @@ def test_push_check_refuses_the_bypass(name: str) -> None:
 def test_the_slow_base_program_is_allowed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The programs above are refused for what they add, not for their common start."""
     path = tmp_path / "base.src"
-    path.write_text(program("", f"  PTP {{A1 10.0, {REST}}}\n  PTP {{A1 0.0}}\n"), encoding="latin-1")
+    # (external axes at 0 and a line of the longest allowed length are fine: 11 and 12 are refused for more)
+    long_comment = "  ; " + "x" * (MAX_LINE_CHARS - 4) + "\n"
+    path.write_text(program("", f"  PTP {{A1 10.0, {REST}, E1 0.0}}\n{long_comment}  PTP {{A1 0.0}}\n"),
+                    encoding="latin-1")
     assert cli.main(["krl", "check", str(path)]) == 0, capsys.readouterr().out
     cfg = Config()
     static_checker(cfg.limits, cfg.measurement.payload_lever_max_m)(
