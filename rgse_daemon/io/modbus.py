@@ -455,11 +455,16 @@ class SafetyIo:
             self._last_logged_error = reason
 
     async def _poll_loop(self) -> None:
+        """Connect, poll until the link fails, back off, again. The backoff starts afresh only after a connection
+        that lasted ``reconnect_max_s``: a module that accepts, answers once and drops the link is retried ever more
+        slowly, not a few times a second."""
         attempt = 0
         first_connect = True
         while True:
+            connected_at: float | None = None
             try:
                 await self._connect()
+                connected_at = time.monotonic()
                 if not first_connect:
                     self.counters.reconnects += 1
                 first_connect = False
@@ -467,7 +472,6 @@ class SafetyIo:
                 next_tick = time.monotonic()
                 while True:
                     await self._poll_once()
-                    attempt = 0
                     next_tick += self.cfg.poll_period_s
                     await asyncio.sleep(max(0.0, next_tick - time.monotonic()))
                     next_tick = max(next_tick, time.monotonic() - self.cfg.poll_period_s)
@@ -480,6 +484,8 @@ class SafetyIo:
                 self._doubt(f"poll loop error: {exc!r}")
             self._close_client()
             self.state = ConnectionState.DISCONNECTED
+            if connected_at is not None and time.monotonic() - connected_at >= self.cfg.reconnect_max_s:
+                attempt = 0  # the link had been fine for a while: this is a new outage
             await asyncio.sleep(backoff_s(attempt, self.cfg.reconnect_min_s, self.cfg.reconnect_max_s, self._rng))
             attempt += 1
 

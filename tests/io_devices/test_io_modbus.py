@@ -219,9 +219,9 @@ def _mbap(tid: int, unit: int, pdu: bytes) -> bytes:
 
 
 @contextlib.asynccontextmanager
-async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes]) -> AsyncIterator[int]:
+async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes | None]) -> AsyncIterator[int]:
     """A module on a free port (yielded) that echoes coil writes and answers every read with
-    ``read_answer(tid, unit, request_pdu)``."""
+    ``read_answer(tid, unit, request_pdu)``; ``None`` closes the connection instead."""
     handlers: set[asyncio.Task[None]] = set()
 
     async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -230,7 +230,10 @@ async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes]) -> AsyncIte
                 tid, _pid, length, unit = struct.unpack(">HHHB", await reader.readexactly(7))
                 pdu = await reader.readexactly(length - 1)
                 if pdu[0] in (1, 2):
-                    writer.write(read_answer(tid, unit, pdu))
+                    answer = read_answer(tid, unit, pdu)
+                    if answer is None:
+                        return
+                    writer.write(answer)
                 else:  # FC 5 echoes the request, FC 15 its address and count
                     writer.write(_mbap(tid, unit, pdu if pdu[0] == 5 else pdu[:5]))
                 await writer.drain()
@@ -297,3 +300,21 @@ async def test_a_well_formed_raw_answer_reads_safe() -> None:
     async with _raw_peer(answer) as port, SafetyIo(fast_cfg(port)) as io:
         await wait_until(lambda: io.inputs.safe, what="safe")  # padding bits set: ignored
         assert io.counters.read_errors == 0 and io.counters.connects == 1
+
+
+async def test_a_module_that_drops_every_connection_after_one_answer_is_retried_ever_more_slowly(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    attempts: list[int] = []
+
+    def spy(attempt: int, min_s: float, max_s: float, rng: random.Random) -> float:
+        attempts.append(attempt)
+        return backoff_s(attempt, min_s, max_s, rng)
+
+    monkeypatch.setattr("rgse_daemon.io.modbus.backoff_s", spy)
+    reads = itertools.count()
+    answer = lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 1, ALL_SAFE])) if next(reads) % 2 == 0 else None  # noqa: E731
+    async with _raw_peer(answer) as port, SafetyIo(fast_cfg(port, reconnect_min_s=0.005, reconnect_max_s=5.0)) as io:
+        await wait_until(lambda: len(attempts) >= 5, what="five reconnects")
+        assert io.counters.reads >= 5  # each connection did give one good reading ...
+    assert attempts[:5] == [0, 1, 2, 3, 4]  # ... and still the backoff grew
