@@ -62,6 +62,8 @@ MAX_DATA_BYTES = 256 * 1024 * 1024
 #: Relative tolerance on the step of an explicit time channel.
 _TIME_STEP_RTOL = 1e-6
 _INT_RE = re.compile(r"[+-]?[0-9]+")
+#: Counts (220) and pointers (221) are far below 10**18: more digits than that is a corrupt header.
+_MAX_INT_DIGITS = 18
 _CODE_RE = re.compile(r"[0-9]{1,6}")
 
 
@@ -206,6 +208,8 @@ def _int(block: Mapping[int, str], code: int, source: str, what: str, minimum: i
     text = _get(block, code, source, what)
     if not _INT_RE.fullmatch(text):
         raise DataError(f"{source}: {what}: code {code} is not an integer: {text[:40]!r}")
+    if len(text.lstrip("+-").lstrip("0")) > _MAX_INT_DIGITS:  # int() itself refuses > 4300 digits with a ValueError
+        raise DataError(f"{source}: {what}: code {code} is out of range ({len(text)} characters): {text[:40]!r}")
     value = int(text)
     if value < minimum:
         raise DataError(f"{source}: {what}: code {code} = {value} is below {minimum}")

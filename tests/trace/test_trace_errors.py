@@ -93,6 +93,9 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     "pointer twice": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "1"), R64, "not 1..7"),
     "pointer zero": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "0"), DAT, "below 1"),
     "count not integer": (lambda d: edit_channel(d / DAT, "Istmoment", 220, "40.0"), DAT, "not an integer"),
+    # more than the 4300 digits int() converts (it raises a plain ValueError)
+    "count of 5000 digits": (lambda d: edit_channel(d / DAT, "Istmoment", 220, "9" * 5000), DAT, "out of range"),
+    "pointer of 5000 digits": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "1" * 5000), DAT, "out of range"),
     "no name": (lambda d: edit_channel(d / DAT, "Istmoment", 200, None), DAT, "no code 200"),
     "duplicate name": (lambda d: edit_channel(d / DAT, "Iststrom", 200, "Istmoment"), DAT, "given twice"),
     "duplicate code": (
