@@ -449,7 +449,12 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
     for file_name in by_file:
         if file_name == dat_path.name:
             raise DataError(f"{source}: data file (code 211) names the header itself")
-        if not dat_path.with_name(file_name).is_file():
+        try:  # is_file() answers False for a missing file but raises on a name too long for the file system
+            found = dat_path.with_name(file_name).is_file()
+        except OSError as exc:
+            raise DataError(f"{source}: data file {file_name[:60]!r} (code 211) cannot be looked up: "
+                            f"{exc.strerror or exc}") from None
+        if not found:
             raise DataError(f"{source}: data file {file_name!r} (code 211) not found beside the header")
         inside(dat_path.parent, dat_path.with_name(file_name))
     for file_name, group in by_file.items():

@@ -55,6 +55,9 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     "missing r64": (lambda d: (d / R64).unlink(), DAT, "not found"),
     "211 names a missing file": (lambda d: edit_channel(d / DAT, "Istmoment", 211, "other.r64"), DAT, "'other.r64'"),
     "211 names the header": (lambda d: edit_channel(d / DAT, "Istmoment", 211, DAT), DAT, "names the header itself"),
+    "211 too long for the file system": (
+        lambda d: edit_channel(d / DAT, "Istmoment", 211, "x" * 300 + ".r64"), DAT, "File name too long",
+    ),
     "211 missing": (lambda d: edit_channel(d / DAT, "Istmoment", 211, None), DAT, "no code 211"),
     "size not multiple of 8": (lambda d: _append_bytes(d / R64, b"abc"), R64, "not a multiple of 8"),
     "size not multiple of row": (lambda d: _append_values(d / R64, [1.0, 2.0]), R64, "multiple of the row width"),
