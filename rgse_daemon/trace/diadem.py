@@ -65,6 +65,8 @@ _INT_RE = re.compile(r"[+-]?[0-9]+")
 #: Counts (220) and pointers (221) are far below 10**18: more digits than that is a corrupt header.
 _MAX_INT_DIGITS = 18
 _CODE_RE = re.compile(r"[0-9]{1,6}")
+_LINE_END_RE = re.compile(r"\r\n|\r|\n")
+_BLANKS = " \t"
 
 
 @dataclass(frozen=True)
@@ -139,14 +141,17 @@ class TraceSet:
 def parse_header(text: str, source: str = "<string>") -> tuple[dict[int, str], list[dict[int, str]]]:
     """Split a DIAdem header into the global block and the channel blocks (``code -> value`` text).
 
-    Accepts CRLF or LF line ends and the optional ``DIAEXTENDED`` first line. ``source`` names the file in errors.
+    Accepts CRLF, LF (or CR) line ends and the optional ``DIAEXTENDED`` first line; only these end a line, and only
+    blanks and tabs around a line or value are dropped: the header is Latin-1/Windows-1252 text, whose bytes 0x85
+    (NEL, Windows-1252 "…"), 0x0B, 0x0C and 0x1C-0x1E ``str.splitlines`` would take for line ends. ``source`` names
+    the file in errors.
     """
     global_header: dict[int, str] = {}
     channels: list[dict[int, str]] = []
     state = "start"
     current: dict[int, str] = global_header
-    for lineno, raw_line in enumerate(text.splitlines(), start=1):
-        line = raw_line.strip()
+    for lineno, raw_line in enumerate(_LINE_END_RE.split(text), start=1):
+        line = raw_line.strip(_BLANKS)
         if not line:
             continue
         where = f"{source}:{lineno}"
@@ -173,7 +178,7 @@ def parse_header(text: str, source: str = "<string>") -> tuple[dict[int, str], l
             code = int(code_text)
             if code in current:
                 raise DataError(f"{where}: code {code} given twice in one header block")
-            current[code] = value.strip()
+            current[code] = value.strip(_BLANKS)
     if state != "between":
         raise DataError(f"{source}: truncated header (ends inside or before the {state} block)")
     if not channels:
