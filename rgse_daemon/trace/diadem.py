@@ -65,6 +65,8 @@ _INT_RE = re.compile(r"[+-]?[0-9]+")
 #: Counts (220) and pointers (221) are far below 10**18: more digits than that is a corrupt header.
 _MAX_INT_DIGITS = 18
 _CODE_RE = re.compile(r"[0-9]{1,6}")
+#: A decimal number as DIAdem writes one (no digit separators, no hex, no nan/inf words).
+_FLOAT_RE = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
 _LINE_END_RE = re.compile(r"\r\n|\r|\n")
 _BLANKS = " \t"
 
@@ -225,10 +227,11 @@ def _float(block: Mapping[int, str], code: int, source: str, what: str, default:
     if default is not None and code not in block:
         return default
     text = _get(block, code, source, what)
-    try:
-        value = float(text)
-    except ValueError:
-        raise DataError(f"{source}: {what}: code {code} is not a number: {text[:40]!r}") from None
+    if not _FLOAT_RE.fullmatch(text):  # float() alone would also take "1_000" (1000.0) and "nan"
+        if text.strip(_BLANKS).lower().lstrip("+-") in ("nan", "inf", "infinity"):
+            raise DataError(f"{source}: {what}: code {code} is not finite: {text[:40]!r}")
+        raise DataError(f"{source}: {what}: code {code} is not a number: {text[:40]!r}")
+    value = float(text)
     if not math.isfinite(value):
         raise DataError(f"{source}: {what}: code {code} is not finite: {text[:40]!r}")
     return value

@@ -81,6 +81,8 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     "zero time step": (lambda d: edit_channel(d / DAT, "Zeit", 241, "0"), DAT, "non-positive step"),
     "negative time step": (lambda d: edit_channel(d / DAT, "Zeit", 241, "-0.012"), DAT, "non-positive step"),
     "time step not a number": (lambda d: edit_channel(d / DAT, "Zeit", 241, "0,012"), DAT, "not a number"),
+    "time step with a digit separator": (lambda d: edit_channel(d / DAT, "Zeit", 241, "0_012"), DAT, "not a number"),
+    "factor with a digit separator": (lambda d: edit_channel(d / DAT, "Istmoment", 241, "1_000"), DAT, "not a number"),
     "time step nan": (lambda d: edit_channel(d / DAT, "Zeit", 241, "nan"), DAT, "not finite"),
     "time overflows": (lambda d: edit_channel(d / DAT, "Zeit", 241, "1e307"), DAT, "overflow"),
     "time channel explicit without data file": (
