@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import re
 import time
 from dataclasses import dataclass
@@ -56,6 +57,9 @@ from rgse_daemon.config import UNIT_TO_KG, ScaleConfig
 from rgse_daemon.io import IoFrameError, IoLinkError, IoTimeout
 
 log = logging.getLogger(__name__)
+
+#: The ``value`` group must be a plain decimal number (sign apart: that is the ``sign`` group's, or a leading one).
+_DECIMAL_RE = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)")
 
 
 
@@ -122,13 +126,19 @@ def parse_line(line: str, cfg: ScaleConfig, device: str, *, _regex: re.Pattern[s
     if match is None:
         raise IoFrameError(device, "line does not match the configured format", line)
     groups = match.groupdict()
+    if groups["unit"] is None:  # a line_regex may make the group optional
+        raise IoFrameError(device, "no unit", line)
     unit = groups["unit"].lower()
     if unit not in UNIT_TO_KG:
         raise IoFrameError(device, f"unknown unit {groups['unit']!r} (expected one of {sorted(UNIT_TO_KG)})", line)
-    try:
-        value = float(groups["value"])
-    except ValueError:
-        raise IoFrameError(device, f"value {groups['value']!r} is not a number", line) from None
+    # a plain decimal number only: with a looser line_regex float() would also take "nan", "inf", "1e999" (inf)
+    # and "1_000" (1000.0), none of which a scale sends
+    text = groups["value"] or ""
+    if not _DECIMAL_RE.fullmatch(text):
+        raise IoFrameError(device, f"value {text!r} is not a decimal number", line)
+    value = float(text)
+    if not math.isfinite(value):
+        raise IoFrameError(device, f"value {text!r} is out of range", line)
     if groups.get("sign") == "-":
         value = -value
     stab = groups.get("stab")

@@ -75,6 +75,29 @@ def test_parse_bad_lines_name_device_and_line(line: str, problem: str) -> None:
     assert str(err.value).startswith("scale /dev/ttyS9: ") and repr(line) in str(err.value)
 
 
+@pytest.mark.parametrize(
+    ("line", "problem"),
+    [
+        ("ST nan kg", "not a decimal number"),
+        ("ST inf kg", "not a decimal number"),
+        ("ST -Infinity kg", "not a decimal number"),
+        ("ST 1_000 kg", "not a decimal number"),
+        ("ST 1e999 kg", "not a decimal number"),
+        ("ST " + "9" * 400 + " kg", "out of range"),
+        ("ST kg", "not a decimal number"),  # the value group left out
+        ("ST 117.6", "no unit"),  # the unit group left out
+    ],
+)
+def test_a_loose_line_regex_still_takes_only_decimal_numbers(line: str, problem: str) -> None:
+    # a dialect whose value group takes any non-blank text and whose groups are optional: what float() would take,
+    # or nothing at all, is not a weight
+    cfg = ScaleConfig(line_regex=r"^(?P<stab>ST|US) *(?P<value>[^ k]+)? *(?P<unit>kg)?$")
+    with pytest.raises(IoFrameError, match=problem) as err:
+        parse_line(line, cfg, "scale X")
+    assert err.value.raw == line
+    assert parse_line("ST 117.6 kg", cfg, "scale X").mass_kg == pytest.approx(117.6)
+
+
 def test_parse_checksum() -> None:
     cfg = ScaleConfig(checksum="xor8")
     body = "ST,GS,+     117.6 kg"
