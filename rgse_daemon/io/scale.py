@@ -296,9 +296,13 @@ class CraneScale:
             received, raw = item
             if received < started:
                 continue  # buffered before this read began: not a fresh value
-            line = raw.decode("ascii", errors="replace")
+            # bytes that are not ASCII are kept visible as \xNN (a parity or baud mismatch shows in them), not
+            # replaced by U+FFFD; and a line that has any is a bad frame before its text is looked at
+            line = raw.decode("ascii", errors="backslashreplace")
             seen.last_line = line
             try:
+                if not raw.isascii():
+                    raise IoFrameError(self.name, "non-ASCII bytes (shown as \\xNN)", line)
                 frame = parse_line(line, cfg, self.name, _regex=self._regex)
             except IoFrameError as exc:
                 seen.bad += 1

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import math
+import os
 import threading
 import time
+import tty
 
 import pytest
 import serial
@@ -261,6 +263,26 @@ async def test_peer_hang_up_is_a_link_error_and_the_port_reopens() -> None:
         with pytest.raises(IoLinkError, match="open"):  # reopening a closed server fails, as it should
             await scale.read_stable(timeout_s=5.0)
         assert scale.counters.opens == 1
+
+
+async def test_non_ascii_bytes_are_recorded_as_sent() -> None:
+    """A scale at 7E1 read as 8N1 sets the top bit of some characters: the bad line keeps those bytes (as \\xNN),
+    not U+FFFD in their place, so that the event and the error show what came."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    cfg = ScaleConfig(port=os.ttyname(slave), mode="stream", max_consecutive_bad_frames=3)
+    try:
+        async with CraneScale(cfg) as scale:
+            reading = asyncio.ensure_future(scale.read_stable(timeout_s=10.0))
+            await asyncio.sleep(0.1)  # lines buffered before a read are not fresh
+            os.write(master, b"ST,GS,+   117.6 k\xe7\r\n" * 3)
+            with pytest.raises(IoFrameError, match="non-ASCII") as err:
+                await reading
+            assert err.value.raw == "ST,GS,+   117.6 k\\xe7" and "\\xe7" in str(err.value)
+            assert scale.last_error is not None and scale.last_error.raw == err.value.raw
+    finally:
+        os.close(master)
+        os.close(slave)
 
 
 async def test_missing_device_is_a_link_error() -> None:
