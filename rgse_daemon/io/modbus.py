@@ -41,8 +41,9 @@ reads as unsafe. The inputs are read in one request spanning their addresses.
 
 An answer counts only if it answers that request: same function code, same unit, a transaction id, exactly the
 data bytes asked for and a byte count that says so (pymodbus lets the first three through when zero or not
-checked). Anything else is an ``IoFrameError``: the inputs read unsafe ("bad answer: ...") and the poller
-reconnects, so that a stream out of step starts afresh.
+checked; an answer with a function code the daemon does not use is kept raw, so that it is named too).
+Anything else is an ``IoFrameError``: the inputs read unsafe ("bad answer: ...") and the poller reconnects, so
+that a stream out of step starts afresh.
 """
 
 from __future__ import annotations
@@ -151,6 +152,28 @@ class _ReadDiscreteInputsAnswer(ReadDiscreteInputsResponse):
     def decode(self, data: bytes) -> None:
         self.byte_count = data[0] if data else None
         super().decode(data)
+
+
+class _OtherAnswer(ModbusPDU):
+    """An answer with a function code the daemon never asks with, kept as raw bytes. pymodbus cannot decode many
+    of these (an unknown code, or a known one with a short payload): its decoder then raises inside the protocol
+    callback, asyncio logs a traceback and closes the connection, and the read only sees "closed by the peer".
+    Decoded like this, the answer reaches ``_request``, which names it."""
+
+    payload: bytes = b""
+
+    def decode(self, data: bytes) -> None:
+        self.payload = bytes(data)
+
+    def __str__(self) -> str:
+        return f"function code {self.function_code}, unit {self.dev_id}, data {self.payload.hex(' ') or '(none)'}"
+
+
+_ASKED_WITH = (1, 2, 5, 15)  # read coils, read discrete inputs, write coil, write coils
+#: One class per function code the daemon does not use (0x81 and above are exception responses).
+_OTHER_ANSWERS: list[type[ModbusPDU]] = [
+    type(f"_OtherAnswer{fc}", (_OtherAnswer,), {"function_code": fc}) for fc in range(0x81) if fc not in _ASKED_WITH
+]
 
 
 def backoff_s(attempt: int, min_s: float, max_s: float, rng: random.Random) -> float:
@@ -422,8 +445,8 @@ class SafetyIo:
             name=self.name,
             trace_connect=self._on_connection_change,
         )
-        client.register(_ReadCoilsAnswer)
-        client.register(_ReadDiscreteInputsAnswer)
+        for answer_class in (_ReadCoilsAnswer, _ReadDiscreteInputsAnswer, *_OTHER_ANSWERS):
+            client.register(answer_class)
         self._client = client
         try:
             async with asyncio.timeout(self.cfg.connect_timeout_s):

@@ -270,11 +270,15 @@ ALL_SAFE = 0b111  # the three default inputs, bits 0..2, all 1 = safe
     [
         # the coil table (FC 1) in answer to a read of the discrete inputs (FC 2)
         (lambda tid, unit, pdu: _mbap(tid, unit, bytes([1, 1, ALL_SAFE])), "function code 1, asked with 2"),
+        # function codes pymodbus cannot decode: unknown, or known with a short payload
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([0x55, 1, ALL_SAFE])), "function code 85, asked with 2"),
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([3, 5, 1])), "function code 3, asked with 2"),
         (lambda tid, unit, pdu: _mbap(0, unit, bytes([pdu[0], 1, ALL_SAFE])), "without a transaction id"),
         (lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 3, ALL_SAFE, 0xFF, 0xFF])), "3 data bytes, expected 1"),
         (lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 9, ALL_SAFE])), "byte count 9 disagrees"),
     ],
-    ids=["wrong function code", "transaction id 0", "long answer", "byte count lies"],
+    ids=["wrong function code", "unknown function code", "short FC 3 answer", "transaction id 0", "long answer",
+         "byte count lies"],
 )
 async def test_an_answer_to_another_request_reads_unsafe(answer: Callable[[int, int, bytes], bytes],
                                                          problem: str) -> None:
