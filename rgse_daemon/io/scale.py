@@ -170,6 +170,11 @@ class _LineProtocol(asyncio.Protocol):
             if line:
                 self._queue(line)
 
+    @property
+    def pending(self) -> bytes:
+        """What arrived after the last line end (a line not finished yet)."""
+        return bytes(self._buffer)
+
     def _queue(self, line: bytes) -> None:
         if self.lines.full():
             self.lines.get_nowait()
@@ -271,7 +276,9 @@ class CraneScale:
             except TimeoutError as exc:
                 self.counters.timeouts += 1
                 what = "stable weighing" if require_stable else "frame"
-                raise IoTimeout(self.name, f"no {what} within {timeout} s ({seen.summary()})") from exc
+                protocol = self._protocol
+                pending = b"" if protocol is None else protocol.pending
+                raise IoTimeout(self.name, f"no {what} within {timeout} s ({seen.summary(pending)})") from exc
             except IoLinkError:
                 await self.close()
                 raise
@@ -387,5 +394,10 @@ class _ReadLog:
     bad: int = 0
     last_line: str | None = None
 
-    def summary(self) -> str:
-        return f"{self.stable} stable, {self.unstable} unstable, {self.bad} bad frames; last line {self.last_line!r}"
+    def summary(self, pending: bytes = b"") -> str:
+        """The counts and the last line; ``pending``: bytes received after the last line end (a scale that stopped
+        mid-line), shown so that the message says something did arrive."""
+        text = f"{self.stable} stable, {self.unstable} unstable, {self.bad} bad frames; last line {self.last_line!r}"
+        if pending:
+            text += f"; then {len(pending)} bytes without a line end: {pending.decode('ascii', 'backslashreplace')!r}"
+        return text

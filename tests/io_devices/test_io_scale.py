@@ -285,6 +285,24 @@ async def test_non_ascii_bytes_are_recorded_as_sent() -> None:
         os.close(slave)
 
 
+async def test_a_scale_that_stops_mid_line_is_a_timeout_naming_the_bytes_that_came() -> None:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        async with CraneScale(ScaleConfig(port=os.ttyname(slave), mode="stream")) as scale:
+            reading = asyncio.ensure_future(scale.read_stable(timeout_s=1.0))
+            await asyncio.sleep(0.1)
+            os.write(master, b"US,GS,+   117.5 kg\r\nST,GS,+   11")
+            with pytest.raises(IoTimeout) as err:
+                await reading
+            message = str(err.value)
+            assert "1 unstable" in message and "last line 'US,GS,+   117.5 kg'" in message
+            assert "then 12 bytes without a line end: 'ST,GS,+   11'" in message
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
 async def test_missing_device_is_a_link_error() -> None:
     scale = CraneScale(ScaleConfig(port="/dev/does-not-exist-rgse"))
     with pytest.raises(IoLinkError) as err:
