@@ -38,6 +38,12 @@ measurement running         coils                       3
 ``input_table = "coils"`` reads the inputs from coils instead (then input and output addresses must differ).
 Inputs are fail-safe wired: 1 means "safe" (cleared / permitted / E-stop chain closed), so a broken wire
 reads as unsafe. The inputs are read in one request spanning their addresses.
+
+An answer counts only if it answers that request: same function code, same unit, a transaction id, exactly the
+data bytes asked for and a byte count that says so (pymodbus lets the first three through when zero or not
+checked; an answer with a function code the daemon does not use is kept raw, so that it is named too).
+Anything else is an ``IoFrameError``: the inputs read unsafe ("bad answer: ...") and the poller reconnects, so
+that a stream out of step starts afresh.
 """
 
 from __future__ import annotations
@@ -56,9 +62,10 @@ from typing import Self
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
 from pymodbus.pdu import ModbusPDU
+from pymodbus.pdu.bit_message import ReadCoilsResponse, ReadDiscreteInputsResponse
 
 from rgse_daemon.config import Address, ModbusConfig
-from rgse_daemon.io import IoDeviceError, IoDeviceRefused, IoLinkError, IoTimeout
+from rgse_daemon.io import IoDeviceError, IoDeviceRefused, IoFrameError, IoLinkError, IoTimeout
 from rgse_daemon.safety.inputs import SafetyInputs
 
 log = logging.getLogger(__name__)
@@ -124,6 +131,49 @@ class InputChanges:
 
     async def __aexit__(self, *exc: object) -> None:
         self.close()
+
+
+class _ReadCoilsAnswer(ReadCoilsResponse):
+    """A read-coils answer that keeps its byte-count field (pymodbus' own decoder drops it), so that an answer
+    whose byte count disagrees with the data it carries is not taken for a reading."""
+
+    byte_count: int | None = None
+
+    def decode(self, data: bytes) -> None:
+        self.byte_count = data[0] if data else None
+        super().decode(data)
+
+
+class _ReadDiscreteInputsAnswer(ReadDiscreteInputsResponse):
+    """The same for read-discrete-inputs answers."""
+
+    byte_count: int | None = None
+
+    def decode(self, data: bytes) -> None:
+        self.byte_count = data[0] if data else None
+        super().decode(data)
+
+
+class _OtherAnswer(ModbusPDU):
+    """An answer with a function code the daemon never asks with, kept as raw bytes. pymodbus cannot decode many
+    of these (an unknown code, or a known one with a short payload): its decoder then raises inside the protocol
+    callback, asyncio logs a traceback and closes the connection, and the read only sees "closed by the peer".
+    Decoded like this, the answer reaches ``_request``, which names it."""
+
+    payload: bytes = b""
+
+    def decode(self, data: bytes) -> None:
+        self.payload = bytes(data)
+
+    def __str__(self) -> str:
+        return f"function code {self.function_code}, unit {self.dev_id}, data {self.payload.hex(' ') or '(none)'}"
+
+
+_ASKED_WITH = (1, 2, 5, 15)  # read coils, read discrete inputs, write coil, write coils
+#: One class per function code the daemon does not use (0x81 and above are exception responses).
+_OTHER_ANSWERS: list[type[ModbusPDU]] = [
+    type(f"_OtherAnswer{fc}", (_OtherAnswer,), {"function_code": fc}) for fc in range(0x81) if fc not in _ASKED_WITH
+]
 
 
 def backoff_s(attempt: int, min_s: float, max_s: float, rng: random.Random) -> float:
@@ -264,12 +314,14 @@ class SafetyIo:
                 values = [bits[a] for a in range(first, first + len(bits))]
                 await self._request(
                     f"write coils {first}..{first + len(bits) - 1}",
+                    15,
                     lambda: client.write_coils(first, values, device_id=self.cfg.unit_id),
                 )
             else:
                 for addr, value in sorted(bits.items(), key=lambda kv: kv[1]):
                     await self._request(
                         f"write coil {addr}",
+                        5,
                         lambda a=addr, v=value: client.write_coil(a, v, device_id=self.cfg.unit_id),
                     )
         except IoDeviceError:
@@ -301,11 +353,14 @@ class SafetyIo:
             raise IoLinkError(self.name, "connection closed by the peer")
         return client
 
-    async def _request(self, what: str, call: Callable[[], Awaitable[ModbusPDU]]) -> ModbusPDU:
-        """Run one request under the bus lock with a deadline; map every failure to a typed error.
+    async def _request(self, what: str, fc: int, call: Callable[[], Awaitable[ModbusPDU]]) -> ModbusPDU:
+        """Run one request (function code ``fc``) under the bus lock with a deadline; map every failure to a
+        typed error.
 
         The request also ends early when the peer closes the connection (pymodbus would otherwise wait for
-        its own timeout): a module that reboots reads unsafe at once, not after a deadline."""
+        its own timeout): a module that reboots reads unsafe at once, not after a deadline. An answer that is not
+        the answer to this request (another function code, another unit, no transaction id: pymodbus lets these
+        through) is an ``IoFrameError``."""
         async with self._lock:
             link_lost = self._link_lost
             if link_lost is None or link_lost.done():
@@ -335,23 +390,37 @@ class SafetyIo:
         if response.isError():
             code = getattr(response, "exception_code", None)
             raise IoDeviceRefused(self.name, f"{what}: exception response, code {code}", code)
+        if response.function_code != fc:
+            raise IoFrameError(self.name, f"{what}: answer has function code {response.function_code}, asked with "
+                               f"{fc}", str(response))
+        if response.dev_id != self.cfg.unit_id:
+            raise IoFrameError(self.name, f"{what}: answer from unit {response.dev_id}, asked unit "
+                               f"{self.cfg.unit_id}", str(response))
+        if not response.transaction_id:  # pymodbus numbers its requests from 1 and matches only non-zero ids
+            raise IoFrameError(self.name, f"{what}: answer without a transaction id", str(response))
         return response
 
     async def _read_inputs(self) -> SafetyInputs:
         client = self._connected_client()
         first, count, unit = self._in_first, self._in_count, self.cfg.unit_id
         if self.cfg.input_table == "coils":
-            response = await self._request(
-                f"read coils {first}+{count}", lambda: client.read_coils(first, count=count, device_id=unit)
-            )
+            what = f"read coils {first}+{count}"
+            response = await self._request(what, 1, lambda: client.read_coils(first, count=count, device_id=unit))
         else:
+            what = f"read discrete inputs {first}+{count}"
             response = await self._request(
-                f"read discrete inputs {first}+{count}",
-                lambda: client.read_discrete_inputs(first, count=count, device_id=unit),
+                what, 2, lambda: client.read_discrete_inputs(first, count=count, device_id=unit)
             )
         bits = list(response.bits)
-        if len(bits) < count:
-            raise IoDeviceRefused(self.name, f"read inputs: asked for {count} bits, got {len(bits)}")
+        # exactly the bytes asked for (padding bits of the last byte are ignored), and a byte count that says so
+        want_bytes, got_bytes = (count + 7) // 8, len(bits) // 8
+        if got_bytes != want_bytes:
+            raise IoFrameError(self.name, f"{what}: answer carries {got_bytes} data bytes, expected {want_bytes}",
+                               str(response))
+        byte_count = getattr(response, "byte_count", got_bytes)
+        if byte_count != got_bytes:
+            raise IoFrameError(self.name, f"{what}: answer's byte count {byte_count} disagrees with the "
+                               f"{got_bytes} data bytes it carries", str(response))
         ins = self.cfg.inputs
         return SafetyInputs(
             area_cleared=bool(bits[ins.area_cleared - first]),
@@ -376,6 +445,8 @@ class SafetyIo:
             name=self.name,
             trace_connect=self._on_connection_change,
         )
+        for answer_class in (_ReadCoilsAnswer, _ReadDiscreteInputsAnswer, *_OTHER_ANSWERS):
+            client.register(answer_class)
         self._client = client
         try:
             async with asyncio.timeout(self.cfg.connect_timeout_s):
@@ -407,11 +478,16 @@ class SafetyIo:
             self._last_logged_error = reason
 
     async def _poll_loop(self) -> None:
+        """Connect, poll until the link fails, back off, again. The backoff starts afresh only after a connection
+        that lasted ``reconnect_max_s``: a module that accepts, answers once and drops the link is retried ever more
+        slowly, not a few times a second."""
         attempt = 0
         first_connect = True
         while True:
+            connected_at: float | None = None
             try:
                 await self._connect()
+                connected_at = time.monotonic()
                 if not first_connect:
                     self.counters.reconnects += 1
                 first_connect = False
@@ -419,17 +495,20 @@ class SafetyIo:
                 next_tick = time.monotonic()
                 while True:
                     await self._poll_once()
-                    attempt = 0
                     next_tick += self.cfg.poll_period_s
                     await asyncio.sleep(max(0.0, next_tick - time.monotonic()))
                     next_tick = max(next_tick, time.monotonic() - self.cfg.poll_period_s)
             except (IoTimeout, IoLinkError) as exc:
                 self._doubt(f"link lost: {exc}")
+            except IoFrameError as exc:  # not an answer to what was asked: reconnect, so that the stream is in step
+                self._doubt(f"bad answer: {exc}")
             except Exception as exc:  # a bug or a library surprise must not end polling silently
                 log.exception("%s: unexpected error in the poll loop", self.name)
                 self._doubt(f"poll loop error: {exc!r}")
             self._close_client()
             self.state = ConnectionState.DISCONNECTED
+            if connected_at is not None and time.monotonic() - connected_at >= self.cfg.reconnect_max_s:
+                attempt = 0  # the link had been fine for a while: this is a new outage
             await asyncio.sleep(backoff_s(attempt, self.cfg.reconnect_min_s, self.cfg.reconnect_max_s, self._rng))
             attempt += 1
 

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import re
 import time
 from dataclasses import dataclass
@@ -56,6 +57,9 @@ from rgse_daemon.config import UNIT_TO_KG, ScaleConfig
 from rgse_daemon.io import IoFrameError, IoLinkError, IoTimeout
 
 log = logging.getLogger(__name__)
+
+#: The ``value`` group must be a plain decimal number (sign apart: that is the ``sign`` group's, or a leading one).
+_DECIMAL_RE = re.compile(r"[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)")
 
 
 
@@ -122,13 +126,19 @@ def parse_line(line: str, cfg: ScaleConfig, device: str, *, _regex: re.Pattern[s
     if match is None:
         raise IoFrameError(device, "line does not match the configured format", line)
     groups = match.groupdict()
+    if groups["unit"] is None:  # a line_regex may make the group optional
+        raise IoFrameError(device, "no unit", line)
     unit = groups["unit"].lower()
     if unit not in UNIT_TO_KG:
         raise IoFrameError(device, f"unknown unit {groups['unit']!r} (expected one of {sorted(UNIT_TO_KG)})", line)
-    try:
-        value = float(groups["value"])
-    except ValueError:
-        raise IoFrameError(device, f"value {groups['value']!r} is not a number", line) from None
+    # a plain decimal number only: with a looser line_regex float() would also take "nan", "inf", "1e999" (inf)
+    # and "1_000" (1000.0), none of which a scale sends
+    text = groups["value"] or ""
+    if not _DECIMAL_RE.fullmatch(text):
+        raise IoFrameError(device, f"value {text!r} is not a decimal number", line)
+    value = float(text)
+    if not math.isfinite(value):
+        raise IoFrameError(device, f"value {text!r} is out of range", line)
     if groups.get("sign") == "-":
         value = -value
     stab = groups.get("stab")
@@ -159,6 +169,11 @@ class _LineProtocol(asyncio.Protocol):
             del self._buffer[: end + 1]
             if line:
                 self._queue(line)
+
+    @property
+    def pending(self) -> bytes:
+        """What arrived after the last line end (a line not finished yet)."""
+        return bytes(self._buffer)
 
     def _queue(self, line: bytes) -> None:
         if self.lines.full():
@@ -261,7 +276,9 @@ class CraneScale:
             except TimeoutError as exc:
                 self.counters.timeouts += 1
                 what = "stable weighing" if require_stable else "frame"
-                raise IoTimeout(self.name, f"no {what} within {timeout} s ({seen.summary()})") from exc
+                protocol = self._protocol
+                pending = b"" if protocol is None else protocol.pending
+                raise IoTimeout(self.name, f"no {what} within {timeout} s ({seen.summary(pending)})") from exc
             except IoLinkError:
                 await self.close()
                 raise
@@ -286,9 +303,13 @@ class CraneScale:
             received, raw = item
             if received < started:
                 continue  # buffered before this read began: not a fresh value
-            line = raw.decode("ascii", errors="replace")
+            # bytes that are not ASCII are kept visible as \xNN (a parity or baud mismatch shows in them), not
+            # replaced by U+FFFD; and a line that has any is a bad frame before its text is looked at
+            line = raw.decode("ascii", errors="backslashreplace")
             seen.last_line = line
             try:
+                if not raw.isascii():
+                    raise IoFrameError(self.name, "non-ASCII bytes (shown as \\xNN)", line)
                 frame = parse_line(line, cfg, self.name, _regex=self._regex)
             except IoFrameError as exc:
                 seen.bad += 1
@@ -373,5 +394,10 @@ class _ReadLog:
     bad: int = 0
     last_line: str | None = None
 
-    def summary(self) -> str:
-        return f"{self.stable} stable, {self.unstable} unstable, {self.bad} bad frames; last line {self.last_line!r}"
+    def summary(self, pending: bytes = b"") -> str:
+        """The counts and the last line; ``pending``: bytes received after the last line end (a scale that stopped
+        mid-line), shown so that the message says something did arrive."""
+        text = f"{self.stable} stable, {self.unstable} unstable, {self.bad} bad frames; last line {self.last_line!r}"
+        if pending:
+            text += f"; then {len(pending)} bytes without a line end: {pending.decode('ascii', 'backslashreplace')!r}"
+        return text

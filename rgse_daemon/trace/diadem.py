@@ -62,7 +62,13 @@ MAX_DATA_BYTES = 256 * 1024 * 1024
 #: Relative tolerance on the step of an explicit time channel.
 _TIME_STEP_RTOL = 1e-6
 _INT_RE = re.compile(r"[+-]?[0-9]+")
+#: Counts (220) and pointers (221) are far below 10**18: more digits than that is a corrupt header.
+_MAX_INT_DIGITS = 18
 _CODE_RE = re.compile(r"[0-9]{1,6}")
+#: A decimal number as DIAdem writes one (no digit separators, no hex, no nan/inf words).
+_FLOAT_RE = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?")
+_LINE_END_RE = re.compile(r"\r\n|\r|\n")
+_BLANKS = " \t"
 
 
 @dataclass(frozen=True)
@@ -137,14 +143,17 @@ class TraceSet:
 def parse_header(text: str, source: str = "<string>") -> tuple[dict[int, str], list[dict[int, str]]]:
     """Split a DIAdem header into the global block and the channel blocks (``code -> value`` text).
 
-    Accepts CRLF or LF line ends and the optional ``DIAEXTENDED`` first line. ``source`` names the file in errors.
+    Accepts CRLF, LF (or CR) line ends and the optional ``DIAEXTENDED`` first line; only these end a line, and only
+    blanks and tabs around a line or value are dropped: the header is Latin-1/Windows-1252 text, whose bytes 0x85
+    (NEL, Windows-1252 "…"), 0x0B, 0x0C and 0x1C-0x1E ``str.splitlines`` would take for line ends. ``source`` names
+    the file in errors.
     """
     global_header: dict[int, str] = {}
     channels: list[dict[int, str]] = []
     state = "start"
     current: dict[int, str] = global_header
-    for lineno, raw_line in enumerate(text.splitlines(), start=1):
-        line = raw_line.strip()
+    for lineno, raw_line in enumerate(_LINE_END_RE.split(text), start=1):
+        line = raw_line.strip(_BLANKS)
         if not line:
             continue
         where = f"{source}:{lineno}"
@@ -171,7 +180,7 @@ def parse_header(text: str, source: str = "<string>") -> tuple[dict[int, str], l
             code = int(code_text)
             if code in current:
                 raise DataError(f"{where}: code {code} given twice in one header block")
-            current[code] = value.strip()
+            current[code] = value.strip(_BLANKS)
     if state != "between":
         raise DataError(f"{source}: truncated header (ends inside or before the {state} block)")
     if not channels:
@@ -206,6 +215,8 @@ def _int(block: Mapping[int, str], code: int, source: str, what: str, minimum: i
     text = _get(block, code, source, what)
     if not _INT_RE.fullmatch(text):
         raise DataError(f"{source}: {what}: code {code} is not an integer: {text[:40]!r}")
+    if len(text.lstrip("+-").lstrip("0")) > _MAX_INT_DIGITS:  # int() itself refuses > 4300 digits with a ValueError
+        raise DataError(f"{source}: {what}: code {code} is out of range ({len(text)} characters): {text[:40]!r}")
     value = int(text)
     if value < minimum:
         raise DataError(f"{source}: {what}: code {code} = {value} is below {minimum}")
@@ -216,10 +227,11 @@ def _float(block: Mapping[int, str], code: int, source: str, what: str, default:
     if default is not None and code not in block:
         return default
     text = _get(block, code, source, what)
-    try:
-        value = float(text)
-    except ValueError:
-        raise DataError(f"{source}: {what}: code {code} is not a number: {text[:40]!r}") from None
+    if not _FLOAT_RE.fullmatch(text):  # float() alone would also take "1_000" (1000.0) and "nan"
+        if text.strip(_BLANKS).lower().lstrip("+-") in ("nan", "inf", "infinity"):
+            raise DataError(f"{source}: {what}: code {code} is not finite: {text[:40]!r}")
+        raise DataError(f"{source}: {what}: code {code} is not a number: {text[:40]!r}")
+    value = float(text)
     if not math.isfinite(value):
         raise DataError(f"{source}: {what}: code {code} is not finite: {text[:40]!r}")
     return value
@@ -445,7 +457,12 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
     for file_name in by_file:
         if file_name == dat_path.name:
             raise DataError(f"{source}: data file (code 211) names the header itself")
-        if not dat_path.with_name(file_name).is_file():
+        try:  # is_file() answers False for a missing file but raises on a name too long for the file system
+            found = dat_path.with_name(file_name).is_file()
+        except OSError as exc:
+            raise DataError(f"{source}: data file {file_name[:60]!r} (code 211) cannot be looked up: "
+                            f"{exc.strerror or exc}") from None
+        if not found:
             raise DataError(f"{source}: data file {file_name!r} (code 211) not found beside the header")
         inside(dat_path.parent, dat_path.with_name(file_name))
     for file_name, group in by_file.items():

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import itertools
 import random
+import struct
+from collections.abc import AsyncIterator, Callable
 
 import pytest
 from hypothesis import given
@@ -207,3 +211,114 @@ def test_backoff_is_bounded_and_jittered(attempt: int, seed: int) -> None:
     delay = backoff_s(attempt, 0.2, 5.0, random.Random(seed))
     base = min(5.0, 0.2 * 2.0**attempt)
     assert base / 2 <= delay <= base <= 5.0
+
+
+# --- answers that are not the answer to the request (a raw Modbus TCP peer) ------------------------------------------
+def _mbap(tid: int, unit: int, pdu: bytes) -> bytes:
+    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
+
+
+@contextlib.asynccontextmanager
+async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes | None]) -> AsyncIterator[int]:
+    """A module on a free port (yielded) that echoes coil writes and answers every read with
+    ``read_answer(tid, unit, request_pdu)``; ``None`` closes the connection instead."""
+    handlers: set[asyncio.Task[None]] = set()
+
+    async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            while True:
+                tid, _pid, length, unit = struct.unpack(">HHHB", await reader.readexactly(7))
+                pdu = await reader.readexactly(length - 1)
+                if pdu[0] in (1, 2):
+                    answer = read_answer(tid, unit, pdu)
+                    if answer is None:
+                        return
+                    writer.write(answer)
+                else:  # FC 5 echoes the request, FC 15 its address and count
+                    writer.write(_mbap(tid, unit, pdu if pdu[0] == 5 else pdu[:5]))
+                await writer.drain()
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass
+        finally:
+            writer.close()
+
+    async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        handlers.add(task)
+        try:
+            await serve(reader, writer)
+        finally:
+            handlers.discard(task)
+
+    server = await asyncio.start_server(handle, "127.0.0.1", 0)
+    try:
+        yield server.sockets[0].getsockname()[1]
+    finally:
+        server.close()
+        for task in list(handlers):
+            task.cancel()
+        await asyncio.gather(*handlers, return_exceptions=True)
+        await server.wait_closed()
+
+
+ALL_SAFE = 0b111  # the three default inputs, bits 0..2, all 1 = safe
+
+
+@pytest.mark.parametrize(
+    ("answer", "problem"),
+    [
+        # the coil table (FC 1) in answer to a read of the discrete inputs (FC 2)
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([1, 1, ALL_SAFE])), "function code 1, asked with 2"),
+        # function codes pymodbus cannot decode: unknown, or known with a short payload
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([0x55, 1, ALL_SAFE])), "function code 85, asked with 2"),
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([3, 5, 1])), "function code 3, asked with 2"),
+        (lambda tid, unit, pdu: _mbap(0, unit, bytes([pdu[0], 1, ALL_SAFE])), "without a transaction id"),
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 3, ALL_SAFE, 0xFF, 0xFF])), "3 data bytes, expected 1"),
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 9, ALL_SAFE])), "byte count 9 disagrees"),
+    ],
+    ids=["wrong function code", "unknown function code", "short FC 3 answer", "transaction id 0", "long answer",
+         "byte count lies"],
+)
+async def test_an_answer_to_another_request_reads_unsafe(answer: Callable[[int, int, bytes], bytes],
+                                                         problem: str) -> None:
+    async with _raw_peer(answer) as port, SafetyIo(fast_cfg(port)) as io:
+        await wait_until(lambda: io.counters.read_errors >= 3, what="several answered reads")
+        assert io.counters.reads == 0 and not io.inputs.safe and not io.inputs.valid
+        assert io.inputs.reason.startswith("bad answer: " + io.name) and problem in io.inputs.reason
+        assert io.counters.connects >= 2  # each bad answer resyncs the stream with a new connection
+
+
+async def test_unit_0_answer_from_another_unit_reads_unsafe() -> None:
+    # pymodbus checks the answering unit only for a non-zero unit id
+    answer = lambda tid, unit, pdu: _mbap(tid, 5, bytes([pdu[0], 1, ALL_SAFE]))  # noqa: E731
+    async with _raw_peer(answer) as port, SafetyIo(fast_cfg(port, unit_id=0)) as io:
+        await wait_until(lambda: io.counters.read_errors >= 2, what="answered reads")
+        assert io.counters.reads == 0 and not io.inputs.safe
+        assert "answer from unit 5, asked unit 0" in io.inputs.reason
+
+
+async def test_a_well_formed_raw_answer_reads_safe() -> None:
+    # the raw peer itself is right: the same answer with the right header is a good reading
+    answer = lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 1, ALL_SAFE | 0b1111_1000]))  # noqa: E731
+    async with _raw_peer(answer) as port, SafetyIo(fast_cfg(port)) as io:
+        await wait_until(lambda: io.inputs.safe, what="safe")  # padding bits set: ignored
+        assert io.counters.read_errors == 0 and io.counters.connects == 1
+
+
+async def test_a_module_that_drops_every_connection_after_one_answer_is_retried_ever_more_slowly(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    attempts: list[int] = []
+
+    def spy(attempt: int, min_s: float, max_s: float, rng: random.Random) -> float:
+        attempts.append(attempt)
+        return backoff_s(attempt, min_s, max_s, rng)
+
+    monkeypatch.setattr("rgse_daemon.io.modbus.backoff_s", spy)
+    reads = itertools.count()
+    answer = lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 1, ALL_SAFE])) if next(reads) % 2 == 0 else None  # noqa: E731
+    async with _raw_peer(answer) as port, SafetyIo(fast_cfg(port, reconnect_min_s=0.005, reconnect_max_s=5.0)) as io:
+        await wait_until(lambda: len(attempts) >= 5, what="five reconnects")
+        assert io.counters.reads >= 5  # each connection did give one good reading ...
+    assert attempts[:5] == [0, 1, 2, 3, 4]  # ... and still the backoff grew

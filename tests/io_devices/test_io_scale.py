@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import math
+import os
 import threading
 import time
+import tty
 
 import pytest
 import serial
@@ -73,6 +75,29 @@ def test_parse_bad_lines_name_device_and_line(line: str, problem: str) -> None:
     assert problem in str(err.value)
     assert err.value.device == "scale /dev/ttyS9" and err.value.raw == line
     assert str(err.value).startswith("scale /dev/ttyS9: ") and repr(line) in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("line", "problem"),
+    [
+        ("ST nan kg", "not a decimal number"),
+        ("ST inf kg", "not a decimal number"),
+        ("ST -Infinity kg", "not a decimal number"),
+        ("ST 1_000 kg", "not a decimal number"),
+        ("ST 1e999 kg", "not a decimal number"),
+        ("ST " + "9" * 400 + " kg", "out of range"),
+        ("ST kg", "not a decimal number"),  # the value group left out
+        ("ST 117.6", "no unit"),  # the unit group left out
+    ],
+)
+def test_a_loose_line_regex_still_takes_only_decimal_numbers(line: str, problem: str) -> None:
+    # a dialect whose value group takes any non-blank text and whose groups are optional: what float() would take,
+    # or nothing at all, is not a weight
+    cfg = ScaleConfig(line_regex=r"^(?P<stab>ST|US) *(?P<value>[^ k]+)? *(?P<unit>kg)?$")
+    with pytest.raises(IoFrameError, match=problem) as err:
+        parse_line(line, cfg, "scale X")
+    assert err.value.raw == line
+    assert parse_line("ST 117.6 kg", cfg, "scale X").mass_kg == pytest.approx(117.6)
 
 
 def test_parse_checksum() -> None:
@@ -238,6 +263,44 @@ async def test_peer_hang_up_is_a_link_error_and_the_port_reopens() -> None:
         with pytest.raises(IoLinkError, match="open"):  # reopening a closed server fails, as it should
             await scale.read_stable(timeout_s=5.0)
         assert scale.counters.opens == 1
+
+
+async def test_non_ascii_bytes_are_recorded_as_sent() -> None:
+    """A scale at 7E1 read as 8N1 sets the top bit of some characters: the bad line keeps those bytes (as \\xNN),
+    not U+FFFD in their place, so that the event and the error show what came."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    cfg = ScaleConfig(port=os.ttyname(slave), mode="stream", max_consecutive_bad_frames=3)
+    try:
+        async with CraneScale(cfg) as scale:
+            reading = asyncio.ensure_future(scale.read_stable(timeout_s=10.0))
+            await asyncio.sleep(0.1)  # lines buffered before a read are not fresh
+            os.write(master, b"ST,GS,+   117.6 k\xe7\r\n" * 3)
+            with pytest.raises(IoFrameError, match="non-ASCII") as err:
+                await reading
+            assert err.value.raw == "ST,GS,+   117.6 k\\xe7" and "\\xe7" in str(err.value)
+            assert scale.last_error is not None and scale.last_error.raw == err.value.raw
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+async def test_a_scale_that_stops_mid_line_is_a_timeout_naming_the_bytes_that_came() -> None:
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    try:
+        async with CraneScale(ScaleConfig(port=os.ttyname(slave), mode="stream")) as scale:
+            reading = asyncio.ensure_future(scale.read_stable(timeout_s=1.0))
+            await asyncio.sleep(0.1)
+            os.write(master, b"US,GS,+   117.5 kg\r\nST,GS,+   11")
+            with pytest.raises(IoTimeout) as err:
+                await reading
+            message = str(err.value)
+            assert "1 unstable" in message and "last line 'US,GS,+   117.5 kg'" in message
+            assert "then 12 bytes without a line end: 'ST,GS,+   11'" in message
+    finally:
+        os.close(master)
+        os.close(slave)
 
 
 async def test_missing_device_is_a_link_error() -> None:

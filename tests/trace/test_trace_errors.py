@@ -55,6 +55,9 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     "missing r64": (lambda d: (d / R64).unlink(), DAT, "not found"),
     "211 names a missing file": (lambda d: edit_channel(d / DAT, "Istmoment", 211, "other.r64"), DAT, "'other.r64'"),
     "211 names the header": (lambda d: edit_channel(d / DAT, "Istmoment", 211, DAT), DAT, "names the header itself"),
+    "211 too long for the file system": (
+        lambda d: edit_channel(d / DAT, "Istmoment", 211, "x" * 300 + ".r64"), DAT, "File name too long",
+    ),
     "211 missing": (lambda d: edit_channel(d / DAT, "Istmoment", 211, None), DAT, "no code 211"),
     "size not multiple of 8": (lambda d: _append_bytes(d / R64, b"abc"), R64, "not a multiple of 8"),
     "size not multiple of row": (lambda d: _append_values(d / R64, [1.0, 2.0]), R64, "multiple of the row width"),
@@ -78,6 +81,8 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     "zero time step": (lambda d: edit_channel(d / DAT, "Zeit", 241, "0"), DAT, "non-positive step"),
     "negative time step": (lambda d: edit_channel(d / DAT, "Zeit", 241, "-0.012"), DAT, "non-positive step"),
     "time step not a number": (lambda d: edit_channel(d / DAT, "Zeit", 241, "0,012"), DAT, "not a number"),
+    "time step with a digit separator": (lambda d: edit_channel(d / DAT, "Zeit", 241, "0_012"), DAT, "not a number"),
+    "factor with a digit separator": (lambda d: edit_channel(d / DAT, "Istmoment", 241, "1_000"), DAT, "not a number"),
     "time step nan": (lambda d: edit_channel(d / DAT, "Zeit", 241, "nan"), DAT, "not finite"),
     "time overflows": (lambda d: edit_channel(d / DAT, "Zeit", 241, "1e307"), DAT, "overflow"),
     "time channel explicit without data file": (
@@ -93,6 +98,9 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     "pointer twice": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "1"), R64, "not 1..7"),
     "pointer zero": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "0"), DAT, "below 1"),
     "count not integer": (lambda d: edit_channel(d / DAT, "Istmoment", 220, "40.0"), DAT, "not an integer"),
+    # more than the 4300 digits int() converts (it raises a plain ValueError)
+    "count of 5000 digits": (lambda d: edit_channel(d / DAT, "Istmoment", 220, "9" * 5000), DAT, "out of range"),
+    "pointer of 5000 digits": (lambda d: edit_channel(d / DAT, "Istmoment", 221, "1" * 5000), DAT, "out of range"),
     "no name": (lambda d: edit_channel(d / DAT, "Istmoment", 200, None), DAT, "no code 200"),
     "duplicate name": (lambda d: edit_channel(d / DAT, "Iststrom", 200, "Istmoment"), DAT, "given twice"),
     "duplicate code": (

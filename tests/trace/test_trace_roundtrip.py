@@ -137,6 +137,18 @@ def test_unknown_codes_are_kept(tmp_path: Path) -> None:
     assert tf.global_header[112] == "High -> Low"
 
 
+def test_windows_1252_text_in_values_is_kept_whole(tmp_path: Path) -> None:
+    """Bytes that str.splitlines takes for line ends (0x85 is Windows-1252 "…", 0x0C a form feed, 0x1E a record
+    separator) inside a value are text of that value, not line breaks; trailing ones are kept too."""
+    write_small_set(tmp_path)
+    dat = tmp_path / "run1_NextGenDrive#3.dat"
+    comment = "Istmoment\x85 motor side\x0cpage\x1eend\x85"
+    edit_channel(dat, "Istmoment", 201, comment)
+    tf = read_trace_file(dat)
+    assert tf.channel("Istmoment").comment == comment
+    assert tf.channel("Istmoment").values.shape == (40,)
+
+
 def test_english_spelling_lf_channel_storage_hand_written(tmp_path: Path) -> None:
     """A header as DIAdem itself writes it (English keywords, LF, CHANNEL storage, calibration on one channel)."""
     torque_raw = np.array([1.0, -2.0, 3.5, -4.25])
