@@ -310,6 +310,9 @@ class CraneScale:
             try:
                 if not raw.isascii():
                     raise IoFrameError(self.name, "non-ASCII bytes (shown as \\xNN)", line)
+                if len(raw) > cfg.max_line_bytes:  # also when it came whole in one chunk, not only cut from garbage
+                    raise IoFrameError(self.name, f"line of {len(raw)} bytes, longer than max_line_bytes "
+                                                  f"{cfg.max_line_bytes}", line)
                 frame = parse_line(line, cfg, self.name, _regex=self._regex)
             except IoFrameError as exc:
                 seen.bad += 1

@@ -62,6 +62,18 @@ async def take_reference(
         )
         raise
     net = w.mass_kg - fixture if weighed == "gross" else w.mass_kg
+    if not net > 0.0:  # a stable reading of an empty hook, or a scale tared with the load on: no reference of a DuT
+        problem = (f"the crane scale read {w.mass_kg:.3f} kg ({weighed}"
+                   + (f", fixture {fixture:.3f} kg" if weighed == "gross" else "")
+                   + f"): a net mass of {net:.3f} kg is no weighing of the DuT (nothing hung yet, or tared with the "
+                   f"load on?); nothing compared")
+        await store.add_event(
+            EventLevel.WARNING, FAILED_KIND, f"reference weighing failed: {problem}", run_id=run_id,
+            data={"device": scale.name, "error": problem, "error_type": "DataError",
+                  "bad_frames": scale.counters.bad_frames - bad_before, "last_bad_line": None,
+                  "mass_kg": w.mass_kg, "weighed": weighed, "raw_line": w.raw_line},
+        )
+        raise DataError(f"run {run_id}: {problem}")
     rec = ReferenceRecord(
         event_id=0, recorded_utc=w.time_utc, run_id=run_id, result_id=result.id, mass_kg=w.mass_kg, u_kg=w.u_kg,
         resolution_kg=scale.cfg.resolution_kg, weighed=weighed, fixture_mass_kg=fixture, net_mass_kg=net,

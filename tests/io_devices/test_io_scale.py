@@ -285,6 +285,34 @@ async def test_non_ascii_bytes_are_recorded_as_sent() -> None:
         os.close(slave)
 
 
+async def test_a_line_longer_than_max_line_bytes_is_a_bad_frame_also_when_it_comes_whole() -> None:
+    """An over-long line is garbage whether it comes in pieces (cut by the reader) or whole in one chunk: a line
+    that the scale's format allows, padded to 195 bytes and sent in one write over socket://, is not a weighing."""
+    line = b"ST,GS,+" + b" " * 180 + b"117.6 kg\r\n"
+
+    async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            await asyncio.sleep(0.2)  # lines buffered before a read are not fresh
+            writer.write(line * 3)  # one write, one segment on loopback: each line arrives whole
+            await writer.drain()
+            await reader.read()  # until the client closes
+        finally:
+            writer.close()
+
+    server = await asyncio.start_server(serve, "127.0.0.1", 0)
+    port = server.sockets[0].getsockname()[1]
+    cfg = ScaleConfig(port=f"socket://127.0.0.1:{port}", mode="stream", max_consecutive_bad_frames=3,
+                      max_line_bytes=64)
+    try:
+        async with CraneScale(cfg) as scale:
+            with pytest.raises(IoFrameError, match="3 bad frames in a row, last: line of 195 bytes, longer than "
+                                                   "max_line_bytes 64"):
+                await scale.read_stable(timeout_s=10.0)
+    finally:
+        server.close()
+        await server.wait_closed()
+
+
 async def test_a_scale_that_stops_mid_line_is_a_timeout_naming_the_bytes_that_came() -> None:
     master, slave = os.openpty()
     tty.setraw(slave)

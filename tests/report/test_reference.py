@@ -94,6 +94,26 @@ async def test_a_heavier_reference_disagrees(world: World, tmp_path: Path, capsy
     assert cmp["agree"] is False and cmp["difference_kg"] < -10
 
 
+@pytest.mark.parametrize(("true_kg", "weighed"), [(0.0, "gross"), (5.0, "gross"), (0.0, "net")])
+async def test_a_weighing_of_no_dut_is_refused_and_recorded(world: World, tmp_path: Path, true_kg: float,
+                                                            weighed: str) -> None:
+    """A stable reading of an empty hook (or of less than the fixture that a gross weighing includes) is no reference
+    of the DuT: refused with the reading named, and the reading kept on the run as a failed weighing."""
+    w = world.copy(tmp_path)
+    async with ScaleSim(ScaleSimConfig(true_mass_kg=true_kg, resolution_kg=D_KG, settle_s=0.05), "tcp") as sim:
+        cfg = write_config(tmp_path / "rgse.toml", w.data_dir, _scale(sim))
+        args = _args(cfg, w.filled.run_id)
+        args.weighed = weighed
+        with pytest.raises(DataError, match=rf"the crane scale read -?\d+\.\d{{3}} kg \({weighed}.* is no weighing "
+                                            r"of the DuT"):
+            await asyncio.to_thread(reference_cmd.run, args)
+    with Repository.open(None, w.data_dir) as repo:
+        events = [e for e in repo.events(run_id=w.filled.run_id) if e.kind in (EVENT_KIND, FAILED_KIND)]
+    assert [e.kind for e in events] == [FAILED_KIND]
+    data = events[0].data or {}
+    assert data["error_type"] == "DataError" and abs(data["mass_kg"] - true_kg) <= D_KG and data["raw_line"]
+
+
 async def test_scale_timeout_is_reported_and_recorded(world: World, tmp_path: Path) -> None:
     w = world.copy(tmp_path)
     async with ScaleSim(ScaleSimConfig(never_stable=True, resolution_kg=D_KG), "tcp") as sim:
