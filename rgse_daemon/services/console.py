@@ -38,7 +38,7 @@ from aiohttp import web
 
 from rgse_daemon.config import ConsoleConfig
 from rgse_daemon.errors import RgseError
-from rgse_daemon.io.commands import CommandRefused, parse_command
+from rgse_daemon.io.commands import MAX_PAYLOAD_BYTES, CommandRefused, parse_command
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.report import build_report
 from rgse_daemon.services.signals import STATE_LIGHT
@@ -109,7 +109,8 @@ class Console:
 
     # --- life ----------------------------------------------------------------------------------------------------
     async def start(self) -> None:
-        app = web.Application()
+        # a body larger than a command may be (interfaces §4.3) is a 413 before it is read whole
+        app = web.Application(client_max_size=MAX_PAYLOAD_BYTES)
         app.add_routes([web.get("/", self._page), web.get("/events", self._events),
                         web.post("/api/confirm", self._confirm), web.post("/api/abort", self._abort),
                         web.get("/api/history", self._history),
@@ -252,6 +253,9 @@ class Console:
                                      status=408)
         except ValueError:
             body = None
+        except web.HTTPRequestEntityTooLarge:
+            return web.json_response({"ok": False, "error": f"body larger than {MAX_PAYLOAD_BYTES} bytes, the limit of "
+                                      f"a command"}, status=413)
         except RecursionError:  # nested too deeply for the json module: a RuntimeError, not a ValueError
             return web.json_response({"ok": False, "error": "a JSON object expected: nested too deeply"},
                                      status=400)

@@ -54,12 +54,17 @@ def post(path: str, body: bytes) -> bytes:
 
 async def test_a_body_nested_too_deeply_is_a_400_with_its_reason(console: RunningDaemon) -> None:
     port = console.daemon.console.port
-    for path, body in (("/api/confirm", b"[" * 50000 + b"]" * 50000),
+    for path, body in (("/api/confirm", b"[" * 20000 + b"]" * 20000),
                        ("/api/abort", b'{"reason": "x", "a": ' + b"[" * 5000 + b"]" * 5000 + b"}")):
         status, text = await exchange(port, post(path, body))
         assert (status, json.loads(text)) == (400, {"ok": False, "error": "a JSON object expected: nested too deeply"})
     status, text = await exchange(port, post("/api/abort", b'{"reason": "x"}'))
     assert status == 409 and json.loads(text)["error"] == "unauthorised: missing or wrong token"
+    # larger than a command may be (64 KiB, interfaces §4.3): 413 with the reason, as JSON like every other answer
+    big = json.dumps({"reason": "x" * (64 * 1024)}).encode()
+    status, text = await exchange(port, post("/api/abort", big))
+    assert (status, json.loads(text)) == (413, {"ok": False, "error": "body larger than 65536 bytes, the limit of a "
+                                                                      "command"})
 
 
 async def closed_by_server(reader: asyncio.StreamReader) -> bool:

@@ -44,6 +44,7 @@ def test_calibrate_text_output_says_whose_nested_figure_it_is_and_gives_r2(tmp_p
     out = capsys.readouterr().out
     assert "out of sample of --method auto (nested: " in out and "not of the paper calibration written" in out
     assert "R² of the K fits: A3 0.8922, A5 " in out and "(CAL.json fit.r2)" in out
+    assert "trace sample period" not in out  # averaged points carry no period
     r2 = json.loads((tmp_path / "p.json").read_text())["fit"]["r2"]
     assert f"{r2['A3']:.4f}" == "0.8922"
     assert main(["calibrate", "--points", csv, "--out", str(tmp_path / "a.json"), "--method", "auto"]) == 0
@@ -270,6 +271,9 @@ def test_a_measurement_at_another_trace_period_than_the_calibration_draws_a_warn
     assert set(res["u_components_kg"]) == set(same["u_components_kg"])
     assert main(argv) == 0
     assert f"warning: {PERIOD_WARNING}\n" in capsys.readouterr().out
+    # rgse calibrate's summary names the period to measure at (a points CSV has none, and says nothing)
+    assert main(["calibrate", "--campaign", str(dirs / "cal"), "--out", str(tmp_path / "again.json")]) == 0
+    assert "trace sample period 4 ms: measure the DuT at the same period\n" in capsys.readouterr().out
 
 
 def test_a_calibration_without_its_sample_period_still_measures_unchecked(tmp_path, capsys, dirs):
