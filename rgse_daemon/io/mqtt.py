@@ -101,7 +101,7 @@ MAX_COMMANDS_IN_FLIGHT = 8
 REMEMBERED_COMMANDS = 1000
 
 
-#: Deadline of the retained "offline" publish when stopping (s).
+#: Deadline of the retained "offline" publish when stopping, and of the flush of the queue before it (s).
 STOP_PUBLISH_TIMEOUT_S = 3.0
 
 class ConnectionState(StrEnum):
@@ -304,6 +304,8 @@ class MqttBridge:
         self._state_wake = asyncio.Event()
         self._outq: collections.deque[_Out] = collections.deque()
         self._outq_wake = asyncio.Event()
+        self._outq_empty = asyncio.Event()  # set while nothing is queued: what a clean stop waits for
+        self._outq_empty.set()
         self._command_tasks: set[asyncio.Task[None]] = set()
         # (verb, request_id) -> the reply sent, None while the command runs (REMEMBERED_COMMANDS, oldest dropped)
         self._remembered: collections.OrderedDict[tuple[str, str], str | None] = collections.OrderedDict()
@@ -426,6 +428,7 @@ class MqttBridge:
             self._log.problem("queue", f"mqtt {self.prefix}: outgoing queue full ({self._queue_size}); dropping")
             return
         self._outq.append(out)
+        self._outq_empty.clear()
         self._outq_wake.set()
 
     # --- the reconnect loop -------------------------------------------------------------------------------------
@@ -517,6 +520,17 @@ class MqttBridge:
         stop = asyncio.create_task(self._stopping.wait(), name="mqtt stop")
         try:
             done, _ = await asyncio.wait([*workers, stop], return_when=asyncio.FIRST_COMPLETED)
+            sender = workers[1]
+            if stop in done and not sender.done() and not self._outq_empty.is_set():
+                # A clean stop: the sender first sends what is queued (a prompt withdrawn as the run ended, the
+                # last alarms and replies), within STOP_PUBLISH_TIMEOUT_S; what is left then stays queued. (Cancelled
+                # mid-publish, a message could reach the broker and be sent again by a later flush: a duplicate.)
+                empty = asyncio.ensure_future(self._outq_empty.wait())
+                try:
+                    await asyncio.wait([empty, sender], timeout=STOP_PUBLISH_TIMEOUT_S,
+                                       return_when=asyncio.FIRST_COMPLETED)
+                finally:
+                    empty.cancel()
         finally:
             self._connected = False
             for t in (*workers, stop):
@@ -550,6 +564,8 @@ class MqttBridge:
             out = self._outq[0]
             await self._publish(client, out)  # on failure the message stays first, for the next connection
             self._outq.popleft()
+            if not self._outq:
+                self._outq_empty.set()
             self._log.resolved("queue")
 
     async def _send_state(self, client: aiomqtt.Client) -> None:

@@ -242,6 +242,25 @@ async def test_alarms_queued_before_the_connection_are_sent_after_it_and_progres
     assert progress.qos == 0 and json.loads(progress.payload) == {"step": "loop", "i": 1, "n": 10, "eta_s": 42.0}
 
 
+async def test_what_is_queued_when_the_daemon_stops_goes_out_before_offline(
+    system_broker: tuple[str, int], prefix: str, store: Store
+) -> None:
+    """A run that ends as the daemon stops withdraws its prompt and raises its alarms in the last moments: a clean stop
+    sends what is queued before it says offline (it cancelled the sender, and the queue was lost)."""
+    bridge = MqttBridge(mqtt_config(*system_broker, prefix), ROBOT, store, RecordingHandler(), "1", timeout_s=5)
+    async with Collector(*system_broker, f"{prefix}/alarm", f"{prefix}/status") as live:
+        async with bridge:
+            await wait_until(lambda: bridge.connected, "connected")
+            for i in range(50):
+                bridge.publish_alarm({"kind": "test", "message": f"alarm {i}"})
+            bridge.publish_prompt(None, "run-1")  # the run ended while it waited
+        await live.wait_for(lambda ms: any(_state_of(m.payload) == "offline" for m in live.on(f"{prefix}/status")),
+                            "offline status")
+    assert [a["message"] for a in live.json_on(f"{prefix}/alarm")] == [f"alarm {i}" for i in range(50)]
+    (prompt,) = await retained(*system_broker, f"{prefix}/prompt")
+    assert json.loads(prompt.payload)["pending"] is False
+
+
 async def test_unpublishable_messages_are_refused_at_their_source(store: Store) -> None:
     bridge = MqttBridge(mqtt_config("127.0.0.1", 1883, "p"), ROBOT, store, RecordingHandler(), "1")
     with pytest.raises(MqttError, match="not JSON-serialisable"):
