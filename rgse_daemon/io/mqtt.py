@@ -566,7 +566,7 @@ class MqttBridge:
             self._outq.popleft()
             if not self._outq:
                 self._outq_empty.set()
-            self._log.resolved("queue")
+                self._log.resolved("queue")  # only once it is empty: a flood that keeps it near full warns once
 
     async def _send_state(self, client: aiomqtt.Client) -> None:
         period_s = 1.0 / self._cfg.state_rate_hz
@@ -663,8 +663,10 @@ class MqttBridge:
         verb, request_id = key
         self.counters.duplicate_commands += 1
         reply = self._remembered[key]
-        log.info("mqtt %s: cmd/%s request_id %s seen before: %s", self.prefix, verb, request_id,
-                 "answered again, not run again" if reply is not None else "still running, not run again")
+        # once per verb, not per copy: a flood of copies must not become a flood of log lines (the counter counts)
+        self._log.problem(f"duplicate {verb}", f"mqtt {self.prefix}: cmd/{verb}: a command seen before (request_id "
+                          f"{request_id}, the first such) is not run again; copies are answered with the first reply "
+                          f"and counted in duplicate_commands", level=logging.INFO)
         if reply is not None:
             self._enqueue(_Out(self.topics.reply(verb), reply, qos=1))
 
