@@ -168,4 +168,6 @@ async def test_pages_that_open_together_share_one_controller_read_and_their_numb
     finally:
         for _, writer in opened:
             writer.close()
+        async with asyncio.timeout(IO_S):
+            await asyncio.gather(*(writer.wait_closed() for _, writer in opened), return_exceptions=True)
     await console.shutdown()

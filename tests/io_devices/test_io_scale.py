@@ -290,7 +290,10 @@ async def test_a_line_longer_than_max_line_bytes_is_a_bad_frame_also_when_it_com
     that the scale's format allows, padded to 195 bytes and sent in one write over socket://, is not a weighing."""
     line = b"ST,GS,+" + b" " * 180 + b"117.6 kg\r\n"
 
+    handlers: set[asyncio.Task[None]] = set()
+
     async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        handlers.add(asyncio.current_task())  # type: ignore[arg-type]
         try:
             await asyncio.sleep(0.2)  # lines buffered before a read are not fresh
             writer.write(line * 3)  # one write, one segment on loopback: each line arrives whole
@@ -310,6 +313,9 @@ async def test_a_line_longer_than_max_line_bytes_is_a_bad_frame_also_when_it_com
                 await scale.read_stable(timeout_s=10.0)
     finally:
         server.close()
+        for task in handlers:  # (the loop must not end with a handler, and its writer, still open)
+            task.cancel()
+        await asyncio.gather(*handlers, return_exceptions=True)
         await server.wait_closed()
 
 
