@@ -24,8 +24,8 @@ IO_S = 10.0  # a hang guard on each socket read, not a timing check
 @pytest.fixture
 async def console(sim: SimulatedKrc4, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> AsyncIterator[RunningDaemon]:
     """The daemon with its console on a free port (tokens configured, no broker), its deadlines short."""
-    monkeypatch.setattr(console_module, "BODY_TIMEOUT_S", 0.5, raising=False)
-    monkeypatch.setattr(console_module, "IDLE_TIMEOUT_S", 1.0, raising=False)
+    monkeypatch.setattr(console_module, "BODY_TIMEOUT_S", 0.5)
+    monkeypatch.setattr(console_module, "IDLE_TIMEOUT_S", 1.0)
     doc = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir).model_dump(mode="json")
     doc["console"] = {"enabled": True, "host": "127.0.0.1", "port": 0}
     cfg = config_from_mapping({k: v for k, v in doc.items() if v is not None}, "<console http test>")
