@@ -9,7 +9,8 @@ One page (``console.html``) and a small HTTP API beside it:
 ``POST /api/confirm``      ``{run_id, point?, message?, token?}``: the ``confirm`` command
 ``POST /api/abort``        ``{run_id?, reason, token?}``: the ``abort`` command
 ``GET /api/history``       the robot's latest runs with their results and report links
-``GET /report/run/ID``     the HTML report of a run (``/report/calibration/ID`` of a calibration), from the store
+``GET /report/run/ID``     the HTML report of a run (``/report/calibration/ID`` of a calibration), from the store,
+                           rendered on the console's own thread (:data:`REPORT_QUEUE`)
 
 The actions are the MQTT commands: checked by the same :func:`~rgse_daemon.io.commands.parse_command` (schema and
 ``mqtt.command_tokens``) and answered by the same handler, so the console can confirm only what the daemon asks
@@ -30,6 +31,7 @@ import secrets
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -69,6 +71,12 @@ SHUTDOWN_TIMEOUT_S = 2.0
 #: Event streams open at once; one more is answered 503. Each page costs a queue and its writes; the controller
 #: reads do not grow with the pages (one state loop, and a new page's first state is the loop's latest).
 MAX_STREAMS = 32
+#: Reports render on the console's own thread, one at a time, so that a page's report never takes a thread of the
+#: default pool, which the run needs (the static check before every motion, the pipeline, the archive), however
+#: often it is loaded. At most this many report requests wait or render at once; one more is answered 503.
+REPORT_QUEUE = 4
+#: A report not rendered within this (its wait in the queue included) is answered 503; the render still finishes.
+REPORT_TIMEOUT_S = 30.0
 
 Handler = Any  # rgse_daemon.io.mqtt.CommandHandler: measure, calibrate, abort, confirm
 
@@ -97,6 +105,8 @@ class Console:
         self._last_state_at = -math.inf  # time.monotonic() of last_state
         self._reading: asyncio.Future[dict[str, Any]] | None = None  # the state read in flight, shared
         self._streams = 0
+        self._reports = ThreadPoolExecutor(1, thread_name_prefix="rgse-console-report")
+        self._reports_pending = 0  # report requests waiting for the thread or rendering
         self.torque: deque[tuple[float, float, float]] = deque(maxlen=int(TORQUE_WINDOW_S * rate_hz) + 1)
         """(Unix time s, A3 N·m, A5 N·m) of the live state, for the plot of a page that (re)connects."""
         self._clients: set[asyncio.Queue[tuple[str, Any] | None]] = set()
@@ -133,6 +143,7 @@ class Console:
             self._offer(q, None)  # ends the page's stream
         if self._runner is not None:
             await self._runner.cleanup()
+        self._reports.shutdown(wait=False, cancel_futures=True)  # a render under way finishes on its thread
 
     # --- what goes out -------------------------------------------------------------------------------------------
     def _offer(self, q: asyncio.Queue[tuple[str, Any] | None], item: tuple[str, Any] | None) -> None:
@@ -315,6 +326,8 @@ class Console:
 
     async def _report(self, request: web.Request) -> web.StreamResponse:
         what, ident = request.match_info["what"], request.match_info["id"]
+        if self._reports_pending >= REPORT_QUEUE:
+            raise web.HTTPServiceUnavailable(text=f"{REPORT_QUEUE} reports are being rendered; try again shortly")
 
         def write() -> Path:
             with Repository.open(self._store_url, self._data_dir) as repo:
@@ -322,8 +335,19 @@ class Console:
                                     run_id=ident if what == "run" else None,
                                     calibration_id=ident if what == "calibration" else None)
 
+        def rendered(f: asyncio.Future[Path]) -> None:
+            self._reports_pending -= 1
+            if not f.cancelled():
+                f.exception()  # retrieved here: the request may have given up waiting (deadline, client gone)
+
+        fut = asyncio.get_running_loop().run_in_executor(self._reports, write)
+        self._reports_pending += 1
+        fut.add_done_callback(rendered)
         try:
-            path = await asyncio.to_thread(write)
+            path = await asyncio.wait_for(asyncio.shield(fut), REPORT_TIMEOUT_S)
+        except TimeoutError:
+            raise web.HTTPServiceUnavailable(text=f"the report of {what} {ident} was not rendered within "
+                                                  f"{REPORT_TIMEOUT_S:g} s; try again shortly") from None
         except RgseError as exc:
             raise web.HTTPNotFound(text=f"no report of {what} {ident}: {exc}") from None
         return web.FileResponse(path, headers={"Content-Type": "text/html; charset=utf-8"})

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import threading
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from rgse_daemon.services import console as console_module
 from rgse_daemon.store import Store
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.daemon import COMMAND_TOKEN, RunningDaemon, daemon_config, running_daemon
+from tests.support.polling import wait_until
 
 IO_S = 10.0  # a hang guard on each socket read, not a timing check
 
@@ -171,3 +173,44 @@ async def test_pages_that_open_together_share_one_controller_read_and_their_numb
         async with asyncio.timeout(IO_S):
             await asyncio.gather(*(writer.wait_closed() for _, writer in opened), return_exceptions=True)
     await console.shutdown()
+
+
+def get(path: str) -> bytes:
+    return f"GET {path} HTTP/1.1\r\nHost: t\r\nConnection: close\r\n\r\n".encode()
+
+
+async def test_reports_render_on_the_consoles_own_thread_and_a_flood_is_turned_away(
+        console: RunningDaemon, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A report never takes a thread of the default pool, which the run needs (the static check before every motion
+    runs there), however often pages load it: reports render one at a time on the console's own thread, 4 requests
+    may wait or render, one more is answered 503 at once, and so is one not rendered within the deadline."""
+    con = console.daemon.console
+    port, queue = con.port, console_module.REPORT_QUEUE
+    gate = threading.Event()
+    con._reports.submit(gate.wait, IO_S)  # the console's render thread busy, as with one slow report
+    try:
+        waiting = [asyncio.create_task(exchange(port, get(f"/report/run/no-such-run-{i}"))) for i in range(queue)]
+        await wait_until(lambda: con._reports_pending == queue, "the report requests queued", IO_S)
+        assert await exchange(port, get("/report/calibration/c1")) == (
+            503, f"{queue} reports are being rendered; try again shortly".encode())
+        # the default pool is free while the reports wait
+        assert await asyncio.wait_for(asyncio.to_thread(lambda: threading.current_thread().name), IO_S) != \
+            "rgse-console-report_0"
+    finally:
+        gate.set()
+    for status, body in await asyncio.gather(*waiting):  # each was queued, not dropped: rendered (none is stored)
+        assert status == 404 and body.startswith(b"no report of run no-such-run-"), body
+    assert [t.name for t in threading.enumerate() if t.name.startswith("rgse-console-report")] == [
+        "rgse-console-report_0"]
+    assert con._reports_pending == 0
+
+    monkeypatch.setattr(console_module, "REPORT_TIMEOUT_S", 0.3)
+    gate.clear()
+    con._reports.submit(gate.wait, IO_S)
+    try:
+        assert await exchange(port, get("/report/run/r1")) == (
+            503, b"the report of run r1 was not rendered within 0.3 s; try again shortly")
+    finally:
+        gate.set()
+    # the late render finishes on its thread and frees its place
+    await wait_until(lambda: con._reports_pending == 0, "the late render finished", IO_S)
