@@ -224,7 +224,7 @@ async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes | None],
     """A module on a free port (yielded) that answers every read with ``read_answer(tid, unit, request_pdu)``
     (``None`` closes the connection instead) and every coil write with ``write_answer`` (the same signature), by
     default the right answer."""
-    handlers: set[asyncio.Task[None]] = set()
+    handlers: dict[asyncio.Task[None], asyncio.StreamWriter] = {}
 
     async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
@@ -249,20 +249,28 @@ async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes | None],
     async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
         assert task is not None
-        handlers.add(task)
+        handlers[task] = writer
         try:
             await serve(reader, writer)
         finally:
-            handlers.discard(task)
+            handlers.pop(task, None)
 
     server = await asyncio.start_server(handle, "127.0.0.1", 0)
     try:
         yield server.sockets[0].getsockname()[1]
     finally:
         server.close()
-        for task in list(handlers):
-            task.cancel()
-        await asyncio.gather(*handlers, return_exceptions=True)
+        # Each handler is ended by closing its connection (it reads EOF and returns), and cancelled only if it does
+        # not end: Python 3.11's start_server calls exception() on the finished handler task, which raises for a
+        # cancelled one, and asyncio logs "Exception in callback StreamReaderProtocol.connection_made...".
+        running = list(handlers)
+        for writer in list(handlers.values()):
+            writer.close()
+        if running:
+            _, late = await asyncio.wait(running, timeout=2.0)
+            for task in late:
+                task.cancel()
+            await asyncio.gather(*late, return_exceptions=True)
         await server.wait_closed()
 
 
