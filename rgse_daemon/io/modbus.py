@@ -41,7 +41,8 @@ reads as unsafe. The inputs are read in one request spanning their addresses.
 
 An answer counts only if it answers that request: same function code, same unit, a transaction id, exactly the
 data bytes asked for and a byte count that says so (pymodbus lets the first three through when zero or not
-checked; an answer with a function code the daemon does not use is kept raw, so that it is named too).
+checked; an answer with a function code the daemon does not use, or one pymodbus cannot decode, such as an exception
+response without its exception code, is kept raw, so that it is named too).
 Anything else is an ``IoFrameError``: the inputs read unsafe ("bad answer: ...") and the poller reconnects, so
 that a stream out of step starts afresh.
 """
@@ -61,7 +62,7 @@ from typing import Self
 
 from pymodbus.client import AsyncModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
-from pymodbus.pdu import ModbusPDU
+from pymodbus.pdu import DecodePDU, ModbusPDU
 from pymodbus.pdu.bit_message import ReadCoilsResponse, ReadDiscreteInputsResponse
 
 from rgse_daemon.config import Address, ModbusConfig
@@ -167,6 +168,42 @@ class _OtherAnswer(ModbusPDU):
 
     def __str__(self) -> str:
         return f"function code {self.function_code}, unit {self.dev_id}, data {self.payload.hex(' ') or '(none)'}"
+
+
+class _MalformedAnswer(ModbusPDU):
+    """An answer pymodbus' decoder gives up on (it returns ``None``), kept raw with what is wrong with it: an
+    exception response without its exception code (MBAP length 2), a write answer too short for its fields. pymodbus'
+    framer raises for these inside the protocol callback: asyncio logs a traceback ("protocol.data_received() call
+    failed"), closes the connection, and the read only sees "closed by the peer". Decoded like this, the answer
+    reaches ``_request``, which names it."""
+
+    def __init__(self, function_code: int, payload: bytes, problem: str) -> None:
+        super().__init__()
+        self.function_code = function_code
+        self.payload = payload
+        self.problem = problem
+
+    def isError(self) -> bool:
+        return False  # not a refusal by the device (even with an exception function code): a frame out of protocol
+
+    def __str__(self) -> str:
+        return f"function code {self.function_code}, unit {self.dev_id}, data {self.payload.hex(' ') or '(none)'}"
+
+
+class _AnswerDecoder(DecodePDU):
+    """pymodbus' client decoder, except that it never gives up on an answer: what it cannot decode becomes a
+    ``_MalformedAnswer`` (see there)."""
+
+    def decode(self, frame: bytes) -> ModbusPDU | None:
+        function_code, payload = frame[0], bytes(frame[1:])  # the framer passes no empty frame
+        if function_code > 0x80 and not payload:  # pymodbus' exception decoder would index past the end
+            return _MalformedAnswer(function_code, payload, f"exception response (function code {function_code}) "
+                                    "without an exception code")
+        pdu = super().decode(frame)
+        if pdu is None:
+            return _MalformedAnswer(function_code, payload, f"answer with function code {function_code} that cannot "
+                                    f"be decoded ({len(payload)} data bytes)")
+        return pdu
 
 
 _ASKED_WITH = (1, 2, 5, 15)  # read coils, read discrete inputs, write coil, write coils
@@ -360,7 +397,7 @@ class SafetyIo:
         The request also ends early when the peer closes the connection (pymodbus would otherwise wait for
         its own timeout): a module that reboots reads unsafe at once, not after a deadline. An answer that is not
         the answer to this request (another function code, another unit, no transaction id: pymodbus lets these
-        through) is an ``IoFrameError``."""
+        through), or one pymodbus could not decode, is an ``IoFrameError``."""
         async with self._lock:
             link_lost = self._link_lost
             if link_lost is None or link_lost.done():
@@ -387,6 +424,8 @@ class SafetyIo:
                 raise IoLinkError(self.name, f"{what}: {exc}") from exc
             except OSError as exc:
                 raise IoLinkError(self.name, f"{what}: {exc}") from exc
+        if isinstance(response, _MalformedAnswer):
+            raise IoFrameError(self.name, f"{what}: {response.problem}", str(response))
         if response.isError():
             code = getattr(response, "exception_code", None)
             raise IoDeviceRefused(self.name, f"{what}: exception response, code {code}", code)
@@ -445,6 +484,7 @@ class SafetyIo:
             name=self.name,
             trace_connect=self._on_connection_change,
         )
+        client.ctx.framer.decoder = _AnswerDecoder(is_server=False)  # the decoder that client.register() fills
         for answer_class in (_ReadCoilsAnswer, _ReadDiscreteInputsAnswer, *_OTHER_ANSWERS):
             client.register(answer_class)
         self._client = client

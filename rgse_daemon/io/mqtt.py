@@ -243,6 +243,28 @@ def _tls_context(cfg: MqttConfig) -> ssl.SSLContext | None:
     return ctx
 
 
+def _read_exception(fut: asyncio.Future[Any]) -> None:
+    """A done callback that reads a future's exception, so that it counts as retrieved."""
+    if not fut.cancelled():
+        fut.exception()
+
+
+def _retrieve_disconnect_reason(client: aiomqtt.Client) -> None:
+    """Have the reason aiomqtt gives for an unexpected disconnection read whenever it is set.
+
+    aiomqtt (2.5) sets an ``MqttCodeError('Unexpected disconnection')`` on a future of the client (``_disconnected``)
+    when the broker drops the session (another client took our client id over, the connection broke), and reads it
+    only in a message iteration or a publish that fails at once. A session that ends otherwise — its subscribe or
+    "online" publish times out waiting for an ack that will never come, a stop cancels it — leaves the exception
+    unread (``Client.__aexit__`` only asks whether the future is done), and asyncio logs "Future exception was never
+    retrieved" when the client is collected. The reason itself is no news: the session's own error says the
+    connection was lost. Called after constructing and again after entering the client (``__aenter__`` replaces the
+    future when it was already done)."""
+    disconnected = getattr(client, "_disconnected", None)
+    if isinstance(disconnected, asyncio.Future):
+        disconnected.add_done_callback(_read_exception)
+
+
 class MqttBridge:
     """Publishes the daemon's status, state, progress, alarms and (from the outbox) results; serves commands.
 
@@ -439,7 +461,7 @@ class MqttBridge:
             qos=1,
             retain=True,
         )
-        return aiomqtt.Client(
+        client = aiomqtt.Client(
             self._cfg.host,
             self._cfg.port,
             username=self._cfg.username,
@@ -454,6 +476,8 @@ class MqttBridge:
             max_queued_incoming_messages=256,
             max_queued_outgoing_messages=self._queue_size,
         )
+        _retrieve_disconnect_reason(client)
+        return client
 
     def _backoff_s(self, attempt: int) -> float:
         lo, hi = self._cfg.reconnect_min_s, self._cfg.reconnect_max_s
@@ -468,6 +492,7 @@ class MqttBridge:
             self._online_at = None
             try:
                 async with self._client() as client:
+                    _retrieve_disconnect_reason(client)
                     connected = True
                     self._log.resolved("connect", f"{where}: connected")
                     await self._session(client)

@@ -219,10 +219,12 @@ def _mbap(tid: int, unit: int, pdu: bytes) -> bytes:
 
 
 @contextlib.asynccontextmanager
-async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes | None]) -> AsyncIterator[int]:
-    """A module on a free port (yielded) that echoes coil writes and answers every read with
-    ``read_answer(tid, unit, request_pdu)``; ``None`` closes the connection instead."""
-    handlers: set[asyncio.Task[None]] = set()
+async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes | None],
+                    write_answer: Callable[[int, int, bytes], bytes] | None = None) -> AsyncIterator[int]:
+    """A module on a free port (yielded) that answers every read with ``read_answer(tid, unit, request_pdu)``
+    (``None`` closes the connection instead) and every coil write with ``write_answer`` (the same signature), by
+    default the right answer."""
+    handlers: dict[asyncio.Task[None], asyncio.StreamWriter] = {}
 
     async def serve(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
@@ -234,6 +236,8 @@ async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes | None]) -> A
                     if answer is None:
                         return
                     writer.write(answer)
+                elif write_answer is not None:
+                    writer.write(write_answer(tid, unit, pdu))
                 else:  # FC 5 echoes the request, FC 15 its address and count
                     writer.write(_mbap(tid, unit, pdu if pdu[0] == 5 else pdu[:5]))
                 await writer.drain()
@@ -245,20 +249,28 @@ async def _raw_peer(read_answer: Callable[[int, int, bytes], bytes | None]) -> A
     async def handle(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         task = asyncio.current_task()
         assert task is not None
-        handlers.add(task)
+        handlers[task] = writer
         try:
             await serve(reader, writer)
         finally:
-            handlers.discard(task)
+            handlers.pop(task, None)
 
     server = await asyncio.start_server(handle, "127.0.0.1", 0)
     try:
         yield server.sockets[0].getsockname()[1]
     finally:
         server.close()
-        for task in list(handlers):
-            task.cancel()
-        await asyncio.gather(*handlers, return_exceptions=True)
+        # Each handler is ended by closing its connection (it reads EOF and returns), and cancelled only if it does
+        # not end: Python 3.11's start_server calls exception() on the finished handler task, which raises for a
+        # cancelled one, and asyncio logs "Exception in callback StreamReaderProtocol.connection_made...".
+        running = list(handlers)
+        for writer in list(handlers.values()):
+            writer.close()
+        if running:
+            _, late = await asyncio.wait(running, timeout=2.0)
+            for task in late:
+                task.cancel()
+            await asyncio.gather(*late, return_exceptions=True)
         await server.wait_closed()
 
 
@@ -322,3 +334,56 @@ async def test_a_module_that_drops_every_connection_after_one_answer_is_retried_
         await wait_until(lambda: len(attempts) >= 5, what="five reconnects")
         assert io.counters.reads >= 5  # each connection did give one good reading ...
     assert attempts[:5] == [0, 1, 2, 3, 4]  # ... and still the backoff grew
+
+
+# --- answers pymodbus' decoder gives up on: named, no asyncio traceback ---------------------------------------------
+def _spy_backoff(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    attempts: list[int] = []
+
+    def spy(attempt: int, min_s: float, max_s: float, rng: random.Random) -> float:
+        attempts.append(attempt)
+        return backoff_s(attempt, min_s, max_s, rng)
+
+    monkeypatch.setattr("rgse_daemon.io.modbus.backoff_s", spy)
+    return attempts
+
+
+def _tracebacks(caplog: pytest.LogCaptureFixture) -> list[str]:
+    """Records of asyncio's exception handler (a protocol callback that raised, an exception never retrieved) and
+    any record that carries a traceback."""
+    return [f"{r.name}: {r.getMessage()}" for r in caplog.records if r.name == "asyncio" or r.exc_info]
+
+
+async def test_an_exception_response_without_exception_code_is_a_named_bad_answer(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
+) -> None:
+    # MBAP length 2: the unit id and the exception function code, no exception-code byte (8 bytes on the wire)
+    answer = lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0] | 0x80]))  # noqa: E731
+    attempts = _spy_backoff(monkeypatch)
+    caplog.set_level("DEBUG", logger="asyncio")
+    async with _raw_peer(answer) as port, SafetyIo(fast_cfg(port)) as io:
+        await wait_until(lambda: io.counters.read_errors >= 3, what="several answered reads")
+        assert io.counters.reads == 0 and not io.inputs.safe and not io.inputs.valid
+        assert io.inputs.reason == (f"bad answer: {io.name}: read discrete inputs 0+3: exception response (function "
+                                    "code 130) without an exception code in 'function code 130, unit 1, data (none)'")
+        assert io.counters.connects >= 3  # each bad answer resyncs the stream with a new connection ...
+    assert attempts[:3] == [0, 1, 2]  # ... after a growing backoff
+    assert _tracebacks(caplog) == []
+
+
+async def test_a_write_answer_too_short_to_decode_is_a_named_bad_answer(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture,
+) -> None:
+    # a write-coils answer with its function code and nothing else: pymodbus cannot unpack address and count
+    read = lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 1, ALL_SAFE]))  # noqa: E731
+    write = lambda tid, unit, pdu: _mbap(tid, unit, pdu[:1])  # noqa: E731
+    attempts = _spy_backoff(monkeypatch)
+    caplog.set_level("DEBUG", logger="asyncio")
+    async with _raw_peer(read, write) as port, SafetyIo(fast_cfg(port)) as io:
+        await wait_until(lambda: len(attempts) >= 3, what="several reconnects")
+        # the outputs are re-applied on every connect: the answer to that write is the bad one
+        assert io.inputs.reason == (f"bad answer: {io.name}: write coils 0..2: answer with function code 15 that "
+                                    "cannot be decoded (0 data bytes) in 'function code 15, unit 1, data (none)'")
+        assert not io.outputs_confirmed and not io.inputs.safe
+    assert attempts[:3] == [0, 1, 2]
+    assert _tracebacks(caplog) == []
