@@ -199,6 +199,9 @@ class _AnswerDecoder(DecodePDU):
         if function_code > 0x80 and not payload:  # pymodbus' exception decoder would index past the end
             return _MalformedAnswer(function_code, payload, f"exception response (function code {function_code}) "
                                     "without an exception code")
+        if function_code > 0x80 and len(payload) != 1:  # pymodbus would read the first byte and drop the rest
+            return _MalformedAnswer(function_code, payload, f"exception response (function code {function_code}) "
+                                    f"with {len(payload)} data bytes, expected 1 (the exception code)")
         pdu = super().decode(frame)
         if pdu is None:
             return _MalformedAnswer(function_code, payload, f"answer with function code {function_code} that cannot "
@@ -426,10 +429,9 @@ class SafetyIo:
                 raise IoLinkError(self.name, f"{what}: {exc}") from exc
         if isinstance(response, _MalformedAnswer):
             raise IoFrameError(self.name, f"{what}: {response.problem}", str(response))
-        if response.isError():
-            code = getattr(response, "exception_code", None)
-            raise IoDeviceRefused(self.name, f"{what}: exception response, code {code}", code)
-        if response.function_code != fc:
+        # a refusal counts only as the refusal of this request: its function code is the request's + 0x80
+        expected_fc = fc | 0x80 if response.isError() else fc
+        if response.function_code != expected_fc:
             raise IoFrameError(self.name, f"{what}: answer has function code {response.function_code}, asked with "
                                f"{fc}", str(response))
         if response.dev_id != self.cfg.unit_id:
@@ -437,6 +439,9 @@ class SafetyIo:
                                f"{self.cfg.unit_id}", str(response))
         if not response.transaction_id:  # pymodbus numbers its requests from 1 and matches only non-zero ids
             raise IoFrameError(self.name, f"{what}: answer without a transaction id", str(response))
+        if response.isError():
+            code = getattr(response, "exception_code", None)
+            raise IoDeviceRefused(self.name, f"{what}: exception response, code {code}", code)
         return response
 
     async def _read_inputs(self) -> SafetyInputs:

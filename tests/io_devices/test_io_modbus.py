@@ -288,9 +288,15 @@ ALL_SAFE = 0b111  # the three default inputs, bits 0..2, all 1 = safe
         (lambda tid, unit, pdu: _mbap(0, unit, bytes([pdu[0], 1, ALL_SAFE])), "without a transaction id"),
         (lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 3, ALL_SAFE, 0xFF, 0xFF])), "3 data bytes, expected 1"),
         (lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0], 9, ALL_SAFE])), "byte count 9 disagrees"),
+        # a refusal of another request (read coils, 0x81) is no refusal of this one: the stream is out of step
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([0x81, 4])), "function code 129, asked with 2"),
+        # an exception response carries exactly one byte, its exception code
+        (lambda tid, unit, pdu: _mbap(tid, unit, bytes([pdu[0] | 0x80, 4, ALL_SAFE])),
+         "exception response (function code 130) with 2 data bytes, expected 1 (the exception code)"),
+        (lambda tid, unit, pdu: _mbap(0, unit, bytes([pdu[0] | 0x80, 4])), "without a transaction id"),
     ],
     ids=["wrong function code", "unknown function code", "short FC 3 answer", "transaction id 0", "long answer",
-         "byte count lies"],
+         "byte count lies", "refusal of another function", "long refusal", "refusal without transaction id"],
 )
 async def test_an_answer_to_another_request_reads_unsafe(answer: Callable[[int, int, bytes], bytes],
                                                          problem: str) -> None:
@@ -301,13 +307,16 @@ async def test_an_answer_to_another_request_reads_unsafe(answer: Callable[[int, 
         assert io.counters.connects >= 2  # each bad answer resyncs the stream with a new connection
 
 
-async def test_unit_0_answer_from_another_unit_reads_unsafe() -> None:
-    # pymodbus checks the answering unit only for a non-zero unit id
-    answer = lambda tid, unit, pdu: _mbap(tid, 5, bytes([pdu[0], 1, ALL_SAFE]))  # noqa: E731
+@pytest.mark.parametrize("pdu_of", [lambda pdu: bytes([pdu[0], 1, ALL_SAFE]), lambda pdu: bytes([pdu[0] | 0x80, 4])],
+                         ids=["reading", "refusal"])
+async def test_unit_0_answer_from_another_unit_reads_unsafe(pdu_of: Callable[[bytes], bytes]) -> None:
+    # pymodbus checks the answering unit only for a non-zero unit id; another unit's refusal is no refusal either
+    answer = lambda tid, unit, pdu: _mbap(tid, 5, pdu_of(pdu))  # noqa: E731
     async with _raw_peer(answer) as port, SafetyIo(fast_cfg(port, unit_id=0)) as io:
         await wait_until(lambda: io.counters.read_errors >= 2, what="answered reads")
         assert io.counters.reads == 0 and not io.inputs.safe
-        assert "answer from unit 5, asked unit 0" in io.inputs.reason
+        assert io.inputs.reason.startswith("bad answer: ") and "answer from unit 5, asked unit 0" in io.inputs.reason
+        assert io.counters.connects >= 2  # out of step: a new connection, where a refusal would keep the link
 
 
 async def test_a_well_formed_raw_answer_reads_safe() -> None:
