@@ -202,7 +202,9 @@ async def test_no_daemon_listening_exits_2_at_the_deadline(config: Path, prefix:
     confirm.one_line_error("rgse confirm: error: mqtt broker 127.0.0.1:1883", f"no daemon state on {prefix}/state",
                            "--run RUN_ID")
     for ran in (abort, confirm):
-        assert ran.out == "" and ran.elapsed_s < 1.5 + 10, ran  # the deadline plus interpreter start-up
+        # a hang guard, not a timing check: it gave up at its deadline, not at the 60 s guard of rgse() (the margin
+        # is the interpreter's start-up, which took 15 s for three at once on the loaded 2-core CI machine)
+        assert ran.out == "" and ran.elapsed_s < 1.5 + 30, ran
 
 
 async def test_a_stopped_daemon_is_named_offline(
@@ -238,13 +240,14 @@ async def test_an_unreachable_broker_port_exits_2(tmp_path: Path) -> None:
     port = free_port()  # nothing listens there
     cfg = write_config(tmp_path / "rgse.toml", "127.0.0.1", port, "rgse-test/nobody")
     runs = await asyncio.gather(
-        rgse("confirm", "--config", cfg, "--run", "run-1"),
-        rgse("abort", "--config", cfg),
-        rgse("status", "--config", cfg),
+        rgse("confirm", "--config", cfg, "--run", "run-1", "--timeout", "40"),
+        rgse("abort", "--config", cfg, "--timeout", "40"),
+        rgse("status", "--config", cfg, "--timeout", "40"),
     )
     for verb, ran in zip(("confirm", "abort", "status"), runs, strict=True):
+        # refused at once, not "no answer within 40 s": a refused connect is not waited out to the deadline
         ran.one_line_error(f"rgse {verb}: error: mqtt broker 127.0.0.1:{port}: cannot connect")
-        assert ran.elapsed_s < 10, ran
+        assert "no answer within" not in ran.err and ran.elapsed_s < 40, ran
 
 
 async def test_status_prints_the_retained_status_state_and_results(
