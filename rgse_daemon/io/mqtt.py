@@ -302,7 +302,7 @@ class _Client(aiomqtt.Client):
 
     def _client_connect(self) -> None:  # runs in aiomqtt's executor thread
         try:
-            super()._client_connect()  # type: ignore[misc]
+            super()._client_connect()
         finally:
             with contextlib.suppress(RuntimeError):  # the loop was closed meanwhile: nobody is left to tell
                 self._rgse_loop.call_soon_threadsafe(_set_none, self.connect_returned)

@@ -17,9 +17,9 @@ import contextlib
 import gc
 import os
 import socket
-from collections.abc import Iterator
+from collections.abc import Coroutine, Iterator
 from types import TracebackType
-from typing import Self
+from typing import Any, Self
 
 import aiomqtt
 import paho.mqtt.client as paho
@@ -116,9 +116,8 @@ class _Peer:
             self._filler.close()
         self._listener.close()
 
-    def _spawn(self, coro: object) -> None:
-        task = asyncio.ensure_future(coro)  # type: ignore[call-overload]
-        self._tasks.add(task)
+    def _spawn(self, coro: Coroutine[Any, Any, None]) -> None:
+        self._tasks.add(asyncio.create_task(coro))
 
     async def _accept(self) -> None:
         loop = asyncio.get_running_loop()
