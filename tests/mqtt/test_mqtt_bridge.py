@@ -378,8 +378,8 @@ async def test_a_session_taken_over_leaves_no_exception_unretrieved(
         async with bridge:
             async with SessionThief(*system_broker, client_id) as thief:
                 await wait_until(lambda: bridge.counters.connects >= 20, "twenty sessions", timeout_s=30)
-            # the takeovers end: the bridge reconnects and stays online (a stop in the middle of a connect leaves
-            # aiomqtt's connection behind: not this test's subject)
+            # the takeovers end: the bridge reconnects and stays online, and this test ends with a clean stop (a stop
+            # in the middle of a connect is the subject of test_mqtt_connect_teardown.py)
             await wait_until(lambda: bridge.connected, "online once the takeovers ended", timeout_s=10)
         gc.collect()  # a client left in a reference cycle: its futures are finalised (and reported) now
         await asyncio.sleep(0)
