@@ -268,3 +268,23 @@ async def test_pool_read_retries_once_after_peer_close() -> None:
         srv.fault = "drop"
         assert await pool.read("$OV_PRO") == "100"
         assert pool.stats().errors == 1 and pool.stats().reconnects == 1
+
+
+async def test_pool_closed_while_a_read_reconnects_keeps_no_socket_open() -> None:
+    """The daemon's case: the controller link closes its pool (a stop, a lost link) while another job's read is
+    reopening a connection the peer had closed; the read fails and the pool holds no socket afterwards."""
+    async with MiniServer() as srv:
+        pool = LinkPool(cfg_for(srv, pool_size=1))
+        await pool.start()
+        srv.drop_all()
+        (conn,) = pool._conns
+        await wait_until(lambda: conn._reader.at_eof(), "FIN reached the client's reader")
+        task = asyncio.create_task(pool.read("$OV_PRO"))
+        await asyncio.sleep(0)  # the read found the connection closed by the peer and is reconnecting
+        assert pool.health()["connections"] == {"link0": "connecting"}
+        await pool.close()
+        with pytest.raises(LinkClosed):
+            await task
+        assert pool.health()["connections"] == {"link0": "closed"}
+        await wait_until(lambda: srv.open_connections == 0, "no connection left open")
+        assert srv.connections == 2  # the first one, and the reconnect that was closed at once
