@@ -211,7 +211,8 @@ class Connection:
             self._maintainer = asyncio.create_task(self._maintain(), name=f"{self.name}-maintainer")
 
     async def close(self) -> None:
-        """Stop the maintainer and close the socket; every later request raises ``LinkClosed``."""
+        """Stop the maintainer and close the socket; every later request raises ``LinkClosed``, and so does one still
+        connecting (close() does not wait for the lock): its new socket is closed, not kept."""
         self._state = ConnectionState.CLOSED
         task, self._maintainer = self._maintainer, None
         if task is not None:
@@ -347,6 +348,8 @@ class Connection:
             if wait_limit_s is not None and wait_s > wait_limit_s:
                 raise LinkClosed(f"{self.name}: not connected ({self._last_error}); next attempt in {wait_s:.2f} s")
             await asyncio.sleep(wait_s)
+            if self._state is ConnectionState.CLOSED:  # closed while this caller waited out the backoff
+                raise LinkClosed(f"{self.name}: connection closed")
         self._state = ConnectionState.CONNECTING
         try:
             async with asyncio.timeout(self.connect_timeout_s):
@@ -355,15 +358,23 @@ class Connection:
             self._failures += 1
             self.stats.connect_failures += 1
             self._next_attempt = time.monotonic() + self._backoff_s()
-            self._state = ConnectionState.BACKOFF
+            if self._state is not ConnectionState.CLOSED:
+                self._state = ConnectionState.BACKOFF
             what = "timed out" if isinstance(exc, TimeoutError) else str(exc)
             self._last_error = f"connect to {self.host}:{self.port} failed: {what}"
             if isinstance(exc, TimeoutError):
                 raise LinkTimeout(f"{self.name}: {self._last_error}") from exc
             raise LinkClosed(f"{self.name}: {self._last_error}") from exc
         except BaseException:
-            self._state = ConnectionState.DISCONNECTED
+            if self._state is not ConnectionState.CLOSED:
+                self._state = ConnectionState.DISCONNECTED
             raise
+        if self._state is ConnectionState.CLOSED:
+            # close() does not wait for the lock, so it can run while this connect is in flight. Keeping the new
+            # socket would bring the closed connection back to life with a socket that nobody ever closes: it stays
+            # open until the garbage collector finds its writer (a ResourceWarning "unclosed <StreamWriter>").
+            writer.close()
+            raise LinkClosed(f"{self.name}: connection closed while it was connecting")
         sock = writer.get_extra_info("socket")
         if sock is not None:
             with contextlib.suppress(OSError):

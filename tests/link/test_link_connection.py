@@ -142,6 +142,59 @@ async def test_connect_refused_backs_off_and_maintainer_heals() -> None:
         assert conn2.stats.reconnects == 1
 
 
+async def test_close_during_a_connect_in_flight_keeps_no_socket_open() -> None:
+    """close() does not wait for the lock: a request that is connecting meanwhile must not bring the closed
+    connection back to life with a socket nobody closes (it lingered until the garbage collector warned of an
+    unclosed StreamWriter, in whichever test was running then)."""
+    async with MiniServer() as srv:
+        conn = conn_for(srv)  # never started: the first request connects
+        task = asyncio.create_task(conn.read_var("$OV_PRO"))
+        await asyncio.sleep(0)  # the request runs until it waits inside open_connection
+        assert conn.state is ConnectionState.CONNECTING
+        await conn.close()
+        with pytest.raises(LinkClosed, match="closed while it was connecting"):
+            await task
+        assert conn.state is ConnectionState.CLOSED
+        await wait_until(lambda: srv.connections == 1 and srv.open_connections == 0, "the server saw the close")
+        assert srv.requests == []
+
+
+async def test_close_during_a_backoff_wait_keeps_no_socket_open() -> None:
+    """A request that waits out the backoff when close() comes gives up instead of connecting afterwards."""
+    with socket.socket() as s:  # a port with nobody listening: the first connect fails and a backoff begins
+        s.bind(("127.0.0.1", 0))
+        refused_port = s.getsockname()[1]
+    async with MiniServer() as srv:
+        conn = Connection("127.0.0.1", refused_port, connect_timeout_s=2.0, request_timeout_s=5.0,
+                          reconnect_min_s=0.2, reconnect_max_s=0.4, seed=1)
+        with pytest.raises(LinkClosed):
+            await conn.start()
+        assert conn.state is ConnectionState.BACKOFF
+        conn.port = srv.port  # the next attempt would succeed
+        task = asyncio.create_task(conn.read_var("$OV_PRO"))
+        await asyncio.sleep(0)  # the request is waiting out the backoff (0.1-0.2 s)
+        await conn.close()
+        with pytest.raises(LinkClosed, match="connection closed"):
+            await task
+        assert conn.state is ConnectionState.CLOSED
+        assert srv.connections == 0
+
+
+async def test_a_failed_connect_during_close_leaves_the_connection_closed() -> None:
+    """A connect that fails after close() does not turn the closed connection into one that backs off and retries."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        refused_port = s.getsockname()[1]
+    conn = Connection("127.0.0.1", refused_port, connect_timeout_s=2.0, request_timeout_s=0.5,
+                      reconnect_min_s=0.01, reconnect_max_s=0.04, seed=1)
+    task = asyncio.create_task(conn.read_var("$OV_PRO"))
+    await asyncio.sleep(0)
+    await conn.close()
+    with pytest.raises(LinkClosed):
+        await task
+    assert conn.state is ConnectionState.CLOSED
+
+
 def test_backoff_is_exponential_jittered_and_capped() -> None:
     conn = Connection("127.0.0.1", 1, reconnect_min_s=0.1, reconnect_max_s=1.0, seed=7)
     for failures, cap in [(1, 0.1), (2, 0.2), (3, 0.4), (4, 0.8), (5, 1.0), (12, 1.0)]:
@@ -215,3 +268,23 @@ async def test_pool_read_retries_once_after_peer_close() -> None:
         srv.fault = "drop"
         assert await pool.read("$OV_PRO") == "100"
         assert pool.stats().errors == 1 and pool.stats().reconnects == 1
+
+
+async def test_pool_closed_while_a_read_reconnects_keeps_no_socket_open() -> None:
+    """The daemon's case: the controller link closes its pool (a stop, a lost link) while another job's read is
+    reopening a connection the peer had closed; the read fails and the pool holds no socket afterwards."""
+    async with MiniServer() as srv:
+        pool = LinkPool(cfg_for(srv, pool_size=1))
+        await pool.start()
+        srv.drop_all()
+        (conn,) = pool._conns
+        await wait_until(lambda: conn._reader.at_eof(), "FIN reached the client's reader")
+        task = asyncio.create_task(pool.read("$OV_PRO"))
+        await asyncio.sleep(0)  # the read found the connection closed by the peer and is reconnecting
+        assert pool.health()["connections"] == {"link0": "connecting"}
+        await pool.close()
+        with pytest.raises(LinkClosed):
+            await task
+        assert pool.health()["connections"] == {"link0": "closed"}
+        await wait_until(lambda: srv.open_connections == 0, "no connection left open")
+        assert srv.connections == 2  # the first one, and the reconnect that was closed at once

@@ -45,6 +45,11 @@ class MiniServer:
         await asyncio.gather(*self._handlers, return_exceptions=True)
         await self._server.wait_closed()
 
+    @property
+    def open_connections(self) -> int:
+        """Client connections the server still holds open (a handler ends when its client closes)."""
+        return len(self._writers)
+
     def drop_all(self) -> None:
         for w in list(self._writers):
             w.close()

@@ -27,7 +27,9 @@ ROBOT = "KR500R2830-1234"
 
 async def port_open(host: str, port: int, timeout_s: float = 2.0) -> bool:
     try:
-        _, writer = await asyncio.wait_for(asyncio.open_connection(host, port), timeout_s)
+        # not wait_for: on Python 3.11 it can return the connection and drop a cancellation of the caller
+        async with asyncio.timeout(timeout_s):
+            _, writer = await asyncio.open_connection(host, port)
     except (OSError, TimeoutError):
         return False
     writer.close()
