@@ -11,6 +11,7 @@ import pytest
 
 from rgse_daemon import calfile
 from rgse_daemon.cli import main
+from rgse_daemon.pipeline.calibration import MODELS
 from tests.support.campaign import Drive, write_campaign, write_measurement
 from tests.support.cli import fitted_dirs
 
@@ -176,12 +177,24 @@ def test_points_csv_with_nan(tmp_path, capsys, paper_dir):
     expect_error(capsys, ["calibrate", "--points", str(p), "--out", str(tmp_path / "o.json")], "t.csv")
 
 
-def test_study_points_and_campaign(capsys, paper_dir, dirs):
-    res = run_json(capsys, ["study", "--points", str(paper_dir / "table1_calibration.csv"), "--json"])
+def test_study_points_ranks_every_model(tmp_path, capsys, paper_dir):
+    """``rgse study --points``: every model of the catalogue once, ranked by its leave-one-out error, with the figures
+    ``rgse calibrate`` gives the same model; the printed table in the same order."""
+    csv = str(paper_dir / "table1_calibration.csv")
+    res = run_json(capsys, ["study", "--points", csv, "--json"])
+    assert res["kind"] == "models"
+    methods = [r["method"] for r in res["rows"]]
+    assert sorted(methods) == sorted(MODELS)  # Table 1's 14 points fit every model of the catalogue
     loo = [r["loo_mean_abs_err_pct"] for r in res["rows"]]
-    assert loo == sorted(loo) and res["rows"][-1]["method"] in {m["method"] for m in res["rows"]}
-    assert main(["study", "--points", str(paper_dir / "table1_calibration.csv")]) == 0
-    assert "paper" in capsys.readouterr().out
+    assert loo == sorted(loo)
+    paper = run_json(capsys, ["calibrate", "--points", csv, "--out", str(tmp_path / "p.json"), "--method", "paper",
+                              "--json"])
+    row = res["rows"][methods.index("paper")]
+    assert row["loo_mean_abs_err_pct"] == pytest.approx(paper["loo_mean_abs_err_pct"], rel=1e-12)
+    assert row["in_sample_mean_abs_err_pct"] == pytest.approx(paper["in_sample_mean_abs_err_pct"], rel=1e-12)
+    assert main(["study", "--points", csv]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert [line.split()[:2] for line in table[1:]] == [[str(i), m] for i, m in enumerate(methods, 1)]
 
 
 def test_study_campaign_end_to_end(capsys, dirs):

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import html
-import json
 import os
 import subprocess
 import sys
@@ -184,8 +183,17 @@ def test_report_of_a_missing_run_names_the_store_and_creates_none(tmp_path: Path
     assert list(tmp_path.iterdir()) == []
 
 
-def test_json_roundtrip_of_numbers_is_exact(world: World) -> None:
-    # the page writes repr(float); the store keeps canonical JSON: both must round-trip to the same float
-    for v in world.filled.result.values():
-        if isinstance(v, float):
-            assert float(repr(v)) == v == json.loads(json.dumps(v))
+def test_json_roundtrip_of_numbers_is_exact(world: World, tmp_path: Path) -> None:
+    """The page writes repr(float); the store keeps canonical JSON: both must give back the very float computed."""
+    with Repository.open(None, world.data_dir) as repo:
+        stored = repo.results(world.filled.run_id)[-1].result
+        page = build_report(repo, world.data_dir, tmp_path / "out", run_id=world.filled.run_id)
+    dom = Dom(page.read_text(encoding="utf-8"))  # the data-value attributes as written, no browser needed
+    floats = {k: v for k, v in world.filled.result.items() if isinstance(v, float)}
+    shown = [k for k in floats if k in dom.fields]
+    assert {"mass_kg", "U_kg", "u_kg", "gross_mass_kg", "fixture_mass_kg"} <= set(shown), sorted(floats)
+    for key, v in floats.items():
+        assert isinstance(stored[key], float) and stored[key].hex() == v.hex(), (key, stored[key], v)
+    for key in shown:
+        assert set(dom.fields[key]) == {repr(floats[key])}, (key, dom.fields[key])
+        assert float(dom.fields[key][0]).hex() == floats[key].hex(), key
