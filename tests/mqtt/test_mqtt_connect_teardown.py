@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import gc
 import os
 import socket
-from collections.abc import Coroutine, Iterator
+from collections.abc import Coroutine
 from types import TracebackType
 from typing import Any, Self
 
@@ -28,7 +27,7 @@ import pytest
 from rgse_daemon.io import mqtt as mqtt_module
 from rgse_daemon.io.mqtt import ConnectionState, MqttBridge
 from rgse_daemon.store import Store
-from tests.support.mqtt import ROBOT, RecordingHandler, mqtt_config
+from tests.support.mqtt import ROBOT, RecordingHandler, asyncio_complaints, mqtt_config
 from tests.support.polling import wait_until
 
 
@@ -40,27 +39,6 @@ def _aiomqtt_tasks() -> list[str]:
         if not task.done() and code is not None and f"{os.sep}aiomqtt{os.sep}" in code.co_filename:
             names.append(task.get_coro().__qualname__)
     return names
-
-
-@contextlib.contextmanager
-def _asyncio_complaints(caplog: pytest.LogCaptureFixture) -> Iterator[list[str]]:
-    """What asyncio reports while the block runs and when its garbage is collected after it: "Exception in
-    callback", "Task was destroyed but it is pending", "Future exception was never retrieved"."""
-    loop = asyncio.get_running_loop()
-    said: list[str] = []
-
-    def on_exception(loop: asyncio.AbstractEventLoop, context: dict[str, object]) -> None:
-        said.append(f"{context.get('message')}: {context.get('exception')!r}")
-        loop.default_exception_handler(context)
-
-    previous = loop.get_exception_handler()
-    loop.set_exception_handler(on_exception)
-    try:
-        yield said
-        gc.collect()  # a task or future of a client left in a reference cycle is reported when it is finalised
-    finally:
-        loop.set_exception_handler(previous)
-    said.extend(r.getMessage() for r in caplog.records if r.name == "asyncio")
 
 
 class _Peer:
@@ -160,7 +138,7 @@ async def test_a_stop_during_the_threaded_tcp_connect_leaves_no_client_behind(
     """The stop lands while aiomqtt's executor thread is still in paho's ``connect()``: the stop waits for that
     thread and closes the connection it made, rather than leaving a client that connects (and stays connected,
     its misc task running) after the daemon said it had stopped."""
-    with _asyncio_complaints(caplog) as complaints:
+    with asyncio_complaints(caplog) as complaints:
         async with _Peer(forward_to=system_broker, backlog_full=True) as peer:
             bridge = MqttBridge(mqtt_config("127.0.0.1", peer.port, prefix), ROBOT, store, RecordingHandler(), "1",
                                 timeout_s=5)
@@ -187,7 +165,7 @@ async def test_a_stop_whose_deadline_passes_in_the_threaded_connect_closes_the_c
 ) -> None:
     """The connect thread can block longer than the stop may take (up to paho's connect timeout): the stop returns
     at its deadline, says so, and the connection is closed as soon as the thread has made it."""
-    with _asyncio_complaints(caplog) as complaints:
+    with asyncio_complaints(caplog) as complaints:
         async with _Peer(forward_to=system_broker, backlog_full=True) as peer:
             bridge = MqttBridge(mqtt_config("127.0.0.1", peer.port, prefix), ROBOT, store, RecordingHandler(), "1",
                                 timeout_s=5, stop_timeout_s=0.2)
@@ -210,7 +188,7 @@ async def test_a_stop_during_the_connack_wait_closes_the_connection_and_asyncio_
     """A broker that accepts TCP and never answers CONNECT: the stop is prompt (the existing promptness test), and
     it also closes that connection — aiomqtt's misc task does not run on — and the broker closing its side later
     makes asyncio log nothing (aiomqtt read the CONNACK future the cancellation had left cancelled)."""
-    with _asyncio_complaints(caplog) as complaints:
+    with asyncio_complaints(caplog) as complaints:
         async with _Peer() as peer:
             bridge = MqttBridge(mqtt_config("127.0.0.1", peer.port, "rgse/silent"), ROBOT, store, RecordingHandler(),
                                 "1", timeout_s=30)
@@ -230,7 +208,7 @@ async def test_a_connect_whose_connack_times_out_closes_its_connection(
     """Each attempt against a broker that never answers CONNECT ends at ``timeout_s``; the bridge closes the
     attempt's connection then (aiomqtt leaves it open, its misc task running, until the keepalive runs out),
     so a long outage of that kind does not pile up connections and tasks."""
-    with _asyncio_complaints(caplog) as complaints:
+    with asyncio_complaints(caplog) as complaints:
         async with _Peer() as peer:
             cfg = mqtt_config("127.0.0.1", peer.port, "rgse/silent", reconnect_min_s=0.01, reconnect_max_s=0.05)
             bridge = MqttBridge(cfg, ROBOT, store, RecordingHandler(), "1", timeout_s=0.3)

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import gc
 import json
 import signal
 import socket
 import subprocess
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
@@ -303,3 +304,24 @@ async def stored_result(
     rec = await store.record_result(run.id, result, [f.sha256], publish=result_topic(run.id))
     await store.set_run_state(run.id, "completed")
     return run, rec
+
+
+@contextlib.contextmanager
+def asyncio_complaints(caplog: pytest.LogCaptureFixture) -> Iterator[list[str]]:
+    """What asyncio reports while the block runs and when its garbage is collected after it: "Exception in
+    callback", "Task was destroyed but it is pending", "Future exception was never retrieved"."""
+    loop = asyncio.get_running_loop()
+    said: list[str] = []
+
+    def on_exception(loop: asyncio.AbstractEventLoop, context: dict[str, object]) -> None:
+        said.append(f"{context.get('message')}: {context.get('exception')!r}")
+        loop.default_exception_handler(context)
+
+    previous = loop.get_exception_handler()
+    loop.set_exception_handler(on_exception)
+    try:
+        yield said
+        gc.collect()  # a task or future of a client left in a reference cycle is reported when it is finalised
+    finally:
+        loop.set_exception_handler(previous)
+    said.extend(r.getMessage() for r in caplog.records if r.name == "asyncio")
