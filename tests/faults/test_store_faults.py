@@ -65,6 +65,14 @@ def _fill(path: Path) -> Path:
     return filler
 
 
+async def _indexed(daemon: Any) -> int:
+    """How many trace files of the daemon's current run the store has indexed."""
+    run_id = daemon.engine.run_id if daemon.engine else None
+    if daemon.store is None or run_id is None:
+        return 0
+    return len(await daemon.store.trace_files(run_id))
+
+
 def _sha(p: Path) -> str:
     return hashlib.sha256(p.read_bytes()).hexdigest()
 
@@ -82,12 +90,18 @@ async def test_disk_full_during_a_measurement_keeps_archive_store_and_controller
         await seed_calibration(cfg, calibration_doc)
         async with running_daemon(cfg) as rd:
             task = await rd.daemon.start_measurement()
+            # the first loop's files archived and indexed while there is room, so that what was indexed before the
+            # disk filled is there to check; then the next loop's recording
+            async with asyncio.timeout(120):
+                while not await _indexed(rd.daemon):  # noqa: ASYNC110 - a store query, no event to await
+                    await asyncio.sleep(0.05)
             while sim.store.read("$TRACE.STATE").strip().upper() not in ("#TRIGGERED", "#T_WRITING"):  # noqa: ASYNC110
                 await asyncio.sleep(0.005)
             if full == "store only":  # fill the store's disk in the middle of the pull: archived, not indexed
                 sim.server.faults.extra_latency_s = 0.2
                 runs = cfg.paths.data_dir / "archive" / "runs"
-                while not [p for p in runs.glob("*/dut_*") if not p.name.startswith(".")]:  # noqa: ASYNC110
+                first_loop = await _indexed(rd.daemon)  # archived and indexed
+                while len([p for p in runs.glob("*/dut_*") if not p.name.startswith(".")]) <= first_loop:  # noqa: ASYNC110
                     await asyncio.sleep(0.005)
                 sim.server.faults.extra_latency_s = 0.0
             filler = _fill(small)  # the disk is full while the trace is written and pulled
@@ -113,6 +127,7 @@ async def test_disk_full_during_a_measurement_keeps_archive_store_and_controller
         archived = {p.name: p for p in (root / run.directory).glob("*") if p.is_file() and not p.name.startswith(".")}
         if full == "store only":  # the case of the finding: files archived, then the index failed
             assert archived and len(indexed) < len(archived), (sorted(archived), sorted(indexed))
+        assert indexed  # the first loop's (the loop below checks something)
         for f in indexed.values():  # everything indexed is archived, intact
             assert _sha(root / f.path) == f.sha256
         for lp in loops:
