@@ -323,56 +323,45 @@ def _paho_client(client: aiomqtt.Client) -> paho.Client | None:
 
 async def _close_unentered(client: _Client, entering: asyncio.Task[Any], timeout_s: float) -> bool:
     """Close what a connect given up left behind: ``entering`` is the client's ``__aenter__`` (shielded), and the
-    bridge stops waiting for it (a stop) or it failed (no CONNACK within the timeout, refused). Bounded by
-    ``timeout_s``; returns whether all was closed in time.
+    bridge stops waiting for it (a stop) or it failed (no CONNACK within the timeout, refused). Waits at most
+    ``timeout_s``; returns whether all was closed by then.
 
     aiomqtt itself leaves the connection open in both cases: a cancelled ``__aenter__`` leaves its connect thread
-    running, and one that fails after the socket was opened (a CONNACK timeout) does not close that socket. So:
-    wait for the connect thread to return, have paho send DISCONNECT and close the socket (aiomqtt then removes its
-    reader and cancels its misc task), and only then cancel ``entering`` if it still waits for the CONNACK. In that
-    order because cancelling that wait cancels aiomqtt's ``_connected`` future, and aiomqtt's disconnect callback
-    reads its ``.exception()``: with the socket still open, the close raised ``CancelledError`` inside paho's
-    callback (asyncio logged "Exception in callback") and the socket stayed open. If the deadline passes (the
-    connect thread blocks up to paho's connect timeout) or a further cancellation interrupts this, the same is done
-    later, as soon as the thread returns.
+    running, and one that fails after the socket was opened (a CONNACK timeout) does not close that socket. So, by
+    callbacks (:func:`_close_when_returned`, which go on if the deadline passes or this wait is cancelled): once the
+    connect thread has returned, have paho send DISCONNECT and close the socket (aiomqtt then removes its reader and
+    ends its misc task), and only then cancel ``entering`` if it still waits for the CONNACK. In that order because
+    cancelling that wait cancels aiomqtt's ``_connected`` future, and aiomqtt's disconnect callback reads its
+    ``.exception()``: with the socket still open, the close raised ``CancelledError`` inside paho's callback (asyncio
+    logged "Exception in callback") and the socket stayed open.
     """
-    paho_client = _paho_client(client)
-    closed = False
+    _close_when_returned(client, entering)
     try:
         async with asyncio.timeout(timeout_s):
-            await asyncio.wait([client.connect_returned if _CONNECT_RETURN_SEEN else entering])
-            if paho_client is not None:
-                paho_client.disconnect()  # without a socket (the connect failed) a no-op
+            await asyncio.wait([entering])
             misc = _misc_task(client)
             if misc is not None:
-                await asyncio.wait([misc])  # aiomqtt cancels it once paho has written DISCONNECT and closed the socket
-        closed = True
+                await asyncio.wait([misc])
     except TimeoutError:
-        pass
-    finally:
-        if closed:
-            entering.cancel()  # a no-op when it has ended
-            await asyncio.wait([entering], timeout=1.0)  # the cancellation ends it in the next loop iteration
-        else:
-            _close_when_returned(client, entering)
-    return closed
+        return False  # the connect thread blocks on (up to paho's connect timeout); the callbacks close once it returns
+    return True
 
 
 def _close_when_returned(client: _Client, entering: asyncio.Task[Any]) -> None:
-    """What :func:`_close_unentered` does, from callbacks: once the connect thread returns, disconnect; once the
-    socket is closed (aiomqtt's misc task has ended), cancel the CONNACK wait."""
+    """Once the connect thread returns (without the override, once ``__aenter__`` ends), disconnect; once the socket
+    is closed (aiomqtt's misc task has ended), cancel the CONNACK wait (a no-op when it has ended)."""
     paho_client = _paho_client(client)
 
-    def returned(_: asyncio.Future[None]) -> None:
+    def returned(_: asyncio.Future[Any]) -> None:
         if paho_client is not None:
-            paho_client.disconnect()
+            paho_client.disconnect()  # without a socket (the connect failed) a no-op
         misc = _misc_task(client)
         if misc is None or misc.done():
             entering.cancel()
         else:
             misc.add_done_callback(lambda _: entering.cancel())
 
-    client.connect_returned.add_done_callback(returned)
+    (client.connect_returned if _CONNECT_RETURN_SEEN else entering).add_done_callback(returned)
 
 
 class MqttBridge:
