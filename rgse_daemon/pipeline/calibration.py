@@ -35,10 +35,17 @@ from scipy.optimize import least_squares
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import mass as mass_eq
 
-#: Scale of the gain basis functions, Nm: keeps the coefficients of order one.
+#: Scale of the gain basis functions as a fraction of the campaign's largest measured torque (either axis,
+#: :meth:`CalibrationPoints.gain_scale_nm`). The ``log`` and ``sat`` terms bend at their scale, so a fixed scale in Nm
+#: would give each robot and payload range another model family; tied to the campaign, the catalogue is the same in
+#: relative terms everywhere (every torque and mass ×c gives the same relative fit). 2/9: Table 1's 4.5 kNm top gives
+#: the 1 kNm the catalogue was first set up with.
+GAIN_SCALE_FRACTION = 2.0 / 9.0
+#: Scale (Nm) of a gain curve that names none (calibration files written before the scale followed the campaign).
 GAIN_SCALE_NM = 1000.0
-#: Scales τ (Nm) a ``sat`` gain term is fitted at (log-spaced grid, 50 Nm to 3 kNm) ...
-SAT_SCALES_NM = tuple(float(v) for v in np.geomspace(50.0, 3000.0, 25))
+#: Scales τ a ``sat`` gain term is fitted at, as multiples of the gain scale (log-spaced grid, 0.05 to 3: on Table 1
+#: 50 Nm to 3 kNm) ...
+SAT_SCALE_MULTIPLES = tuple(float(v) for v in np.geomspace(0.05, 3.0, 25))
 #: ... up to this fraction of the largest torque the calibration covers on that axis.
 SAT_MAX_FRACTION = 0.8
 #: Evaluations of the bounded least-squares polish of eq. 20 from the grid's best start (the grid start is close; on
@@ -122,6 +129,14 @@ class CalibrationPoints:
         dr = np.full(len(self), float(default_m))
         dr[loaded] = (self.expected_a3_nm[loaded] - self.expected_a5_nm[loaded]) / (g_m_s2 * self.mass_kg[loaded])
         return dr  # positive: checked when the points are made
+
+    def gain_scale_nm(self) -> float:
+        """The torque scale of the gain curves fitted to these points (:data:`GAIN_SCALE_FRACTION` of the largest
+        measured torque of a loaded point, either axis); :data:`GAIN_SCALE_NM` if no point is loaded."""
+        loaded = self.mass_kg > 0
+        top = float(np.max(np.abs(np.concatenate([self.torque_a3_nm[loaded], self.torque_a5_nm[loaded]])),
+                           initial=0.0))
+        return GAIN_SCALE_FRACTION * top if top > 0 else GAIN_SCALE_NM
 
     def with_masses(self, mass_kg: np.ndarray) -> CalibrationPoints:
         """The same points with other reference masses (expected torques scaled along)."""
@@ -487,11 +502,13 @@ def _fit_ratio(points: CalibrationPoints, method: str, g_m_s2: float, lever_diff
 # ------------------------------------------------------------------------------------------------------------
 # per-axis drive-gain fits (each axis' corrected torque to its own expected torque, eq. 17/18)
 # ------------------------------------------------------------------------------------------------------------
-def fit_axis_gain(torque_nm: np.ndarray, expected_nm: np.ndarray, terms: tuple[str, ...]
-                  ) -> tuple[GainK, np.ndarray, float]:
-    """Least-squares ``G(M) = Σ c_k·φ_k(M)`` of one axis to its expected torques (Nm residuals); K, cov, R².
+def fit_axis_gain(torque_nm: np.ndarray, expected_nm: np.ndarray, terms: tuple[str, ...],
+                  scale_nm: float = GAIN_SCALE_NM) -> tuple[GainK, np.ndarray, float]:
+    """Least-squares ``G(M) = Σ c_k·φ_k(M)`` of one axis to its expected torques (Nm residuals), its terms at the
+    torque scale ``scale_nm`` (:meth:`CalibrationPoints.gain_scale_nm`); K, cov, R².
 
-    A ``sat`` term's scale τ is one more parameter: the curve is fitted at every τ of :data:`SAT_SCALES_NM` up to
+    A ``sat`` term's scale τ is one more parameter: the curve is fitted at every τ of :data:`SAT_SCALE_MULTIPLES`
+    times ``scale_nm`` up to
     :data:`SAT_MAX_FRACTION` of the largest covered torque (beyond it the term is the lin and quad terms over again)
     and the τ with the least squares is kept (variable projection on a grid; the covariance is the coefficients'
     at that τ, the bootstrap of the uncertainty refits τ)."""
@@ -500,18 +517,19 @@ def fit_axis_gain(torque_nm: np.ndarray, expected_nm: np.ndarray, terms: tuple[s
         raise CalibrationError(f"gain curve {'+'.join(terms)} needs at least {n_par + 1} points, "
                                f"got {len(torque_nm)}")
     top = float(np.max(np.abs(torque_nm)))
-    taus = [t for t in SAT_SCALES_NM if t <= SAT_MAX_FRACTION * top] if "sat" in terms else [GAIN_SCALE_NM]
+    taus = ([t * scale_nm for t in SAT_SCALE_MULTIPLES if t * scale_nm <= SAT_MAX_FRACTION * top]
+            if "sat" in terms else [scale_nm])
     if not taus:
         raise CalibrationError(f"gain curve {'+'.join(terms)}: the covered torques (up to {top:.0f} Nm) are too "
                                f"small for a saturating term")
     best = None
     for tau in taus:
-        scales = tuple(float(tau) if t == "sat" else GAIN_SCALE_NM for t in terms) if "sat" in terms else None
-        a = GainK(terms, np.zeros(len(terms)), GAIN_SCALE_NM, scales).design(torque_nm)
+        scales = tuple(float(tau) if t == "sat" else scale_nm for t in terms) if "sat" in terms else None
+        a = GainK(terms, np.zeros(len(terms)), scale_nm, scales).design(torque_nm)
         coef, *_ = np.linalg.lstsq(a, expected_nm, rcond=None)
         resid = expected_nm - a @ coef
         if best is None or float(resid @ resid) < best[0]:
-            best = (float(resid @ resid), GainK(terms, coef, GAIN_SCALE_NM, scales), a)
+            best = (float(resid @ resid), GainK(terms, coef, scale_nm, scales), a)
     sse, k, a = best
     dof = max(len(torque_nm) - n_par, 1)
     cov = sse / dof * np.linalg.pinv(a.T @ a)
@@ -520,8 +538,9 @@ def fit_axis_gain(torque_nm: np.ndarray, expected_nm: np.ndarray, terms: tuple[s
 
 def _fit_axis(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
               terms_a3: tuple[str, ...], terms_a5: tuple[str, ...]) -> Calibration:
-    k3, c3, r3 = fit_axis_gain(points.torque_a3_nm, points.expected_a3_nm, terms_a3)
-    k5, c5, r5 = fit_axis_gain(points.torque_a5_nm, points.expected_a5_nm, terms_a5)
+    scale_nm = points.gain_scale_nm()
+    k3, c3, r3 = fit_axis_gain(points.torque_a3_nm, points.expected_a3_nm, terms_a3, scale_nm)
+    k5, c5, r5 = fit_axis_gain(points.torque_a5_nm, points.expected_a5_nm, terms_a5, scale_nm)
     cov = np.zeros((len(terms_a3) + len(terms_a5),) * 2)
     cov[: len(terms_a3), : len(terms_a3)] = c3
     cov[len(terms_a3):, len(terms_a3):] = c5
@@ -577,8 +596,9 @@ def _fit_axis_sur(points: CalibrationPoints, method: str, g_m_s2: float, lever_d
     n, p3, p5 = int(loaded.sum()), len(terms_a3), len(terms_a5)
     if n < max(p3, p5) + 2:
         raise CalibrationError(f"model {method} needs at least {max(p3, p5) + 2} loaded points, got {n}")
-    a3 = GainK(terms_a3, np.zeros(p3)).design(points.torque_a3_nm[loaded])
-    a5 = GainK(terms_a5, np.zeros(p5)).design(points.torque_a5_nm[loaded])
+    scale_nm = points.gain_scale_nm()
+    a3 = GainK(terms_a3, np.zeros(p3), scale_nm).design(points.torque_a3_nm[loaded])
+    a5 = GainK(terms_a5, np.zeros(p5), scale_nm).design(points.torque_a5_nm[loaded])
     x = np.zeros((n, 2, p3 + p5))
     x[:, 0, :p3], x[:, 1, p3:] = a3, a5
     y = np.stack([points.expected_a3_nm[loaded], points.expected_a5_nm[loaded]], axis=1)
@@ -598,7 +618,7 @@ def _fit_axis_sur(points: CalibrationPoints, method: str, g_m_s2: float, lever_d
     resid = xw @ coef - yw
     dof = max(2 * n - p3 - p5, 1)
     cov = float(resid @ resid) / dof * np.linalg.pinv(xw.T @ xw)
-    k3, k5 = GainK(terms_a3, coef[:p3]), GainK(terms_a5, coef[p3:])
+    k3, k5 = GainK(terms_a3, coef[:p3], scale_nm), GainK(terms_a5, coef[p3:], scale_nm)
     return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[loaded]),
                        _torque_range(points.torque_a5_nm[loaded]), g_m_s2, lever_difference_m,
                        {"A3": r_squared(points.expected_a3_nm[loaded], k3.corrected_torque_nm(
@@ -618,8 +638,9 @@ def _fit_gain(points: CalibrationPoints, method: str, g_m_s2: float, lever_diffe
     if int(loaded.sum()) < n_par + 1:
         raise CalibrationError(f"model {method} has {n_par} parameters and needs at least {n_par + 1} loaded "
                                f"points, got {int(loaded.sum())}")
-    g3 = GainK(terms_a3, np.zeros(len(terms_a3)))
-    g5 = GainK(terms_a5, np.zeros(len(terms_a5)))
+    scale_nm = points.gain_scale_nm()
+    g3 = GainK(terms_a3, np.zeros(len(terms_a3)), scale_nm)
+    g5 = GainK(terms_a5, np.zeros(len(terms_a5)), scale_nm)
     denom = g_m_s2 * points.lever_difference_m(g_m_s2, lever_difference_m)
     # eq. 21 is linear in the gain coefficients: m = (Φ3·c3 − Φ5·c5) / (g·Δr), each point with its own Δr
     a = np.hstack([g3.design(points.torque_a3_nm), -g5.design(points.torque_a5_nm)]) / denom[:, None]
@@ -634,8 +655,8 @@ def _fit_gain(points: CalibrationPoints, method: str, g_m_s2: float, lever_diffe
     resid = aw @ coef - yw
     dof = max(len(y) - n_par, 1)
     cov = float(resid @ resid) / dof * np.linalg.pinv(aw.T @ aw)
-    k3 = GainK(terms_a3, coef[: len(terms_a3)])
-    k5 = GainK(terms_a5, coef[len(terms_a3):])
+    k3 = GainK(terms_a3, coef[: len(terms_a3)], scale_nm)
+    k5 = GainK(terms_a5, coef[len(terms_a3):], scale_nm)
     return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[loaded]),
                        _torque_range(points.torque_a5_nm[loaded]), g_m_s2, lever_difference_m, {})
 
@@ -765,9 +786,10 @@ AVERAGEABLE = tuple(GAIN_TERMS)
 _TERM_ORDER = ("lin", "quad", "sqrt", "log", "sat")
 
 
-def _term_keys(k: GainK) -> list[tuple[str, float]]:
-    """(term, scale) per term: ``lin`` does not depend on the scale, so every curve's lin terms are one."""
-    return [(t, GAIN_SCALE_NM if t == "lin" else float(s)) for t, s in zip(k.terms, k.term_scales_nm, strict=True)]
+def _term_keys(k: GainK, lin_scale_nm: float) -> list[tuple[str, float]]:
+    """(term, scale) per term: ``lin`` does not depend on the scale, so every curve's lin terms are one (keyed at
+    ``lin_scale_nm``)."""
+    return [(t, lin_scale_nm if t == "lin" else float(s)) for t, s in zip(k.terms, k.term_scales_nm, strict=True)]
 
 
 def _mean_gain(ks: list[AxisK]) -> GainK:
@@ -775,14 +797,15 @@ def _mean_gain(ks: list[AxisK]) -> GainK:
     for k in ks:
         if not isinstance(k, GainK):
             raise CalibrationError(f"only gain curves can be averaged, got {k.kind}")
-    keys = sorted({key for k in ks for key in _term_keys(k)}, key=lambda ts: (_TERM_ORDER.index(ts[0]), ts[1]))
+    base = ks[0].scale_nm  # the members' common scale (fitted to the same points)
+    keys = sorted({key for k in ks for key in _term_keys(k, base)},
+                  key=lambda ts: (_TERM_ORDER.index(ts[0]), ts[1]))
     coef = np.zeros(len(keys))
     for k in ks:
-        for key, c in zip(_term_keys(k), k.coef, strict=True):
+        for key, c in zip(_term_keys(k, base), k.coef, strict=True):
             coef[keys.index(key)] += float(c) / len(ks)
     scales = tuple(s for _, s in keys)
-    return GainK(tuple(t for t, _ in keys), coef, GAIN_SCALE_NM,
-                 None if all(s == GAIN_SCALE_NM for s in scales) else scales)
+    return GainK(tuple(t for t, _ in keys), coef, base, None if all(s == base for s in scales) else scales)
 
 
 def _fit_average(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float) -> Calibration:
@@ -800,8 +823,8 @@ def _fit_average(points: CalibrationPoints, method: str, g_m_s2: float, lever_di
     n3 = len(k3.terms)
     cov = np.zeros((n3 + len(k5.terms),) * 2)
     for f in fits:
-        idx = ([_term_keys(k3).index(key) for key in _term_keys(f.k_a3)]
-               + [n3 + _term_keys(k5).index(key) for key in _term_keys(f.k_a5)])
+        idx = ([_term_keys(k3, k3.scale_nm).index(key) for key in _term_keys(f.k_a3, k3.scale_nm)]
+               + [n3 + _term_keys(k5, k5.scale_nm).index(key) for key in _term_keys(f.k_a5, k5.scale_nm)])
         cov[np.ix_(idx, idx)] += np.asarray(f.covariance, float) / len(fits) ** 2
     loaded = points.mass_kg > 0
     return Calibration(method, k3, k5, cov, _torque_range(points.torque_a3_nm[loaded]),

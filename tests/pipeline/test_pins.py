@@ -491,7 +491,7 @@ def test_saturating_gain_term_by_hand():
 def test_saturating_gain_fit_finds_its_scale_and_is_refused_below_it():
     """An exact drive with a saturating gain at τ = 300 Nm on the grid: the fit picks that τ and reproduces every
     expected torque; the grid stops at 0.8 of the largest covered torque, so a calibration up to 60 Nm has none."""
-    tau = min(C.SAT_SCALES_NM, key=lambda t: abs(t - 300.0))
+    tau = min((1000.0 * m for m in C.SAT_SCALE_MULTIPLES), key=lambda t: abs(t - 300.0))
     true = C.GainK(("lin", "sat", "quad"), np.array([0.85, 0.25, 0.01]), 1000.0, (1000.0, tau, 1000.0))
     torque = np.r_[0.0, np.linspace(60.0, 3200.0, 13)]
     expected = true.corrected_torque_nm(torque)
