@@ -18,7 +18,7 @@ import aiomqtt
 import paho.mqtt.client as paho
 import pytest
 
-from rgse_daemon.io import mqtt as mqtt_module
+from rgse_daemon.io import mqtt_client
 from rgse_daemon.io.mqtt import ConnectionState, MqttBridge
 from rgse_daemon.store import Store
 from tests.support.mqtt import ROBOT, RecordingHandler, TcpPeer, aiomqtt_tasks, asyncio_complaints, mqtt_config
@@ -117,10 +117,10 @@ async def test_a_connect_whose_connack_times_out_closes_its_connection(
 
 def test_the_aiomqtt_internals_the_bridge_relies_on_are_there() -> None:
     """What the bridge reads or overrides of aiomqtt's private side to tear down a connect it gives up (see
-    ``rgse_daemon.io.mqtt._Client`` and ``_close_unentered``): a rename in an aiomqtt upgrade fails here, not
+    ``rgse_daemon.io.mqtt_client.Client`` and ``_close_unentered``): a rename in an aiomqtt upgrade fails here, not
     silently in the field (where the guards would make a stop during a connect slow again, or leave it open)."""
     assert callable(getattr(aiomqtt.Client, "_client_connect", None))
-    assert mqtt_module._CONNECT_RETURN_SEEN
+    assert mqtt_client._CONNECT_RETURN_SEEN
 
     async def build() -> aiomqtt.Client:
         return aiomqtt.Client("127.0.0.1")
