@@ -98,6 +98,19 @@ class Client(aiomqtt.Client):
         _retrieve_disconnect_reason(self)  # aiomqtt replaces the future when it was already done
         return self
 
+    def _on_disconnect(self, *args: Any, **kwargs: Any) -> None:  # paho's callback, as aiomqtt (2.5) registers it
+        """aiomqtt's, except when the CONNACK wait was cancelled: a connect that never completed has no disconnection
+        to report (aiomqtt returns early for one that failed), and aiomqtt's ``_connected.exception()`` raised
+        ``CancelledError`` inside paho's callback, before paho closed the socket — which then stayed open. The wait is
+        cancelled by aiomqtt's own CONNACK timeout (its ``wait_for`` cancels the future, and replaces it only a few
+        loop iterations later) or by :func:`_close_when_returned`; when the caller gives up within a millisecond of
+        that timeout (a deadline equal to the client's timeout, as the operator's), the DISCONNECT that closes the
+        connection is written in between."""
+        connected = getattr(self, "_connected", None)
+        if isinstance(connected, asyncio.Future) and connected.cancelled():
+            return
+        super()._on_disconnect(*args, **kwargs)
+
 
 def _misc_task(client: aiomqtt.Client) -> asyncio.Task[Any] | None:
     """aiomqtt's (2.5) task that runs paho's periodic work while a socket is open (``Client._misc_task``); aiomqtt
@@ -175,7 +188,8 @@ async def _close_unentered(client: Client, entering: asyncio.Task[Any], timeout_
     ends its misc task), and only then cancel ``entering`` if it still waits for the CONNACK. In that order because
     cancelling that wait cancels aiomqtt's ``_connected`` future, and aiomqtt's disconnect callback reads its
     ``.exception()``: with the socket still open, the close raised ``CancelledError`` inside paho's callback (asyncio
-    logged "Exception in callback") and the socket stayed open.
+    logged "Exception in callback") and the socket stayed open. (aiomqtt's own CONNACK timeout can cancel that future
+    in between all the same: :meth:`Client._on_disconnect` tolerates it.)
     """
     _close_when_returned(client, entering)
     try:
