@@ -56,6 +56,8 @@ MIN_VERSION = (1, 2)
 PING_SAMPLES = 10
 #: Deadline of each external check (s) besides the controller's own request deadlines.
 CHECK_TIMEOUT_S = 30.0
+#: The broker check's bound of each wait for the broker (CONNACK, the DISCONNECT) and of closing a connect given up.
+BROKER_TIMEOUT_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -394,14 +396,18 @@ async def _broker(cfg: Config) -> Check:
         return Check("broker", None, "MQTT disabled")
     import aiomqtt
 
+    from rgse_daemon.io.mqtt_client import Client, enter
+
     where = f"{cfg.mqtt.host}:{cfg.mqtt.port}"
     tls = aiomqtt.TLSParameters(ca_certs=str(cfg.mqtt.tls_ca_file) if cfg.mqtt.tls_ca_file else None) \
         if cfg.mqtt.tls else None
+    client = Client(cfg.mqtt.host, cfg.mqtt.port, username=cfg.mqtt.username, password=cfg.mqtt.password,
+                    identifier=f"rgse-doctor-{time.time_ns()}", tls_params=tls, timeout=BROKER_TIMEOUT_S)
     try:
-        async with aiomqtt.Client(cfg.mqtt.host, cfg.mqtt.port, username=cfg.mqtt.username,
-                                  password=cfg.mqtt.password, identifier=f"rgse-doctor-{time.time_ns()}",
-                                  tls_params=tls, timeout=5.0):
-            pass  # connecting (and the login it carries) is the check
+        # connecting (and the login it carries) is the check; a connect given up (no CONNACK, the check cancelled)
+        # is closed, not left connected
+        await enter(client, close_s=BROKER_TIMEOUT_S)
+        await client.__aexit__(None, None, None)  # DISCONNECT, bounded by the client's timeout
     except aiomqtt.MqttError as exc:
         return Check("broker", False, f"{where}: {exc}", "check mqtt.host/port, the credentials and that the "
                      "broker runs (systemctl status mosquitto)")

@@ -13,7 +13,8 @@ back, and none of that may lose a measurement result, block a procedure or execu
   ``stop_timeout_s`` the task is cancelled. A connect given up — a stop while it is in flight, a CONNACK that does
   not come within ``timeout_s`` — leaves nothing behind: aiomqtt runs paho's blocking connect in an executor thread,
   which a cancellation does not stop, so the bridge waits (bounded) for that thread to return and then closes the
-  connection it made (:func:`_close_unentered`); after ``stop()`` no client of the bridge is connected or has tasks.
+  connection it made (:mod:`rgse_daemon.io.mqtt_client`); after ``stop()`` no client of the bridge is connected or
+  has tasks.
 * **Results only through the store's outbox.** ``store.record_result(..., publish=bridge.result_message(run_id))``
   writes the result and its outbox row in one transaction; the bridge's drainer publishes pending rows in id
   order (QoS 1, retained) and marks each published only after the broker's PUBACK. ``bridge.notify_outbox()``
@@ -63,7 +64,6 @@ import random
 import secrets
 import ssl
 import time
-from collections.abc import AsyncIterator
 from dataclasses import asdict, dataclass
 from datetime import datetime
 from enum import StrEnum
@@ -71,7 +71,6 @@ from types import TracebackType
 from typing import Any, Protocol, Self
 
 import aiomqtt
-import paho.mqtt.client as paho
 
 from rgse_daemon.aio import within
 from rgse_daemon.config import MqttConfig
@@ -88,6 +87,7 @@ from rgse_daemon.io.commands import (
     parse_command,
     shown_verb,
 )
+from rgse_daemon.io.mqtt_client import Client, connection
 from rgse_daemon.io.topics import FORBIDDEN_IN_LEVEL, MqttError, Topics
 from rgse_daemon.logs import RepeatThrottle
 from rgse_daemon.store import OutboxMessage, Store, StoreError
@@ -246,122 +246,6 @@ def _tls_context(cfg: MqttConfig) -> ssl.SSLContext | None:
     except (OSError, ssl.SSLError) as exc:
         raise ConfigError(f"mqtt.tls_ca_file {cfg.tls_ca_file}: cannot load CA certificates: {exc}") from exc
     return ctx
-
-
-def _read_exception(fut: asyncio.Future[Any]) -> None:
-    """A done callback that reads a future's exception, so that it counts as retrieved."""
-    if not fut.cancelled():
-        fut.exception()
-
-
-def _retrieve_disconnect_reason(client: aiomqtt.Client) -> None:
-    """Have the reason aiomqtt gives for an unexpected disconnection read whenever it is set.
-
-    aiomqtt (2.5) sets an ``MqttCodeError('Unexpected disconnection')`` on a future of the client (``_disconnected``)
-    when the broker drops the session (another client took our client id over, the connection broke), and reads it
-    only in a message iteration or a publish that fails at once. A session that ends otherwise — its subscribe or
-    "online" publish times out waiting for an ack that will never come, a stop cancels it — leaves the exception
-    unread (``Client.__aexit__`` only asks whether the future is done), and asyncio logs "Future exception was never
-    retrieved" when the client is collected. The reason itself is no news: the session's own error says the
-    connection was lost. Called after constructing and again after entering the client (``__aenter__`` replaces the
-    future when it was already done)."""
-    disconnected = getattr(client, "_disconnected", None)
-    if isinstance(disconnected, asyncio.Future):
-        disconnected.add_done_callback(_read_exception)
-
-
-#: aiomqtt's method (2.5) that ``Client.__aenter__`` runs in an executor thread: paho's blocking connect (TCP, TLS
-#: handshake, CONNECT queued). :class:`_Client` overrides it to learn when it returns. Should an aiomqtt upgrade
-#: rename it, the override is never called and :func:`_close_unentered` falls back to waiting for ``__aenter__``
-#: itself (correct, but a stop during a connect then waits up to ``timeout_s`` for the CONNACK wait to time out);
-#: ``tests/mqtt/test_mqtt_connect_teardown.py`` fails on such a rename.
-_THREADED_CONNECT = "_client_connect"
-_CONNECT_RETURN_SEEN = callable(getattr(aiomqtt.Client, _THREADED_CONNECT, None))
-
-
-def _set_none(fut: asyncio.Future[None]) -> None:
-    if not fut.done():
-        fut.set_result(None)
-
-
-class _Client(aiomqtt.Client):
-    """aiomqtt's client, telling when the connect it runs in an executor thread has returned (``connect_returned``).
-
-    A cancellation of ``__aenter__`` does not stop that thread: it goes on connecting, and aiomqtt then reads and
-    pings the new socket (``Client._misc_loop``) with nobody left to close it. Knowing when the thread has returned
-    lets :func:`_close_unentered` close that connection once it exists, and not before (paho is not meant to be
-    disconnected from the loop while its connect runs in another thread).
-    """
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
-        self._rgse_loop = asyncio.get_running_loop()
-        #: Done once the threaded connect has returned or raised. Set through ``call_soon_threadsafe``, after the
-        #: callbacks the thread scheduled before it (aiomqtt's socket reader, the creation of its misc task).
-        self.connect_returned: asyncio.Future[None] = self._rgse_loop.create_future()
-
-    def _client_connect(self) -> None:  # runs in aiomqtt's executor thread
-        try:
-            super()._client_connect()
-        finally:
-            with contextlib.suppress(RuntimeError):  # the loop was closed meanwhile: nobody is left to tell
-                self._rgse_loop.call_soon_threadsafe(_set_none, self.connect_returned)
-
-
-def _misc_task(client: aiomqtt.Client) -> asyncio.Task[Any] | None:
-    """aiomqtt's (2.5) task that runs paho's periodic work while a socket is open (``Client._misc_task``); aiomqtt
-    cancels it when paho closes the socket."""
-    task = getattr(client, "_misc_task", None)
-    return task if isinstance(task, asyncio.Task) else None
-
-
-def _paho_client(client: aiomqtt.Client) -> paho.Client | None:
-    """The paho client under aiomqtt's (2.5, ``Client._client``)."""
-    inner = getattr(client, "_client", None)
-    return inner if isinstance(inner, paho.Client) else None
-
-
-async def _close_unentered(client: _Client, entering: asyncio.Task[Any], timeout_s: float) -> bool:
-    """Close what a connect given up left behind: ``entering`` is the client's ``__aenter__`` (shielded), and the
-    bridge stops waiting for it (a stop) or it failed (no CONNACK within the timeout, refused). Waits at most
-    ``timeout_s``; returns whether all was closed by then.
-
-    aiomqtt itself leaves the connection open in both cases: a cancelled ``__aenter__`` leaves its connect thread
-    running, and one that fails after the socket was opened (a CONNACK timeout) does not close that socket. So, by
-    callbacks (:func:`_close_when_returned`, which go on if the deadline passes or this wait is cancelled): once the
-    connect thread has returned, have paho send DISCONNECT and close the socket (aiomqtt then removes its reader and
-    ends its misc task), and only then cancel ``entering`` if it still waits for the CONNACK. In that order because
-    cancelling that wait cancels aiomqtt's ``_connected`` future, and aiomqtt's disconnect callback reads its
-    ``.exception()``: with the socket still open, the close raised ``CancelledError`` inside paho's callback (asyncio
-    logged "Exception in callback") and the socket stayed open.
-    """
-    _close_when_returned(client, entering)
-    try:
-        async with asyncio.timeout(timeout_s):
-            await asyncio.wait([entering])
-            misc = _misc_task(client)
-            if misc is not None:
-                await asyncio.wait([misc])
-    except TimeoutError:
-        return False  # the connect thread blocks on (up to paho's connect timeout); the callbacks close once it returns
-    return True
-
-
-def _close_when_returned(client: _Client, entering: asyncio.Task[Any]) -> None:
-    """Once the connect thread returns (without the override, once ``__aenter__`` ends), disconnect; once the socket
-    is closed (aiomqtt's misc task has ended), cancel the CONNACK wait (a no-op when it has ended)."""
-    paho_client = _paho_client(client)
-
-    def returned(_: asyncio.Future[Any]) -> None:
-        if paho_client is not None:
-            paho_client.disconnect()  # without a socket (the connect failed) a no-op
-        misc = _misc_task(client)
-        if misc is None or misc.done():
-            entering.cancel()
-        else:
-            misc.add_done_callback(lambda _: entering.cancel())
-
-    (client.connect_returned if _CONNECT_RETURN_SEEN else entering).add_done_callback(returned)
 
 
 class MqttBridge:
@@ -556,14 +440,14 @@ class MqttBridge:
         self._outq_wake.set()
 
     # --- the reconnect loop -------------------------------------------------------------------------------------
-    def _client(self) -> _Client:
+    def _client(self) -> Client:
         will = aiomqtt.Will(
             self.topics.status,
             _dumps({"state": "offline", "version": self._version, "since": None}, "will"),
             qos=1,
             retain=True,
         )
-        client = _Client(
+        return Client(
             self._cfg.host,
             self._cfg.port,
             username=self._cfg.username,
@@ -578,44 +462,13 @@ class MqttBridge:
             max_queued_incoming_messages=256,
             max_queued_outgoing_messages=self._queue_size,
         )
-        _retrieve_disconnect_reason(client)
-        return client
 
-    @contextlib.asynccontextmanager
-    async def _connection(self) -> AsyncIterator[aiomqtt.Client]:
-        """``async with aiomqtt.Client(...) as client``, except that a connect given up leaves nothing open.
-
-        ``__aenter__`` runs shielded, so that neither a stop nor aiomqtt's own CONNACK timeout leaves its connection
-        half-made: :func:`_close_unentered` closes it, bounded by ``stop_timeout_s`` on a stop (the stop's deadline)
-        and by ``timeout_s`` otherwise, in a task of its own that a stop arriving meanwhile waits for (a further
-        cancellation does not wait, and the close goes on without it). The cancellation or the error is re-raised
-        once that is done.
-        """
-        client = self._client()
-        entering = asyncio.create_task(client.__aenter__(), name=f"mqtt connect {self.prefix}")
-        entering.add_done_callback(_read_exception)  # whoever gave up on it, its failure counts as read
-        try:
-            await asyncio.shield(entering)
-        except BaseException as exc:
-            timeout_s = self._stop_timeout_s if isinstance(exc, asyncio.CancelledError) else self._timeout_s
-            closing = asyncio.create_task(_close_unentered(client, entering, timeout_s),
-                                          name=f"mqtt close {self.prefix}")
-            try:
-                closed = await asyncio.shield(closing)
-            except asyncio.CancelledError:  # a stop while a failed connect is closed: bounded, so wait for it
-                await asyncio.wait([closing])
-                raise
-            if not closed:
-                self._log.problem("abandoned", f"mqtt {self._cfg.host}:{self._cfg.port}: the connection of a "
-                                  f"connect given up was not closed within {timeout_s:g} s; it will be once paho's "
-                                  "connect returns")
-            raise
-        try:
-            yield client
-        except BaseException as exc:
-            await client.__aexit__(type(exc), exc, exc.__traceback__)
-            raise
-        await client.__aexit__(None, None, None)
+    def _connection(self) -> contextlib.AbstractAsyncContextManager[Client]:
+        """``async with client``, except that a connect given up leaves nothing open (:func:`connection`): what it
+        made is closed within ``stop_timeout_s`` on a stop (the stop's deadline; a stop arriving while a failed
+        connect is closed waits for that) and within ``timeout_s`` otherwise."""
+        return connection(self._client(), close_s=self._timeout_s, cancelled_close_s=self._stop_timeout_s,
+                          on_not_closed=lambda message: self._log.problem("abandoned", message))
 
     def _backoff_s(self, attempt: int) -> float:
         lo, hi = self._cfg.reconnect_min_s, self._cfg.reconnect_max_s
@@ -630,7 +483,6 @@ class MqttBridge:
             self._online_at = None
             try:
                 async with self._connection() as client:
-                    _retrieve_disconnect_reason(client)
                     connected = True
                     self._log.resolved("connect", f"{where}: connected")
                     await self._session(client)

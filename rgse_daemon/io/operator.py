@@ -3,7 +3,8 @@
 Broker, prefix, credentials, TLS and command token come from the daemon's own configuration file. Each use is one
 short connection with a fresh client id (never the configured ``client_id``: a broker drops the older of two
 connections with the same id, which would be the daemon's), a clean session, no will, and ONE deadline over
-everything it waits for: connect, subscribe, publish, the reply. A command is validated with the daemon's own
+everything it waits for: connect, subscribe, publish, the reply (the disconnect after it, or the close of a connect
+it ended, is bounded by ``DISCONNECT_S``). A command is validated with the daemon's own
 :func:`~rgse_daemon.io.commands.parse_command` before it is sent; the reply is told apart from other senders' by its
 ``request_id`` (the daemon copies it from the command; replies of every sender share the reply topic).
 """
@@ -27,6 +28,7 @@ from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.io.commands import parse_command
 from rgse_daemon.io.mqtt import _tls_context
+from rgse_daemon.io.mqtt_client import Client, connection, enter
 from rgse_daemon.io.topics import Topics
 
 log = logging.getLogger(__name__)
@@ -131,9 +133,11 @@ def daemon_offline(status: Any) -> bool:
     return isinstance(status, dict) and status.get("state") == "offline"
 
 
-def new_client(ep: Endpoint, purpose: str, timeout_s: float) -> aiomqtt.Client:
-    """An operator's connection: a fresh client id (never the daemon's), a clean session, no will."""
-    return aiomqtt.Client(
+def new_client(ep: Endpoint, purpose: str, timeout_s: float) -> Client:
+    """An operator's connection: a fresh client id (never the daemon's), a clean session, no will. Enter it with
+    :func:`~rgse_daemon.io.mqtt_client.enter` (or :func:`~rgse_daemon.io.mqtt_client.connection`), so that a connect
+    given up leaves nothing open."""
+    return Client(
         ep.host,
         ep.port,
         username=ep.username,
@@ -145,6 +149,13 @@ def new_client(ep: Endpoint, purpose: str, timeout_s: float) -> aiomqtt.Client:
         timeout=timeout_s,
         tls_context=ep.tls,
     )
+
+
+def _not_closed(message: str) -> None:
+    """A connect given up whose close goes on past ``DISCONNECT_S`` (its connect thread is still connecting; the
+    connection is closed once made): not worth a warning on the operator's stderr, whose one error line says what
+    went wrong."""
+    log.debug("%s", message)
 
 
 async def subscribe_checked(client: aiomqtt.Client, ep: Endpoint, filters: Iterable[str]) -> None:
@@ -174,11 +185,13 @@ class Conversation:
         """Connect, run ``body``, disconnect; :class:`Unreachable` on any broker problem or at the deadline.
 
         The deadline covers connecting and ``body``; the disconnect after it is bounded by ``DISCONNECT_S``, and a
-        failed disconnect after ``body`` returned does not change the outcome.
+        failed disconnect after ``body`` returned does not change the outcome. So is the close of a connect that the
+        deadline ended (its connect thread may still be connecting: the connection is closed once it is made).
         """
         answered = False
         try:
-            async with asyncio.timeout(self.timeout_s) as deadline, self._client:
+            async with asyncio.timeout(self.timeout_s) as deadline, connection(self._client, close_s=DISCONNECT_S,
+                                                                               on_not_closed=_not_closed):
                 try:
                     value = await body(self)
                     answered = True
@@ -278,13 +291,13 @@ class Session:
         self._filters = list(filters)
         self._on_message = on_message
         self._purpose = purpose
-        self._mqtt: aiomqtt.Client | None = None  # made on entering: an aiomqtt client belongs to the running loop
+        self._mqtt: Client | None = None  # made on entering: an aiomqtt client belongs to the running loop
         self._replies: dict[str, asyncio.Future[dict[str, Any]]] = {}
         self._reader: asyncio.Task[None] | None = None
         self.failure: BaseException | None = None
 
     @property
-    def _client(self) -> aiomqtt.Client:
+    def _client(self) -> Client:
         if self._mqtt is None:
             raise RuntimeError("Session: use it as `async with`")
         return self._mqtt
@@ -293,7 +306,8 @@ class Session:
         self._mqtt = new_client(self.ep, self._purpose, self.timeout_s)
         try:
             async with asyncio.timeout(self.timeout_s):
-                await self._client.__aenter__()
+                # a connect given up (this deadline, a cancellation) is closed within DISCONNECT_S
+                await enter(self._client, close_s=DISCONNECT_S, on_not_closed=_not_closed)
                 try:
                     replies = f"{self.ep.topics.prefix}/cmd/+/reply"
                     await subscribe_checked(self._client, self.ep, [*self._filters, replies])

@@ -13,123 +13,16 @@ forwarding to the real Mosquitto; and one that accepts and never answers CONNECT
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import os
-import socket
-from collections.abc import Coroutine
-from types import TracebackType
-from typing import Any, Self
 
 import aiomqtt
 import paho.mqtt.client as paho
 import pytest
 
-from rgse_daemon.io import mqtt as mqtt_module
+from rgse_daemon.io import mqtt_client
 from rgse_daemon.io.mqtt import ConnectionState, MqttBridge
 from rgse_daemon.store import Store
-from tests.support.mqtt import ROBOT, RecordingHandler, asyncio_complaints, mqtt_config
+from tests.support.mqtt import ROBOT, RecordingHandler, TcpPeer, aiomqtt_tasks, asyncio_complaints, mqtt_config
 from tests.support.polling import wait_until
-
-
-def _aiomqtt_tasks() -> list[str]:
-    """The running tasks whose coroutine is aiomqtt's own (its client's ``_misc_loop``)."""
-    names = []
-    for task in asyncio.all_tasks():
-        code = getattr(task.get_coro(), "cr_code", None)
-        if not task.done() and code is not None and f"{os.sep}aiomqtt{os.sep}" in code.co_filename:
-            names.append(task.get_coro().__qualname__)
-    return names
-
-
-class _Peer:
-    """A raw TCP listener on a free loopback port that notes, per accepted connection, when the client closes it.
-
-    ``forward_to``: each connection is forwarded to that broker; otherwise it is held and never answered (a hung
-    broker, a firewall's half-open port). ``backlog_full``: the accept queue is filled (by a connection of the test
-    itself) and nothing is accepted until :meth:`release` — a client's connect blocks in ``connect()``.
-    """
-
-    def __init__(self, *, forward_to: tuple[str, int] | None = None, backlog_full: bool = False) -> None:
-        self._forward_to = forward_to
-        self._listener = socket.socket()
-        self._listener.bind(("127.0.0.1", 0))
-        self._listener.listen(0)  # Linux: one completed connection fits in the accept queue, a further SYN is dropped
-        self._listener.setblocking(False)
-        self.port: int = self._listener.getsockname()[1]
-        self._filler: socket.socket | None = None
-        if backlog_full:
-            self._filler = socket.create_connection(("127.0.0.1", self.port), timeout=5)
-        self.accepted = 0
-        self.closed_by_client = 0
-        self._released = asyncio.Event()
-        self._tasks: set[asyncio.Task[None]] = set()
-        self._writers: list[asyncio.StreamWriter] = []
-
-    async def __aenter__(self) -> Self:
-        self._spawn(self._accept())
-        if self._filler is None:
-            self.release()
-        return self
-
-    async def __aexit__(
-        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        await self.close()
-
-    def release(self) -> None:
-        """Start accepting (the connection filling the accept queue is accepted and closed first)."""
-        self._released.set()
-
-    async def close(self) -> None:
-        """Close every connection from our side, then the listener."""
-        for writer in self._writers:
-            writer.close()
-        for task in self._tasks:
-            task.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
-        for writer in self._writers:
-            with contextlib.suppress(ConnectionError):
-                await writer.wait_closed()
-        if self._filler is not None:
-            self._filler.close()
-        self._listener.close()
-
-    def _spawn(self, coro: Coroutine[Any, Any, None]) -> None:
-        self._tasks.add(asyncio.create_task(coro))
-
-    async def _accept(self) -> None:
-        loop = asyncio.get_running_loop()
-        await self._released.wait()
-        filler = None if self._filler is None else self._filler.getsockname()
-        while True:
-            conn, peer = await loop.sock_accept(self._listener)
-            if peer == filler:
-                conn.close()
-                continue
-            self.accepted += 1
-            reader, writer = await asyncio.open_connection(sock=conn)
-            self._writers.append(writer)
-            upstream: asyncio.StreamWriter | None = None
-            if self._forward_to is not None:
-                up_reader, upstream = await asyncio.open_connection(*self._forward_to)
-                self._writers.append(upstream)
-                self._spawn(self._pump(up_reader, writer))
-            self._spawn(self._from_client(reader, upstream))
-
-    async def _from_client(self, reader: asyncio.StreamReader, upstream: asyncio.StreamWriter | None) -> None:
-        with contextlib.suppress(ConnectionError):
-            while data := await reader.read(4096):
-                if upstream is not None:
-                    upstream.write(data)
-        self.closed_by_client += 1
-        if upstream is not None:
-            upstream.close()
-
-    @staticmethod
-    async def _pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        with contextlib.suppress(ConnectionError):
-            while data := await reader.read(4096):
-                writer.write(data)
 
 
 async def test_a_stop_during_the_threaded_tcp_connect_leaves_no_client_behind(
@@ -139,7 +32,7 @@ async def test_a_stop_during_the_threaded_tcp_connect_leaves_no_client_behind(
     thread and closes the connection it made, rather than leaving a client that connects (and stays connected,
     its misc task running) after the daemon said it had stopped."""
     with asyncio_complaints(caplog) as complaints:
-        async with _Peer(forward_to=system_broker, backlog_full=True) as peer:
+        async with TcpPeer(forward_to=system_broker, backlog_full=True) as peer:
             bridge = MqttBridge(mqtt_config("127.0.0.1", peer.port, prefix), ROBOT, store, RecordingHandler(), "1",
                                 timeout_s=5)
             await bridge.start()
@@ -151,12 +44,12 @@ async def test_a_stop_during_the_threaded_tcp_connect_leaves_no_client_behind(
             async with asyncio.timeout(10):
                 await stopping
             assert bridge.connection_state is ConnectionState.STOPPED
-            assert _aiomqtt_tasks() == []
+            assert aiomqtt_tasks() == []
             # the thread's connection reached the broker (before the stop returned, or, unfixed, after it) ...
             await wait_until(lambda: peer.accepted == 1, "the thread's connect arrived", timeout_s=10)
             # ... and was closed by the client, not left open with aiomqtt's misc task pinging it
             await wait_until(lambda: peer.closed_by_client == 1, "the client closed its connection", timeout_s=3)
-            assert _aiomqtt_tasks() == []
+            assert aiomqtt_tasks() == []
     assert complaints == []
 
 
@@ -166,7 +59,7 @@ async def test_a_stop_whose_deadline_passes_in_the_threaded_connect_closes_the_c
     """The connect thread can block longer than the stop may take (up to paho's connect timeout): the stop returns
     at its deadline, says so, and the connection is closed as soon as the thread has made it."""
     with asyncio_complaints(caplog) as complaints:
-        async with _Peer(forward_to=system_broker, backlog_full=True) as peer:
+        async with TcpPeer(forward_to=system_broker, backlog_full=True) as peer:
             bridge = MqttBridge(mqtt_config("127.0.0.1", peer.port, prefix), ROBOT, store, RecordingHandler(), "1",
                                 timeout_s=5, stop_timeout_s=0.2)
             await bridge.start()
@@ -178,7 +71,7 @@ async def test_a_stop_whose_deadline_passes_in_the_threaded_connect_closes_the_c
             peer.release()
             await wait_until(lambda: peer.accepted == 1, "the thread's connect arrived", timeout_s=10)
             await wait_until(lambda: peer.closed_by_client == 1, "the client closed its connection", timeout_s=3)
-            await wait_until(lambda: _aiomqtt_tasks() == [], "aiomqtt's tasks ended", timeout_s=3)
+            await wait_until(lambda: aiomqtt_tasks() == [], "aiomqtt's tasks ended", timeout_s=3)
     assert complaints == []
 
 
@@ -189,14 +82,14 @@ async def test_a_stop_during_the_connack_wait_closes_the_connection_and_asyncio_
     it also closes that connection — aiomqtt's misc task does not run on — and the broker closing its side later
     makes asyncio log nothing (aiomqtt read the CONNACK future the cancellation had left cancelled)."""
     with asyncio_complaints(caplog) as complaints:
-        async with _Peer() as peer:
+        async with TcpPeer() as peer:
             bridge = MqttBridge(mqtt_config("127.0.0.1", peer.port, "rgse/silent"), ROBOT, store, RecordingHandler(),
                                 "1", timeout_s=30)
             await bridge.start()
             await wait_until(lambda: peer.accepted == 1, "the connection accepted", timeout_s=10)
             async with asyncio.timeout(5):  # well inside the 30 s connect timeout
                 await bridge.stop()
-            assert _aiomqtt_tasks() == []
+            assert aiomqtt_tasks() == []
             await wait_until(lambda: peer.closed_by_client == 1, "the client closed its connection", timeout_s=3)
         await asyncio.sleep(0.1)  # the peer closed its side: nothing of the client may still react to that
     assert complaints == []
@@ -209,25 +102,25 @@ async def test_a_connect_whose_connack_times_out_closes_its_connection(
     attempt's connection then (aiomqtt leaves it open, its misc task running, until the keepalive runs out),
     so a long outage of that kind does not pile up connections and tasks."""
     with asyncio_complaints(caplog) as complaints:
-        async with _Peer() as peer:
+        async with TcpPeer() as peer:
             cfg = mqtt_config("127.0.0.1", peer.port, "rgse/silent", reconnect_min_s=0.01, reconnect_max_s=0.05)
             bridge = MqttBridge(cfg, ROBOT, store, RecordingHandler(), "1", timeout_s=0.3)
             async with bridge:
                 await wait_until(lambda: peer.accepted >= 3, "three attempts", timeout_s=15)
                 await wait_until(lambda: peer.closed_by_client >= 2, "the timed-out attempts closed", timeout_s=3)
                 assert peer.closed_by_client >= peer.accepted - 1  # all but the attempt in flight
-                assert _aiomqtt_tasks().count("Client._misc_loop") <= 1  # that of the attempt in flight, if any
-            assert _aiomqtt_tasks() == []
+                assert aiomqtt_tasks().count("Client._misc_loop") <= 1  # that of the attempt in flight, if any
+            assert aiomqtt_tasks() == []
             await wait_until(lambda: peer.closed_by_client == peer.accepted, "every connection closed", timeout_s=3)
     assert complaints == []
 
 
 def test_the_aiomqtt_internals_the_bridge_relies_on_are_there() -> None:
     """What the bridge reads or overrides of aiomqtt's private side to tear down a connect it gives up (see
-    ``rgse_daemon.io.mqtt._Client`` and ``_close_unentered``): a rename in an aiomqtt upgrade fails here, not
+    ``rgse_daemon.io.mqtt_client.Client`` and ``_close_unentered``): a rename in an aiomqtt upgrade fails here, not
     silently in the field (where the guards would make a stop during a connect slow again, or leave it open)."""
     assert callable(getattr(aiomqtt.Client, "_client_connect", None))
-    assert mqtt_module._CONNECT_RETURN_SEEN
+    assert mqtt_client._CONNECT_RETURN_SEEN
 
     async def build() -> aiomqtt.Client:
         return aiomqtt.Client("127.0.0.1")

@@ -1,4 +1,5 @@
-"""Helpers of the MQTT tests: a private Mosquitto process, a collecting subscriber, a recording handler."""
+"""Helpers of the MQTT tests: a private Mosquitto process, a collecting subscriber, a recording handler, a raw TCP
+listener standing in for a slow or silent broker."""
 
 from __future__ import annotations
 
@@ -6,11 +7,12 @@ import asyncio
 import contextlib
 import gc
 import json
+import os
 import signal
 import socket
 import subprocess
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Coroutine, Iterator
 from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
@@ -90,6 +92,143 @@ class MosquittoProcess:
         except TimeoutError:
             proc.kill()
             await asyncio.wait_for(proc.wait(), 10)
+
+
+def aiomqtt_tasks() -> list[str]:
+    """The running tasks whose coroutine is aiomqtt's own (its client's ``_misc_loop``)."""
+    names = []
+    for task in asyncio.all_tasks():
+        code = getattr(task.get_coro(), "cr_code", None)
+        if not task.done() and code is not None and f"{os.sep}aiomqtt{os.sep}" in code.co_filename:
+            names.append(task.get_coro().__qualname__)
+    return names
+
+
+class TcpPeer:
+    """A raw TCP listener on a free loopback port that notes, per accepted connection, when the client closes it.
+
+    ``forward_to``: each connection is forwarded to that broker (its end of the connection is passed on as a
+    half-close); otherwise it is held and never answered (a hung broker, a firewall's half-open port).
+    ``backlog_full``: the accept queue is filled (by a connection of the test itself) and nothing is accepted until
+    :meth:`release` — a client's connect blocks in ``connect()``. ``hold_from``: an MQTT packet type (e.g.
+    :data:`SUBSCRIBE`); from the client's first packet of that type on, nothing it sends is forwarded, so the broker
+    never acknowledges it (counted in ``held``). ``client_ids``: the client id of each CONNECT seen, in order.
+    ``backlog``: of the listening socket; more than 0 for clients that connect at once (with ``backlog_full``, 0).
+    """
+
+    def __init__(self, *, forward_to: tuple[str, int] | None = None, backlog_full: bool = False,
+                 hold_from: int | None = None, backlog: int = 0) -> None:
+        self._forward_to = forward_to
+        self._hold_from = hold_from
+        self._listener = socket.socket()
+        self._listener.bind(("127.0.0.1", 0))
+        # Linux, backlog 0: one completed connection fits in the accept queue, a further SYN is dropped
+        self._listener.listen(backlog)
+        self._listener.setblocking(False)
+        self.port: int = self._listener.getsockname()[1]
+        self._filler: socket.socket | None = None
+        if backlog_full:
+            self._filler = socket.create_connection(("127.0.0.1", self.port), timeout=5)
+        self.accepted = 0
+        self.closed_by_client = 0
+        self.held = 0
+        self.client_ids: list[str] = []
+        self._released = asyncio.Event()
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._writers: list[asyncio.StreamWriter] = []
+
+    async def __aenter__(self) -> Self:
+        self._spawn(self._accept())
+        if self._filler is None:
+            self.release()
+        return self
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.close()
+
+    def release(self) -> None:
+        """Start accepting (the connection filling the accept queue is accepted and closed first)."""
+        self._released.set()
+
+    async def close(self) -> None:
+        """Close every connection from our side, then the listener."""
+        for writer in self._writers:
+            writer.close()
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        for writer in self._writers:
+            with contextlib.suppress(ConnectionError):
+                await writer.wait_closed()
+        if self._filler is not None:
+            self._filler.close()
+        self._listener.close()
+
+    def _spawn(self, coro: Coroutine[Any, Any, None]) -> None:
+        self._tasks.add(asyncio.create_task(coro))
+
+    async def _accept(self) -> None:
+        loop = asyncio.get_running_loop()
+        await self._released.wait()
+        filler = None if self._filler is None else self._filler.getsockname()
+        while True:
+            conn, peer = await loop.sock_accept(self._listener)
+            if peer == filler:
+                conn.close()
+                continue
+            self.accepted += 1
+            reader, writer = await asyncio.open_connection(sock=conn)
+            self._writers.append(writer)
+            upstream: asyncio.StreamWriter | None = None
+            if self._forward_to is not None:
+                up_reader, upstream = await asyncio.open_connection(*self._forward_to)
+                self._writers.append(upstream)
+                self._spawn(self._pump(up_reader, writer))
+            self._spawn(self._from_client(reader, upstream))
+
+    async def _from_client(self, reader: asyncio.StreamReader, upstream: asyncio.StreamWriter | None) -> None:
+        holding = False
+        with contextlib.suppress(ConnectionError):
+            while data := await reader.read(4096):
+                # the CONNECT comes alone (nothing is sent before its CONNACK), and a packet sent after waiting for
+                # the broker's answer starts a chunk: the chunk's first byte is that packet's
+                if data[0] >> 4 == CONNECT:
+                    self.client_ids.append(_connect_client_id(data))
+                if data[0] >> 4 == self._hold_from and not holding:
+                    holding = True
+                    self.held += 1
+                if upstream is not None and not holding:
+                    upstream.write(data)
+        self.closed_by_client += 1
+        if upstream is not None:
+            upstream.close()
+
+    @staticmethod
+    async def _pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        with contextlib.suppress(ConnectionError):
+            while data := await reader.read(4096):
+                writer.write(data)
+            if not writer.is_closing():
+                writer.write_eof()  # the broker ended the connection (e.g. a takeover of its client id)
+
+
+#: MQTT control packet types (the high nibble of a packet's first byte).
+CONNECT = 1
+SUBSCRIBE = 8
+
+
+def _connect_client_id(packet: bytes) -> str:
+    """The client id of an MQTT 3.1.1 CONNECT packet (after the fixed header: protocol name, level, flags, keepalive,
+    then the client id as a length-prefixed string)."""
+    i = 1
+    while packet[i] & 0x80:  # the remaining length's bytes
+        i += 1
+    i += 1
+    i += 2 + int.from_bytes(packet[i:i + 2], "big") + 1 + 1 + 2
+    n = int.from_bytes(packet[i:i + 2], "big")
+    return packet[i + 2:i + 2 + n].decode()
 
 
 def _remaining_length(n: int) -> bytes:
