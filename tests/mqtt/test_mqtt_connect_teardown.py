@@ -128,3 +128,9 @@ def test_the_aiomqtt_internals_the_bridge_relies_on_are_there() -> None:
     client = asyncio.run(build())
     assert isinstance(getattr(client, "_client", None), paho.Client)
     assert hasattr(client, "_misc_task") and client._misc_task is None
+    # the disconnect reason read (Client) and the CONNACK wait a cancelled connect leaves (Client._on_disconnect)
+    assert isinstance(getattr(client, "_disconnected", None), asyncio.Future)
+    assert isinstance(getattr(client, "_connected", None), asyncio.Future)
+    # paho calls aiomqtt's _on_disconnect as the bound method, so the subclass' override is the one it calls
+    assert callable(getattr(aiomqtt.Client, "_on_disconnect", None))
+    assert client._client.on_disconnect == client._on_disconnect
