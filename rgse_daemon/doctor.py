@@ -396,13 +396,13 @@ async def _broker(cfg: Config) -> Check:
         return Check("broker", None, "MQTT disabled")
     import aiomqtt
 
-    from rgse_daemon.io.mqtt_client import Client, enter
+    from rgse_daemon.io.mqtt_client import Client, enter, tls_context
 
     where = f"{cfg.mqtt.host}:{cfg.mqtt.port}"
-    tls = aiomqtt.TLSParameters(ca_certs=str(cfg.mqtt.tls_ca_file) if cfg.mqtt.tls_ca_file else None) \
-        if cfg.mqtt.tls else None
+    # the daemon's own TLS context (its CA, host-name check, a socket closed when the handshake fails)
     client = Client(cfg.mqtt.host, cfg.mqtt.port, username=cfg.mqtt.username, password=cfg.mqtt.password,
-                    identifier=f"rgse-doctor-{time.time_ns()}", tls_params=tls, timeout=BROKER_TIMEOUT_S)
+                    identifier=f"rgse-doctor-{time.time_ns()}", tls_context=tls_context(cfg.mqtt),
+                    timeout=BROKER_TIMEOUT_S)
     try:
         # connecting (and the login it carries) is the check; a connect given up (no CONNACK, the check cancelled)
         # is closed, not left connected

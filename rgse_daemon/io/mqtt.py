@@ -62,7 +62,6 @@ import logging
 import math
 import random
 import secrets
-import ssl
 import time
 from dataclasses import asdict, dataclass
 from datetime import datetime
@@ -87,7 +86,7 @@ from rgse_daemon.io.commands import (
     parse_command,
     shown_verb,
 )
-from rgse_daemon.io.mqtt_client import Client, connection
+from rgse_daemon.io.mqtt_client import Client, connection, tls_context
 from rgse_daemon.io.topics import FORBIDDEN_IN_LEVEL, MqttError, Topics
 from rgse_daemon.logs import RepeatThrottle
 from rgse_daemon.store import OutboxMessage, Store, StoreError
@@ -211,43 +210,6 @@ class _LogOnce:
             self._logger.info("%s", message)
 
 
-class _ClosingTlsContext(ssl.SSLContext):
-    """An SSL context that closes the socket when the TLS handshake fails.
-
-    paho-mqtt (2.2, ``Client._ssl_wrap_socket``) wraps the TCP socket with ``do_handshake_on_connect=False``
-    and calls ``do_handshake()`` itself; when that raises (an unknown CA, a wrong host name) the socket is never
-    closed — a descriptor leaked on every reconnect attempt against a misconfigured broker. Doing the handshake
-    here, inside ``wrap_socket``, lets us close it; paho's own ``do_handshake()`` on the finished connection is
-    then a no-op. The handshake is bounded by the TCP socket's timeout (paho's connect timeout).
-    """
-
-    def wrap_socket(self, sock: Any, *args: Any, **kwargs: Any) -> ssl.SSLSocket:  # type: ignore[override]
-        ssl_sock = super().wrap_socket(sock, *args, **kwargs)
-        try:
-            ssl_sock.do_handshake()
-        except BaseException:
-            ssl_sock.close()
-            raise
-        return ssl_sock
-
-
-def _tls_context(cfg: MqttConfig) -> ssl.SSLContext | None:
-    """What ``ssl.create_default_context`` gives a client (verify peer and host name), with the CA file if set."""
-    if not cfg.tls:
-        if cfg.tls_ca_file is not None:
-            raise ConfigError("mqtt.tls_ca_file is set but mqtt.tls is false")
-        return None
-    ctx = _ClosingTlsContext(ssl.PROTOCOL_TLS_CLIENT)  # check_hostname and CERT_REQUIRED by default
-    try:
-        if cfg.tls_ca_file is None:
-            ctx.load_default_certs(ssl.Purpose.SERVER_AUTH)
-        else:
-            ctx.load_verify_locations(cafile=str(cfg.tls_ca_file))
-    except (OSError, ssl.SSLError) as exc:
-        raise ConfigError(f"mqtt.tls_ca_file {cfg.tls_ca_file}: cannot load CA certificates: {exc}") from exc
-    return ctx
-
-
 class MqttBridge:
     """Publishes the daemon's status, state, progress, alarms and (from the outbox) results; serves commands.
 
@@ -292,7 +254,7 @@ class MqttBridge:
         self._queue_size = queue_size
         # Connect (socket + CONNACK), offline publish and disconnect each take at most about timeout_s.
         self._stop_timeout_s = 4 * self._timeout_s if stop_timeout_s is None else float(stop_timeout_s)
-        self._tls = _tls_context(cfg)
+        self._tls = tls_context(cfg)
         self._client_id = cfg.client_id or f"rgse-{robot}-{secrets.token_hex(4)}"
         self.topics = Topics.of(cfg, robot)
         self.counters = MqttCounters()

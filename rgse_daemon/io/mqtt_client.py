@@ -30,11 +30,15 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import ssl
 from collections.abc import AsyncIterator, Callable
 from typing import Any, Self
 
 import aiomqtt
 import paho.mqtt.client as paho
+
+from rgse_daemon.config import MqttConfig
+from rgse_daemon.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -218,3 +222,40 @@ def _close_when_returned(client: Client, entering: asyncio.Task[Any]) -> None:
             misc.add_done_callback(lambda _: entering.cancel())
 
     (client.connect_returned if _CONNECT_RETURN_SEEN else entering).add_done_callback(returned)
+
+
+class _ClosingTlsContext(ssl.SSLContext):
+    """An SSL context that closes the socket when the TLS handshake fails.
+
+    paho-mqtt (2.2, ``Client._ssl_wrap_socket``) wraps the TCP socket with ``do_handshake_on_connect=False``
+    and calls ``do_handshake()`` itself; when that raises (an unknown CA, a wrong host name) the socket is never
+    closed — a descriptor leaked on every reconnect attempt against a misconfigured broker. Doing the handshake
+    here, inside ``wrap_socket``, lets us close it; paho's own ``do_handshake()`` on the finished connection is
+    then a no-op. The handshake is bounded by the TCP socket's timeout (paho's connect timeout).
+    """
+
+    def wrap_socket(self, sock: Any, *args: Any, **kwargs: Any) -> ssl.SSLSocket:  # type: ignore[override]
+        ssl_sock = super().wrap_socket(sock, *args, **kwargs)
+        try:
+            ssl_sock.do_handshake()
+        except BaseException:
+            ssl_sock.close()
+            raise
+        return ssl_sock
+
+
+def tls_context(cfg: MqttConfig) -> ssl.SSLContext | None:
+    """What ``ssl.create_default_context`` gives a client (verify peer and host name), with the CA file if set."""
+    if not cfg.tls:
+        if cfg.tls_ca_file is not None:
+            raise ConfigError("mqtt.tls_ca_file is set but mqtt.tls is false")
+        return None
+    ctx = _ClosingTlsContext(ssl.PROTOCOL_TLS_CLIENT)  # check_hostname and CERT_REQUIRED by default
+    try:
+        if cfg.tls_ca_file is None:
+            ctx.load_default_certs(ssl.Purpose.SERVER_AUTH)
+        else:
+            ctx.load_verify_locations(cafile=str(cfg.tls_ca_file))
+    except (OSError, ssl.SSLError) as exc:
+        raise ConfigError(f"mqtt.tls_ca_file {cfg.tls_ca_file}: cannot load CA certificates: {exc}") from exc
+    return ctx

@@ -27,8 +27,7 @@ import aiomqtt
 from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.io.commands import parse_command
-from rgse_daemon.io.mqtt import _tls_context
-from rgse_daemon.io.mqtt_client import Client, connection, enter
+from rgse_daemon.io.mqtt_client import Client, connection, enter, tls_context
 from rgse_daemon.io.topics import Topics
 
 log = logging.getLogger(__name__)
@@ -83,7 +82,7 @@ def endpoint_of(cfg: Config, path: Path | str = "<config>") -> Endpoint:
         topics=Topics.of(m, cfg.robot.name),  # as the daemon's bridge derives them
         username=m.username,
         password=m.password,
-        tls=_tls_context(m),
+        tls=tls_context(m),
         keepalive_s=m.keepalive_s,
         token=m.command_tokens[0] if m.command_tokens else None,
     )

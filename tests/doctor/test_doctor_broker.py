@@ -62,3 +62,23 @@ async def test_a_doctor_cancelled_during_the_broker_check_closes_its_connection(
             assert aiomqtt_tasks() == []
         await asyncio.sleep(0.1)
     assert complaints == []
+
+
+async def test_the_broker_check_uses_the_daemons_tls_context(tmp_path: Path) -> None:
+    """The check connects as the daemon would, with the daemon's TLS context: a CA file that holds no certificate
+    fails the check by name, before anything connects (it built its own TLS parameters, which paho read only while
+    connecting)."""
+    ca = tmp_path / "ca.pem"
+    ca.write_text("not a certificate\n")
+    async with TcpPeer() as peer:
+        cfg = config_from_mapping({
+            "controller": {"host": "127.0.0.1", "port": free_port()},
+            "paths": {"data_dir": str(tmp_path / "data")},
+            "mqtt": {"enabled": True, "host": "127.0.0.1", "port": peer.port, "command_auth": "open_lab_bench",
+                     "tls": True, "tls_ca_file": str(ca)},
+        })
+        report = await run_doctor(cfg, template_defaults(cfg), record=False)
+        broker = next(c for c in report.checks if c.name == "broker")
+        assert broker.ok is False, broker
+        assert f"mqtt.tls_ca_file {ca}: cannot load CA certificates" in broker.detail, broker
+        assert peer.accepted == 0
