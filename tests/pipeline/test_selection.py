@@ -165,6 +165,7 @@ def test_the_catalogue_is_the_same_for_every_torque_scale(paper_dir, c):
     and auto's nested figure was 0.79 % at c = 0.2 and 0.86 % at c = 5 against 0.72 %."""
     pts = load_points_csv(paper_dir / "table1_calibration.csv")
     ref = {e.method: e for e in S.evaluate_all(pts, G, DR)}
+    assert pts.gain_scale_nm() == pytest.approx(2 / 9 * 4505.9, abs=0.05)  # Table 1's largest torque, A3 (Nm)
     big = scaled(pts, c)
     assert big.gain_scale_nm() == pytest.approx(c * pts.gain_scale_nm())
     evs = S.evaluate_all(big, G, DR)
