@@ -39,8 +39,9 @@ VALIDATION_SCHEME = {"configurations": "leave-one-configuration-out (all loops o
 #: A joint model is admissible only if, on every axis, its held-out corrected torques scatter around the expected
 #: torques (eq. 17/18) by at most this factor times the best per-axis model's.
 JOINT_AXIS_FACTOR = 1.5
-#: ... with this floor (Nm): a split error below it is immaterial (0.1 kg at Δr = 1.025 m).
-JOINT_AXIS_FLOOR_NM = 1.0
+#: ... with this floor, as a fraction of the campaign's gain scale (:meth:`CalibrationPoints.gain_scale_nm`): a split
+#: error below it is immaterial (on Table 1 1.0 Nm, 0.1 kg at Δr = 1.025 m), on any robot's torque scale.
+JOINT_AXIS_FLOOR_FRACTION = 1e-3
 #: A joint model replaces the best per-axis model only if its selection score is lower by more than this (%).
 PREFER_AXIS_MARGIN_PCT = 0.02
 #: Weight of the lever-group (extrapolation to other levers) error in the selection score.
@@ -147,11 +148,12 @@ def evaluate_all(points: CalibrationPoints, g_m_s2: float, lever_difference_m: f
             progress(done, len(MODELS))
     if not out:
         raise CalibrationError("no calibration model can be fitted to these points (too few loaded points)")
-    return admissibility(out)
+    return admissibility(out, JOINT_AXIS_FLOOR_FRACTION * points.gain_scale_nm())
 
 
-def admissibility(evaluations: list[Evaluation]) -> list[Evaluation]:
-    """Mark the joint models whose A3/A5 split is not borne out by held-out configurations as inadmissible.
+def admissibility(evaluations: list[Evaluation], floor_nm: float) -> list[Evaluation]:
+    """Mark the joint models whose A3/A5 split is not borne out by held-out configurations as inadmissible
+    (``floor_nm``: a per-axis held-out RMS below it counts as this much, :data:`JOINT_AXIS_FLOOR_FRACTION`).
 
     On points where M_A3 and M_A5 rise together (a mass stack) a joint fit can move any part of the correction
     from one axis to the other without changing eq. 21's mass there; the wrong split shows as soon as a DuT's A3/A5
@@ -171,7 +173,7 @@ def admissibility(evaluations: list[Evaluation]) -> list[Evaluation]:
         # (the lever-group fold cannot judge the split: without the torque points no joint fit can find it)
         bad = [f"{ax} held-out {v:.1f} Nm vs per-axis {b:.1f} Nm" for ax, v, b in
                zip(("A3", "A5"), e.axis_rms_nm, best, strict=True)
-               if v > JOINT_AXIS_FACTOR * max(b, JOINT_AXIS_FLOOR_NM)]
+               if v > JOINT_AXIS_FACTOR * max(b, floor_nm)]
         out.append(replace(e, admissible=not bad, note="; ".join(bad)))
     return out
 

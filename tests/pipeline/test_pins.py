@@ -761,12 +761,12 @@ def test_admissibility_by_hand():
     """A joint model is admissible unless an axis' held-out RMS exceeds 1.5 × the best per-axis model's (floored at
     1 Nm); with no per-axis model every joint one is inadmissible."""
     out = S.admissibility([ev_rms("axis-linear", 4.0, 0.5), ev_rms("sur-quad", 6.0, 2.0),
-                           ev_rms("gain-linear", 6.0, 1.5), ev_rms("gain-quad", 6.5, 1.6)])
+                           ev_rms("gain-linear", 6.0, 1.5), ev_rms("gain-quad", 6.5, 1.6)], floor_nm=1.0)
     by = {e.method: e for e in out}
     assert by["axis-linear"].admissible and by["sur-quad"].admissible  # per-axis models are never judged
     assert by["gain-linear"].admissible and by["gain-linear"].note == ""  # exactly at 1.5 × 4.0 and 1.5 × max(0.5, 1)
     assert not by["gain-quad"].admissible
     assert by["gain-quad"].note == "A3 held-out 6.5 Nm vs per-axis 4.0 Nm; A5 held-out 1.6 Nm vs per-axis 0.5 Nm"
-    alone = S.admissibility([ev_rms("gain-linear", 1.0, 1.0), ev_rms("gain-quad", 1.0, 1.0)])
+    alone = S.admissibility([ev_rms("gain-linear", 1.0, 1.0), ev_rms("gain-quad", 1.0, 1.0)], floor_nm=1.0)
     refused = (False, "no per-axis model to check the A3/A5 split against")
     assert [(e.admissible, e.note) for e in alone] == [refused, refused]
