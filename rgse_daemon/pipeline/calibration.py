@@ -354,6 +354,26 @@ class Calibration:
                            self.torque_range_a5_nm, self.g_m_s2, self.lever_difference_m, self.r2,
                            self.covariance_reference)
 
+    def params_of(self, other: Calibration) -> np.ndarray:
+        """``other``'s curves (a refit of this model to other data) as this calibration's parameters, for
+        :meth:`with_params`. A refit of a model with a ``sat`` term picks its own τ on the grid (and an average's
+        refit its own union of terms): its coefficients belong to its own basis, and put into this one they give
+        another curve (on Table 1, a spread of the DuT's mass over the refits 10 to 30 times the refits' own).
+        Where the bases differ, each axis' refitted curve G(M) is projected by least squares onto this calibration's
+        basis over 0 to 1.5 times the torque it covers (the envelope's limit); the basis functions are odd, so one
+        sign suffices. Same basis: ``other.params``."""
+        out = []
+        for mine, theirs, (_, top) in ((self.k_a3, other.k_a3, self.torque_range_a3_nm),
+                                       (self.k_a5, other.k_a5, self.torque_range_a5_nm)):
+            if not (isinstance(mine, GainK) and isinstance(theirs, GainK)) or (
+                    mine.terms == theirs.terms and mine.term_scales_nm == theirs.term_scales_nm):
+                out.append(theirs.params)
+                continue
+            grid = np.linspace(0.0, 1.5 * max(top, 1.0), 301)
+            coef, *_ = np.linalg.lstsq(mine.design(grid), theirs.corrected_torque_nm(grid), rcond=None)
+            out.append(coef)
+        return np.concatenate(out)
+
     @property
     def covariance_fit(self) -> np.ndarray:
         """The fit's own part of the parameter covariance (without the reference masses')."""
@@ -508,10 +528,10 @@ def fit_axis_gain(torque_nm: np.ndarray, expected_nm: np.ndarray, terms: tuple[s
     torque scale ``scale_nm`` (:meth:`CalibrationPoints.gain_scale_nm`); K, cov, R².
 
     A ``sat`` term's scale τ is one more parameter: the curve is fitted at every τ of :data:`SAT_SCALE_MULTIPLES`
-    times ``scale_nm`` up to
-    :data:`SAT_MAX_FRACTION` of the largest covered torque (beyond it the term is the lin and quad terms over again)
-    and the τ with the least squares is kept (variable projection on a grid; the covariance is the coefficients'
-    at that τ, the bootstrap of the uncertainty refits τ)."""
+    times ``scale_nm`` up to :data:`SAT_MAX_FRACTION` of the largest covered torque (beyond it the term is the lin
+    and quad terms over again) and the τ with the least squares is kept (variable projection on a grid; the
+    covariance is the coefficients' at that τ; the bootstrap of the uncertainty refits τ and re-expresses each refit
+    in the calibration's basis, :meth:`Calibration.params_of`)."""
     n_par = len(terms) + ("sat" in terms)
     if len(torque_nm) < n_par + 1:
         raise CalibrationError(f"gain curve {'+'.join(terms)} needs at least {n_par + 1} points, "

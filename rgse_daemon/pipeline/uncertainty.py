@@ -230,7 +230,7 @@ def bootstrap_params(points: CalibrationPoints, method: str, g_m_s2: float, leve
         try:  # (a draw whose expected A5 torque reaches A3's is not a load: refused by CalibrationPoints)
             star = CalibrationPoints(points.kind, mass, points.torque_a3_nm, points.torque_a5_nm, e3, e5,
                                      points.mass_cov_kg2)
-            out.append(cal_mod.fit(star, method, g_m_s2, lever_difference_m).params)
+            out.append(cal.params_of(cal_mod.fit(star, method, g_m_s2, lever_difference_m)))
         except CalibrationError:
             continue  # a degenerate resample: the others still estimate the spread
     return np.asarray(out, float).reshape(-1, len(cal.params))
@@ -239,13 +239,14 @@ def bootstrap_params(points: CalibrationPoints, method: str, g_m_s2: float, leve
 def reference_params(points: CalibrationPoints, method: str, g_m_s2: float, lever_difference_m: float,
                      n: int = REFERENCE_N, seed: int = 1) -> np.ndarray:
     """Refits with the reference masses drawn from their covariance (empty if they are taken as exact)."""
-    n_par = len(cal_mod.fit(points, method, g_m_s2, lever_difference_m).params)
+    cal = cal_mod.fit(points, method, g_m_s2, lever_difference_m)
+    n_par = len(cal.params)
     if points.mass_cov_kg2 is None or not np.any(points.mass_cov_kg2):
         return np.zeros((0, n_par))
     rng = np.random.default_rng(seed)
     draws = rng.multivariate_normal(points.mass_kg, points.mass_cov_kg2, size=n, check_valid="ignore", method="eigh")
-    return np.array([cal_mod.fit(points.with_masses(np.maximum(d, 0.0)), method, g_m_s2, lever_difference_m).params
-                     for d in draws]).reshape(-1, n_par)
+    return np.array([cal.params_of(cal_mod.fit(points.with_masses(np.maximum(d, 0.0)), method, g_m_s2,
+                                               lever_difference_m)) for d in draws]).reshape(-1, n_par)
 
 
 def refit_spread_kg(cal: Calibration, params: np.ndarray, torque_a3_nm: float, torque_a5_nm: float) -> float:
