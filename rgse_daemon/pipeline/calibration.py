@@ -772,8 +772,9 @@ def reference_mass_param_covariance(points: CalibrationPoints, method: str, g_m_
     for i in np.flatnonzero(np.diag(points.mass_cov_kg2) > 0):
         d = np.zeros(len(points))
         d[i] = step_kg
-        hi = fit(points.with_masses(points.mass_kg + d), method, g_m_s2, lever_difference_m).params
-        lo = fit(points.with_masses(points.mass_kg - d), method, g_m_s2, lever_difference_m).params
+        # (a sat term's τ may move on its grid between the two refits: each is taken in the base fit's basis)
+        hi = base.params_of(fit(points.with_masses(points.mass_kg + d), method, g_m_s2, lever_difference_m))
+        lo = base.params_of(fit(points.with_masses(points.mass_kg - d), method, g_m_s2, lever_difference_m))
         jac[:, i] = (hi - lo) / (2 * step_kg)
     return jac @ points.mass_cov_kg2 @ jac.T
 
