@@ -122,15 +122,43 @@ def cog_poses(measurement_pose_deg: Sequence[float], scheme: str = "full") -> li
 #: Gain models of the bias-corrected reading r of one axis against the true payload torque x (Nm), with their number
 #: of parameters. Polynomial (like eq. 19): r = x · (k0 + k1·|x|/1 kNm + k2·(|x|/1 kNm)²), the first 1, 2 or 3
 #: terms. Saturating (like eq. 20's exponentials, at a fixed scale τ): r = x · (k0 + k1·(1 − exp(−|x|/τ))),
-#: ``sat<τ in Nm>``. Like Table 1's K: the reading's gain depends on the load torque, on A5 strongly.
-SAT_SCALES_NM = (100, 200, 300, 500, 800)
-GAIN_MODELS = {"linear": 1, "poly2": 2, "poly3": 3, **{f"sat{t}": 2 for t in SAT_SCALES_NM}}
+#: ``sat<τ in Nm>`` (any τ > 0; :func:`gain_models` sets the grid). Like Table 1's K: the reading's gain depends on
+#: the load torque, on A5 strongly.
+POLY_MODELS = {"linear": 1, "poly2": 2, "poly3": 3}
+#: The saturating models' scales τ as fractions of the largest payload torque the axis' points cover, so that every
+#: axis and every robot meets the same shapes over its own range (a polynomial is scale-free by itself). On the
+#: KR 500's campaign A4 and A5 reach 0.7-1 kNm, where these are the 100-800 Nm of the fixed grid they replace; A6
+#: (0.12 kNm) had only nearly linear sat terms there, A3 (2.2 kNm) only sharp ones.
+SAT_SCALE_FRACTIONS = (0.125, 0.25, 0.375, 0.625, 1.0)
+
+
+def gain_model_params(model: str) -> int | None:
+    """Number of parameters of a gain model name (:data:`POLY_MODELS` or ``sat<τ in Nm>``); None if not one."""
+    if model in POLY_MODELS:
+        return POLY_MODELS[model]
+    tau = _sat_scale_nm(model)
+    return 2 if tau is not None and math.isfinite(tau) and tau > 0 else None
+
+
+def gain_models(x_nm: np.ndarray) -> tuple[str, ...]:
+    """The catalogue for an axis whose points cover the payload torques ``x_nm``: the polynomials, and the
+    saturating models at :data:`SAT_SCALE_FRACTIONS` of the largest |x| (τ in the name to 4 significant digits)."""
+    top = float(np.max(np.abs(x_nm))) if np.size(x_nm) else 0.0
+    sat = [f"sat{f * top:.4g}" for f in SAT_SCALE_FRACTIONS] if top > 0 else []
+    return (*POLY_MODELS, *sat)
+
+
 #: Axes whose payload torque the torsional calibration fits (A1 carries none in these poses, A2 is not needed).
 COG_AXES = (3, 4, 5, 6)
 
 
 def _sat_scale_nm(model: str) -> float | None:
-    return float(model[3:]) if model.startswith("sat") else None
+    if not model.startswith("sat"):
+        return None
+    try:
+        return float(model[3:])
+    except ValueError:
+        return None
 
 
 def gain_basis(x_nm: np.ndarray, model: str) -> np.ndarray:
@@ -139,7 +167,7 @@ def gain_basis(x_nm: np.ndarray, model: str) -> np.ndarray:
     tau = _sat_scale_nm(model)
     if tau is not None:
         return np.stack([x, x * (1.0 - np.exp(-np.abs(x) / tau))], axis=-1)
-    return np.stack([x * (np.abs(x) / 1000.0) ** j for j in range(GAIN_MODELS[model])], axis=-1)
+    return np.stack([x * (np.abs(x) / 1000.0) ** j for j in range(POLY_MODELS[model])], axis=-1)
 
 
 def gain_slope(x_nm: np.ndarray, model: str, k: np.ndarray) -> np.ndarray:
@@ -172,7 +200,7 @@ CANDIDATE_LEVEL = 0.95
 @dataclass(frozen=True)
 class AxisGain:
     """K of one axis for the CoG: reading r (bias-corrected, Nm) = basis(x) @ params for payload torque x, the
-    basis of ``model`` (:data:`GAIN_MODELS`: polynomial or saturating gain).
+    basis of ``model`` (:func:`gain_models`: polynomial or saturating gain).
 
     ``covariance``: of the params (fit). ``u_point_nm``: standard deviation of the held-out residuals of whole points
     (one mounting each): the scatter a new mounting adds, fixed over the poses of that mounting.
@@ -259,7 +287,7 @@ class AxisGain:
             return math.inf, math.inf
         u = u_par
         for c in self.admissible_candidates():
-            if GAIN_MODELS.get(c.model) != len(c.params):
+            if gain_model_params(c.model) != len(c.params):
                 continue
             cov = None if c.covariance is None else np.asarray(c.covariance, float)
             s_c, u_c = self._slope_and_u_par(c.model, c.params, cov, x_nm)
@@ -314,7 +342,7 @@ class AxisGain:
             candidates = _candidates(d.get("evaluation"))
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise DataError(f"torsional.axes.A{axis}: malformed entry ({exc!r})") from None
-        n = GAIN_MODELS.get(model)
+        n = gain_model_params(model)
         if n is None or len(params) != n or np.shape(cov) != (n, n):
             raise DataError(f"torsional.axes.A{axis}: model {model!r} needs {n} params and an {n}x{n} covariance")
         if not (np.all(np.isfinite(params)) and np.all(np.isfinite(cov)) and np.isfinite(u) and u >= 0
@@ -322,7 +350,7 @@ class AxisGain:
             raise DataError(f"torsional.axes.A{axis}: non-finite parameters")
         if params[0] <= 0:
             raise DataError(f"torsional.axes.A{axis}: gain k0 must be > 0, got {params[0]}")
-        bad = [c.model for c in candidates if GAIN_MODELS.get(c.model) != len(c.params)
+        bad = [c.model for c in candidates if gain_model_params(c.model) != len(c.params)
                or not (np.all(np.isfinite(c.params)) and np.isfinite(c.heldout_rms_nm) and c.heldout_rms_nm >= 0)
                or (c.covariance is not None and (np.shape(c.covariance) != (len(c.params),) * 2
                                                  or not np.all(np.isfinite(c.covariance))))]
@@ -363,7 +391,9 @@ def fit_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndarray
     seating scatter of the mountings does not tilt K; held-out residuals are then taken about the held-out point's
     own mean (its offset is not K's business). ``u_point_nm`` is the scatter of the offsets: what a mounting adds
     when the CoG poses cannot fit one (:func:`estimate_cog_gls`)."""
-    n = GAIN_MODELS[model]
+    n = gain_model_params(model)
+    if n is None:
+        raise DataError(f"A{axis}: unknown gain model {model!r}")
     x, r, s, grp = (np.asarray(v) for v in (x_nm, r_nm, sigma_nm, group))
     points = np.unique(grp)
     if len(points) < n + 2:
@@ -422,7 +452,7 @@ def select_gain(axis: int, x_nm: np.ndarray, r_nm: np.ndarray, sigma_nm: np.ndar
     evaluations: dict = {}
     best: tuple[AxisGain, float] | None = None
     point_offsets = offsets_identifiable(x_nm, group)
-    for model in GAIN_MODELS:
+    for model in gain_models(x_nm):
         try:
             gain, heldout = fit_gain(axis, x_nm, r_nm, sigma_nm, group, model, point_offsets)
         except DataError:

@@ -141,3 +141,39 @@ def test_dut_frame_transform_matches_the_simulators_frame():
     assert np.trace(cov_dut) == pytest.approx(np.trace(cov))  # a rotation keeps the total variance
     wing = ph.refex_wing_box()
     assert wing.mass_kg == 107.3 and 0.02 < np.hypot(*wing.cog_flange_m[:2]) < 0.1
+
+
+@pytest.mark.parametrize("c", [0.02, 0.2, 5.0])
+def test_the_torsional_catalogue_is_the_same_for_every_torque_scale(c):
+    """A robot whose payload torques are c times the KR 500's meets the same gain shapes over its own range: every
+    torque (the payload torque, the reading and its σ) scaled by c gives the same choice, the same held-out errors
+    times c and the same relative curve. With a fixed 100-800 Nm grid of saturating scales a small robot's axis met
+    only nearly linear sat terms and a large one's only sharp ones, and the choice moved with c."""
+    rng = np.random.default_rng(11)
+    x = rng.uniform(-700.0, 700.0, 60)
+    group = np.repeat(np.arange(10), 6)
+    # a drive whose gain saturates over the first ~200 Nm (A4-like), scatter per point and per reading
+    r = x * (0.9 + 0.12 * (1.0 - np.exp(-np.abs(x) / 200.0))) + rng.normal(0.0, 2.0, 10)[group] \
+        + rng.normal(0.0, 0.5, 60)
+    s = np.full(60, 0.5)
+    base, ev = cog.select_gain(4, x, r, s, group)
+    scaled, ev_c = cog.select_gain(4, c * x, c * r, c * s, group)
+    assert base.model.startswith("sat")  # the shape of this drive, found at the base scale
+    assert cog.gain_model_params(scaled.model) == cog.gain_model_params(base.model)
+    names, names_c = list(ev["models"]), list(ev_c["models"])
+    assert len(names) == len(names_c) == 8
+    assert names.index(base.model) == names_c.index(scaled.model)
+    np.testing.assert_allclose([ev_c["models"][m]["heldout_rms_nm"] for m in names_c],
+                               [c * ev["models"][m]["heldout_rms_nm"] for m in names], rtol=1e-3)
+    grid = np.linspace(-700.0, 700.0, 15)
+    np.testing.assert_allclose(scaled.reading_nm(c * grid), c * base.reading_nm(grid), rtol=2e-3, atol=1e-9)
+
+
+def test_gain_model_names():
+    assert cog.gain_models(np.array([-800.0, 400.0])) == ("linear", "poly2", "poly3", "sat100", "sat200", "sat300",
+                                                           "sat500", "sat800")
+    assert [cog.gain_model_params(m) for m in ("linear", "poly3", "sat46.2", "sat300")] == [1, 3, 2, 2]
+    assert [cog.gain_model_params(m) for m in ("poly4", "sat", "sat-5", "sat0", "satx", "satnan")] == [None] * 6
+    with pytest.raises(DataError, match="unknown gain model"):
+        cog.fit_gain(4, np.linspace(1, 100, 30), np.linspace(1, 100, 30), np.ones(30), np.repeat(np.arange(6), 5),
+                     "poly4")
