@@ -57,7 +57,7 @@ from scipy import stats
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import calibration as cal_mod
-from rgse_daemon.pipeline.calibration import Calibration, CalibrationError, CalibrationPoints
+from rgse_daemon.pipeline.calibration import Calibration, CalibrationError, CalibrationPoints, GainK
 
 COVERAGE_K = 2.0
 MC_DRAWS = 2000
@@ -71,7 +71,7 @@ UNUSABLE_FACTOR = 3.0
 PLAUSIBLE_LOO_FACTOR = 2.0
 #: CAL.json ``fit.uncertainty.refit_basis``: the basis the refits' parameters are stored in. ``calibration``: each
 #: refit re-expressed in the calibration's own (:meth:`Calibration.params_of`). Files without it were written before;
-#: their refits of a model with a ``sat`` term are coefficients of the refit's own τ.
+#: their refits of a model with a ``sat`` term are coefficients of the refit's own τ (:func:`stale_refits`).
 REFIT_BASIS = "calibration"
 REFIT_BASES = (REFIT_BASIS,)
 
@@ -201,6 +201,15 @@ class CalibrationUncertainty:
 
     def u_reference_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
         return refit_spread_kg(cal, self.reference_params, torque_a3_nm, torque_a5_nm)
+
+
+def stale_refits(cal: Calibration, cu: CalibrationUncertainty | None) -> bool:
+    """``cu`` comes from a file written before ``refit_basis`` and ``cal`` has a ``sat`` term (its own τ, or an
+    average holding one): each refit picked its own τ, and its coefficients were stored as if in the calibration's
+    basis, so their spread at the DuT is that of other curves (on Table 1 10 to 30 times the refits' own). The refits
+    of the other models always were in the calibration's basis."""
+    return cu is not None and cu.refit_basis is None and any(
+        isinstance(k, GainK) and "sat" in k.terms for k in (cal.k_a3, cal.k_a5))
 
 
 def excess_kg(at_dut_kg: float, at_interior_kg: float) -> float:

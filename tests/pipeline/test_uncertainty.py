@@ -135,3 +135,15 @@ def test_the_record_says_in_which_basis_its_refits_are():
         with pytest.raises(DataError, match=r"^fit\.alternatives\[2\]\.uncertainty\.refit_basis: unknown value "):
             unc.CalibrationUncertainty.from_dict({**d, "refit_basis": bad}, 2, "fit.alternatives[2].uncertainty")
 
+
+def test_only_refits_of_a_sat_model_from_a_file_without_refit_basis_are_stale(paper_dir):
+    """The refits of a model with a sat term (its own or an average's) stored before refit_basis were in another τ's
+    basis; those of the other models always were in the calibration's, and a record with the field is right."""
+    pts = load_points_csv(paper_dir / "table1_calibration.csv")
+    cu = unc.CalibrationUncertainty(unc.Reproducibility(1.0, 1.0, 0.0), np.zeros((2, 1)), np.zeros((0, 1)))
+    old = unc.CalibrationUncertainty(cu.reproducibility, cu.fit_params, cu.reference_params, refit_basis=None)
+    for method, sat in (("axis-sat", True), ("axis-sat-sat", True), ("avg:axis-quad+axis-sat", True),
+                        ("axis-quad", False), ("avg:axis-quad+axis-log", False), ("paper", False)):
+        cal = C.fit(pts, method, 9.81, 1.025)
+        assert unc.stale_refits(cal, old) is sat, method
+        assert not unc.stale_refits(cal, cu) and not unc.stale_refits(cal, None)
