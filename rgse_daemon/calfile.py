@@ -215,13 +215,15 @@ def alternatives(path: Path | str, doc: dict[str, Any], cal: Calibration) -> lis
     return out
 
 
-def uncertainty(path: Path | str, doc: dict[str, Any], cal: Calibration) -> CalibrationUncertainty | None:
-    """``fit.uncertainty`` (held-out reproducibility, bootstrap refits); None in files written before it existed."""
+def uncertainty(path: Path | str, doc: dict[str, Any], cal: Calibration, where: str = "fit.uncertainty"
+                ) -> CalibrationUncertainty | None:
+    """``fit.uncertainty`` (held-out reproducibility, bootstrap refits); None in files written before it existed.
+    ``where``: the record's place in the file, for the messages."""
     d = (doc.get("fit") or {}).get("uncertainty")
     if d is None:
         return None
     try:
-        return CalibrationUncertainty.from_dict(d, len(cal.params))
+        return CalibrationUncertainty.from_dict(d, len(cal.params), where)
     except DataError as exc:
         raise DataError(f"{path}: {exc}") from exc
 
@@ -230,8 +232,9 @@ def alternative_uncertainties(path: Path | str, doc: dict[str, Any], alts: list[
                               ) -> list[CalibrationUncertainty | None]:
     """The ``uncertainty`` of every ``fit.alternatives`` entry, in the order of :func:`alternatives`."""
     out = []
-    for entry, alt in zip((doc.get("fit") or {}).get("alternatives") or [], alts, strict=True):
-        out.append(uncertainty(path, {"fit": {"uncertainty": entry.get("uncertainty")}}, alt))
+    for i, (entry, alt) in enumerate(zip((doc.get("fit") or {}).get("alternatives") or [], alts, strict=True)):
+        out.append(uncertainty(path, {"fit": {"uncertainty": entry.get("uncertainty")}}, alt,
+                               f"fit.alternatives[{i}].uncertainty"))
     return out
 
 

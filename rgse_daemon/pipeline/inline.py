@@ -67,7 +67,8 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
     ``envelope_limit``) raises :class:`~rgse_daemon.pipeline.envelope.OperatingPointError`. ``thermal``: the
     campaign's drift of the torque estimate with motor temperature; with ``loop_temps_k`` (A3, A5 per loop, K) every
     loop is brought to the campaign's temperature (:mod:`rgse_daemon.pipeline.thermal`) and U gets its ``thermal``
-    term.
+    term. An ``uncertainty`` (or an alternative's) from a file written before ``refit_basis`` whose model has a
+    ``sat`` term draws a warning (:func:`stale_refits_warning`): its refits are in another basis.
     """
     t3, t5, se3, se5, used, total = [], [], [], [], 0, 0
     warnings: list[str] = []
@@ -107,6 +108,10 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
             warnings.append(f"operating point outside the calibrated envelope ({check.detail}): U widened by the "
                             f"spread of the admissible models there")
     if uncertainty is not None:
+        stale = [c.method for c, u in [(cal, uncertainty), *zip(alternatives, alternative_uncertainty, strict=False)]
+                 if unc.stale_refits(c, u)]
+        if stale:
+            warnings.append(stale_refits_warning(stale))
         cal, uncertainty, alternatives, note = _usable_model(cal, uncertainty, alternatives, alternative_uncertainty,
                                                              m3, m5)
         if note:
@@ -157,6 +162,14 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
                         f"(is the DuT mounted, the fixture mass right, each torque channel's sign as calibrated?)")
     return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings, cal.method,
                       where)
+
+
+def stale_refits_warning(methods: Sequence[str]) -> str:
+    """The warning of a calibration file whose refits of ``methods`` (each with a ``sat`` term) were stored before
+    ``fit.uncertainty.refit_basis`` (:func:`rgse_daemon.pipeline.uncertainty.stale_refits`)."""
+    return (f"CAL.json fit.uncertainty was written before refit_basis: the refits of {', '.join(methods)} "
+            f"(a sat term) are in another basis, so U's calibration term may be much too wide and the chosen model's "
+            f"curve may have been replaced by an alternative's; run rgse calibrate on the campaign again to fix it")
 
 
 def _usable_model(cal: Calibration, cu: unc.CalibrationUncertainty, alternatives: Sequence[Calibration],

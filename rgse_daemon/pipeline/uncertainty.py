@@ -57,7 +57,7 @@ from scipy import stats
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import calibration as cal_mod
-from rgse_daemon.pipeline.calibration import Calibration, CalibrationError, CalibrationPoints
+from rgse_daemon.pipeline.calibration import Calibration, CalibrationError, CalibrationPoints, GainK
 
 COVERAGE_K = 2.0
 MC_DRAWS = 2000
@@ -69,6 +69,11 @@ REFERENCE_N = 30
 UNUSABLE_FACTOR = 3.0
 #: Models whose leave-one-out mean error is within this factor of the chosen model's count as plausible.
 PLAUSIBLE_LOO_FACTOR = 2.0
+#: CAL.json ``fit.uncertainty.refit_basis``: the basis the refits' parameters are stored in. ``calibration``: each
+#: refit re-expressed in the calibration's own (:meth:`Calibration.params_of`). Files without it were written before;
+#: their refits of a model with a ``sat`` term are coefficients of the refit's own τ (:func:`stale_refits`).
+REFIT_BASIS = "calibration"
+REFIT_BASES = (REFIT_BASIS,)
 
 
 @dataclass(frozen=True)
@@ -147,17 +152,21 @@ class CalibrationUncertainty:
     interior_torque_nm: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     """(k, 2) normalised A3/A5 torques of the interior configurations the reproducibility rests on (empty in older
     files: then nothing is taken as already counted)."""
+    refit_basis: str | None = REFIT_BASIS
+    """The basis the refits' parameters are in (:data:`REFIT_BASIS`); None: a file written before it was recorded."""
 
     def to_dict(self) -> dict[str, Any]:
         return {"reproducibility": self.reproducibility.to_dict(),
                 "scheme": f"residual-pair bootstrap ({len(self.fit_params)} refits), reference-mass draws "
                           f"({len(self.reference_params)} refits), evaluated at the operating point",
+                **({} if self.refit_basis is None else {"refit_basis": self.refit_basis}),
                 "bootstrap_params": np.asarray(self.fit_params, float).tolist(),
                 "reference_params": np.asarray(self.reference_params, float).tolist(),
                 "interior_torque_nm": np.asarray(self.interior_torque_nm, float).tolist()}
 
     @classmethod
-    def from_dict(cls, d: Any, n_params: int) -> CalibrationUncertainty:
+    def from_dict(cls, d: Any, n_params: int, where: str = "fit.uncertainty") -> CalibrationUncertainty:
+        """``where``: the record's place in CAL.json, for the messages."""
         try:
             n = d["reproducibility"].get("n")
             rep = Reproducibility(float(d["reproducibility"]["rms_a3_nm"]), float(d["reproducibility"]["rms_a5_nm"]),
@@ -166,11 +175,15 @@ class CalibrationUncertainty:
             ref = np.asarray(d.get("reference_params") or [], float).reshape(-1, n_params)
             inner = np.asarray(d.get("interior_torque_nm") or [], float).reshape(-1, 2)
         except (KeyError, TypeError, ValueError) as exc:
-            raise DataError(f"fit.uncertainty: malformed: {exc}") from exc
+            raise DataError(f"{where}: malformed: {exc}") from exc
         if not (np.all(np.isfinite(boot)) and np.all(np.isfinite(ref)) and np.all(np.isfinite(inner)) and len(boot) >= 2
                 and all(np.isfinite([rep.rms_a3_nm, rep.rms_a5_nm, rep.corr]))):
-            raise DataError("fit.uncertainty: needs finite reproducibility and at least two bootstrap parameter sets")
-        return cls(rep, boot, ref, inner)
+            raise DataError(f"{where}: needs finite reproducibility and at least two bootstrap parameter sets")
+        basis = d.get("refit_basis")
+        if basis is not None and basis not in REFIT_BASES:
+            raise DataError(f"{where}.refit_basis: unknown value {basis!r} (known: {', '.join(REFIT_BASES)}; absent "
+                            f"in files written before it)")
+        return cls(rep, boot, ref, inner, basis)
 
     def curve_spread_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
         """The whole bootstrap spread of the mass at these torques (the usability check of a model)."""
@@ -188,6 +201,15 @@ class CalibrationUncertainty:
 
     def u_reference_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
         return refit_spread_kg(cal, self.reference_params, torque_a3_nm, torque_a5_nm)
+
+
+def stale_refits(cal: Calibration, cu: CalibrationUncertainty | None) -> bool:
+    """``cu`` comes from a file written before ``refit_basis`` and ``cal`` has a ``sat`` term (its own τ, or an
+    average holding one): each refit picked its own τ, and its coefficients were stored as if in the calibration's
+    basis, so their spread at the DuT is that of other curves (on Table 1 10 to 30 times the refits' own). The refits
+    of the other models always were in the calibration's basis."""
+    return cu is not None and cu.refit_basis is None and any(
+        isinstance(k, GainK) and "sat" in k.terms for k in (cal.k_a3, cal.k_a5))
 
 
 def excess_kg(at_dut_kg: float, at_interior_kg: float) -> float:

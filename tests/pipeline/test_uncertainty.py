@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import load_points_csv
 from rgse_daemon.pipeline import calibration as C
 from rgse_daemon.pipeline import uncertainty as unc
@@ -116,3 +117,33 @@ def test_the_bootstrap_spread_of_a_sat_model_is_its_refits_own(paper_dir):
         spread[method] = unc.refit_spread_kg(cal, unc.bootstrap_params(pts, method, 9.81, 1.025), 3000.0, 1500.0)
     assert 0.3 < spread["axis-quad"] < 2.0
     assert spread["axis-sat-sat"] < 2.0 * spread["axis-quad"]
+
+
+def test_the_record_says_in_which_basis_its_refits_are():
+    """``fit.uncertainty.refit_basis``: written ``calibration`` (each refit re-expressed in the calibration's basis);
+    a record without it (written before) reads as None and is written back without it; any other value is refused,
+    naming the field."""
+    cu = unc.CalibrationUncertainty(unc.Reproducibility(1.0, 2.0, 0.5, 5), np.array([[1.0, 2.0], [3.0, 4.0]]),
+                                    np.zeros((0, 2)))
+    d = cu.to_dict()
+    assert d["refit_basis"] == "calibration"
+    assert unc.CalibrationUncertainty.from_dict(d, 2).refit_basis == "calibration"
+    del d["refit_basis"]
+    old = unc.CalibrationUncertainty.from_dict(d, 2)
+    assert old.refit_basis is None and "refit_basis" not in old.to_dict()
+    for bad in ("own", "", 1, ["calibration"]):
+        with pytest.raises(DataError, match=r"^fit\.alternatives\[2\]\.uncertainty\.refit_basis: unknown value "):
+            unc.CalibrationUncertainty.from_dict({**d, "refit_basis": bad}, 2, "fit.alternatives[2].uncertainty")
+
+
+def test_only_refits_of_a_sat_model_from_a_file_without_refit_basis_are_stale(paper_dir):
+    """The refits of a model with a sat term (its own or an average's) stored before refit_basis were in another τ's
+    basis; those of the other models always were in the calibration's, and a record with the field is right."""
+    pts = load_points_csv(paper_dir / "table1_calibration.csv")
+    cu = unc.CalibrationUncertainty(unc.Reproducibility(1.0, 1.0, 0.0), np.zeros((2, 1)), np.zeros((0, 1)))
+    old = unc.CalibrationUncertainty(cu.reproducibility, cu.fit_params, cu.reference_params, refit_basis=None)
+    for method, sat in (("axis-sat", True), ("axis-sat-sat", True), ("avg:axis-quad+axis-sat", True),
+                        ("axis-quad", False), ("avg:axis-quad+axis-log", False), ("paper", False)):
+        cal = C.fit(pts, method, 9.81, 1.025)
+        assert unc.stale_refits(cal, old) is sat, method
+        assert not unc.stale_refits(cal, cu) and not unc.stale_refits(cal, None)
