@@ -16,8 +16,10 @@ Rows:
 costs; along the flange axis A4-A6 only see the first moment m·(d6 + c_z) about the wrist, so a mass error δm moves
 c_z by −(d6 + c_z)·δm/m, ~6 mm per 1 % of mass). ``no-shift``: the scenario without the per-mounting CoG shift
 (8 mm σ along the flange axis, the simulator's stand-in for Table 1's per-mounting scatter, which also blurs where
-the calibration loads sit). ``full 12 pts``: twelve torsional points (each load mounted twice). ``poses N``: the full
-calibration, the DuT measured in only the first N poses of the full scheme (what each extra pose buys).
+the calibration loads sit). ``full 12 pts``: twelve torsional points (each load mounted twice). ``full robots``: a
+new robot per seed, the gain curves of A3..A6 drawn from ``bench/accuracy.py``'s ``ROBOT_FAMILY`` (robots the
+torsional catalogue was not set up on; ``mass known`` as above). ``poses N``: the full calibration, the DuT measured
+in only the first N poses of the full scheme (what each extra pose buys).
 Columns: RMS and max |error| per DuT-frame coordinate (mm), coverage of ±U (k = 2) per coordinate, mean U (mm),
 the share of seeds within the ECSS limits, the DuT's robot time (s) in the poses.
 
@@ -38,6 +40,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' simulated campaigns
 
+from bench.accuracy import ROBOT_FAMILY
 from rgse_daemon import calfile
 from rgse_daemon.analysis import cog as acog
 from simulators.krc4 import physics as ph
@@ -47,8 +50,8 @@ from tests.support import cogcampaign as cc
 U_MASS_KG = 1.2
 ALONG_MM, ACROSS_MM = 2.5, 1.0
 N_LOOPS = 2
-ROWS = ("full", "full mass known", "full no-shift", "full no-shift mass known", "full 12 pts", "paper", "poses 2",
-        "poses 4", "poses 6", "poses 8")
+ROWS = ("full", "full mass known", "full no-shift", "full no-shift mass known", "full 12 pts", "full robots",
+        "full robots mass known", "paper", "poses 2", "poses 4", "poses 6", "poses 8")
 
 
 def robot_time_s(n_poses: int, loops: int = N_LOOPS) -> float:
@@ -78,6 +81,7 @@ def repetition(seed: int) -> dict[str, dict]:
         "full no-shift": ("full", _no_shift(), cc.TORSIONAL_POINTS),
         "full 12 pts": ("full", default_scenario(), cc.TORSIONAL_POINTS * 2),
         "paper": ("paper", default_scenario(), cc.TORSIONAL_POINTS),
+        "full robots": ("full", _robot(seed), cc.TORSIONAL_POINTS),
     }
     for name, (scheme, scenario, points) in configs.items():
         model = ph.RobotModel(scenario, seed=seed)
@@ -87,7 +91,7 @@ def repetition(seed: int) -> dict[str, dict]:
         run = cc.simulate_properties(model, dut, scheme, n_loops=N_LOOPS)
         readings = [t.reading() for t in run.poses]
         subsets = {name: (readings, mass_kg, U_MASS_KG)}
-        if name in ("full", "full no-shift"):  # the mass known exactly: what the CoG itself costs
+        if name in ("full", "full no-shift", "full robots"):  # the mass known exactly: what the CoG itself costs
             subsets[f"{name} mass known"] = (readings, dut.mass_kg, 0.0)
         if name == "full":
             subsets.update({f"poses {n}": (readings[:n], mass_kg, U_MASS_KG) for n in (2, 4, 6, 8)})
@@ -97,6 +101,19 @@ def repetition(seed: int) -> dict[str, dict]:
             out[row] = {"err_mm": ((np.array(res.cog_dut_m) - true_dut) * 1000.0).tolist(),
                         "U_mm": (np.array(res.U_cog_dut_m) * 1000.0).tolist(), "n_poses": len(rd)}
     return out
+
+
+def _robot(seed: int):
+    """A new robot per repetition: the drive gain curves of A3..A6 drawn from ``bench/accuracy.py``'s
+    :data:`ROBOT_FAMILY` (what the mass bench's ``robots`` row draws for A3 and A5), the rest the default scenario."""
+    sc = default_scenario()
+    rng = np.random.default_rng(80_000 + seed)
+    axes = dict(sc.axes)
+    for key in ("A3", "A4", "A5", "A6"):
+        draw = {k: float(np.exp(rng.uniform(*np.log(r))) if k == "tau_sat_nm" else rng.uniform(*r))
+                for k, r in ROBOT_FAMILY.items()}
+        axes[key] = sc.axis(int(key[1])).model_copy(update=draw)
+    return sc.model_copy(update={"axes": axes})
 
 
 def _no_shift():
