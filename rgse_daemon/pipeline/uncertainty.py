@@ -73,7 +73,6 @@ PLAUSIBLE_LOO_FACTOR = 2.0
 #: refit re-expressed in the calibration's own (:meth:`Calibration.params_of`). Files without it were written before;
 #: their refits of a model with a ``sat`` term are coefficients of the refit's own τ (:func:`stale_refits`).
 REFIT_BASIS = "calibration"
-REFIT_BASES = (REFIT_BASIS,)
 
 
 @dataclass(frozen=True)
@@ -180,9 +179,9 @@ class CalibrationUncertainty:
                 and all(np.isfinite([rep.rms_a3_nm, rep.rms_a5_nm, rep.corr]))):
             raise DataError(f"{where}: needs finite reproducibility and at least two bootstrap parameter sets")
         basis = d.get("refit_basis")
-        if basis is not None and basis not in REFIT_BASES:
-            raise DataError(f"{where}.refit_basis: unknown value {basis!r} (known: {', '.join(REFIT_BASES)}; absent "
-                            f"in files written before it)")
+        if basis is not None and basis != REFIT_BASIS:
+            raise DataError(f"{where}.refit_basis: unknown value {basis!r} (known: {REFIT_BASIS}; absent in files "
+                            f"written before it)")
         return cls(rep, boot, ref, inner, basis)
 
     def curve_spread_kg(self, cal: Calibration, torque_a3_nm: float, torque_a5_nm: float) -> float:
