@@ -76,16 +76,18 @@ ROBOT_FAMILY = {"gain0": (0.85, 1.15), "gain_sat": (-0.25, 0.25), "tau_sat_nm": 
                 "gain_slope_per_knm": (-0.03, 0.03), "gain_quad_per_knm2": (-0.005, 0.005)}
 
 
+def robot_axis(axis, rng: np.random.Generator):
+    """``axis`` with its drive gain curve drawn from :data:`ROBOT_FAMILY` (tau log-uniform, the rest uniform)."""
+    return axis.model_copy(update={k: float(np.exp(rng.uniform(*np.log(r))) if k == "tau_sat_nm" else rng.uniform(*r))
+                                   for k, r in ROBOT_FAMILY.items()})
+
+
 def _scenario(spec: dict, seed: int = 0):
     sc = default_scenario()
     if spec.get("robots"):
         rng = np.random.default_rng(70_000 + seed)
-        axes = dict(sc.axes)
-        for key in ("A3", "A5"):
-            draw = {k: float(np.exp(rng.uniform(*np.log(r))) if k == "tau_sat_nm" else rng.uniform(*r))
-                    for k, r in ROBOT_FAMILY.items()}
-            axes[key] = axes[key].model_copy(update=draw)
-        sc = sc.model_copy(update={"axes": axes})
+        sc = sc.model_copy(update={"axes": {**sc.axes, **{k: robot_axis(sc.axis(int(k[1])), rng)
+                                                           for k in ("A3", "A5")}}})
     if not spec.get("no_mount", False):
         return sc
     axes = {k: a.model_copy(update={"mount_offset_nm": 0.0}) for k, a in sc.axes.items()}

@@ -40,7 +40,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the tests' simulated campaigns
 
-from bench.accuracy import ROBOT_FAMILY
+from bench.accuracy import robot_axis
 from rgse_daemon import calfile
 from rgse_daemon.analysis import cog as acog
 from simulators.krc4 import physics as ph
@@ -105,15 +105,10 @@ def repetition(seed: int) -> dict[str, dict]:
 
 def _robot(seed: int):
     """A new robot per repetition: the drive gain curves of A3..A6 drawn from ``bench/accuracy.py``'s
-    :data:`ROBOT_FAMILY` (what the mass bench's ``robots`` row draws for A3 and A5), the rest the default scenario."""
+    ``ROBOT_FAMILY`` (what the mass bench's ``robots`` row draws for A3 and A5), the rest the default scenario."""
     sc = default_scenario()
     rng = np.random.default_rng(80_000 + seed)
-    axes = dict(sc.axes)
-    for key in ("A3", "A4", "A5", "A6"):
-        draw = {k: float(np.exp(rng.uniform(*np.log(r))) if k == "tau_sat_nm" else rng.uniform(*r))
-                for k, r in ROBOT_FAMILY.items()}
-        axes[key] = sc.axis(int(key[1])).model_copy(update=draw)
-    return sc.model_copy(update={"axes": axes})
+    return sc.model_copy(update={"axes": {**sc.axes, **{f"A{i}": robot_axis(sc.axis(i), rng) for i in (3, 4, 5, 6)}}})
 
 
 def _no_shift():
