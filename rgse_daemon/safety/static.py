@@ -60,6 +60,7 @@ from rgse_daemon.krl import ast as k
 from rgse_daemon.krl.abstract import AbstractInterpreter, Pose, State, TooComplex, pose_key, written_names
 from rgse_daemon.krl.lexer import Tok, tokenize
 from rgse_daemon.krl.parser import parse_dat, parse_src
+from rgse_daemon.krl.render import MIN_VEL_AXIS_PCT
 from rgse_daemon.krl.values import UNKNOWN, Value, describe, is_number
 from rgse_daemon.krl.walk import root_name
 from rgse_daemon.safety.allowlist import WRITABLE_PREFIX, WRITABLE_VARIABLES
@@ -163,8 +164,11 @@ class _Checker(AbstractInterpreter):
             if not (isinstance(idx, int) and not isinstance(idx, bool) and 1 <= idx <= 6):
                 self.report("VELOCITY", pos, f"{name} must be set per axis with a constant index 1..6")
                 idx = UNKNOWN
-            if not (is_number(value) and 0.0 < value <= 100.0):  # type: ignore[operator]
-                self.report("VELOCITY", pos, f"{name} must be set to a constant in (0, 100] %, not {_show(value)}")
+            # (below the renderer's smallest axis speed a motion takes hours: a stalled program, not a measurement;
+            # compared as the controller's REAL holds it, so the rendered 0.01 passes)
+            if not (is_number(value) and float(np.float32(MIN_VEL_AXIS_PCT)) <= value <= 100.0):  # type: ignore[operator]
+                self.report("VELOCITY", pos, f"{name} must be set to a constant in [{MIN_VEL_AXIS_PCT:g}, 100] %, "
+                                             f"not {_show(value)}")
                 value = 100.0
             if name == "$VEL_AXIS":
                 vel = list(st.vel_axis_pct)

@@ -69,6 +69,9 @@ def test_context_rules_refuse(ctx: CheckContext, rule: str) -> None:
         ("  $OV_PRO = RGSE_OV", "OV_PRO"),
         ("  $VEL_AXIS[3] = RGSE_SPEED", "VELOCITY"),  # the daemon could change it at any time
         ("  $VEL_AXIS[0] = 2", "VELOCITY"),
+        # a near-zero speed: 85 deg at 2.3e-10 % never ends (found by the differential property test)
+        ("  $VEL_AXIS[3] = 0.5 / 2147483647\n  PTP {A3 85}", "VELOCITY"),
+        ("  $ACC_AXIS[5] = 0.001", "VELOCITY"),
         ("  PTP RGSE_TARGET", "TARGET"),  # a GLOBAL: not a constant
         ("  PTP $AXIS_ACT", "TARGET"),
         ("  PTP_REL {A3 -46, A5 -46}", "REL_AMPLITUDE"),
@@ -218,3 +221,8 @@ def test_cli_render_writes_checked_programs(tmp_path: Path, capsys: pytest.Captu
     capsys.readouterr()
     for src in out.glob("*.src"):
         assert cli.main(["krl", "check", str(src), "--config", str(cfg)]) == 0
+
+
+def test_the_smallest_axis_speed_the_renderer_uses_is_allowed() -> None:
+    """The floor of $VEL_AXIS / $ACC_AXIS is the renderer's own smallest speed: what it renders, the check passes."""
+    assert rules(program("  $VEL_AXIS[3] = 0.01\n  $ACC_AXIS[3] = 0.01\n  PTP {A3 85}")) == set()
