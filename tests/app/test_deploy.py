@@ -45,6 +45,22 @@ def test_example_config_works_as_shipped_with_optional_devices_off(tmp_path: Pat
     assert cfg_on.modbus.inputs.estop_ok == 2 and cfg_on.scale.baudrate == 9600
 
 
+def test_sim_config_loads_and_scales_the_robots_time_to_the_simulator() -> None:
+    """deploy/rgse.sim.toml works as is against rgse sim --time-scale 100: the waits in the robot's time are 100x
+    shorter (as the demo makes them), everything else is the example's default."""
+    from rgse_daemon.procedures.settings import RunSettings
+
+    cfg = load_config(DEPLOY / "rgse.sim.toml")
+    assert cfg.controller.time_scale == 100.0 and cfg.modbus is None and cfg.scale is None
+    real = RunSettings.from_config(load_config(DEPLOY / "rgse.example.toml"))
+    sim = RunSettings.from_config(cfg)
+    assert sim.settle_s == pytest.approx(real.settle_s / 100)
+    assert sim.warmup_steady_window_s == pytest.approx(real.warmup_steady_window_s / 100)
+    assert sim.warmup_max_s == pytest.approx(real.warmup_max_s / 100)
+    assert (sim.loops, sim.trace_samples, sim.program_timeout_s) == (real.loops, real.trace_samples,
+                                                                     real.program_timeout_s)
+
+
 def test_example_config_loads_and_mentions_every_key() -> None:
     text = _devices_switched_on((DEPLOY / "rgse.example.toml").read_text())
     # every key appears, set or commented out, in its section
