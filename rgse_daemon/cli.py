@@ -146,6 +146,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "(crop_sigma=2,filter=gaussian,window=100,order=forward,location=huber)")
     _add_json(p)
 
+    p = sub.add_parser("activate", help="make a CAL.json the active calibration of the configured robot")
+    p.add_argument("calibration", type=Path, metavar="CAL.json")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its robot and store)")
+    p.add_argument("--note", metavar="TEXT", help="why, recorded with the activation")
+    _add_json(p)
+
     p = sub.add_parser("mass", help="offline in-line mass from a measurement directory")
     p.add_argument("--traces", type=Path, required=True, metavar="DIR")
     p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
