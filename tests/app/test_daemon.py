@@ -502,6 +502,23 @@ async def test_t1_campaign_refused_at_admission_while_configured_safety_inputs_a
     assert sim.interpreter.state is not ProState.ACTIVE
 
 
+async def test_campaign_too_small_for_its_method_is_refused_before_the_first_load(
+        sim: SimulatedKrc4, tmp_path: Path) -> None:
+    """Issue #34: a 5-point campaign with --method paper moved the robot through every point and failed at the end
+    (the model needs more loaded points). Now it is refused before the first prompt, naming the cause."""
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir, loops=1)
+    events = Events()
+    async with running_daemon(cfg, on_event=events) as rd:
+        d = rd.daemon
+        await d.start_calibration(points=table1_points(n_bodies=(0, 2, 4, 6, 8), torque_levers_a5_m=()),
+                                  method="paper")
+        with pytest.raises(PreconditionError, match=r"5 mass and torque points cannot give a paper calibration: "
+                                                    r".*needs at least \d+ loaded points, got 4"):
+            await run_end(rd)
+        assert events.of("confirm") == [] and await d.store.list_runs(robot=ROBOT) == []
+    assert sim.moves == 0
+
+
 @pytest.mark.parametrize("fault", ["area_cleared", "estop_ok", "modbus_link"])
 async def test_safety_input_dropping_mid_run_trips_the_interlock(
         sim: SimulatedKrc4, modbus_sim: ModbusIoSim, private_broker: MosquittoProcess,
