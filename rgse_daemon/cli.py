@@ -152,6 +152,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--note", metavar="TEXT", help="why, recorded with the activation")
     _add_json(p)
 
+    p = sub.add_parser("certificate", help="the one-page PDF measurement certificate of a run's result")
+    p.add_argument("run_id", metavar="RUN_ID")
+    p.add_argument("--out", type=Path, metavar="FILE.pdf",
+                   help="where to write it (default <data_dir>/reports/certificate-RUN_ID.pdf)")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its store)")
+
     p = sub.add_parser("runs", help="the history of runs and results from the store: filter, table, CSV, JSON")
     p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its store)")
     p.add_argument("--robot", metavar="NAME", help="only this robot's runs (default: every robot in the store)")

@@ -61,8 +61,10 @@ def row(run: RunRecord, result: ResultRecord | None) -> dict[str, Any]:
     identity = doc.get("identity") if isinstance(doc.get("identity"), dict) else {}
     for key in IDENTITY:
         out[key] = identity.get(key)
-    cog = doc.get("cog_m") if isinstance(doc.get("cog_m"), list) else None
-    u_cog = doc.get("U_cog_m") if isinstance(doc.get("U_cog_m"), list) else None
+    cog = doc.get("cog_dut_m") or doc.get("cog_m")  # the DuT frame where the run knew it, else the flange frame
+    u_cog = doc.get("U_cog_dut_m") or doc.get("U_cog_m")
+    cog = cog if isinstance(cog, list) else None
+    u_cog = u_cog if isinstance(u_cog, list) else None
     for i, axis in enumerate("xyz"):
         out[f"cog_{axis}_m"] = cog[i] if cog and len(cog) == 3 else None
         out[f"U_cog_{axis}_m"] = u_cog[i] if u_cog and len(u_cog) == 3 else None
