@@ -10,10 +10,12 @@ step beyond is refused. The programs named in the issue (``$VEL_AXIS[1, 2] = 2``
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 
 from rgse_daemon.config import LimitsConfig
+from rgse_daemon.errors import KrlSyntaxError
 from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, max_point_speed_mm_s
 from rgse_daemon.safety.static import CheckContext, Violation, check_program
 
@@ -279,3 +281,161 @@ def test_aut_names_what_is_missing() -> None:
     assert v.message == "mode AUT refused: the key switch is not confirmed"
     (v,) = found(program(""), CheckContext(start_axes_deg=MEAS, mode="T2"))
     assert v.message == "mode 'T2' refused: only T1 (or AUT with cleared area and key switch)"
+
+
+# --- source text ---------------------------------------------------------------------------------------------------
+def test_line_length_limit_is_inclusive() -> None:
+    pad = "  ; " + "x" * 246  # 250 characters
+    assert len(pad) == 250
+    assert found(program(pad)) == []
+    assert found(program(pad).replace("\n", "\r\n")) == []  # CR LF: the CR is not counted
+    v = found(program(pad + "x"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(16, 251, "LINE_END")]
+    assert "line of 251 characters (limit 250)" in v[0].message
+    # the data list is held to it too
+    dat = f"DEFDAT prop\n{pad}x\nENDDAT\n"
+    assert [(x.line, x.rule) for x in check_program(program(""), dat, CTX, "prop.src")] == [(2, "LINE_END")]
+    assert check_program(program(""), f"DEFDAT prop\n{pad}\nENDDAT\n", CTX, "prop.src") == []
+
+
+@pytest.mark.parametrize(("char", "ok"), [
+    ("\t", True), (" ", True), ("~", True), ("\xa0", True), ("\xff", True), ("\x1f", False), ("\x00", False),
+    ("\x7f", False), ("\x80", False), ("\x85", False), ("\x9f", False), ("\x0b", False), ("\x0c", False),
+    ("\r", False), ("\u2028", False), ("\u2029", False),
+])
+def test_characters_in_a_comment(char: str, ok: bool) -> None:
+    v = found(program(f"  ; a{char}b{char}"))
+    if ok:
+        assert v == []
+    else:
+        assert [(x.line, x.column, x.rule) for x in v] == [(16, 6, "LINE_END")]  # the first one only
+        assert ("a CR without LF" if char == "\r" else repr(char)) in v[0].message
+
+
+def test_line_ends_stop_the_check_before_anything_else() -> None:
+    # a broken line end refuses the program before it is parsed (even if it would not parse); the mode is still told
+    src = program("  PTP {A1 90}\r  DEF(")
+    v = check_program(src, None, CheckContext(start_axes_deg=MEAS, mode="T2"))
+    assert [x.rule for x in v] == ["MODE", "LINE_END"]
+
+
+def test_forbidden_keywords_in_the_data_list_and_with_a_syntax_error() -> None:
+    dat = "DEFDAT prop\n  DECL INT GOTO_X = 1\nENDDAT\n"
+    assert check_program(program(""), dat, CTX, "prop.src") == []  # a name that contains a keyword is no keyword
+    v = check_program(program("  GOTO lbl"), None, CTX, "prop.src")
+    assert [(x.line, x.column, x.rule) for x in v] == [(16, 3, "STATEMENT")]
+    assert v[0].message == "GOTO is not allowed in RGSE programs"
+    v = check_program(program(""), "DEFDAT prop\n  INTERRUPT ON 3\nENDDAT\n", CTX, "prop.src")
+    assert [(x.line, x.rule) for x in v] == [(2, "STATEMENT")]
+
+
+def test_a_data_list_syntax_error_names_the_data_list() -> None:
+    for file, dat_name in (("prop.src", "prop.dat"), ("PROP.SRC", "PROP.dat"), ("prop", "prop.dat")):
+        with pytest.raises(KrlSyntaxError, match=re.escape(dat_name)):
+            check_program(program(""), "DEFDAT prop\n  DECL INT = \nENDDAT\n", CTX, file)
+
+
+# --- the program's parts ---------------------------------------------------------------------------------------------
+def test_extra_routines_are_refused_with_their_place() -> None:
+    src = program("") + "DEF helper( )\n  PTP {A1 90}\nEND\n"
+    v = found(src)
+    assert [(x.line, x.column, x.rule) for x in v] == [(18, 1, "STATEMENT")]
+    assert v[0].message == "routine HELPER: only a module's main routine is verified"
+
+
+def test_the_payload_violation_sits_at_the_main_routine() -> None:
+    v = found(program(""), CheckContext(start_axes_deg=MEAS, payload_mass_kg=700.0))
+    assert [(x.line, x.column, x.rule) for x in v] == [(3, 1, "PAYLOAD")]
+    assert v[0].message == "payload 700 kg outside 0..611 kg (load diagram, paper Fig. 16)"
+
+
+def test_data_list_values() -> None:
+    dat = "DEFDAT prop\n  DECL E6AXIS xa = {A3 100}\n  DECL INT n = 144\n  DECL GLOBAL INT g = 100\nENDDAT\n"
+    assert check_program(program("  PTP xa\n  PTP {A3 n}"), dat, CTX, "prop.src") == []
+    assert {v.rule for v in check_program(program("  n = 145\n  PTP {A3 n}"), dat, CTX, "prop.src")} == {
+        "JOINT_LIMIT"}
+    # written by the program: the next run starts with what this one left, not the pushed value
+    assert {v.rule for v in check_program(program("  PTP {A3 n}\n  n = 100"), dat, CTX, "prop.src")} == {"TARGET"}
+    assert {v.rule for v in check_program(program("  PTP {A3 g}"), dat, CTX, "prop.src")} == {"TARGET"}
+    link = "DEFDAT prop\n  DECL INT RGSE_N = 100\nENDDAT\n"  # the daemon may write it: never a constant
+    assert {v.rule for v in check_program(program("  PTP {A3 RGSE_N}"), link, CTX, "prop.src")} == {"TARGET"}
+    bad_init = "DEFDAT prop\n  DECL GLOBAL INT g = f(1)\nENDDAT\n"
+    assert {v.rule for v in check_program(program(""), bad_init, CTX, "prop.src")} == {"CALL"}
+    bad_link = "DEFDAT prop\n  DECL INT RGSE_X = f(1)\nENDDAT\n"
+    assert {v.rule for v in check_program(program(""), bad_link, CTX, "prop.src")} == {"CALL"}
+    ok_link = "DEFDAT prop\n  DECL INT RGSE_X\nENDDAT\n"
+    assert check_program(program(""), ok_link, CTX, "prop.src") == []
+
+
+def test_parameters_of_the_main_routine_are_own_but_unknown() -> None:
+    src = f"&ACCESS RVP\n&REL 1\nDEF prop(T :IN)\n  DECL INT T\n{SLOW}\n  T = 5\n  PTP {{A3 T}}\nEND\n"
+    assert found(src) == []  # its own variable: written without WRITE, and known after the write
+    unknown = src.replace("  T = 5\n", "")
+    assert {v.rule for v in found(unknown)} == {"TARGET"}  # the caller's value is not known
+
+
+# --- caches and points ---------------------------------------------------------------------------------------------
+def test_the_same_path_at_another_speed_is_checked_again() -> None:
+    again = "  PTP {A3 100}\n  PTP {A3 90}\n  $VEL_AXIS[3] = 60\n  PTP {A3 100}"
+    v = found(program(again))
+    assert [(x.line, x.rule) for x in v] == [(19, "SPEED")]
+
+
+def test_the_same_path_with_another_payload_pose_is_checked_for_torque() -> None:
+    cog = (0.0, 0.0, 0.21)
+    full = lever_torque_nm(300.0, cog)
+    ctx = CheckContext(start_axes_deg=(0.0, -90.0, 90.0, 0.0, 90.0, 0.0), payload_mass_kg=300.0,
+                       payload_cog_flange_m=cog, limits=LimitsConfig(max_a5_torque_nm=full * 0.55))
+    # there and back: A5 90 → 60 passes 0.5 of the lever bound; 90 → 0 all of it (the second motion's path)
+    v = found(program("  PTP {A5 60}\n  PTP {A5 90}\n  PTP {A5 0}"), ctx)
+    assert [(x.line, x.rule) for x in v] == [(18, "A5_TORQUE")]
+
+
+def test_the_cog_is_a_speed_point() -> None:
+    body = program("  PTP {A3 110, A5 20}")
+    assert rules(body) == set()
+    far_cog = CheckContext(start_axes_deg=MEAS, payload_mass_kg=1.0, payload_cog_flange_m=(2.5, 2.5, 2.5))
+    assert rules(body, far_cog) == {"SPEED"}
+
+
+# --- the start pose ------------------------------------------------------------------------------------------------
+def test_a_start_pose_outside_the_axis_ranges_leaves_every_path_unverified() -> None:
+    ctx = CheckContext(start_axes_deg=(0.0, -90.0, 145.0, 0.0, 0.0, 0.0))
+    v = found(program("  PTP {A3 100}"), ctx)
+    assert [(x.line, x.rule) for x in v] == [(0, "JOINT_LIMIT"), (16, "START_UNKNOWN")]
+
+
+@pytest.mark.parametrize("start", [(0.0,) * 5, (0.0,) * 7, (0.0, -90.0, math.nan, 0.0, 0.0, 0.0),
+                                   (0.0, -90.0, 90.0, math.inf, 0.0, 0.0)])
+def test_a_start_pose_that_is_not_six_finite_angles(start: tuple[float, ...]) -> None:
+    v = found(program("  PTP {A3 100}"), CheckContext(start_axes_deg=start))
+    assert [(x.line, x.rule) for x in v] == [(0, "START_UNKNOWN"), (16, "START_UNKNOWN")]
+    assert v[0].message == "start pose is not six finite axis angles"
+
+
+def test_a_start_pose_at_minus_zero_is_the_same_pose() -> None:
+    ctx = CheckContext(start_axes_deg=(-0.0, -90.0, 90.0, -0.0, -0.0, -0.0))
+    assert found(program("  PTP {A3 90}\n  PTP {A1 0}"), ctx) == []
+
+
+# --- writes ----------------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize(("write", "rule"), [
+    ("$TRACE.MODE = #T_START", None), ("$TRACE.NAME[] = \"x\"", None), ("$TRACE.CONFIG[] = \"x\"", None),
+    ("$TRACE.STATE = #T_END", "SYSVAR"), ("$TRACE.NAME[1] = \"x\"", "SYSVAR"), ("$TRACE = 1", "SYSVAR"),
+    ("$TRACE.MODE.X = 1", "SYSVAR"), ("$OUT[1] = TRUE", "SYSVAR"), ("RGSE_STEP = 1", None), ("rgse_step = 1", None),
+    ("OTHER = 1", "WRITE"), ("$VEL.CP.X = 1", "SYSVAR"),
+])
+def test_writes(write: str, rule: str | None) -> None:
+    v = found(program(f"  {write}"))
+    assert [x.rule for x in v] == ([] if rule is None else [rule])
+    if rule == "WRITE":
+        assert v[0].message == "write to OTHER: not a variable of this program and not on the allow-list"
+    if rule == "SYSVAR" and write.startswith("$TRACE.STATE"):
+        assert v[0].message == "write to system variable $TRACE.STATE is not allowed"
+
+
+def test_a_context_allow_list_is_used() -> None:
+    ctx = CheckContext(start_axes_deg=MEAS, writable_variables=frozenset({"OTHER"}), writable_prefix="MY_")
+    assert rules(program("  OTHER = 1\n  my_x = 1"), ctx) == set()
+    assert rules(program("  RGSE_STEP = 1"), ctx) == {"WRITE"}
+    assert ctx.link_writable(" other ") and ctx.link_writable("My_Y") and not ctx.link_writable("RGSE_STEP")
