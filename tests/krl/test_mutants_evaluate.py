@@ -480,3 +480,44 @@ def test_describe() -> None:
     assert describe(KrlArray("INT", (2,))) == "an array of INT" and describe(UNKNOWN) == "an unknown value"
     assert describe(10**30).startswith("INT 1000000000…") and "(31 digits)" in describe(10**30)
     assert describe(10**23) == "INT " + str(10**23)
+
+
+# --- where an error is: the check reports it at the expression's place --------------------------------------------
+@pytest.mark.parametrize(("text", "column", "unsure", "strict"), [
+    ("1 + NOT 1", 5, False, True), ("1 + B_NOT TRUE", 5, False, True), ("1 + -TRUE", 5, False, True),
+    ("1 + (2 AND 3)", 8, False, True), ("1 + (1 B_AND TRUE)", 8, False, True), ("1 + (TRUE == 1)", 11, False, True),
+    ("1 + (TRUE < 1)", 11, False, True), ("1 + (1 / 0)", 8, False, True), ("1 + (1.0 / 0)", 10, False, True),
+    ("1 + ABS(1, 2)", 5, False, True), ("1 + ABS(TRUE)", 5, False, True), ("1 + ABS(-3)", 5, True, True),
+    ("1 + SQRT(-1)", 5, False, True), ("1 + SIN(30)", 5, True, True), ("1 + ACOS(2)", 5, False, False),
+    ("1 + 2147483647 * 2", 16, True, True), ("1 + 3.0E38 * 10", 12, True, True), ("1 + (7 / 0)", 8, False, True),
+    ("1 + -2147483648", 5, True, True), ("1 + 1.0E39", 5, True, True), ("1 + SIN(2.0E-38)", 5, True, False),
+    ("1 + ABS(-2147483647 - 1 - 1)", 25, True, False), ("1 + -(-2147483647 - 1)", 5, True, True),
+])
+def test_errors_carry_the_place_of_the_failing_expression(text: str, column: int, unsure: bool, strict: bool) -> None:
+    with pytest.raises(EvalError) as info:
+        ev(text, strict=strict)
+    assert info.value.pos == k.Pos(1, column)
+    assert isinstance(info.value, Unsure) is unsure
+
+
+@pytest.mark.parametrize("call", [
+    lambda p: int32(2**31, p), lambda p: real32(1e39, p), lambda p: real32(math.nan, p), lambda p: real32(1e-40, p),
+    lambda p: real64(math.inf, p), lambda p: real_literal(16777217.0, None, p), lambda p: round_to_int(0.5, p),
+    lambda p: round_to_int(math.inf, p), lambda p: round_to_int(3e9, p), lambda p: convert("INT", True, pos=p),
+    lambda p: convert("INT", 2.5, pos=p), lambda p: convert("INT", 2**31, pos=p), lambda p: convert("REAL", "x", pos=p),
+    lambda p: convert("REAL", 1e39, pos=p), lambda p: convert("BOOL", 1, pos=p), lambda p: convert("CHAR", 1, pos=p),
+    lambda p: convert("AXIS", 1, pos=p), lambda p: convert("AXIS", KrlStruct(None, (("A1", 0.5e-40),)), pos=p),
+    lambda p: convert("POS", KrlStruct(None, (("S", 0.5),)), pos=p), lambda p: convert(None, 1e39, pos=p),
+    lambda p: convert(None, KrlStruct(None, (("X", 1e39),)), pos=p),
+    lambda p: merge("AXIS", None, KrlStruct("POS", ()), p),
+    lambda p: merge("AXIS", None, KrlStruct(None, (("Q", 1),)), p),
+    lambda p: member(KrlStruct("AXIS", ()), "A1", p), lambda p: member(KrlStruct("AXIS", ()), "Q", p),
+    lambda p: member(1, "A1", p), lambda p: element("ab", (3,), p), lambda p: element(KrlArray("INT", (2,)), (1,), p),
+    lambda p: element(KrlArray("INT", (2,)), (3,), p), lambda p: element(1, (1,), p),
+])
+def test_value_errors_carry_their_place(call: object) -> None:
+    where = k.Pos(7, 9)
+    with pytest.raises(EvalError) as info:
+        call(where)  # type: ignore[operator]
+    assert info.value.pos == where
+    assert info.value.reason == str(info.value)
