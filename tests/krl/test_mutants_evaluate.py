@@ -521,3 +521,63 @@ def test_value_errors_carry_their_place(call: object) -> None:
         call(where)  # type: ignore[operator]
     assert info.value.pos == where
     assert info.value.reason == str(info.value)
+
+
+# --- what the operator reads ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize(("text", "strict", "message"), [
+    ("NOT 1", True, "NOT needs a BOOL, not INT 1"),
+    ("B_NOT TRUE", True, "B_NOT needs an INT, not BOOL TRUE"),
+    ("-#A", True, "- needs a number, not ENUM #A"),
+    ("1 AND TRUE", True, "AND needs BOOLs, not INT 1 and BOOL TRUE"),
+    ("1 B_OR 2.5", True, "B_OR needs INTs, not INT 1 and REAL 2.5"),
+    ("TRUE == 1", True, "cannot compare BOOL TRUE with INT 1"),
+    ("TRUE < 1", True, "< needs numbers, not BOOL TRUE and INT 1"),
+    ("1 / 0", True, "division by zero"),
+    ("ABS(1, 2)", True, "ABS takes 1 argument(s), got 2"),
+    ("ATAN2(TRUE, 1)", True, "ATAN2 needs numbers, not BOOL TRUE, INT 1"),
+    ("ABS(-3)", True, "ABS of an INT: whether the result is an INT or a REAL is not documented"),
+    ("SQRT(-4)", True, "SQRT of a negative number (-4.0)"),
+    ("COS(1)", True, "COS: the controller's result is not documented to the last bit"),
+    ("ACOS(2)", False, "ACOS of 2.0: outside -1..1"),
+    ("2147483647 + 1", True, "INT overflow (2147483648 is outside -2147483648..2147483647)"),
+    ("-2147483648", True, "INT literal -2147483648"),
+])
+def test_error_messages(text: str, strict: bool, message: str) -> None:
+    with pytest.raises(EvalError) as info:
+        ev(text, strict=strict)
+    assert info.value.reason == message
+
+
+def test_abs_of_int_min_overflows_at_the_call() -> None:
+    with pytest.raises(Unsure) as info:
+        ev("1 + ABS(-2147483647 - 1)", strict=False)
+    assert info.value.pos == k.Pos(1, 5)
+
+
+def test_value_error_messages() -> None:
+    cases = [
+        (lambda: member(KrlStruct("AXIS", ()), "A2"), "field A2 is read before it was assigned"),
+        (lambda: member(KrlStruct("AXIS", ()), "Q"), "a AXIS has no field Q"),
+        (lambda: element(KrlArray("INT", (2,)), (1,)), "array element [1] is read before it was assigned"),
+        (lambda: element(KrlArray("INT", (2,)), (3,)), "index [3] outside the array's size [2]"),
+        (lambda: element("ab", (3,)), "string index [3] out of range"),
+        (lambda: element(True, (1,)), "cannot index BOOL TRUE"),
+        (lambda: round_to_int(0.5), "REAL 0.5 is halfway between two INTs: how the controller rounds it is not "
+                                    "documented"),
+        (lambda: round_to_int(math.inf), "REAL inf cannot become an INT"),
+        (lambda: real32(1e39), "REAL overflow (1e+39 is beyond ±3.4E+38)"),
+        (lambda: real32(1e-40), "REAL underflow (1e-40 is below the normal REAL range 1.1E-38)"),
+        (lambda: real32(math.nan), "REAL value nan is not a finite number"),
+        (lambda: real64(math.inf), "REAL overflow (inf)"),
+        (lambda: real_literal(16777217.0, None), "REAL literal 16777217.0: its binary32 value depends on how it is "
+                                                 "read"),
+        (lambda: convert("BOOL", 1), "cannot assign INT 1 to a BOOL"),
+        (lambda: merge("AXIS", None, KrlStruct("POS", ())), "cannot assign a POS aggregate to a AXIS"),
+        (lambda: merge("AXIS", None, KrlStruct(None, (("Q", 1), ("R", 2)))), "AXIS has no field Q, R"),
+        (lambda: int32(-(2**31) - 1), "INT overflow (-2147483649 is outside -2147483648..2147483647)"),
+    ]
+    for call, message in cases:
+        with pytest.raises(EvalError) as info:
+            call()
+        assert info.value.reason == message
+    assert repr(UNKNOWN) == "UNKNOWN"
