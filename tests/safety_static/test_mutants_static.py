@@ -17,7 +17,7 @@ import pytest
 from rgse_daemon.config import LimitsConfig
 from rgse_daemon.errors import KrlSyntaxError
 from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, max_point_speed_mm_s
-from rgse_daemon.safety.static import CheckContext, Violation, check_program
+from rgse_daemon.safety.static import CheckContext, Violation, _Checker, check_program
 
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
 CTX = CheckContext(start_axes_deg=MEAS)
@@ -439,3 +439,27 @@ def test_a_context_allow_list_is_used() -> None:
     assert rules(program("  OTHER = 1\n  my_x = 1"), ctx) == set()
     assert rules(program("  RGSE_STEP = 1"), ctx) == {"WRITE"}
     assert ctx.link_writable(" other ") and ctx.link_writable("My_Y") and not ctx.link_writable("RGSE_STEP")
+
+
+def test_the_sampled_a5_torque_bound_by_hand() -> None:
+    # CoG 0.21 m out on flange z, 0.5 m from the wrist centre; at A2 -90, A3 90, A4 0 the A5 axis is horizontal and the
+    # flange points down at A5 90: the static A5 torque is m·g·0.5·sin(90° - A5). The check samples the path every
+    # 0.25° at most (n = ceil(L1 / 0.25) + 1 points, both ends included) and adds 2·m·g·(d6 + |c|)·step for the
+    # unsampled stretches between them.
+    m, g = 300.0, 9.81
+    start = (0.0, -90.0, 90.0, 0.0, 90.0, 0.0)
+    ctx = CheckContext(start_axes_deg=start, payload_mass_kg=m, payload_cog_flange_m=(0.0, 0.0, 0.21),
+                       limits=LimitsConfig(max_a5_torque_nm=100.0))  # below the lever bound: the path is sampled
+    checker = _Checker(ctx)
+    for a5 in (60.0, 60.1, 0.0, 89.9):
+        l1 = 90.0 - a5
+        n = math.ceil(l1 / 0.25) + 1
+        expected = m * g * 0.5 * math.sin(math.radians(l1)) + 2.0 * m * g * 0.5 * math.radians(l1 / (n - 1))
+        assert checker.max_a5_torque_nm(start, (0.0, -90.0, 90.0, 0.0, a5, 0.0)) == pytest.approx(expected, rel=1e-12)
+    # holding the pose: only the torque there (none, the CoG hangs under the axis)
+    assert checker.max_a5_torque_nm(start, start) == pytest.approx(0.0, abs=1e-9)
+    # a lever short enough for the limit: the bound m·g·|lever| itself, no sampling
+    roomy = _Checker(CheckContext(start_axes_deg=start, payload_mass_kg=m, payload_cog_flange_m=(0.0, 0.0, 0.21)))
+    assert roomy.max_a5_torque_nm(start, (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)) == pytest.approx(m * g * 0.5, rel=1e-12)
+    sideways = _Checker(CheckContext(start_axes_deg=start, payload_mass_kg=m, payload_cog_flange_m=(0.3, 0.4, -0.29)))
+    assert sideways.max_a5_torque_nm(start, start) == pytest.approx(m * g * 0.5, rel=1e-12)
