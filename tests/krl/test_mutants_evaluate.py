@@ -581,3 +581,9 @@ def test_value_error_messages() -> None:
             call()
         assert info.value.reason == message
     assert repr(UNKNOWN) == "UNKNOWN"
+
+
+def test_long_numbers_are_shortened_in_messages() -> None:
+    assert describe(123456789012345678901234) == "INT 123456789012345678901234"  # 24 digits: in full
+    assert describe(1234567890123456789012345) == "INT 1234567890…2345 (25 digits)"
+    assert describe(-123456789012345678901234) == "INT -123456789…1234 (25 digits)"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import re
+import struct
 
 import pytest
 
@@ -463,3 +464,23 @@ def test_the_sampled_a5_torque_bound_by_hand() -> None:
     assert roomy.max_a5_torque_nm(start, (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)) == pytest.approx(m * g * 0.5, rel=1e-12)
     sideways = _Checker(CheckContext(start_axes_deg=start, payload_mass_kg=m, payload_cog_flange_m=(0.3, 0.4, -0.29)))
     assert sideways.max_a5_torque_nm(start, start) == pytest.approx(m * g * 0.5, rel=1e-12)
+
+
+def test_setting_messages() -> None:
+    def message(body: str) -> str:
+        (v,) = found(program(body))
+        return v.message
+
+    not_constant = "a value that is not a constant"
+    assert message("  $OV_PRO = RGSE_OV") == f"$OV_PRO must be a constant in 0..100 %, not {not_constant}"
+    assert message("  $OV_PRO = 101") == "$OV_PRO must be a constant in 0..100 %, not INT 101"
+    f32 = struct.unpack("<f", struct.pack("<f", 0.0099))[0]
+    assert message("  $VEL_AXIS[2] = 0.0099") == (
+        f"$VEL_AXIS must be set to a constant in [0.01, 100] %, not REAL {f32!r}")
+    assert message("  $VEL.CP = 3") == "$VEL.CP must be a constant in (0, 2] m/s, not REAL 3.0"
+    assert message("  $VEL.ORI1 = 1") == "only $VEL.CP of $VEL may be written"
+    assert message("  $OV_PRO[1] = 5") == "$OV_PRO is a scalar"
+    # an indexed member has no name on the allow-list: the message names the variable
+    assert message('  $TRACE.NAME[1].X = 1') == "write to system variable $TRACE is not allowed"
+    assert message("  $TRACE.STATE = 1") == "write to system variable $TRACE.STATE is not allowed"
+    assert message("  $TRACE.NAME[2] = 1") == "write to system variable $TRACE is not allowed"
