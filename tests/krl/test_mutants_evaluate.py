@@ -587,3 +587,12 @@ def test_long_numbers_are_shortened_in_messages() -> None:
     assert describe(123456789012345678901234) == "INT 123456789012345678901234"  # 24 digits: in full
     assert describe(1234567890123456789012345) == "INT 1234567890…2345 (25 digits)"
     assert describe(-123456789012345678901234) == "INT -123456789…1234 (25 digits)"
+
+
+def test_merge_converts_only_known_structures_and_keeps_the_mode() -> None:
+    got = merge("TOOLT", None, KrlStruct(None, (("X", 9), ("ON", True))))
+    assert [(n, type(v)) for n, v in got.fields] == [("X", int), ("ON", bool)]  # no REAL conversion for unknown types
+    # the simulator's mode reaches the fields: S ← 2.5 is a tie, refused by the interlock, rounded away by the simulator
+    assert convert("POS", KrlStruct(None, (("S", 2.5),)), strict=False) == KrlStruct("POS", (("S", 3),))
+    with pytest.raises(Unsure):
+        convert("POS", KrlStruct(None, (("S", 2.5),)))

@@ -342,3 +342,10 @@ def test_the_time_budget() -> None:
 def test_too_many_statements_are_refused() -> None:
     v = found(program("  FOR I = 1 TO 1000\n    FOR J = 1 TO 60\n      N = 1\n    ENDFOR\n  ENDFOR"))
     assert [(x.rule, x.line) for x in v] == [("COMPLEXITY", BODY_LINE + 2)]
+
+
+def test_an_unknown_element_of_a_cartesian_array_is_cartesian() -> None:
+    decls = DECLS + "  DECL E6POS QP[2]\n"
+    src = program("  QP[RGSE_N] = {X 1}\n  PTP QP[1]", decls)
+    assert {v.rule for v in found(src)} == {"CARTESIAN"}
+    assert {v.rule for v in found(program("  PTP QP[1]", decls))} == {"CARTESIAN"}
