@@ -18,6 +18,7 @@ import pytest
 from rgse_daemon.config import LimitsConfig
 from rgse_daemon.errors import KrlSyntaxError
 from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, max_point_speed_mm_s
+from rgse_daemon.krl import ast as k
 from rgse_daemon.safety.static import CheckContext, Violation, _Checker, check_program
 
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
@@ -484,3 +485,12 @@ def test_setting_messages() -> None:
     assert message('  $TRACE.NAME[1].X = 1') == "write to system variable $TRACE is not allowed"
     assert message("  $TRACE.STATE = 1") == "write to system variable $TRACE.STATE is not allowed"
     assert message("  $TRACE.NAME[2] = 1") == "write to system variable $TRACE is not allowed"
+
+
+def test_a_write_to_no_variable_is_named_as_such() -> None:
+    # the parser only gives targets rooted in a name; the check still names anything else if it is handed one
+    checker = _Checker(CTX)
+    assert not checker.writable(k.IntLit(1), k.Pos(5, 3))
+    (v,) = checker.found.values()
+    assert v == Violation(5, 3, "WRITE", "write to an expression that is not a variable: not a variable of this "
+                                         "program and not on the allow-list")
