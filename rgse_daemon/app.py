@@ -330,7 +330,8 @@ class Daemon:
         inputs = self._inputs()
         engine = RunEngine(
             krc,
-            checker=static_checker(self.cfg.limits, self.cfg.measurement.payload_lever_max_m, inputs),
+            checker=static_checker(self.cfg.limits, self.cfg.measurement.payload_lever_max_m, inputs,
+                                   require_watchdog=self.cfg.controller.watchdog_required),
             monitor=Monitor(krc, inputs=inputs,
                             stale_periods=self.cfg.limits.snapshot_stale_s / DEFAULT_POLL_PERIOD_S,
                             on_unsafe=self.recovery.on_unsafe if self.recovery is not None else None),
