@@ -19,6 +19,7 @@ from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import Store
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.krc4.variables import Kind
+from tests.support.heartbeat import beating
 
 ROBOT = "KR500R2830-SIM"
 #: The simulator runs in the test's own process and event loop (its CPU work shares the interpreter lock), and the
@@ -71,7 +72,7 @@ def settings(cfg: Config) -> RunSettings:
 
 @pytest.fixture
 async def krc(cfg: Config) -> AsyncIterator[Controller]:
-    async with Controller.connect(cfg.controller) as c:
+    async with Controller.connect(cfg.controller) as c, beating(cfg.controller):  # the daemon's heartbeat
         yield c
 
 
