@@ -22,6 +22,7 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
+from rgse_daemon.config import ControllerConfig
 from rgse_daemon.link.connection import Connection
 from rgse_daemon.link.krlvalue import parse_value
 from simulators.krc4.process import SimProcess
@@ -83,6 +84,9 @@ async def _fault_mid_warmup(sim: SimProcess, tmp_path: Path, calibration_doc: di
                             fault: Callable[[DaemonProcess], Awaitable[None]]) -> list[tuple[float, str, tuple]]:
     cfg = daemon_config(tmp_path / "data", controller_port=controller_port, share_dir=sim.share_dir,
                         warmup_cycles=40)  # a warm-up of minutes: it cannot end by itself while observed
+    # the default bound (tests/support/daemon.py raises it to 1 s for the other tests)
+    cfg = cfg.model_copy(update={"controller": cfg.controller.model_copy(
+        update={"watchdog_bound_s": ControllerConfig().watchdog_bound_s})})
     await seed_calibration(cfg, calibration_doc)
     observer = Observer(sim.port)
     child = DaemonProcess(cfg, "measurement")

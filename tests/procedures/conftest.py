@@ -47,7 +47,7 @@ def make_config(sim: SimulatedKrc4, data_dir: Path, **measurement: object) -> Co
     return config_from_mapping({
         "robot": {"name": ROBOT},
         "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge", "share_dir": str(sim.share_dir),
-                       "request_timeout_s": 2.0},
+                       "request_timeout_s": 2.0, "watchdog_bound_s": 1.0},  # a loaded machine: as the monitor
         "paths": {"data_dir": str(data_dir)},
         "measurement": ms,
     })
