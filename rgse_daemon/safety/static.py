@@ -561,6 +561,10 @@ def watchdog_violations(module: k.Module, ctx: CheckContext) -> tuple[list[Viola
                 continue
             routine = routines[s.routine]
             problems = _routine_problems(routine.body, ctx)
+            if not (routine.body and isinstance(routine.body[0], k.Brake)
+                    and any(isinstance(x, k.Halt) for x in all_stmts(routine.body))):
+                problems.append((routine.pos, f"the watchdog's routine {routine.name} must begin with BRAKE and "
+                                              "HALT: otherwise the motion goes on"))
             found += [Violation(p.line, p.column, "WATCHDOG", msg) for p, msg in problems]
             if not problems:
                 allowed.add(routine.name)

@@ -8,6 +8,7 @@ import pytest
 
 from rgse_daemon.commands.krl import default_context
 from rgse_daemon.config import Config
+from rgse_daemon.errors import KrlSyntaxError
 from rgse_daemon.safety.static import CheckContext, check_program
 
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
@@ -64,6 +65,9 @@ def test_a_motion_before_the_watchdog_is_armed_is_refused_when_required() -> Non
         ROUTINE.replace("  BRAKE\n", "  BRAKE\n  $TIMER[16] = -1000\n"),  # feeds the watchdog itself
         ROUTINE.replace("  BRAKE\n", "  BRAKE\n  WAIT SEC 1\n"),
         ROUTINE.replace("DEF WD( )", "DEF WD(X:IN)\n  DECL INT X"),
+        ROUTINE.replace("  BRAKE\n", ""),  # does not stop the motion
+        ROUTINE.replace("  BRAKE\n", "  RGSE_WD_TRIP = TRUE\n  BRAKE\n"),  # not at once
+        ROUTINE.replace("    HALT\n", "    RGSE_WD_TRIP = TRUE\n"),  # never halts
     ],
 )
 def test_an_interrupt_routine_that_does_more_than_stop_is_refused(routine: str) -> None:
@@ -87,6 +91,13 @@ def test_an_interrupt_routine_that_does_more_than_stop_is_refused(routine: str) 
 def test_other_interrupt_forms_are_refused(head: str) -> None:
     assert "WATCHDOG" in {r for r, _ in found(program(head=head))}
     assert "WATCHDOG" in {r for r, _ in found(program(head=head), CheckContext(start_axes_deg=MEAS))}
+
+
+@pytest.mark.parametrize("twice", ["DEF WD( )\n  PTP {A3 100}\nEND\n\n" + ROUTINE,
+                                   ROUTINE + "\nDEF WD( )\n  PTP {A3 100}\nEND\n"])
+def test_a_routine_defined_twice_does_not_parse(twice: str) -> None:
+    with pytest.raises(KrlSyntaxError, match="defined twice"):
+        check_program(program(routine=twice), None, REQUIRED, "prop.src")
 
 
 def test_an_unused_second_routine_is_still_refused() -> None:
