@@ -25,6 +25,7 @@ from rgse_daemon.client import (
     Prompt,
     Refused,
     RgseClient,
+    Run,
     RunFailed,
     WaitTimeout,
 )
@@ -37,6 +38,8 @@ LEVER_A3_M = 1.3
 LEVER_A5_M = 0.3
 #: Bodies on the test adapter at a torque point.
 TORQUE_BODIES = 10
+#: Bound of the abort sent when the script gives up on a run (s).
+ABORT_S = 10.0
 
 Mount = Callable[[Prompt], Awaitable[str | None]]
 OnRetry = Callable[[int, Exception], Awaitable[None]]
@@ -65,7 +68,12 @@ async def campaign(rgse: RgseClient, points: Sequence[CampaignPoint], mount: Mou
             await rgse.ready(ready_timeout_s)
             run = await rgse.calibrate(points, method=method)
             print(f"attempt {attempt}: run {run.run_id}", file=sys.stderr)
-            result = await run.wait(run_timeout_s, on_prompt=mount)
+            try:
+                result = await run.wait(run_timeout_s, on_prompt=mount)
+            except BaseException as exc:  # given up here (end of input, Ctrl-C, a deadline): not left waiting there
+                if run.end_state() is None:
+                    await abort_quietly(run, f"scripted campaign gave up: {exc or type(exc).__name__}")
+                raise
         except RunFailed as exc:
             if exc.state == "aborted":
                 raise  # somebody meant it: not retried
@@ -79,9 +87,24 @@ async def campaign(rgse: RgseClient, points: Sequence[CampaignPoint], mount: Mou
     raise last
 
 
+async def abort_quietly(run: Run, reason: str) -> None:
+    """Abort ``run`` within :data:`ABORT_S`; a failure to abort is said, since the run may then still wait."""
+    try:
+        async with asyncio.timeout(ABORT_S):
+            await run.abort(reason[:500])
+        print(f"run {run.run_id} aborted", file=sys.stderr)
+    except Exception as exc:
+        print(f"could not abort run {run.run_id}: {exc}; abort it with rgse abort", file=sys.stderr)
+
+
 async def ask_on_terminal(prompt: Prompt) -> str | None:
-    """The person at the robot: mount the load, press Enter (a typed line becomes the recorded note)."""
-    line = await asyncio.to_thread(input, f"point {prompt.point_index}: {prompt.message}\nmounted? note (Enter): ")
+    """The person at the robot: mount the load, press Enter (a typed line becomes the recorded note). End of input
+    means nobody is there to confirm: the run is aborted, not left waiting."""
+    try:
+        line = await asyncio.to_thread(input, f"point {prompt.point_index}: {prompt.message}\n"
+                                              "mounted? note (Enter): ")
+    except EOFError:
+        raise RunFailed(prompt.run_id, "aborted", "end of input on stdin: nobody to confirm the prompt") from None
     return line.strip() or None
 
 

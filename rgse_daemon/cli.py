@@ -98,6 +98,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--globals", type=Path, metavar="FILE",
                    help="install this rgse_globals.dat (from rgse krl render) at start, as done once on a real "
                         "controller: without it the programs stop at their first handshake variable")
+    p.add_argument("--control-port", type=int, default=None, metavar="PORT",
+                   help="what a person at the robot does, for rgse sim-op (default --port + 1 on --host, any free "
+                        "port with --port 0; -1: none)")
+    p.add_argument("--commission", action="store_true",
+                   help="commission as a real KR C4 is once: handshake globals, RGSE_GLOBALS.DAT and the resident "
+                        "program (rendered with --config) installed, so rgse doctor passes")
+    p.add_argument("--config", type=Path, metavar="FILE", help="with --commission: the daemon's configuration")
+
+    p = sub.add_parser("sim-op", help="act on a running rgse sim as a person at the robot: mount a load, mode, "
+                                      "enabling switch")
+    p.add_argument("--control", default="127.0.0.1:7001", metavar="HOST:PORT", help="rgse sim's control port")
+    p.add_argument("--timeout", type=positive, default=5.0, metavar="S")
+    _add_json(p)
+    ops = p.add_subparsers(dest="op", required=True, metavar="ACTION")
+    o = ops.add_parser("mount", help="mount a load (replaces what was mounted)")
+    what = o.add_mutually_exclusive_group(required=True)
+    what.add_argument("--nothing", action="store_true", help="the bare flange")
+    what.add_argument("--mpa", action="store_true", help="the mounting plate (MPA) alone: a campaign's zero point")
+    what.add_argument("--bodies", type=int, metavar="N", help="the MPA with N calibration bodies (a mass point)")
+    what.add_argument("--torque", type=int, metavar="N",
+                      help="the test adapter with N bodies (a torque point; with --lever-a5)")
+    what.add_argument("--dut", type=finite, metavar="KG", help="a device under test of KG on its fixture (with --cog)")
+    o.add_argument("--lever-a5", type=finite, metavar="M", help="--torque: the bodies' lever from A5 (m)")
+    o.add_argument("--cog", type=finite, nargs=3, metavar=("X", "Y", "Z"), help="--dut: CoG in the flange frame (m)")
+    o.add_argument("--inertia", type=finite, nargs=3, metavar=("JX", "JY", "JZ"),
+                   help="--dut: principal moments about the CoG along the flange axes (kg m^2)")
+    o.add_argument("--fixture-mass", type=finite, metavar="KG", help="--dut: the fixture's mass (default 10.288)")
+    o = ops.add_parser("mode", help="turn the mode selector")
+    o.add_argument("mode", choices=("T1", "T2", "AUT", "EX"))
+    o = ops.add_parser("enabling-switch", help="hold or release the smartPAD's enabling switch")
+    o.add_argument("state", choices=("hold", "release"))
+    ops.add_parser("acknowledge", help="acknowledge the stop message on the smartPAD")
+    ops.add_parser("status", help="what is mounted, the mode and the program state")
 
     p = sub.add_parser("daemon", help="run the service (systemd entry point)")
     p.add_argument("--config", type=Path, required=True, metavar="FILE")
@@ -112,6 +145,26 @@ def build_parser() -> argparse.ArgumentParser:
                    help="campaign pre-processing: paper (method F, default) or e.g. a row of rgse study "
                         "(crop_sigma=2,filter=gaussian,window=100,order=forward,location=huber)")
     _add_json(p)
+
+    p = sub.add_parser("activate", help="make a CAL.json the active calibration of the configured robot")
+    p.add_argument("calibration", type=Path, metavar="CAL.json")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its robot and store)")
+    p.add_argument("--note", metavar="TEXT", help="why, recorded with the activation")
+    _add_json(p)
+
+    p = sub.add_parser("runs", help="the history of runs and results from the store: filter, table, CSV, JSON")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its store)")
+    p.add_argument("--robot", metavar="NAME", help="only this robot's runs (default: every robot in the store)")
+    p.add_argument("--kind", choices=("measurement", "calibration"))
+    p.add_argument("--state", choices=("queued", "running", "completed", "failed", "interrupted", "aborted"))
+    p.add_argument("--status", choices=("ok", "warning", "refused"), help="only results of this status")
+    p.add_argument("--dut", metavar="TEXT", help="DuT name, serial or part number or project contains TEXT")
+    p.add_argument("--since", metavar="DATE", help="created on or after (2026-11-28 or an ISO 8601 time, UTC)")
+    p.add_argument("--until", metavar="DATE", help="created on or before")
+    fmt = p.add_mutually_exclusive_group()
+    fmt.add_argument("--csv", action="store_true", help="CSV with the fields of docs/interfaces.md §1.4")
+    _add_json(fmt)
+    p.add_argument("--out", type=Path, metavar="FILE", help="write to FILE instead of stdout")
 
     p = sub.add_parser("mass", help="offline in-line mass from a measurement directory")
     p.add_argument("--traces", type=Path, required=True, metavar="DIR")
@@ -243,7 +296,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"rgse: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     setup_logging(logging.DEBUG if args.debug else logging.INFO if args.verbose else logging.WARNING, log_format)
-    module = importlib.import_module(f"rgse_daemon.commands.{args.command}")
+    module = importlib.import_module(f"rgse_daemon.commands.{args.command.replace('-', '_')}")
     try:
         return int(module.run(args))
     except (ConfigError, DataError, KrlSyntaxError) as exc:

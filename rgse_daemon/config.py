@@ -210,6 +210,10 @@ class ControllerConfig(_Section):
     """The slowest rate (bytes/s) the controller's file work may run at: a file operation's deadline is
     ``request_timeout_s`` + bytes / this. The real C3 Bridge loads a whole file before its first reply; ``rgse
     doctor`` measures the real rate (keep this at about half of it; the default assumes 100 kB/s, 2.5× margin)."""
+    time_scale: float = Field(1.0, ge=1.0, le=1000.0)
+    """Controller seconds per wall-clock second: 1 for a real KR C4 (the default). A simulated one (``rgse sim
+    --time-scale X``) runs X times faster; the run's waits in the robot's time (``measurement.settle_s``,
+    ``warmup_steady_window_s``, ``warmup_max_s``) are then divided by X, as ``rgse demo`` does."""
 
     @model_validator(mode="after")
     def _backoff_ordered(self) -> ControllerConfig:

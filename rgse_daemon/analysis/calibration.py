@@ -137,6 +137,54 @@ def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float
     return cal, chosen, evaluations
 
 
+#: The stand-in torques of :func:`check_planned`: the expected torques through a smooth gain of a few per cent
+#: (K = 1 + 0.03 exp(-|M| / 1500 Nm), Table 1's K lies within 0.93..1.05), with a ±0.2 % alternating scatter so that
+#: no fit is exact. Only the number, kinds and spread of the planned points then decide whether a method can be fitted.
+STAND_IN_GAIN_AMPLITUDE = 0.03
+STAND_IN_GAIN_SCALE_NM = 1500.0
+STAND_IN_SCATTER = 0.002
+#: A campaign whose loaded points' measured torques span less than this fraction of their expected torques' span, on
+#: both axes, did not measure its loads (an empty flange, the wrong drive's channel): refused with that reason.
+MIN_TORQUE_SPAN_FRACTION = 0.5
+
+
+def check_planned(kinds: list[str], mass_kg: list[float], lever_a3_m: list[float], lever_a5_m: list[float],
+                  method: str, g: float, dr: float) -> None:
+    """Before a campaign moves the robot: can its planned points (``kind`` zero/mass/torque, mass, levers) be
+    fitted with ``method`` at all? The same selection and fit as at its end (:func:`fit_and_describe`), on stand-in
+    torques; a :class:`~rgse_daemon.errors.DataError` says why not (e.g. the model needs more loaded points)."""
+    m = np.asarray(mass_kg, dtype=float)
+    e3 = g * m * np.asarray(lever_a3_m, dtype=float)
+    e5 = g * m * np.asarray(lever_a5_m, dtype=float)
+    sign = np.where(np.arange(len(m)) % 2 == 0, 1.0, -1.0)
+
+    def measured(expected: np.ndarray) -> np.ndarray:
+        k = 1.0 + STAND_IN_GAIN_AMPLITUDE * np.exp(-np.abs(expected) / STAND_IN_GAIN_SCALE_NM)
+        return expected / k * (1.0 + STAND_IN_SCATTER * sign)
+
+    points = CalibrationPoints(np.asarray(kinds), m, measured(e3), measured(e5), e3, e5)
+    fit_and_describe(points, method, g, dr)
+
+
+def check_torques_follow_loads(points: CalibrationPoints) -> None:
+    """Refuse a campaign whose measured torques do not rise with its loads (see :data:`MIN_TORQUE_SPAN_FRACTION`):
+    every model would fail on it with a message that names a symptom of the fit, not the cause."""
+    loaded = points.mass_kg > 0
+    if loaded.sum() < 2:
+        return
+    spans = []
+    for axis, measured, expected in (("A3", points.torque_a3_nm, points.expected_a3_nm),
+                                     ("A5", points.torque_a5_nm, points.expected_a5_nm)):
+        want = float(np.ptp(np.abs(expected[loaded])))
+        got = float(np.ptp(np.abs(measured[loaded])))
+        if want <= 0.0 or got >= MIN_TORQUE_SPAN_FRACTION * want:
+            return
+        spans.append(f"{axis} {got:.1f} Nm where the loads' expected torques span {want:.1f} Nm")
+    raise cal_mod.CalibrationError(
+        "the measured torques do not follow the calibration loads (" + "; ".join(spans) + "): were the loads "
+        "mounted when each point was confirmed, and are these the payload axes' drives?")
+
+
 def plausible_alternatives(points: CalibrationPoints, chosen: selection.Evaluation,
                            evaluations: list[selection.Evaluation], g: float, dr: float) -> list[dict]:
     """The other admissible models whose held-out error is within ``PLAUSIBLE_LOO_FACTOR`` of the chosen one's,
@@ -174,6 +222,7 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
     ``drift``: the campaign's thermal drift (CAL.json ``fit.thermal``), removed from the DuT's loops at measurement.
     ``sample_period_s``: the campaign's trace sample period (CAL.json ``fit.sample_period_s``; None for a points
     CSV), compared with the DuT's at measurement."""
+    check_torques_follow_loads(points)
     try:
         cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
         nested_pct = (cal_mod.mean_abs_pct(points.mass_kg, selection.nested_loo_auto_mass_kg(points, g, dr))

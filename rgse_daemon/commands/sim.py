@@ -3,8 +3,14 @@
 The whole simulated controller (:class:`simulators.krc4.sim.SimulatedKrc4`: server, variable store, KRL
 interpreter, physics of the ``--scenario`` and KUKA Trace, in ``--time-scale``) is built by :func:`build_simulator`.
 
-When the server listens, one line goes to stdout: ``rgse sim: listening on HOST:PORT (share DIR)`` (useful with
-``--port 0``); logs go to stderr.
+When the server listens, one line goes to stdout: ``rgse sim: listening on HOST:PORT (share DIR); control on
+HOST:CPORT`` (useful with ``--port 0``); logs go to stderr. The control port (``--control-port``, loopback) takes what a
+person at the robot does (mount a load or a DuT, the mode selector, the enabling switch): ``rgse sim-op`` is its
+client (:mod:`simulators.krc4.control`).
+
+``--commission`` does to the simulator what a lab does once to a new KR C4 (README, "The lab's path"): the handshake
+globals installed and ``RGSE_GLOBALS.DAT`` and the resident program (rendered with ``--config``'s settings, as
+``rgse krl render`` makes them) copied to ``KRC:\\R1\\PROGRAM``, so that ``rgse doctor`` passes against it.
 """
 
 from __future__ import annotations
@@ -19,7 +25,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rgse_daemon.config import Config, load_config
+from rgse_daemon.doctor import GLOBALS_FILE, PROGRAM_DIR, RESIDENT, krl_bytes
 from rgse_daemon.errors import ConfigError, LinkError
+from rgse_daemon.krl.render import default_params, globals_dat_text, render
+from simulators.krc4.control import ControlServer
 from simulators.krc4.sim import SimulatedKrc4
 
 log = logging.getLogger(__name__)
@@ -44,6 +54,11 @@ class SimOptions:
     time_scale: float = 1.0
     globals_dat: str | None = None
     """The text of ``--globals FILE`` (``rgse krl render``'s rgse_globals.dat), installed at start."""
+    control_port: int | None = 7001
+    """The control port (what a person at the robot does; ``None``: none, 0: any free port); ``--control-port``'s
+    default is ``port + 1``."""
+    commission: Config | None = None
+    """Commission at start with this configuration's settings (``--commission``), else ``None``."""
 
 
 def load_scenario(path: Path) -> dict[str, Any]:
@@ -78,7 +93,43 @@ def options_from_args(args: argparse.Namespace) -> SimOptions:
             globals_dat = args.globals.read_bytes().decode("iso-8859-1")
         except OSError as exc:
             raise ConfigError(f"--globals {args.globals}: cannot read: {exc.strerror or exc}") from exc
-    return SimOptions(args.host, args.port, share, args.scenario, scenario, args.time_scale, globals_dat)
+    control_port = getattr(args, "control_port", None)
+    if control_port is not None and not (control_port == -1 or 0 <= control_port <= 65535):
+        raise ConfigError(f"--control-port {control_port} is not 0..65535 (or -1: no control port)")
+    commission = None
+    if getattr(args, "commission", False):
+        commission = load_config(args.config) if getattr(args, "config", None) is not None else Config()
+    elif getattr(args, "config", None) is not None:
+        raise ConfigError("--config is read only with --commission (the settings the programs are rendered with)")
+    return SimOptions(args.host, args.port, share, args.scenario, scenario, args.time_scale, globals_dat,
+                      _control_port(control_port, args.port), commission)
+
+
+def _control_port(asked: int | None, port: int) -> int | None:
+    """``--control-port``: -1 none; default the C3 Bridge port + 1, or any free port beside ``--port 0``."""
+    if asked == -1:
+        return None
+    if asked is None:
+        return 0 if port == 0 else port + 1 if port < 65535 else port - 1
+    return asked
+
+
+def commission(sim: SimulatedKrc4, cfg: Config) -> list[str]:
+    """What a lab does once to a new KR C4, done to the simulator: the handshake globals installed, and
+    ``RGSE_GLOBALS.DAT`` and ``RGSE_RESIDENT.SRC`` (rendered with ``cfg``, as ``rgse krl render --config`` makes it)
+    copied to ``KRC:\\R1\\PROGRAM``. Returns the files written."""
+    from rgse_daemon.commands.krl import template_defaults  # a sibling command's rendering defaults
+
+    globals_text = globals_dat_text()
+    sim.install_globals(globals_text)
+    resident = render(RESIDENT, default_params(RESIDENT, template_defaults(cfg))).src_text
+    written = []
+    for name, text in ((GLOBALS_FILE, globals_text), (PROGRAM_DIR + RESIDENT.upper() + ".SRC", resident)):
+        path = sim.files.resolve(name)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(krl_bytes(text))
+        written.append(name)
+    return written
 
 
 def build_simulator(options: SimOptions) -> SimulatedKrc4:
@@ -99,15 +150,25 @@ async def serve(options: SimOptions, stop: asyncio.Event) -> None:
     if options.globals_dat is not None:  # what installing it once on a real controller does (krl/README.md)
         names = sim.install_globals(options.globals_dat)
         log.info("handshake globals installed: %s", ", ".join(names))
+    if options.commission is not None:
+        log.info("commissioned: %s", ", ".join(commission(sim, options.commission)))
+    control = ControlServer(sim, options.host, options.control_port) if options.control_port is not None else None
     try:
         await sim.start()
+        if control is not None:
+            await control.start()
     except OSError as exc:
         await sim.close()
-        raise LinkError(f"cannot listen on {options.host}:{options.port}: {exc.strerror or exc}") from exc
+        raise LinkError(f"cannot listen on {options.host}:{options.port}"
+                        f"{f' / control {options.control_port}' if control is not None else ''}: "
+                        f"{exc.strerror or exc}") from exc
     try:
-        print(f"rgse sim: listening on {options.host}:{sim.port} (share {sim.share_dir})", flush=True)
+        where = f"; control on {options.host}:{control.port}" if control is not None else ""
+        print(f"rgse sim: listening on {options.host}:{sim.port} (share {sim.share_dir}){where}", flush=True)
         await stop.wait()
     finally:
+        if control is not None:
+            await control.close()
         await sim.close()
     log.info("simulated KR C4 stopped after %d requests", sim.server.counters.requests)
 

@@ -17,6 +17,7 @@ the robot's active calibration.
 
 from __future__ import annotations
 
+import asyncio
 import secrets
 import time
 from collections.abc import Callable, Generator, Sequence
@@ -39,7 +40,7 @@ from rgse_daemon.procedures.directory import setup_toml, traces_toml
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.loop import LoopOutcome, loop
-from rgse_daemon.procedures.preconditions import verify_start
+from rgse_daemon.procedures.preconditions import PreconditionError, verify_start
 from rgse_daemon.procedures.programs import (
     COG_TRACE_CONFIG_NAME,
     COG_TRACE_MODULES,
@@ -163,6 +164,20 @@ def table1_points(n_bodies: Sequence[int] = range(0, 11),
     if not any(p.kind == "zero" for p in pts):
         pts.insert(0, mass_point(0))
     return pts + [torque_point(lever) for lever in torque_levers_a5_m]
+
+
+def check_points_support(points: Sequence[CampaignPoint], method: str, s: RunSettings) -> None:
+    """Refuse a campaign, before its first load is asked for and before anything moves, whose points cannot give a
+    ``method`` calibration (too few loaded points for the model, no torque point where the method needs one, ...):
+    :class:`PreconditionError` naming the cause. Hours of mounting loads are not spent to learn it at the end."""
+    mass_points = [p for p in points if p.kind != TORSIONAL_KIND]
+    try:
+        campaign_analysis.check_planned([p.kind for p in mass_points], [p.mass_kg for p in mass_points],
+                                        [p.lever_a3_m for p in mass_points], [p.lever_a5_m for p in mass_points],
+                                        method, s.g_m_s2, s.lever_difference_m)
+    except DataError as exc:
+        raise PreconditionError(f"refused to start: the campaign's {len(mass_points)} mass and torque points cannot "
+                                f"give a {method} calibration: {exc}") from None
 
 
 # --- the offline path ---------------------------------------------------------------------------------------------
@@ -354,6 +369,7 @@ async def run_calibration(
     recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
     if run_id is None:
         pts = list(points) if points is not None else table1_points()
+        await asyncio.to_thread(check_points_support, pts, method, s)
         opening = d.OpenRun(RunKind.CALIBRATION, s.robot, {"settings": s.to_json(), "method": method},
                             points=tuple(p.spec() for p in pts))
     else:

@@ -36,11 +36,14 @@ class RunSettings:
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> RunSettings:
+        """The run's parameters; durations in the robot's time (settling, the warm-up's windows) are divided by
+        ``controller.time_scale`` (1 on a real KR C4, X against ``rgse sim --time-scale X``)."""
         ms = cfg.measurement
+        scale = cfg.controller.time_scale
         base = cls(
             robot=cfg.robot.name,
             loops=ms.loops,
-            settle_s=ms.settle_s,
+            settle_s=ms.settle_s / scale,
             trace_period_s=ms.trace_period_s,
             trace_samples=ms.trace_samples,
             brake_release_deg=ms.brake_release_deg,
@@ -53,8 +56,8 @@ class RunSettings:
             trace_timeout_s=ms.trace_timeout_s,
             warmup_until_steady=ms.warmup_until_steady,
             warmup_steady_k=ms.warmup_steady_k,
-            warmup_steady_window_s=ms.warmup_steady_window_s,
-            warmup_max_s=ms.warmup_max_s,
+            warmup_steady_window_s=ms.warmup_steady_window_s / scale,
+            warmup_max_s=ms.warmup_max_s / scale,
         )
         return replace(base, **overrides)
 

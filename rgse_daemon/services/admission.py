@@ -133,7 +133,8 @@ class RunAdmission:
 
     async def check_start_mode(self, krc: Controller, engine: RunEngine) -> None:
         """Before anything is recorded or moved: AUT only with the safety I/O module's inputs all good (area
-        cleared, key switch AUT permitted, E-stop OK, a fresh reading), else :class:`PreconditionError` — the plan's
+        cleared, key switch AUT permitted, E-stop OK, a fresh reading), in T1 with a configured module only when it
+        reads and says E-stop OK, else :class:`PreconditionError` — the plan's
         own preconditions, the static check and the monitor check it again. The runtime monitor then allows exactly
         the mode the run starts in (T1, or AUT when the module is configured): a mode change during the run trips."""
         timeout_s = self.cfg.controller.request_timeout_s * 2
@@ -152,6 +153,12 @@ class RunAdmission:
                                                                ("E-stop not OK", inputs.estop_ok)) if not ok))
                 raise PreconditionError(f"refused to start: AUT needs the area cleared, the AUT key and E-stop OK "
                                         f"({why})")
+        elif inputs is not None and not (inputs.valid and inputs.estop_ok):
+            # a configured safety I/O module that cannot be read (or reads E-stop not OK) refuses the run here, before
+            # a campaign's first prompt asks somebody to mount a load, not after it (issue #34)
+            raise PreconditionError("refused to start: " + (
+                "E-stop chain not OK on the safety I/O module" if inputs.valid else
+                f"E-stop state unknown: safety inputs invalid ({inputs.reason}); check it with rgse doctor"))
         if engine.monitor is not None:
             allowed = {mode} if mode == "T1" or (mode == "AUT" and inputs is not None) else {"T1"}
             engine.monitor.context = replace(engine.monitor.context, allowed_modes=frozenset(allowed))

@@ -480,6 +480,45 @@ async def test_aut_only_with_area_cleared_and_key_switch(
     assert sim.interpreter.state is not ProState.ACTIVE
 
 
+async def test_t1_campaign_refused_at_admission_while_configured_safety_inputs_are_unreadable(
+        sim: SimulatedKrc4, modbus_sim: ModbusIoSim, calibration_doc: dict[str, Any], tmp_path: Path) -> None:
+    """Issue #34: with [modbus] configured and unreachable, a campaign was admitted, prompted for its first load and
+    tripped only after that Confirm. Refuse before the first prompt, as the plan's own 'verify' would."""
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
+                        modbus_port=modbus_sim.port, loops=1)
+    await seed_calibration(cfg, calibration_doc)
+    modbus_sim.set_all_inputs(True)
+    events = Events()
+    async with running_daemon(cfg, on_event=events) as rd:
+        d = rd.daemon
+        await wait_until(lambda: d.safety_io.inputs.valid, "the first reading of the safety inputs")
+        await modbus_sim.stop()
+        await wait_until(lambda: not d.safety_io.inputs.valid, "the safety I/O link lost")
+        await d.start_calibration(points=table1_points(n_bodies=(0, 3), torque_levers_a5_m=(1.011,)))
+        with pytest.raises(PreconditionError, match="E-stop state unknown: safety inputs invalid"):
+            await run_end(rd)
+        assert events.of("confirm") == []
+        assert await d.store.list_runs(robot=ROBOT) == []
+    assert sim.interpreter.state is not ProState.ACTIVE
+
+
+async def test_campaign_too_small_for_its_method_is_refused_before_the_first_load(
+        sim: SimulatedKrc4, tmp_path: Path) -> None:
+    """Issue #34: a 5-point campaign with --method paper moved the robot through every point and failed at the end
+    (the model needs more loaded points). Now it is refused before the first prompt, naming the cause."""
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir, loops=1)
+    events = Events()
+    async with running_daemon(cfg, on_event=events) as rd:
+        d = rd.daemon
+        await d.start_calibration(points=table1_points(n_bodies=(0, 2, 4, 6, 8), torque_levers_a5_m=()),
+                                  method="paper")
+        with pytest.raises(PreconditionError, match=r"5 mass and torque points cannot give a paper calibration: "
+                                                    r".*needs at least \d+ loaded points, got 4"):
+            await run_end(rd)
+        assert events.of("confirm") == [] and await d.store.list_runs(robot=ROBOT) == []
+    assert sim.moves == 0
+
+
 @pytest.mark.parametrize("fault", ["area_cleared", "estop_ok", "modbus_link"])
 async def test_safety_input_dropping_mid_run_trips_the_interlock(
         sim: SimulatedKrc4, modbus_sim: ModbusIoSim, private_broker: MosquittoProcess,

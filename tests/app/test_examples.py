@@ -9,7 +9,9 @@ import importlib.util
 from pathlib import Path
 from types import ModuleType
 
-from rgse_daemon.client import CalibrationResult, Prompt, RgseClient
+import pytest
+
+from rgse_daemon.client import CalibrationResult, Prompt, RgseClient, RunFailed
 from rgse_daemon.store import RunState, Store
 from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.sim import SimulatedKrc4
@@ -65,3 +67,27 @@ async def test_scripted_campaign_retries_after_an_interlock_trip(
         assert (await store.get_run(second)).state == RunState.COMPLETED
         active = await store.active_calibration(cfg.robot.name)
     assert active is not None and active.id == result.calibration_id
+
+
+async def test_scripted_campaign_aborts_its_run_at_end_of_input(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue #34: at end of input the example died with an EOFError traceback and left the daemon's run waiting for
+    a confirm. Now the prompt's end of input aborts the run (not retried), as ``rgse run`` does."""
+    ex = example()
+
+    def no_more_input(prompt: str = "") -> str:
+        raise EOFError
+
+    monkeypatch.setattr("builtins.input", no_more_input)
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
+                        broker_port=private_broker.port, loops=1)
+    async with running_daemon(cfg) as rd, RgseClient.of(cfg) as rgse:
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        with pytest.raises(RunFailed, match="end of input") as failed:
+            await ex.campaign(rgse, ex.load_sequence([2], [1.011]), ex.ask_on_terminal, attempts=3,
+                              run_timeout_s=60)
+        await wait_until(lambda: not rd.daemon.run_active, "the daemon's run ended")
+    async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
+        assert (await store.get_run(failed.value.run_id)).state == RunState.ABORTED
+        assert len(await store.list_runs(robot=cfg.robot.name)) == 1  # an operator's end: not retried

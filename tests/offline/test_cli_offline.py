@@ -303,3 +303,25 @@ def test_a_calibration_without_its_sample_period_still_measures_unchecked(tmp_pa
                             "--json"])
     assert PERIOD_WARNING in new["warnings"]
     assert res["mass_kg"] == new["mass_kg"] and res["U_kg"] == new["U_kg"]
+
+
+def test_calibrate_says_when_the_torques_do_not_follow_the_loads(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue #34: a campaign on an empty flange (every point reads about the same torque) failed with "no admissible
+    start (degenerate calibration factors)", a symptom of the fit; now the cause is named."""
+    table1 = Path(__file__).resolve().parents[2] / "data" / "paper" / "table1_calibration.csv"
+    lines = table1.read_text().splitlines()
+    data = [ln for ln in lines if ln.strip() and not ln.startswith("#")]
+    header = data[0].split(",")
+    flat = [data[0]]
+    for k, row in enumerate(data[1:]):
+        cells = row.split(",")
+        for col in ("m_a3_measured_nm", "m_a5_measured_nm"):
+            cells[header.index(col)] = f"{0.5 + 0.01 * k:g}"
+        flat.append(",".join(cells))
+    csv = tmp_path / "empty_flange.csv"
+    csv.write_text("\n".join(flat) + "\n")
+    assert main(["calibrate", "--points", str(csv), "--out", str(tmp_path / "CAL.json")]) == 2
+    err = capsys.readouterr().err
+    assert "do not follow the calibration loads" in err and "were the loads mounted" in err, err
+    assert not (tmp_path / "CAL.json").exists()

@@ -39,7 +39,8 @@ async def test_sim_serves_until_signalled_and_exits_0(tmp_path: Path, sig: signa
     try:
         async with asyncio.timeout(DEADLINE_S):
             line = (await proc.stdout.readline()).decode()
-        m = re.match(r"rgse sim: listening on 127\.0\.0\.1:(\d+) \(share (.+)\)$", line.strip())
+        m = re.match(r"rgse sim: listening on 127\.0\.0\.1:(\d+) \(share (.+)\); control on 127\.0\.0\.1:\d+$",
+                     line.strip())
         assert m, line
         assert Path(m.group(2)) == share.resolve() and share.is_dir()
         client = await RawClient.open(int(m.group(1)))

@@ -1,0 +1,166 @@
+"""``rgse runs``: the history of runs and their results from the daemon's store, filtered, as a table, CSV or JSON
+for a spreadsheet, a test report or a PDM system (the fields: :data:`FIELDS`, docs/interfaces.md §1.4).
+
+One row per run: its kind, robot, state and times, why it failed or was aborted, the DuT's identity as the run was
+given it, and its result (status, mass and CoG with U at k = 2, calibration, warnings). A run without a result
+(failed, aborted, interrupted) has empty result fields and its reason in ``detail``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import csv
+import io
+import json
+import sys
+from datetime import UTC, date, datetime, time
+from pathlib import Path
+from typing import Any
+
+from rgse_daemon.commands import absent_store
+from rgse_daemon.config import load_config
+from rgse_daemon.errors import EXIT_OK, ConfigError, DataError
+from rgse_daemon.store import RunKind, RunState, Store
+from rgse_daemon.store.records import ResultRecord, RunRecord
+
+#: The columns, in order (docs/interfaces.md §1.4). Times are ISO 8601 UTC; masses kg, CoG m, U at k = 2.
+FIELDS = (
+    "run_id", "kind", "robot", "state", "created_utc", "started_utc", "ended_utc", "detail",
+    "dut_name", "serial_number", "part_number", "project", "operator", "note",
+    "result_id", "status", "mass_kg", "U_kg", "cog_x_m", "cog_y_m", "cog_z_m", "U_cog_x_m", "U_cog_y_m", "U_cog_z_m",
+    "calibration_id", "method", "robot_time_s", "warnings",
+)
+IDENTITY = ("dut_name", "serial_number", "part_number", "project", "operator", "note")
+STATUSES = ("ok", "warning", "refused")
+#: Separator of the warnings in one CSV cell.
+WARNING_SEPARATOR = " | "
+
+
+def _time(value: datetime | None) -> str | None:
+    return value.astimezone(UTC).isoformat().replace("+00:00", "Z") if value is not None else None
+
+
+def _status(result: dict[str, Any]) -> str:
+    """The result's status as stored with it; a result stored before statuses existed: from its warnings."""
+    status = result.get("status")
+    if status in STATUSES:
+        return str(status)
+    return "warning" if result.get("warnings") else "ok"
+
+
+def row(run: RunRecord, result: ResultRecord | None) -> dict[str, Any]:
+    """One run as a flat record of :data:`FIELDS`."""
+    out: dict[str, Any] = dict.fromkeys(FIELDS)
+    out.update(run_id=run.id, kind=run.kind.value, robot=run.robot, state=run.state.value,
+               created_utc=_time(run.created_utc), started_utc=_time(run.started_utc), ended_utc=_time(run.ended_utc),
+               detail=run.detail)
+    if result is None:
+        return out
+    doc = result.result
+    identity = doc.get("identity") if isinstance(doc.get("identity"), dict) else {}
+    for key in IDENTITY:
+        out[key] = identity.get(key)
+    cog = doc.get("cog_m") if isinstance(doc.get("cog_m"), list) else None
+    u_cog = doc.get("U_cog_m") if isinstance(doc.get("U_cog_m"), list) else None
+    for i, axis in enumerate("xyz"):
+        out[f"cog_{axis}_m"] = cog[i] if cog and len(cog) == 3 else None
+        out[f"U_cog_{axis}_m"] = u_cog[i] if u_cog and len(u_cog) == 3 else None
+    warnings = doc.get("warnings") if isinstance(doc.get("warnings"), list) else []
+    out.update(result_id=result.id, status=_status(doc), mass_kg=doc.get("mass_kg"), U_kg=doc.get("U_kg"),
+               calibration_id=result.calibration_id or doc.get("calibration_id"), method=doc.get("method"),
+               robot_time_s=doc.get("robot_time_s"), warnings=[str(w) for w in warnings])
+    return out
+
+
+def _when(text: str | None, what: str, end_of_day: bool) -> datetime | None:
+    """``--since``/``--until``: a date (the whole day, UTC) or an ISO 8601 time (UTC unless it says otherwise)."""
+    if text is None:
+        return None
+    try:
+        if len(text) == 10:
+            d = date.fromisoformat(text)
+            return datetime.combine(d, time.max if end_of_day else time.min, UTC)
+        t = datetime.fromisoformat(text.replace("Z", "+00:00"))
+    except ValueError:
+        raise ConfigError(f"{what} {text!r}: expected a date (2026-11-28) or an ISO 8601 time") from None
+    return t if t.tzinfo is not None else t.replace(tzinfo=UTC)
+
+
+async def collect(args: argparse.Namespace) -> list[dict[str, Any]]:
+    config_path = getattr(args, "config", None)
+    cfg = load_config(config_path)
+    since, until = _when(args.since, "--since", False), _when(args.until, "--until", True)
+    if since is not None and until is not None and since > until:
+        raise ConfigError(f"--since {args.since} is after --until {args.until}")
+    kind = RunKind(args.kind) if args.kind else None
+    state = RunState(args.state) if args.state else None
+    if absent_store(cfg, "runs", config_path) is not None:  # nothing stored yet: an empty history, no store made
+        return []
+    rows = []
+    needle = args.dut.casefold() if args.dut else None
+    async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
+        made_by = {c.run_id: c for c in await store.calibrations(args.robot) if c.run_id is not None}
+        for run in await store.list_runs(robot=args.robot, kind=kind, state=state):
+            if (since is not None and run.created_utc < since) or (until is not None and run.created_utc > until):
+                continue
+            results = await store.results(run.id)
+            r = row(run, results[-1] if results else None)
+            cal = made_by.get(run.id)
+            if cal is not None and r["calibration_id"] is None:  # a campaign: the calibration it made
+                r.update(calibration_id=cal.id, method=cal.method)
+            if args.status and r["status"] != args.status:
+                continue
+            if needle and not any(needle in str(r[k] or "").casefold() for k in ("dut_name", "serial_number",
+                                                                                 "part_number", "project")):
+                continue
+            rows.append(r)
+    return rows
+
+
+def as_csv(rows: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=FIELDS, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: WARNING_SEPARATOR.join(v or ()) if k == "warnings" else ("" if v is None else v)
+                    for k, v in r.items()})
+    return buf.getvalue()
+
+
+def as_table(rows: list[dict[str, Any]]) -> str:
+    if not rows:
+        return "no runs match"
+    lines = [f"{'run':16s}  {'kind':11s}  {'state':11s}  {'created (UTC)':20s}  {'DuT':24s}  {'status':7s}  result"]
+    for r in rows:
+        dut = " ".join(str(r[k]) for k in ("dut_name", "serial_number") if r[k]) or "-"
+        if r["mass_kg"] is not None:
+            figure = f"{r['mass_kg']:.3f} ± {r['U_kg']:.3f} kg" if r["U_kg"] is not None else f"{r['mass_kg']:.3f} kg"
+        elif r["kind"] == "calibration" and r["calibration_id"]:
+            figure = f"calibration {r['calibration_id']} ({r['method']})"
+        else:
+            figure = r["detail"] or "-"
+        warn = f" ({len(r['warnings'])} warning(s))" if r["warnings"] else ""
+        lines.append(f"{r['run_id'][:16]:16s}  {r['kind']:11s}  {r['state']:11s}  {(r['created_utc'] or '')[:19]:20s}  "
+                     f"{dut[:24]:24s}  {r['status'] or '-':7s}  {figure}{warn}")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    rows = asyncio.run(collect(args))
+    if args.csv:
+        text = as_csv(rows)
+    elif args.json:
+        text = json.dumps({"fields": list(FIELDS), "runs": rows}) + "\n"
+    else:
+        text = as_table(rows) + "\n"
+    if args.out is not None:
+        out: Path = args.out
+        try:
+            out.write_text(text, encoding="utf-8")
+        except OSError as exc:
+            raise DataError(f"--out {out}: cannot write: {exc.strerror or exc}") from exc
+        print(f"{len(rows)} run(s) written to {out}", file=sys.stderr)
+    else:
+        sys.stdout.write(text)
+    return EXIT_OK
