@@ -9,8 +9,10 @@ program brakes on its path and halts, with nothing needed from the host.
 It beats on a connection of its own (one request at a time per connection: a snapshot, a file transfer or a stuck
 request of the link's pool never delays a beat on the client side), and only while the controller link is up
 (``link_up()``): a daemon that lost its link does not watch the robot, so the controller must stop it. A beat that
-fails raises the ``heartbeat`` alarm (once; cleared by the next good beat). On a clean stop it stops the timer, which
-trips the watchdog at once: the host no longer watches.
+fails raises the ``heartbeat`` alarm (once; cleared by the next good beat). Once a second it reads the programs'
+``RGSE_WD_TRIP``: while it is TRUE (the watchdog stopped a program; the next program start clears it) the
+``watchdog_tripped`` alarm is up, so that a stop the daemon did not send is seen, with its cause. On a clean stop it
+stops the timer, which trips the watchdog at once: the host no longer watches.
 """
 
 from __future__ import annotations
@@ -33,6 +35,11 @@ log = logging.getLogger("rgse_daemon.heartbeat")
 TIMER = f"$TIMER[{WATCHDOG_TIMER}]"
 TIMER_STOP = f"$TIMER_STOP[{WATCHDOG_TIMER}]"
 ALARM = "heartbeat"
+TRIPPED_ALARM = "watchdog_tripped"
+#: The programs' flag (krl/rgse_globals.dat): TRUE once the watchdog's routine stopped a program.
+TRIP_FLAG = "RGSE_WD_TRIP"
+#: How often the trip flag is read (s).
+TRIP_CHECK_S = 1.0
 
 
 class Heartbeat:
@@ -49,6 +56,7 @@ class Heartbeat:
         self.beats = 0
         self.failures = 0
         self.last_beat_s: float | None = None
+        self._next_trip_check_s = 0.0
         self._conn = Connection.from_config(cfg, name="heartbeat")
 
     @property
@@ -87,3 +95,18 @@ class Heartbeat:
         self.beats += 1
         self.last_beat_s = time.monotonic()
         self.alarms.clear(ALARM)
+        if self.last_beat_s >= self._next_trip_check_s:
+            self._next_trip_check_s = self.last_beat_s + TRIP_CHECK_S
+            await self._check_tripped()
+
+    async def _check_tripped(self) -> None:
+        try:
+            tripped = (await self._conn.read_var(TRIP_FLAG, timeout_s=self.deadline_s)).strip().upper() == "TRUE"
+        except (LinkError, VariableError):
+            return  # the next beat says whether the link is up; the globals' presence is rgse doctor's check
+        if tripped:
+            self.alarms.raise_(TRIPPED_ALARM, f"controller-side watchdog: it stopped a program ({TRIP_FLAG} is TRUE): "
+                                              f"no heartbeat reached the controller within "
+                                              f"{self.cfg.watchdog_bound_s:g} s; the program is halted")
+        else:
+            self.alarms.clear(TRIPPED_ALARM)

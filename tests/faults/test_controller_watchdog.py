@@ -8,6 +8,7 @@ simulated controller, reads ``$PRO_STATE1`` and ``$AXIS_ACT`` every 0.1 s (wall 
   program arms on ``$TIMER[16]``, fed by the daemon's heartbeat) brakes the motion on its path and halts the program.
 * The daemon's link is cut (a proxy between daemon and controller stops passing bytes, no socket closed) while the
   daemon and the simulated robot keep running: the same.
+* A trip while the daemon lives is an alarm (``watchdog_tripped``).
 
 Each test prints the measured time from the fault to the last axis change (the Done-when bound of issue 31 is
 2 s, with a watchdog bound of ``controller.watchdog_bound_s``).
@@ -22,12 +23,19 @@ from collections.abc import Awaitable, Callable
 from pathlib import Path
 from typing import Any
 
-from rgse_daemon.config import ControllerConfig
+from rgse_daemon.commands.krl import template_defaults
+from rgse_daemon.config import Config, ControllerConfig
+from rgse_daemon.controller import Controller
+from rgse_daemon.krl.render import default_params, render
 from rgse_daemon.link.connection import Connection
 from rgse_daemon.link.krlvalue import parse_value
+from rgse_daemon.services.heartbeat import Heartbeat
+from rgse_daemon.services.signals import Alarms, StackLight
 from simulators.krc4.process import SimProcess
+from simulators.krc4.sim import SimulatedKrc4
 from tests.support.daemon import daemon_config, seed_calibration
 from tests.support.faults import DaemonProcess
+from tests.support.polling import wait_until
 from tests.support.tcpproxy import CutProxy
 
 #: The Done-when bound of issue 31 (wall clock, from the fault to the end of the motion).
@@ -131,3 +139,33 @@ async def test_a_cut_link_ends_the_motion_while_the_daemon_runs_on(
         assert proxy.is_cut
     _judge(seen, "link cut")
     assert (await sim_proc.peek("RGSE_WD_TRIP"))["RGSE_WD_TRIP"].strip() == "TRUE"
+
+
+async def test_a_trip_while_the_daemon_lives_is_an_alarm(sim: SimulatedKrc4) -> None:
+    """The daemon's heartbeat pauses longer than the bound (its link down): the watchdog halts the program; once the
+    heartbeat beats again it reads RGSE_WD_TRIP and raises ``watchdog_tripped`` (a stop the daemon did not send is
+    seen, with its cause)."""
+    cfg = ControllerConfig(host="127.0.0.1", port=sim.port, protocol="c3bridge", pool_size=1)
+    params = default_params("rgse_warmup", template_defaults(Config())).model_copy(update={"cycles": 40})
+    src = render("rgse_warmup", params).src_text
+    alarms: list[dict[str, object]] = []
+    up = True
+    heartbeat = Heartbeat(cfg, Alarms(alarms.append, StackLight(None)), link_up=lambda: up)
+    stop = asyncio.Event()
+    beats = asyncio.create_task(heartbeat.run(stop))
+    try:
+        async with Controller.connect(cfg) as krc:
+            await krc.put_file("KRC:\\R1\\PROGRAM\\RGSE_WARMUP.SRC", src.replace("\n", "\r\n").encode("latin-1"))
+            await krc.select_program("KRC:\\R1\\PROGRAM\\RGSE_WARMUP.SRC")
+            await krc.start_program()
+            await wait_until(lambda: sim.store.read("RGSE_STEP") == "3", "the warm-up cycles", 30.0)
+            assert not [a for a in alarms if a["kind"] == "watchdog_tripped"]
+            up = False  # no beats: the link is down as far as the heartbeat knows
+            await wait_until(lambda: sim.store.read("$PRO_STATE1") == "#P_STOP", "the watchdog halts it", 10.0)
+            assert sim.store.read("RGSE_WD_TRIP") == "TRUE"
+            up = True
+            await wait_until(lambda: any(a["kind"] == "watchdog_tripped" for a in alarms), "the alarm", 10.0)
+    finally:
+        stop.set()
+        await asyncio.wait({beats}, timeout=10.0)
+    assert sim.store.read("$TIMER_STOP[16]") == "TRUE"  # a clean stop of the heartbeat stops the timer
