@@ -66,6 +66,7 @@ from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.latch import SafetyLatch
 from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
 from rgse_daemon.services.admission import Busy, NotConnected, RunAdmission
+from rgse_daemon.services.heartbeat import Heartbeat
 from rgse_daemon.services.link import ControllerLink, DaemonCounters
 from rgse_daemon.services.recovery import Recovery
 from rgse_daemon.services.signals import Alarms, StackLight
@@ -135,6 +136,7 @@ class Daemon:
         self.alarms = Alarms(self._publish_alarm, self.light)
         self.link = ControllerLink(cfg.controller, self.counters, self.alarms, busy=lambda: self.run_active,
                                    data_dir=cfg.paths.data_dir)
+        self.heartbeat: Heartbeat | None = None
         self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed, self._run_refused)
         self._confirm_data: dict[str, Any] = {}
         self._prompt_open = False
@@ -218,6 +220,9 @@ class Daemon:
             if self.safety_io is not None:
                 self._spawn(self.light.run(), "stack-light")
             stack.push_async_callback(self._cancel_tasks)
+            # the controller-side watchdog's heartbeat, on a connection of its own, while the link is up
+            self.heartbeat = Heartbeat(self.cfg.controller, self.alarms, self.link.connected.is_set)
+            self._spawn(self.heartbeat.run(stop), "heartbeat")
             # before each connect counts: stop what was left running, finish interrupted runs (docs/recovery.md)
             self._controller_task = asyncio.create_task(
                 self.link.run(stop, self._link_up, self._link_down, prepare=self.recovery.on_connect),
@@ -330,7 +335,8 @@ class Daemon:
         inputs = self._inputs()
         engine = RunEngine(
             krc,
-            checker=static_checker(self.cfg.limits, self.cfg.measurement.payload_lever_max_m, inputs),
+            checker=static_checker(self.cfg.limits, self.cfg.measurement.payload_lever_max_m, inputs,
+                                   require_watchdog=self.cfg.controller.watchdog_required),
             monitor=Monitor(krc, inputs=inputs,
                             stale_periods=self.cfg.limits.snapshot_stale_s / DEFAULT_POLL_PERIOD_S,
                             on_unsafe=self.recovery.on_unsafe if self.recovery is not None else None),

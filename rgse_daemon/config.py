@@ -199,6 +199,13 @@ class ControllerConfig(_Section):
     reconnect_max_s: Seconds = 10.0
     share_dir: ConfigPath | None = None
     """The controller's ``roboter`` share mounted locally: the file path used with plain KUKAVARPROXY."""
+    watchdog_bound_s: float = Field(0.75, ge=0.2, le=2.0)
+    """The controller-side watchdog (docs/security.md): the heartbeat sets the controller's ``$TIMER[16]`` to minus
+    this (ms) on every beat; a program whose heartbeat is older than this brakes on its path and halts."""
+    watchdog_period_s: float = Field(0.1, ge=0.02, le=0.5)
+    """How often the heartbeat beats; at most a quarter of ``watchdog_bound_s``."""
+    watchdog_required: bool = True
+    """The static check refuses a program that moves before it arms the watchdog (rule ``WATCHDOG``)."""
     file_rate_bytes_s: float = Field(40_000.0, gt=0.0)
     """The slowest rate (bytes/s) the controller's file work may run at: a file operation's deadline is
     ``request_timeout_s`` + bytes / this. The real C3 Bridge loads a whole file before its first reply; ``rgse
@@ -212,6 +219,8 @@ class ControllerConfig(_Section):
     def _backoff_ordered(self) -> ControllerConfig:
         if self.reconnect_min_s > self.reconnect_max_s:
             raise ValueError("reconnect_min_s must not exceed reconnect_max_s")
+        if self.watchdog_period_s > self.watchdog_bound_s / 4.0:
+            raise ValueError("watchdog_period_s must be at most a quarter of watchdog_bound_s")
         return self
 
 

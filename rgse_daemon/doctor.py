@@ -1,6 +1,6 @@
 """``rgse doctor``: the commissioning check of a controller and its surroundings, run first on a new KR C4 and after
-any change. It never moves the robot: it reads, writes only values a variable already has, and does one small file
-round trip in the TRACE folder.
+any change. It never moves the robot: it reads, writes only values a variable already has (and the watchdog's timer,
+line 9a), and does one small file round trip in the TRACE folder.
 
 :func:`run_doctor` returns a :class:`DoctorReport`: one :class:`Check` per line, in this order, each failed one with
 the fix. Checks that need the controller are not run (and fail) when it cannot be reached.
@@ -16,6 +16,13 @@ the fix. Checks that need the controller are not run (and fail) when it cannot b
    that work and measures the file rate; the result is recorded in ``<data_dir>/controller_layout.json``
    (:mod:`rgse_daemon.filelayout`), which the daemon then uses.
 9. ``allowed writes``: every variable on the write allow-list (and the handshake globals) accepts the value it has.
+9a. ``controller watchdog``: the controller-side watchdog (docs/security.md) is installed and armed: the resident
+   program holds the rendered watchdog (``resident program`` checks it is the current rendering; this line runs the
+   static check's ``WATCHDOG`` rule on what is installed), ``$TIMER[16]`` exists and counts milliseconds, and a
+   daemon's heartbeat keeps it fresh. With no daemon beating and no program running, the doctor times the timer
+   itself (it sets it to minus the bound, lets it run 0.3 s and stops it again: nothing can move, a program that
+   waits for a heartbeat is not running; one started by hand in those 0.3 s would move until the doctor stops the
+   timer, as with a daemon that dies); with a program running and no heartbeat, it writes nothing.
 10. ``safety I/O`` / 11. ``scale``: answer, if configured.
 12. ``broker`` (if MQTT is enabled) and 13. ``store``.
 """
@@ -37,10 +44,12 @@ from rgse_daemon.controller import SNAPSHOT_VARIABLES, WRITABLE_VARIABLES, Contr
 from rgse_daemon.errors import RgseError
 from rgse_daemon.filelayout import TRACE_DIR_CANDIDATES, FileLayout, save_layout
 from rgse_daemon.krl import ast as k
-from rgse_daemon.krl.parser import parse_dat
+from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.render import TemplateDefaults, default_params, globals_dat_text, render
 from rgse_daemon.link import frames as fr
 from rgse_daemon.link.krlvalue import parse_value
+from rgse_daemon.safety.allowlist import WATCHDOG_TIMER
+from rgse_daemon.safety.static import CheckContext, watchdog_violations
 
 #: Where the KRL of krl/README.md is installed on the controller.
 PROGRAM_DIR = "KRC:\\R1\\PROGRAM\\"
@@ -127,13 +136,14 @@ async def run_doctor(cfg: Config, krl_defaults: TemplateDefaults, *, record: boo
             if layout is not None and record:
                 report.layout, report.layout_file = layout, save_layout(cfg.paths.data_dir, layout)
             add(await _guarded("allowed writes", _allowed_writes(krc)))
+            add(await _guarded("controller watchdog", _watchdog(krc, cfg)))
     except (RgseError, OSError) as exc:
         where = f"{cfg.controller.host}:{cfg.controller.port}"
         add(Check("controller", False, f"cannot talk to {where}: {type(exc).__name__}: {exc}",
                   "check the controller's address and port (controller.host/port), the network and the firewall, "
                   "and that C3 Bridge (or KUKAVARPROXY) runs on the KR C4 (Windows side, port 7000)"))
         for name in ("protocol", "mode and safety", "variables", "handshake globals", "resident program",
-                     "trace configuration", "file round trip", "allowed writes"):
+                     "trace configuration", "file round trip", "allowed writes", "controller watchdog"):
             add(Check(name, False, "not checked: the controller is not reachable", "fix the controller line first"))
     add(await _guarded("safety I/O", _modbus(cfg)))
     add(await _guarded("scale", _scale(cfg)))
@@ -356,6 +366,65 @@ async def _allowed_writes(krc: Controller) -> Check:
                      "access and that the variables are declared and not write-protected")
     extra = f"; not tried: {'; '.join(skipped)}" if skipped else ""
     return Check("allowed writes", True, f"all {len(names) - len(skipped)} accept their own value{extra}")
+
+
+#: How long the doctor lets the watchdog's timer run to see it count (s).
+TIMER_PROBE_S = 0.3
+
+
+async def _watchdog(krc: Controller, cfg: Config) -> Check:
+    name = "controller watchdog"
+    fix_install = ("install the current rendering of the resident program (rgse krl render), see the 'resident "
+                   "program' line")
+    try:
+        installed = (await krc.get_file(PROGRAM_DIR + RESIDENT.upper() + ".SRC")).decode("latin-1")
+        module = parse_src(installed, RESIDENT + ".src")
+    except RgseError as exc:  # (KrlSyntaxError is one)
+        return Check(name, False, f"the resident program cannot be read or parsed ({exc})", fix_install)
+    problems, _ = watchdog_violations(module, CheckContext(require_watchdog=True))
+    if problems:
+        return Check(name, False, f"the installed resident program does not arm the watchdog: {problems[0]}",
+                     fix_install)
+    timer, stop, flag = (f"${v}[{WATCHDOG_TIMER}]" for v in ("TIMER", "TIMER_STOP", "TIMER_FLAG"))
+
+    async def read() -> tuple[int, bool, bool]:
+        raw = await krc.pool.read_many([timer, stop, flag])
+        bad = [n for n in (timer, stop, flag) if not isinstance(raw.get(n), str)]
+        if bad:
+            raise RgseError(f"{', '.join(bad)} not readable on the controller: {raw.get(bad[0])}")
+        value = parse_value(raw[timer])  # type: ignore[arg-type]
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise RgseError(f"{timer} is {raw[timer]!r}, not an INT")
+        return value, str(raw[stop]).strip().upper() == "TRUE", str(raw[flag]).strip().upper() == "TRUE"
+
+    bound_ms = round(cfg.controller.watchdog_bound_s * 1000.0)
+    value, stopped, tripped = await read()
+    if not stopped and not tripped:
+        await asyncio.sleep(3 * cfg.controller.watchdog_period_s)
+        value2, stopped2, tripped2 = await read()
+        if not stopped2 and not tripped2 and value2 != value:
+            return Check(name, True, f"armed: the resident program arms it, and a heartbeat keeps {timer} fresh "
+                                     f"({value2} ms, trips at 0)")
+    state = (await krc.read_raw("$PRO_STATE1")).strip().upper()
+    if state == "#P_ACTIVE":
+        return Check(name, False, f"no fresh heartbeat ({timer} = {value} ms, {stop} {stopped}) while a program "
+                     "runs: a daemon program waits or has halted", "start the daemon (rgse daemon), or stop the "
+                     "program; then run rgse doctor again")
+    await krc.write_raw(timer, str(-bound_ms))
+    await krc.write_raw(stop, "FALSE")
+    try:
+        t0 = time.monotonic()
+        await asyncio.sleep(TIMER_PROBE_S)
+        value2, _, flag2 = await read()
+        elapsed_ms = (time.monotonic() - t0) * 1000.0
+    finally:
+        await krc.write_raw(stop, "TRUE")
+    counted_ms = value2 + bound_ms
+    if not (0.5 * elapsed_ms <= counted_ms <= 1.5 * elapsed_ms + 100.0) or flag2 != (value2 >= 0):
+        return Check(name, False, f"{timer} counted {counted_ms} ms in {elapsed_ms:.0f} ms (flag {flag2})",
+                     "the controller's system timer does not count as KSS documents: check the KSS version")
+    return Check(name, True, f"installed (the resident program arms it; {timer} counted {counted_ms} ms in "
+                             f"{elapsed_ms:.0f} ms); no daemon heartbeat now: programs wait for one before they move")
 
 
 # --- around the controller -------------------------------------------------------------------------------------------

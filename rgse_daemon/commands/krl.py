@@ -71,6 +71,7 @@ def default_context(cfg: Config) -> CheckContext:
         payload_cog_flange_m=cog,
         payload_points_flange_m=tuple(cube_corners(cfg.measurement.payload_lever_max_m)),
         start_axes_deg=tuple(float(v) for v in measurement_pose()),
+        require_watchdog=cfg.controller.watchdog_required,
     )
 
 

@@ -283,6 +283,36 @@ class Halt:
 
 
 @dataclass(frozen=True)
+class Brake:
+    """``BRAKE`` (``fast``: ``BRAKE F``): only in an interrupt routine; the robot stops on its path (a ramp-down
+    stop; ``F``: a path-maintaining emergency stop) and the routine goes on once it is at rest."""
+
+    fast: bool = False
+    pos: Pos = field(default=NOPOS, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class InterruptDecl:
+    """``INTERRUPT DECL prio WHEN condition DO routine(args)``: declares interrupt ``prio`` (1, 2, 4..39, 81..128);
+    it is off until ``INTERRUPT ON prio``, then ``routine`` runs when ``condition`` turns from FALSE to TRUE."""
+
+    prio: Expr
+    condition: Expr
+    routine: str
+    args: tuple[Expr, ...]
+    pos: Pos = field(default=NOPOS, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
+class InterruptCtl:
+    """``INTERRUPT ON|OFF|ENABLE|DISABLE [prio]`` (``prio`` ``None``: every declared interrupt)."""
+
+    action: str
+    prio: Expr | None
+    pos: Pos = field(default=NOPOS, compare=False, repr=False)
+
+
+@dataclass(frozen=True)
 class Return:
     """``RETURN [value]`` (a value only in a ``DEFFCT``)."""
 
@@ -301,6 +331,7 @@ class CallStmt:
 
 Stmt: TypeAlias = (
     Decl | Assign | Motion | WaitSec | WaitFor | For | If | While | Repeat | Loop | Exit | Halt | Return | CallStmt
+    | Brake | InterruptDecl | InterruptCtl
 )
 
 

@@ -12,6 +12,7 @@ from rgse_daemon.krl.ast import (
     Assign,
     Binary,
     BoolLit,
+    Brake,
     Call,
     CallStmt,
     DataList,
@@ -23,6 +24,8 @@ from rgse_daemon.krl.ast import (
     Halt,
     If,
     Index,
+    InterruptCtl,
+    InterruptDecl,
     IntLit,
     Loop,
     Member,
@@ -154,6 +157,13 @@ def format_stmt(stmt: Stmt, indent: int = 0) -> list[str]:
             return [pad + "EXIT"]
         case Halt():
             return [pad + "HALT"]
+        case Brake(fast=fast):
+            return [pad + ("BRAKE F" if fast else "BRAKE")]
+        case InterruptDecl(prio=prio, condition=c, routine=r, args=args):
+            call = f"{r}({', '.join(format_expr(a) for a in args)})"
+            return [f"{pad}INTERRUPT DECL {format_expr(prio)} WHEN {format_expr(c)} DO {call}"]
+        case InterruptCtl(action=action, prio=prio):
+            return [f"{pad}INTERRUPT {action}" + (f" {format_expr(prio)}" if prio is not None else "")]
         case Return(value=v):
             return [pad + "RETURN" + (f" {format_expr(v)}" if v is not None else "")]
         case CallStmt(name=n, args=args):

@@ -18,6 +18,7 @@ from rgse_daemon.krl.ast import (
     Assign,
     Binary,
     BoolLit,
+    Brake,
     Call,
     CallStmt,
     DataList,
@@ -30,6 +31,8 @@ from rgse_daemon.krl.ast import (
     Halt,
     If,
     Index,
+    InterruptCtl,
+    InterruptDecl,
     IntLit,
     Loop,
     Member,
@@ -57,7 +60,7 @@ KEYWORDS = (
         """DEF END DEFFCT ENDFCT DEFDAT ENDDAT DECL GLOBAL PUBLIC CONST IF THEN ELSE ENDIF FOR TO STEP ENDFOR
     LOOP ENDLOOP WHILE ENDWHILE REPEAT UNTIL EXIT WAIT SEC HALT RETURN NOT AND OR EXOR B_NOT B_AND B_OR B_EXOR
     TRUE FALSE
-    SWITCH CASE DEFAULT ENDSWITCH GOTO INTERRUPT TRIGGER CONTINUE""".split()
+    SWITCH CASE DEFAULT ENDSWITCH GOTO INTERRUPT TRIGGER CONTINUE BRAKE""".split()
     )
     | frozenset(MOTION_KINDS)
     | frozenset(APPROX_KINDS)
@@ -331,6 +334,14 @@ class _Parser:
             if word == "HALT":
                 self.advance()
                 return Halt(p)
+            if word == "BRAKE":
+                self.advance()
+                fast = self.is_word("F")
+                if fast:
+                    self.advance()
+                return Brake(fast, p)
+            if word == "INTERRUPT":
+                return self.interrupt_stmt()
             if word == "RETURN":
                 self.advance()
                 if self.tok.kind in (Tok.NEWLINE, Tok.EOF):
@@ -365,6 +376,25 @@ class _Parser:
         if isinstance(target, Call):
             return CallStmt(target.name, target.args, p)
         raise self.error(f"expected '=' or a call, found {self.tok.describe()}")
+
+    def interrupt_stmt(self) -> InterruptDecl | InterruptCtl:
+        p = self.pos(self.advance())
+        if self.is_word("DECL"):
+            self.advance()
+            prio = self.expression()
+            self.expect_word("WHEN")
+            cond = self.expression()
+            self.expect_word("DO")
+            call = self.postfix()
+            if not isinstance(call, Call):
+                raise self.error("expected an interrupt routine call after DO")
+            return InterruptDecl(prio, cond, call.name, call.args, p)
+        if self.is_word("ON", "OFF", "ENABLE", "DISABLE"):
+            action = self.advance().text
+            if self.tok.kind in (Tok.NEWLINE, Tok.EOF):
+                return InterruptCtl(action, None, p)
+            return InterruptCtl(action, self.expression(), p)
+        raise self.error(f"expected DECL, ON, OFF, ENABLE or DISABLE after INTERRUPT, found {self.tok.describe()}")
 
     def if_stmt(self) -> If:
         p = self.pos(self.advance())

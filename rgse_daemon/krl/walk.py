@@ -22,6 +22,8 @@ from rgse_daemon.krl.ast import (
     For,
     If,
     Index,
+    InterruptCtl,
+    InterruptDecl,
     Loop,
     Member,
     Module,
@@ -165,4 +167,8 @@ def stmt_exprs(stmt: Stmt) -> list[Expr]:
             return list(args)
         case Decl(init=init):
             return [init] if init is not None else []
+        case InterruptDecl(prio=p, condition=c, args=args):
+            return [p, c, *args]
+        case InterruptCtl(prio=p):
+            return [p] if p is not None else []
     return []

@@ -78,7 +78,8 @@ def trace_config_xml(s: RunSettings, modules: Sequence[str] = TRACE_MODULES) -> 
 
 
 def static_checker(
-    limits: LimitsConfig, payload_lever_max_m: float, inputs: Callable[[], SafetyInputs] | None = None
+    limits: LimitsConfig, payload_lever_max_m: float, inputs: Callable[[], SafetyInputs] | None = None,
+    *, require_watchdog: bool = True,
 ) -> ProgramChecker:
     """The engine's ``Push`` check: the interlock's static check (:func:`~rgse_daemon.safety.static.ensure_allowed`)
     against the live context — mode, safety inputs and axes from the snapshot, every point within
@@ -95,6 +96,7 @@ def static_checker(
             key_confirmed=bool(inp is not None and inp.valid and inp.aut_permitted),
             payload_points_flange_m=points,  # type: ignore[arg-type]
             start_axes_deg=snap.axes_deg,
+            require_watchdog=require_watchdog,
         )
         try:
             ensure_allowed(prog.src_text, prog.dat_text, ctx, file=f"{prog.name}.src")

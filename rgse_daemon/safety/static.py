@@ -25,7 +25,13 @@ Rules (``Violation.rule``):
                   writes (exactly those of the allow-list); ``OV_PRO``: $OV_PRO not a
                   constant in 0..100; ``VELOCITY``: a motion setting that is not a constant in range.
 ``CALL``          a subprogram or function call the check cannot see into (only pure math built-ins are allowed).
-``STATEMENT``     INTERRUPT, TRIGGER, GOTO, SWITCH, LIN/LIN_REL (Cartesian path: unverifiable without IK),
+``WATCHDOG``      the controller-side watchdog (:func:`watchdog_violations`): the only interrupt allowed is the
+                  watchdog's (``INTERRUPT DECL 1 WHEN $TIMER_FLAG[16] OR $TIMER_STOP[16] DO R( )`` at the top level
+                  of the main routine, switched on with ``INTERRUPT ON 1``, never off), its routine ``R`` moves
+                  nothing (BRAKE, HALT, assignments to RGSE_ globals, IF/WHILE of those); with
+                  ``CheckContext.require_watchdog`` it must be declared, switched on and waited fresh
+                  (``WAIT FOR NOT (...)``) before the first statement that holds a motion. BRAKE outside it.
+``STATEMENT``     other INTERRUPT forms, TRIGGER, GOTO, SWITCH, LIN/LIN_REL (Cartesian path: unverifiable without IK),
                   approximate positioning, extra routines.
 ``LOOP``          a loop whose effect does not settle, a FOR whose body writes its counter or what its bounds read;
                   ``COMPLEXITY``: too much to verify (statements, motion checks, time budget, expression depth).
@@ -57,16 +63,26 @@ from rgse_daemon.kinematics import (
     max_point_speed_mm_s,
 )
 from rgse_daemon.krl import ast as k
-from rgse_daemon.krl.abstract import AbstractInterpreter, Pose, State, TooComplex, pose_key, written_names
+from rgse_daemon.krl.abstract import (
+    AbstractInterpreter,
+    Outcome,
+    Pose,
+    State,
+    TooComplex,
+    all_stmts,
+    pose_key,
+    written_names,
+)
+from rgse_daemon.krl.formatter import format_expr
 from rgse_daemon.krl.lexer import Tok, tokenize
 from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.render import MIN_VEL_AXIS_PCT
 from rgse_daemon.krl.values import UNKNOWN, Value, describe, is_number
-from rgse_daemon.krl.walk import root_name
-from rgse_daemon.safety.allowlist import WRITABLE_PREFIX, WRITABLE_VARIABLES
+from rgse_daemon.krl.walk import iter_exprs, root_name
+from rgse_daemon.safety.allowlist import WATCHDOG_CONDITION, WATCHDOG_INTERRUPT, WRITABLE_PREFIX, WRITABLE_VARIABLES
 
 #: Statement keywords the check refuses outright (the parser does not accept them either).
-FORBIDDEN_KEYWORDS = frozenset({"INTERRUPT", "TRIGGER", "GOTO", "SWITCH", "CONTINUE", "ANIN", "ANOUT", "BRAKE"})
+FORBIDDEN_KEYWORDS = frozenset({"TRIGGER", "GOTO", "SWITCH", "CONTINUE", "ANIN", "ANOUT"})
 #: Motion checks (pairs start → target) before the program is refused as too complex to verify.
 MAX_MOTION_CHECKS = 20_000
 #: Sampling of the joint path for the static A5 torque (deg, sum over the axes between samples).
@@ -119,6 +135,9 @@ class CheckContext:
     writable_variables: frozenset[str] = WRITABLE_VARIABLES
     writable_prefix: str = WRITABLE_PREFIX
     override_max_pct: float = 100.0
+    #: The controller-side watchdog must be armed before the first motion (``WATCHDOG``; the daemon's push and
+    #: ``rgse krl check`` set it from ``controller.watchdog_required``).
+    require_watchdog: bool = False
     #: Well below the 60 s the daemon's push waits for the check (procedures/engine.py): the check always ends first.
     time_budget_s: float = 20.0
 
@@ -197,6 +216,12 @@ class _Checker(AbstractInterpreter):
             return st
         self.report("SYSVAR", pos, f"write to system variable {written or name} is not allowed")
         return st
+
+    def stmt(self, stmt: k.Stmt, st: State) -> Outcome:
+        if isinstance(stmt, k.InterruptDecl | k.InterruptCtl | k.Brake):
+            self.step(stmt.pos)
+            return Outcome(st)  # judged by watchdog_violations (BRAKE and other forms refused there)
+        return super().stmt(stmt, st)
 
     def start_unknown(self, stmt: k.Motion) -> None:
         self.report(
@@ -424,7 +449,11 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
                 "(load diagram, paper Fig. 16)",
             )
         )
+    wd_found, wd_routines = watchdog_violations(module, ctx)
+    violations += wd_found
     for extra in module.routines[1:]:
+        if extra.name in wd_routines:
+            continue
         violations.append(
             Violation(
                 extra.pos.line,
@@ -463,6 +492,103 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
         )
     violations += checker.found.values()
     return sorted(set(violations))
+
+
+# --- the controller-side watchdog ------------------------------------------------------------------------------------
+def _holds_motion(stmt: k.Stmt) -> bool:
+    return any(isinstance(s, k.Motion) for s in all_stmts((stmt,)))
+
+
+def _has_call(exprs: Sequence[k.Expr]) -> bool:
+    return any(isinstance(e, k.Call) for x in exprs for e in iter_exprs(x))
+
+
+def _routine_problems(body: Sequence[k.Stmt], ctx: CheckContext) -> list[tuple[k.Pos, str]]:
+    """What in an interrupt routine's body is more than stopping: only BRAKE, HALT, assignments to RGSE_ globals
+    (no calls), and IF/WHILE of those."""
+    found: list[tuple[k.Pos, str]] = []
+    for s in body:
+        match s:
+            case k.Brake() | k.Halt():
+                pass
+            case k.Assign(target=k.Name(name=name), value=value) if ctx.link_writable(name) and not name.startswith(
+                "$"
+            ) and not _has_call((value,)):
+                pass
+            case k.If(condition=c, then_body=a, else_body=b) if not _has_call((c,)):
+                found += _routine_problems(a, ctx) + _routine_problems(b, ctx)
+            case k.While(condition=c, body=a) if not _has_call((c,)):
+                found += _routine_problems(a, ctx)
+            case _:
+                found.append((s.pos, f"{type(s).__name__} in an interrupt routine: it may only stop the robot "
+                                     "(BRAKE, HALT, assignments to RGSE_ globals, IF/WHILE of those)"))
+    return found
+
+
+def watchdog_violations(module: k.Module, ctx: CheckContext) -> tuple[list[Violation], set[str]]:
+    """The ``WATCHDOG`` rule (module docstring); also the names of the interrupt routines it allowed."""
+    found: list[Violation] = []
+    main = module.main
+    routines = {r.name: r for r in module.routines[1:]}
+    allowed: set[str] = set()
+    top = list(main.body)
+    top_ids = {id(s) for s in top}
+    for s in all_stmts(main.body):
+        if isinstance(s, k.InterruptDecl | k.InterruptCtl) and id(s) not in top_ids:
+            found.append(Violation(s.pos.line, s.pos.column, "WATCHDOG",
+                                   "INTERRUPT only at the top level of the main routine"))
+        elif isinstance(s, k.Brake):
+            found.append(Violation(s.pos.line, s.pos.column, "WATCHDOG",
+                                   "BRAKE outside an interrupt routine (the controller stops with an error)"))
+    first_motion = next((i for i, s in enumerate(top) if _holds_motion(s)), len(top))
+    declared = False
+    switched_on = False
+    armed = False
+    for s in top[:first_motion]:
+        if isinstance(s, k.InterruptDecl):
+            problem = None
+            if not (isinstance(s.prio, k.IntLit) and s.prio.value == WATCHDOG_INTERRUPT):
+                problem = f"only the watchdog's interrupt {WATCHDOG_INTERRUPT} may be declared"
+            elif format_expr(s.condition) != WATCHDOG_CONDITION:
+                problem = f"the watchdog's condition must be {WATCHDOG_CONDITION}"
+            elif declared:
+                problem = "the watchdog's interrupt is declared twice"
+            elif s.args or s.routine not in routines or routines[s.routine].is_function \
+                    or routines[s.routine].params:
+                problem = f"{s.routine} is not a routine of this module without parameters"
+            if problem is not None:
+                found.append(Violation(s.pos.line, s.pos.column, "WATCHDOG", problem))
+                continue
+            routine = routines[s.routine]
+            problems = _routine_problems(routine.body, ctx)
+            if not (routine.body and isinstance(routine.body[0], k.Brake)
+                    and any(isinstance(x, k.Halt) for x in all_stmts(routine.body))):
+                problems.append((routine.pos, f"the watchdog's routine {routine.name} must begin with BRAKE and "
+                                              "HALT: otherwise the motion goes on"))
+            found += [Violation(p.line, p.column, "WATCHDOG", msg) for p, msg in problems]
+            if not problems:
+                allowed.add(routine.name)
+            declared = True
+        elif isinstance(s, k.InterruptCtl):
+            if s.action == "ON" and declared and isinstance(s.prio, k.IntLit) and s.prio.value == WATCHDOG_INTERRUPT:
+                switched_on = True
+            else:
+                found.append(Violation(s.pos.line, s.pos.column, "WATCHDOG",
+                                       f"only INTERRUPT ON {WATCHDOG_INTERRUPT} after the watchdog's declaration"))
+        elif isinstance(s, k.WaitFor) and switched_on and format_expr(s.condition) == f"NOT ({WATCHDOG_CONDITION})":
+            armed = True
+    for s in top[first_motion:]:
+        if isinstance(s, k.InterruptDecl | k.InterruptCtl):
+            found.append(Violation(s.pos.line, s.pos.column, "WATCHDOG",
+                                   "INTERRUPT after the first motion: the watchdog is declared and switched on "
+                                   "before it"))
+    motion_at = top[first_motion] if first_motion < len(top) else None
+    if ctx.require_watchdog and motion_at is not None and not armed:
+        found.append(Violation(motion_at.pos.line, motion_at.pos.column, "WATCHDOG",
+                               f"motion before the controller-side watchdog is armed: declare INTERRUPT "
+                               f"{WATCHDOG_INTERRUPT} WHEN {WATCHDOG_CONDITION} with a routine that brakes and halts, "
+                               f"INTERRUPT ON {WATCHDOG_INTERRUPT}, WAIT FOR NOT ({WATCHDOG_CONDITION})"))
+    return found, allowed
 
 
 def _start_pose(

@@ -28,6 +28,15 @@ Simplifications (said, not hidden): no advance run, so approximation (``C_PTP``/
 motions to Cartesian targets are refused (no inverse kinematics) and LIN is joint-interpolated; ``BAS`` knows
 ``#INITMOV``, ``#VEL_PTP``, ``#ACC_PTP``, ``#VEL_CP``, ``#ACC_CP``.
 
+Interrupts: ``INTERRUPT DECL prio WHEN condition DO routine( )``, ``INTERRUPT ON|OFF [prio]`` (ENABLE/DISABLE as
+ON/OFF). An interrupt that is on fires when its condition turns from FALSE to TRUE (edge: a condition already TRUE
+at ``INTERRUPT ON`` does not fire). Conditions are checked at every interpolation cycle of a motion or a wait and
+between statements; the routine runs in the program's task with the interrupted motion held, one interrupt at a
+time (no priorities among simultaneous ones: the lowest number first). ``BRAKE`` (``BRAKE F``) in the routine brakes
+the interrupted motion on its path to rest (the STOP 2 ramp; ``F`` the same here), outside an interrupt routine it
+is a run-time error; when the routine returns, the motion continues to its target. System timers ``$TIMER[n]``,
+``$TIMER_STOP[n]``, ``$TIMER_FLAG[n]`` (:class:`~simulators.krc4.variables.SystemTimers`) count wall-clock ms.
+
 Physics hooks: :meth:`KrlInterpreter.add_motion_listener` gets a :class:`MotionEvent` at every motion start and end
 (with the axes and the direction each axis came from: what brake-release and settling transients depend on).
 """
@@ -181,6 +190,16 @@ class _Return(Exception):
         self.value = value
 
 
+@dataclass
+class _Interrupt:
+    """A declared interrupt: its condition (evaluated in the declaring frame), routine, on/off and last value."""
+
+    decl: k.InterruptDecl
+    frame: _Frame
+    on: bool = False
+    last: bool = False
+
+
 class _StopRequested(Exception):
     """Raised inside the program task when a stop arrives while it cannot simply pause (never escapes the task)."""
 
@@ -253,6 +272,11 @@ class KrlInterpreter:
         self._listeners: list[MotionListener] = []
         self._sim_time_s = 0.0
         self._settings = _Settings()
+        self._interrupts: dict[int, _Interrupt] = {}
+        self._in_interrupt = False
+        #: The motion an interrupt routine's BRAKE acts on: (move, t_move, target, directions); None when at rest.
+        self._moving: tuple[JointMove, float, np.ndarray, tuple[int, ...]] | None = None
+        self._braked = False
         self._publish(self.axes_deg, np.zeros(6))
 
     # --- hooks and operator ----------------------------------------------------------------------------------------
@@ -401,6 +425,8 @@ class KrlInterpreter:
             await asyncio.gather(task, return_exceptions=True)
 
     def _drop_task(self) -> None:
+        self._interrupts = {}
+        self._moving = None
         task, self._task = self._task, None
         if task is not None and not task.done():
             task.cancel()
@@ -532,6 +558,7 @@ class KrlInterpreter:
     async def _exec_block(self, body: tuple[k.Stmt, ...], frame: _Frame) -> None:
         for stmt in body:
             await self._checkpoint()
+            await self._poll_interrupts()
             await self._exec(stmt, frame)
 
     async def _exec(self, stmt: k.Stmt, frame: _Frame) -> None:
@@ -586,10 +613,12 @@ class KrlInterpreter:
                 while remaining > 0.0:
                     await self._checkpoint()
                     remaining -= await self._tick()
+                    await self._poll_interrupts()
             case k.WaitFor(condition=cond):
                 while not _truth(await self._evaluate(cond, frame), stmt.pos):
                     await self._checkpoint()
                     await self._tick()
+                    await self._poll_interrupts()
             case k.For(var=var, start=start, stop=stop, step=step):
                 # the counter is an INT; REAL bounds are rounded as an assignment to an INT rounds them
                 first = coerce("INT", await self._evaluate(start, frame))
@@ -637,6 +666,24 @@ class KrlInterpreter:
             case k.Halt():
                 self._request_stop("HALT")
                 await self._checkpoint()
+            case k.Brake():
+                await self._brake_in_interrupt(stmt)
+            case k.InterruptDecl(prio=prio):
+                number = int(_number(await self._evaluate(prio, frame), stmt.pos))
+                self._interrupts[number] = _Interrupt(stmt, frame)  # a new DECL replaces the old one, switched off
+            case k.InterruptCtl(action=action, prio=prio):
+                numbers = (
+                    list(self._interrupts)
+                    if prio is None
+                    else [int(_number(await self._evaluate(prio, frame), stmt.pos))]
+                )
+                for number in numbers:
+                    irq = self._interrupts.get(number)
+                    if irq is None:
+                        raise KrlRuntimeError(f"interrupt {number} is not declared", stmt.pos)
+                    irq.on = action in ("ON", "ENABLE")
+                    if irq.on:  # edge-triggered: a condition TRUE already when switched on does not fire
+                        irq.last = _truth(await self._evaluate(irq.decl.condition, irq.frame), stmt.pos)
             case k.Return(value=value):
                 raise _Return(await self._evaluate(value, frame) if value is not None else None)
             case k.CallStmt(name=name, args=args):
@@ -713,6 +760,16 @@ class KrlInterpreter:
             self._publish(q, qd)
             if t_move >= move.duration_s:
                 break
+            self._moving, self._braked = (move, t_move, target, directions), False
+            await self._poll_interrupts()
+            self._moving = None
+            if self._braked:  # an interrupt routine braked it to rest and returned: on to the target from here
+                move = self._plan(kind, target)
+                t_move = 0.0
+                self._emit(
+                    MotionEvent("start", tuple(self.axes_deg), tuple(target), directions, self._sim_time_s, move=move)
+                )
+                continue
             if self._stop_reason is not None:
                 await self._brake(move, t_move, target, directions)
                 await self._checkpoint()  # stays here until started again
@@ -725,6 +782,39 @@ class KrlInterpreter:
             t_move += await self._tick()
         self._publish(np.asarray(move.q_end_deg), np.zeros(6))
         self._emit(MotionEvent("end", tuple(self.axes_deg), tuple(target), directions, self._sim_time_s))
+
+    async def _poll_interrupts(self) -> None:
+        """Run the routine of each interrupt that is on and whose condition turned TRUE (one at a time)."""
+        if self._in_interrupt or not self._interrupts:
+            return
+        for number in sorted(self._interrupts):
+            irq = self._interrupts.get(number)
+            if irq is None or not irq.on:
+                continue
+            now = _truth(await self._evaluate(irq.decl.condition, irq.frame), irq.decl.pos)
+            rising, irq.last = now and not irq.last, now
+            if not rising:
+                continue
+            routine = self._program.routine(irq.decl.routine) if self._program else None
+            if routine is None or routine.is_function:
+                raise KrlRuntimeError(f"interrupt routine {irq.decl.routine} not found", irq.decl.pos)
+            args = tuple([await self._evaluate(a, irq.frame) for a in irq.decl.args])
+            self._in_interrupt = True
+            try:
+                await self._invoke(routine, irq.decl.args, args, irq.frame, irq.decl.pos)
+            finally:
+                self._in_interrupt = False
+
+    async def _brake_in_interrupt(self, stmt: k.Brake) -> None:
+        """``BRAKE``: only in an interrupt routine; brakes the interrupted motion on its path to rest."""
+        if not self._in_interrupt:
+            raise KrlRuntimeError("BRAKE is only allowed in an interrupt routine", stmt.pos)
+        moving, self._moving = self._moving, None
+        if moving is None:
+            return  # the robot is at rest (the interrupt came during a wait or between statements)
+        move, t_move, target, directions = moving
+        await self._brake(move, t_move, target, directions)
+        self._braked = True
 
     async def _brake(self, move: JointMove, t_move: float, target: np.ndarray, directions: tuple[int, ...]) -> None:
         """Ramp down on the path (STOP 2 / program stop); the robot ends at rest."""

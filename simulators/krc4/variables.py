@@ -30,6 +30,7 @@ clients, as the real single-threaded server does. Long work belongs in a task th
 from __future__ import annotations
 
 import re
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from enum import StrEnum
@@ -323,6 +324,56 @@ class VariableStore:
         ro("$ROBNAME[]", Kind.CHAR, '"KR500R2830"')
         ro("$KR_SERIALNO", Kind.INT, str(serial_no))
         ro("$ACCU_STATE", Kind.ENUM, "#CHARGE_OK")
+        self.timers = SystemTimers(self)
+
+
+#: The KR C4's system timers $TIMER[1..64] (KSS 8.x).
+TIMER_COUNT = 64
+
+
+class SystemTimers:
+    """``$TIMER[n]`` (INT, ms), ``$TIMER_STOP[n]`` (BOOL) and ``$TIMER_FLAG[n]`` (BOOL, read-only), n = 1..64.
+
+    As on a KR C4: a timer counts up in ms while ``$TIMER_STOP[n]`` is FALSE; writing ``$TIMER[n]`` sets it (running
+    or not); ``$TIMER_FLAG[n]`` is TRUE while ``$TIMER[n] >= 0``. At power-on every timer is stopped at 0.
+
+    Clock: the timers count **wall-clock** milliseconds (``time.monotonic``), not the simulator's scaled time. A
+    simplification, said here: the simulator runs its motions ``time_scale`` times faster than real time, but the
+    timers are what a host's heartbeat is measured against (the daemon's controller-side watchdog,
+    ``docs/security.md``), and the host lives in real time. Scaling them would make a heartbeat of a real-time host
+    look ``time_scale`` times slower than it is.
+    """
+
+    def __init__(self, store: VariableStore, clock: Callable[[], float] | None = None) -> None:
+        self._clock = clock or time.monotonic
+        self._base_ms = [0] * (TIMER_COUNT + 1)
+        self._since = [0.0] * (TIMER_COUNT + 1)
+        self._running = [False] * (TIMER_COUNT + 1)
+        for n in range(1, TIMER_COUNT + 1):
+            store.declare_system(f"$TIMER[{n}]", Kind.INT, "0", writable=True)
+            store.declare_system(f"$TIMER_STOP[{n}]", Kind.BOOL, "TRUE", writable=True)
+            store.declare_system(f"$TIMER_FLAG[{n}]", Kind.BOOL, "TRUE")
+            store.register_getter(f"$TIMER[{n}]", lambda n=n: str(self.value_ms(n)))  # type: ignore[misc]
+            store.register_setter(f"$TIMER[{n}]", lambda v, n=n: self.set_ms(n, int(v)))  # type: ignore[misc]
+            store.register_getter(f"$TIMER_STOP[{n}]", lambda n=n: "FALSE" if self._running[n] else "TRUE")  # type: ignore[misc]
+            store.register_setter(f"$TIMER_STOP[{n}]", lambda v, n=n: self.set_stopped(n, v == "TRUE"))  # type: ignore[misc]
+            store.register_getter(f"$TIMER_FLAG[{n}]", lambda n=n: "TRUE" if self.value_ms(n) >= 0 else "FALSE")  # type: ignore[misc]
+
+    def value_ms(self, n: int) -> int:
+        if not self._running[n]:
+            return self._base_ms[n]
+        return self._base_ms[n] + int((self._clock() - self._since[n]) * 1000.0)
+
+    def set_ms(self, n: int, value_ms: int) -> None:
+        self._base_ms[n] = value_ms
+        self._since[n] = self._clock()
+
+    def set_stopped(self, n: int, stopped: bool) -> None:
+        if stopped and self._running[n]:
+            self._base_ms[n] = self.value_ms(n)
+        elif not stopped and not self._running[n]:
+            self._since[n] = self._clock()
+        self._running[n] = not stopped
 
 
 # --- program control (message #10) ------------------------------------------------------------------------------------

@@ -22,9 +22,11 @@ from rgse_daemon.krl.render import default_params, globals_dat_text, render
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.modbus_io import ModbusIoSim
 from simulators.scale import ScaleSim, ScaleSimConfig
+from tests.support.heartbeat import beating
 
 ALL = ("controller", "protocol", "mode and safety", "variables", "handshake globals", "resident program",
-       "trace configuration", "file round trip", "allowed writes", "safety I/O", "scale", "broker", "store")
+       "trace configuration", "file round trip", "allowed writes", "controller watchdog", "safety I/O", "scale",
+       "broker", "store")
 
 
 def _install(sim: SimulatedKrc4, cfg: Config) -> None:
@@ -136,6 +138,37 @@ async def test_resident_program_outdated(sim: SimulatedKrc4, healthy: Config) ->
     path.write_bytes(path.read_bytes().replace(b"RGSE_STEP = 1", b"RGSE_STEP = 7", 1) + b";old\r\n")
     failed = _failed(await _doctor(healthy))
     assert set(failed) == {"resident program"} and "rgse krl render" in failed["resident program"]
+
+
+def _watchdog_line(report: DoctorReport) -> Any:
+    return next(c for c in report.checks if c.name == "controller watchdog")
+
+
+async def test_watchdog_installed_without_a_heartbeat_the_doctor_times_the_timer(
+        sim: SimulatedKrc4, healthy: Config) -> None:
+    line = _watchdog_line(await _doctor(healthy))
+    assert line.ok is True and "counted" in line.detail and "no daemon heartbeat" in line.detail
+    assert sim.store.read("$TIMER_STOP[16]") == "TRUE"  # stopped again: no heartbeat is left behind
+
+
+async def test_watchdog_armed_with_the_daemons_heartbeat(sim: SimulatedKrc4, healthy: Config) -> None:
+    async with beating(healthy.controller):
+        line = _watchdog_line(await _doctor(healthy))
+    assert line.ok is True and line.detail.startswith("armed")
+
+
+async def test_watchdog_missing_from_the_installed_resident(sim: SimulatedKrc4, healthy: Config) -> None:
+    path = sim.share_dir / "R1" / "PROGRAM" / "RGSE_RESIDENT.SRC"
+    path.write_bytes(path.read_bytes().replace(b"  INTERRUPT ON 1\r\n", b"", 1))
+    failed = _failed(await _doctor(healthy))
+    assert set(failed) == {"resident program", "controller watchdog"}, failed
+    assert "does not arm the watchdog" in _watchdog_line(await _doctor(healthy)).detail
+
+
+async def test_watchdog_timer_that_does_not_count(sim: SimulatedKrc4, healthy: Config) -> None:
+    sim.store.register_getter("$TIMER[16]", lambda: "-750")  # a controller whose timer stands still
+    failed = _failed(await _doctor(healthy))
+    assert set(failed) == {"controller watchdog"} and "KSS" in failed["controller watchdog"]
 
 
 async def test_trace_configuration_not_writable(sim: SimulatedKrc4, healthy: Config) -> None:

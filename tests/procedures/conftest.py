@@ -19,6 +19,7 @@ from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import Store
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.krc4.variables import Kind
+from tests.support.heartbeat import beating
 
 ROBOT = "KR500R2830-SIM"
 #: The simulator runs in the test's own process and event loop (its CPU work shares the interpreter lock), and the
@@ -46,7 +47,7 @@ def make_config(sim: SimulatedKrc4, data_dir: Path, **measurement: object) -> Co
     return config_from_mapping({
         "robot": {"name": ROBOT},
         "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge", "share_dir": str(sim.share_dir),
-                       "request_timeout_s": 2.0},
+                       "request_timeout_s": 2.0, "watchdog_bound_s": 1.0},  # a loaded machine: as the monitor
         "paths": {"data_dir": str(data_dir)},
         "measurement": ms,
     })
@@ -71,7 +72,7 @@ def settings(cfg: Config) -> RunSettings:
 
 @pytest.fixture
 async def krc(cfg: Config) -> AsyncIterator[Controller]:
-    async with Controller.connect(cfg.controller) as c:
+    async with Controller.connect(cfg.controller) as c, beating(cfg.controller):  # the daemon's heartbeat
         yield c
 
 

@@ -19,6 +19,7 @@ from rgse_daemon.procedures.retrieval import PulledTrace
 from rgse_daemon.safety.monitor import InterlockTrip
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.krc4.variables import e6axis
+from tests.support.heartbeat import beating
 from tests.support.polling import wait_until
 
 from .conftest import make_engine
@@ -71,7 +72,7 @@ async def test_motion_seen_during_a_pull_trips(sim, engine: RunEngine, tmp_path:
 
 async def test_a_status_read_later_than_the_file_work_allows_trips(sim, cfg, tmp_path: Path) -> None:
     _big_trace(sim, "w4")
-    async with Controller.connect(cfg.controller) as krc:
+    async with Controller.connect(cfg.controller) as krc, beating(cfg.controller):
         engine = make_engine(krc, cfg)
         task = asyncio.create_task(engine.run(_pull_plan("w4", tmp_path / "run")))
         await asyncio.sleep(0.3)

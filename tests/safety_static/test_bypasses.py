@@ -21,6 +21,7 @@ from rgse_daemon.errors import InterlockError
 from rgse_daemon.krl.abstract import AbstractInterpreter
 from rgse_daemon.procedures.programs import static_checker
 from rgse_daemon.safety.static import MAX_LINE_CHARS, CheckContext, Violation, check_program
+from tests.safety_static.test_watchdog_rule import ARM, ROUTINE
 
 SLOW = "".join(f"  $VEL_AXIS[{i}] = 1.0\n" for i in range(1, 7))
 #: The rest of a measurement-pose target, so that a motion changes A1 only.
@@ -28,7 +29,8 @@ REST = "A2 -90.0, A3 90.0, A4 0.0, A5 0.0, A6 0.0"
 
 
 def program(decls: str, body: str) -> str:
-    return f"&ACCESS RVP\n&REL 1\nDEF bypass( )\n{decls}{SLOW}{body}END\n"
+    """The slow start, the controller-side watchdog armed (``rgse krl check`` and the push require it), ``body``."""
+    return f"&ACCESS RVP\n&REL 1\nDEF bypass( )\n{decls}{SLOW}{ARM}{body}END\n\n{ROUTINE}"
 
 
 # name -> the program; a refusal must name at least one line of what it adds to the slow start

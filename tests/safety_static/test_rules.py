@@ -11,6 +11,7 @@ from rgse_daemon.config import LimitsConfig
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
 from rgse_daemon.krl.render import cube_corners
 from rgse_daemon.safety.static import CheckContext, ProgramRefused, check_program, ensure_allowed
+from tests.safety_static.test_watchdog_rule import ARM, ROUTINE
 
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
 CTX = CheckContext(start_axes_deg=MEAS, payload_mass_kg=100.0, payload_cog_flange_m=(0.0, 0.0, 0.2))
@@ -28,6 +29,12 @@ def rules(src: str, ctx: CheckContext = CTX, dat: str | None = None) -> set[str]
 ALLOWED = program(
     "  RGSE_STEP = 1\n  PTP {E6AXIS: A1 0, A2 -90, A3 100, A4 0, A5 10, A6 0}\n  PTP_REL {A3 -10, A5 -10}"
 )
+
+
+def armed(src: str) -> str:
+    """``src`` with the controller-side watchdog armed before its first statement after the settings (what
+    ``rgse krl check`` requires by default, tests/safety_static/test_watchdog_rule.py)."""
+    return src.replace(SLOW + "\n", SLOW + "\n" + ARM, 1) + "\n" + ROUTINE
 
 
 def test_a_slow_program_in_t1_is_allowed() -> None:
@@ -149,7 +156,10 @@ def test_constant_targets_from_the_data_list_and_locals() -> None:
 def test_forbidden_keywords_are_refused_not_syntax_errors() -> None:
     src = program("  INTERRUPT DECL 3 WHEN $IN[1] DO stop_it()\n  TRIGGER WHEN DISTANCE=0 DELAY=0 DO x=1")
     found = check_program(src, None, CTX)
-    assert {(v.rule, v.line) for v in found} >= {("STATEMENT", 16), ("STATEMENT", 17)}
+    assert {(v.rule, v.line) for v in found} >= {("STATEMENT", 17)}
+    # an interrupt other than the controller-side watchdog's is refused by the WATCHDOG rule
+    found = check_program(program("  INTERRUPT DECL 3 WHEN $IN[1] DO stop_it()"), None, CTX)
+    assert ("WATCHDOG", 16) in {(v.rule, v.line) for v in found}
     with pytest.raises(KrlSyntaxError):
         check_program("DEF broken(\nEND\n", None, CTX)
 
@@ -170,11 +180,11 @@ def test_limits_come_from_the_config() -> None:
 # --- command line -----------------------------------------------------------------------------------------------------
 def test_cli_check_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     good = tmp_path / "good.src"
-    good.write_text(ALLOWED.replace("\n", "\r\n"), encoding="latin-1")
+    good.write_text(armed(ALLOWED).replace("\n", "\r\n"), encoding="latin-1")
     assert cli.main(["krl", "check", str(good)]) == 0
     assert "allowed" in capsys.readouterr().out
     bad = tmp_path / "bad.src"
-    bad.write_text(program("  OTHER = 1\n  PTP {A1 90}\n  $OV_PRO = 200"), encoding="latin-1")
+    bad.write_text(armed(program("  OTHER = 1\n  PTP {A1 90}\n  $OV_PRO = 200")), encoding="latin-1")
     assert cli.main(["krl", "check", str(bad)]) == 3
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 3 and all(line.startswith(f"{bad}:") for line in lines)
@@ -190,7 +200,7 @@ def test_cli_check_exit_codes(tmp_path: Path, capsys: pytest.CaptureFixture[str]
 
 
 def test_cli_check_reads_the_dat_beside(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    (tmp_path / "prog.src").write_text(program("  PTP xfar"), encoding="latin-1")
+    (tmp_path / "prog.src").write_text(armed(program("  PTP xfar")), encoding="latin-1")
     (tmp_path / "prog.dat").write_text("DEFDAT prog\n  DECL E6AXIS xfar = {A1 80}\nENDDAT\n", encoding="latin-1")
     assert cli.main(["krl", "check", str(tmp_path / "prog.src")]) == 3
     assert "A1_ENVELOPE" in capsys.readouterr().out

@@ -30,6 +30,7 @@ from rgse_daemon.krl.render import (
     safe_axis_velocity_pct,
 )
 from rgse_daemon.krl.walk import walk
+from rgse_daemon.safety.allowlist import WATCHDOG_TIMER
 from rgse_daemon.safety.static import check_program
 from simulators.krc4.krl import KrlInterpreter, parse_axes
 from simulators.krc4.variables import Kind, ProgramControlError, ProState, VariableStore, e6axis, module_name
@@ -72,7 +73,8 @@ def test_handshake_globals_are_global_and_allow_listed() -> None:
     data = parse_dat(globals_dat_text(), "rgse_globals.dat")
     names = {dn.name for d in data.globals for dn in d.names}
     assert data.public and len(data.globals) == len(data.decls)
-    assert {"RGSE_CMD", "RGSE_ARG", "RGSE_ACK", "RGSE_BUSY", "RGSE_STEP", "RGSE_LOOP", "RGSE_DONE"} == names
+    assert {"RGSE_CMD", "RGSE_ARG", "RGSE_ACK", "RGSE_BUSY", "RGSE_STEP", "RGSE_LOOP", "RGSE_DONE",
+            "RGSE_WD_TRIP"} == names
 
 
 def test_velocity_keeps_the_farthest_point_under_the_limit() -> None:
@@ -138,7 +140,7 @@ async def sim(rendered: dict[str, RenderedProgram]) -> AsyncIterator[Callable[[S
     """A factory: a simulated KR C4 with the handshake globals installed, its robot standing at ``start``."""
     made: list[KrlInterpreter] = []
 
-    def make(start: Sequence[float]) -> Sim:
+    def make(start: Sequence[float], time_scale: float = TIME_SCALE) -> Sim:
         store = VariableStore()
         kinds = {"INT": Kind.INT, "BOOL": Kind.BOOL}
         for decl in parse_dat(globals_dat_text()).globals:  # installed once on the controller (krl/README.md)
@@ -146,7 +148,10 @@ async def sim(rendered: dict[str, RenderedProgram]) -> AsyncIterator[Callable[[S
             text = ("TRUE" if init.value else "FALSE") if isinstance(init, BoolLit) else str(init.value)  # type: ignore[union-attr]
             store.declare_global(decl.names[0].name, kinds[decl.type_name], text)
         store.update("$AXIS_ACT", e6axis(start))
-        interp = KrlInterpreter(store, Programs(rendered), time_scale=TIME_SCALE)
+        # the daemon's heartbeat, set once for an hour: these tests are about the moves (the watchdog: below)
+        store.write(f"$TIMER[{WATCHDOG_TIMER}]", "-3600000")
+        store.write(f"$TIMER_STOP[{WATCHDOG_TIMER}]", "FALSE")
+        interp = KrlInterpreter(store, Programs(rendered), time_scale=time_scale)
         made.append(interp)
         return interp, store
 
@@ -204,3 +209,28 @@ async def test_resident_runs_commands_on_the_simulator(sim) -> None:
     assert store.read("RGSE_DONE") == "TRUE" and store.read("RGSE_BUSY") == "FALSE"
     assert await command(99) == "99"
     assert await interp.wait_state(ProState.END, ProState.STOP, timeout_s=10.0) is ProState.END, interp.last_error
+
+
+@pytest.mark.parametrize("name", ["rgse_warmup", "rgse_resident"])
+async def test_template_without_heartbeat_does_not_move(sim, name: str) -> None:
+    interp, store = sim(OPER_POSE_DEG)
+    store.write(f"$TIMER_STOP[{WATCHDOG_TIMER}]", "TRUE")  # no daemon: the timer is not running
+    interp.run(name.upper(), "", False)
+    if name == "rgse_resident":
+        store.write("RGSE_CMD", "2")
+    await asyncio.sleep(0.5)
+    assert interp.state is ProState.ACTIVE, interp.last_error  # waiting for a fresh heartbeat
+    np.testing.assert_allclose(axes(store), OPER_POSE_DEG, atol=1e-9)
+
+
+async def test_warmup_stops_on_its_path_when_the_heartbeat_lapses(sim) -> None:
+    interp, store = sim(OPER_POSE_DEG, time_scale=10.0)  # the move lasts seconds of wall clock
+    store.write(f"$TIMER[{WATCHDOG_TIMER}]", "-150")  # one beat, then the daemon is gone
+    interp.run("RGSE_WARMUP", "", False)
+    assert await interp.wait_state(ProState.END, ProState.STOP, timeout_s=30.0) is ProState.STOP
+    assert interp.last_error is None  # HALT in the watchdog's routine, not a failure
+    assert store.read("RGSE_WD_TRIP") == "TRUE" and store.read("RGSE_DONE") == "FALSE"
+    assert store.read("$ROB_STOPPED") == "TRUE"
+    held = axes(store)
+    await asyncio.sleep(0.3)
+    np.testing.assert_array_equal(axes(store), held)

@@ -51,7 +51,8 @@ def daemon_config(
     **measurement: Any,
 ) -> Config:
     """Short runs (2 loops of 250 samples, one warm-up cycle) with quick reconnects everywhere; the interlock's
-    snapshot staleness at its largest allowed value (1 s), so a loaded test machine does not trip it."""
+    snapshot staleness and the controller-side watchdog's bound at 1 s, so a loaded test machine does not trip
+    them (tests/faults/test_controller_watchdog.py sets the watchdog's default bound back)."""
     ms = {"loops": 2, "settle_s": 0.01, "trace_period_s": 0.012, "trace_samples": 250, "warmup_cycles": 1,
           "fixture_mass_kg": FIXTURE_KG, "payload_lever_max_m": 1.0, "program_timeout_s": 60.0,
           "trace_timeout_s": 30.0}
@@ -62,7 +63,8 @@ def daemon_config(
         "robot": {"name": ROBOT},
         "controller": {"host": "127.0.0.1", "port": controller_port, "protocol": "c3bridge",
                        "connect_timeout_s": 2.0, "request_timeout_s": 2.0, "reconnect_min_s": 0.05,
-                       "reconnect_max_s": 0.4, **({"share_dir": str(share_dir)} if share_dir else {})},
+                       "reconnect_max_s": 0.4, **({"share_dir": str(share_dir)} if share_dir else {}),
+                       "watchdog_bound_s": 1.0},
         "paths": {"data_dir": str(data_dir)},
         "limits": {"snapshot_stale_s": 1.0},
         "measurement": ms,
