@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import logging
 import math
 import os
@@ -23,6 +24,7 @@ from rgse_daemon.errors import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_REFUSED,
+    EXIT_WARNINGS,
     ConfigError,
     DataError,
     KrlSyntaxError,
@@ -31,8 +33,13 @@ from rgse_daemon.errors import (
 from rgse_daemon.logs import ENV_VAR as LOG_FORMAT_ENV
 from rgse_daemon.logs import FORMATS as LOG_FORMATS
 from rgse_daemon.logs import choose_format, setup_logging
+from rgse_daemon.verdict import refusal
 
-__all__ = ["EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_OK", "EXIT_REFUSED", "build_parser", "main"]
+__all__ = ["EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_OK", "EXIT_REFUSED", "EXIT_WARNINGS", "build_parser", "main"]
+
+#: Offline computations whose ``--json`` prints a refusal as one JSON object on stdout (interfaces §1.3), so that a
+#: script reading stdout always gets an object with a ``status``, a refusal's ``reason`` among it.
+JSON_REFUSALS = frozenset({"mass", "cog", "inertia"})
 
 
 class _Parser(argparse.ArgumentParser):
@@ -247,11 +254,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(module.run(args))
     except (ConfigError, DataError, KrlSyntaxError) as exc:
+        _json_refusal(args, exc)
         if args.debug:
             raise
         print(f"rgse {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except RgseError as exc:
+        _json_refusal(args, exc)
         if args.debug:
             raise
         print(f"rgse {args.command}: failed: {type(exc).__name__}: {exc}", file=sys.stderr)
@@ -264,6 +273,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return EXIT_OK
+
+
+def _json_refusal(args: argparse.Namespace, exc: RgseError) -> None:
+    """With ``--json``, an offline computation's refusal is its one JSON object on stdout (the line on stderr stays)."""
+    if getattr(args, "json", False) and args.command in JSON_REFUSALS:
+        print(json.dumps(refusal(str(exc), error=type(exc).__name__)), flush=True)
 
 
 if __name__ == "__main__":
