@@ -231,6 +231,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also the inertia tensor: DuT and tare excitation, a prompt to take the DuT off "
                         "(default: properties.inertia)")
     r.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
+    for q in (m, r):  # the DuT's identity: stored with the run, shown in its report, published with its result
+        q.add_argument("--dut-name", metavar="NAME", help="the DuT's name (e.g. the spacecraft's)")
+        q.add_argument("--serial-number", metavar="SN", help="the DuT's serial number")
+        q.add_argument("--part-number", metavar="PN", help="the DuT's part number")
+        q.add_argument("--project", metavar="NAME", help="the project the measurement is for")
+        q.add_argument("--operator", metavar="NAME", help="who runs the measurement")
+        q.add_argument("--note", metavar="TEXT", help="a free note, kept with the run")
     for q in (m, c, r):
         q.add_argument("--config", type=Path, required=True, metavar="FILE")
         q.add_argument("--on-prompt", choices=("stdin", "wait"), default="stdin",

@@ -8,7 +8,8 @@ One page (``console.html``) and a small HTTP API beside it:
                            then ``state`` at the state rate and ``progress`` for every engine event as it happens
 ``POST /api/confirm``      ``{run_id, point?, message?, token?}``: the ``confirm`` command
 ``POST /api/abort``        ``{run_id?, reason, token?}``: the ``abort`` command
-``GET /api/history``       the robot's latest runs with their results and report links
+``GET /api/history``       the robot's latest runs with their results (status, warnings, the DuT's identity), the
+                           reason of a failed or aborted run, and report links
 ``GET /report/run/ID``     the HTML report of a run (``/report/calibration/ID`` of a calibration), from the store,
                            rendered on the console's own thread (:data:`REPORT_QUEUE`)
 
@@ -241,7 +242,7 @@ class Console:
         await resp.prepare(request)
         q: asyncio.Queue[tuple[str, Any] | None] = asyncio.Queue(CLIENT_QUEUE)
         hello = {"robot": self.robot, "token_required": bool(self._tokens), "run": self.run,
-                 "state": await self._fresh_state(), "torque": list(self.torque)}
+                 "state": await self._fresh_state(), "torque": list(self.torque), "state_period_s": self.period_s}
         self._clients.add(q)
         try:
             async with asyncio.timeout(WRITE_TIMEOUT_S):
@@ -321,7 +322,10 @@ class Console:
             if res is not None:
                 link = f"/report/calibration/{res['calibration_id']}" if kind == "calibration" and \
                     res.get("calibration_id") else f"/report/run/{r.id}"
-            rows.append({"run_id": r.id, "kind": kind, "state": str(r.state), "result": res, "report": link})
+            identity = (r.config.get("settings") or {}).get("identity") if isinstance(r.config, dict) else None
+            rows.append({"run_id": r.id, "kind": kind, "state": str(r.state), "result": res, "report": link,
+                         "status": results[-1].status if results else None, "detail": r.detail,
+                         "identity": identity, "ended": r.ended_utc.isoformat() if r.ended_utc else None})
         return web.json_response({"robot": self.robot, "runs": rows})
 
     async def _report(self, request: web.Request) -> web.StreamResponse:
