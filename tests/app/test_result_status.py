@@ -146,5 +146,5 @@ async def test_a_named_dut_with_a_warning_everywhere_the_operator_looks(
     assert dom.fields["status"] == ["warning"]
     assert dom.fields["warning"] == list(result.warnings)
     assert dom.fields["identity.dut_name"] == ["Refex wing box"] and dom.fields["identity.serial_number"] == ["SN-0042"]
-    head = html[:html.index("<h2>")]
-    assert "Refex wing box" in head and "warning: motor temperatures differ" in head
+    head = html[html.index("<body"):html.index("<h2>Result</h2>")]  # above the first section
+    assert "Refex wing box" in head and "motor temperatures differ" in head and ">warning</span>" in head
