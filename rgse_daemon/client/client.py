@@ -218,9 +218,12 @@ class RgseClient:
 
     # --- results ------------------------------------------------------------------------------------------------
     async def result(self, run_id: str, kind: RunKind | None = None, timeout_s: float | None = None) -> Result:
-        """The result of ``run_id`` (retained on the broker: also of a run that ended before this client)."""
+        """The result of ``run_id`` (retained on the broker: also of a run that ended before this client);
+        :class:`RunFailed` (state ``refused``, its reason) for a result whose status is ``refused``."""
         doc = await self.until(lambda: self._results.get(run_id), f"the result of run {run_id}",
                                timeout_s or self.timeout_s)
+        if doc.get("status") == "refused":  # no figure: the reason is what there is (rgse_daemon.verdict)
+            raise RunFailed(run_id, "refused", str(doc.get("reason") or "no reason given"))
         if kind == "calibration" or (kind is None and "mass_kg" not in doc):
             return CalibrationResult.of(run_id, doc)
         if kind == "properties" or (kind is None and doc.get("cog_m") is not None):

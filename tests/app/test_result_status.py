@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from rgse_daemon import calfile
-from rgse_daemon.client import Identity, MeasurementResult, RgseClient
+from rgse_daemon.client import Identity, MeasurementResult, RgseClient, RunFailed
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.report import build_report
 from rgse_daemon.store import Repository, Store
@@ -26,7 +26,7 @@ from simulators.krc4.sim import SimulatedKrc4
 from tests.support.cdp import browser
 from tests.support.chromium import Dom, dump_dom
 from tests.support.daemon import PREFIX, daemon_config, running_daemon, seed_calibration
-from tests.support.mqtt import MosquittoProcess, retained
+from tests.support.mqtt import Collector, MosquittoProcess, retained
 from tests.support.pg import PgSchemas
 from tests.support.polling import wait_until
 
@@ -148,3 +148,23 @@ async def test_a_named_dut_with_a_warning_everywhere_the_operator_looks(
     assert dom.fields["identity.dut_name"] == ["Refex wing box"] and dom.fields["identity.serial_number"] == ["SN-0042"]
     head = html[html.index("<body"):html.index("<h2>Result</h2>")]  # above the first section
     assert "Refex wing box" in head and "motor temperatures differ" in head and ">warning</span>" in head
+
+
+async def test_the_client_raises_the_reason_of_a_refused_result(private_broker: MosquittoProcess,
+                                                                 tmp_path: Path) -> None:
+    """A result whose status is ``refused`` has no figure: the client raises RunFailed with its reason (state
+    ``refused``) instead of failing on the missing mass; a result with warnings reads with its status."""
+    cfg = daemon_config(tmp_path / "data", controller_port=1, broker_port=private_broker.port)
+    refused = {"status": "refused", "reason": "2 of 10 loops left after setting aside 8: fewer than 3",
+               "warnings": [], "run_id": "R-refused"}
+    warned = {"mass_kg": 95.1, "U_kg": 0.3, "warnings": ["loops disagree"], "run_id": "R-warned"}  # no status key
+    async with Collector("127.0.0.1", private_broker.port, f"{PREFIX}/run/+/result") as pub:
+        for doc in (refused, warned):
+            await pub._client.publish(f"{PREFIX}/run/{doc['run_id']}/result", json.dumps(doc), qos=1, retain=True)
+        await pub.sync()
+    async with RgseClient.of(cfg) as client:
+        with pytest.raises(RunFailed, match="R-refused refused: 2 of 10 loops left") as exc:
+            await client.result("R-refused", timeout_s=10)
+        assert exc.value.state == "refused"
+        result = await client.result("R-warned", "measurement", timeout_s=10)
+        assert result.status == "warning"  # a daemon before the status field: derived by the same rule
