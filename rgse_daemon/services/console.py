@@ -8,6 +8,8 @@ One page (``console.html``) and a small HTTP API beside it:
                            then ``state`` at the state rate and ``progress`` for every engine event as it happens
 ``POST /api/confirm``      ``{run_id, point?, message?, token?}``: the ``confirm`` command
 ``POST /api/abort``        ``{run_id?, reason, token?}``: the ``abort`` command
+``POST /api/measure``      ``{loops?, identity?, token?}``: the ``measure`` command (a run for a named DuT)
+``POST /api/properties``   ``{loops?, identity?, token?}``: the ``properties`` command
 ``GET /api/history``       the robot's latest runs with their results (status, warnings, the DuT's identity), the
                            reason of a failed or aborted run, and report links
 ``GET /report/run/ID``     the HTML report of a run (``/report/calibration/ID`` of a calibration), from the store,
@@ -15,9 +17,9 @@ One page (``console.html``) and a small HTTP API beside it:
 
 The actions are the MQTT commands: checked by the same :func:`~rgse_daemon.io.commands.parse_command` (schema and
 ``mqtt.command_tokens``) and answered by the same handler, so the console can confirm only what the daemon asks
-for. Without ``command_tokens`` the console acts only with ``command_auth = "open_lab_bench"``: the broker's ACL
-(``broker_acl``) does not see this page. Each action, accepted or refused, is recorded in the store as an event
-``console_action`` with ``source: "console"``.
+for, and start only what MQTT may start (admission's rules alike). Without ``command_tokens`` the console acts only
+with ``command_auth = "open_lab_bench"``: the broker's ACL (``broker_acl``) does not see this page. Each action,
+accepted or refused, is recorded in the store as an event ``console_action`` with ``source: "console"``.
 """
 
 from __future__ import annotations
@@ -124,6 +126,7 @@ class Console:
         app = web.Application(client_max_size=MAX_PAYLOAD_BYTES)
         app.add_routes([web.get("/", self._page), web.get("/events", self._events),
                         web.post("/api/confirm", self._confirm), web.post("/api/abort", self._abort),
+                        web.post("/api/measure", self._measure), web.post("/api/properties", self._properties),
                         web.get("/api/history", self._history),
                         web.get(r"/report/{what:run|calibration}/{id:[A-Za-z0-9_.\-]+}", self._report)])
         self._runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=SHUTDOWN_TIMEOUT_S,
@@ -288,6 +291,8 @@ class Console:
             error = exc.problem if isinstance(exc, CommandRefused) else str(exc)
             await self._record(f"console {verb} refused: {error}", {**record, "ok": False, "error": error})
             return web.json_response({"ok": False, "error": error}, status=409)
+        if verb in ("measure", "properties") and isinstance(reply.get("run_id"), str):
+            record["run_id"] = reply["run_id"]  # the run the console started
         await self._record(f"console {verb}", {**record, "ok": True})
         return web.json_response({"ok": True, **reply})
 
@@ -310,6 +315,12 @@ class Console:
 
     async def _abort(self, request: web.Request) -> web.Response:
         return await self._act("abort", request)
+
+    async def _measure(self, request: web.Request) -> web.Response:
+        return await self._act("measure", request)
+
+    async def _properties(self, request: web.Request) -> web.Response:
+        return await self._act("properties", request)
 
     async def _history(self, request: web.Request) -> web.Response:
         runs = (await self._store.list_runs(robot=self.robot))[-HISTORY_RUNS:]

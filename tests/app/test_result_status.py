@@ -1,9 +1,9 @@
 """A result's status and the DuT's identity where the operator looks (issue 33 item 5, issue 34 items 4 and 7): a
-measurement of a named DuT whose result warns, through the daemon on the simulated KR C4, a real Mosquitto and a
-real store (SQLite and PostgreSQL): the status and the identity in the MQTT result, the client's result, the store's
-column and the run's record; and the console in real Chromium, read as the operator reads it (visible text): a
-plausible time on every event line (it said "Invalid Date"), the DuT's name, the status and the warning, where the
-run is, and "stale" once the daemon is gone."""
+measurement of a named DuT, started from the console's form, whose result warns, through the daemon on the
+simulated KR C4, a real Mosquitto and a real store (SQLite and PostgreSQL): the status and the identity in the MQTT
+result, the client's result, the store's column and the run's record; and the console in real Chromium, read as the
+operator reads it (visible text): a plausible time on every event line (it said "Invalid Date"), the DuT's name, the
+status and the warning, where the run is, and "stale" once the daemon is gone; the report's top."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from rgse_daemon import calfile
-from rgse_daemon.client import Identity, MeasurementResult, RgseClient, RunFailed
+from rgse_daemon.client import Identity, MeasurementResult, RgseClient, Run, RunFailed
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.report import build_report
 from rgse_daemon.store import Repository, Store
@@ -25,7 +25,7 @@ from simulators.krc4.physics import dut_payload
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.cdp import browser
 from tests.support.chromium import Dom, dump_dom
-from tests.support.daemon import PREFIX, daemon_config, running_daemon, seed_calibration
+from tests.support.daemon import COMMAND_TOKEN, PREFIX, daemon_config, running_daemon, seed_calibration
 from tests.support.mqtt import Collector, MosquittoProcess, retained
 from tests.support.pg import PgSchemas
 from tests.support.polling import wait_until
@@ -82,7 +82,17 @@ async def test_a_named_dut_with_a_warning_everywhere_the_operator_looks(
         await page.goto(console.url)
         await page.wait_for("document.getElementById('engine').textContent === 'idle'", "the idle engine")
 
-        run = await client.measure(loops=1, identity=WHO)
+        # the operator starts the measurement from the console, naming the DuT in its form
+        await page.type_into("#token", COMMAND_TOKEN)
+        for field, value in (("dut-name", WHO.dut_name), ("dut-serial", WHO.serial_number),
+                             ("dut-part", WHO.part_number), ("dut-project", WHO.project),
+                             ("dut-operator", WHO.operator), ("dut-note", WHO.note), ("start-loops", "1")):
+            await page.type_into(f"#{field}", str(value))
+        await page.wait_for("!document.getElementById('start-measure').disabled", "Start enabled while idle")
+        await page.click("#start-measure")
+        await wait_until(lambda: rd.daemon.engine.run_id is not None, "the run started from the console")
+        await page.wait_for("document.getElementById('start-measure').disabled", "Start disabled during the run")
+        run = Run(client, rd.daemon.engine.run_id, "measurement")  # followed by the client, over the broker
         result = await run.wait(120)
         assert isinstance(result, MeasurementResult)
         assert result.status == "warning" and result.identity == WHO, (result.status, result.identity)
@@ -130,7 +140,10 @@ async def test_a_named_dut_with_a_warning_everywhere_the_operator_looks(
     async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
         (stored,) = await store.results(run.run_id)
         rec = await store.get_run(run.run_id)
+        evs = await store.events(run_id=run.run_id)
     assert stored.status == "warning" and stored.result["identity"]["project"] == "GSE-7"
+    actions = [e.data for e in evs if e.kind == "console_action"]
+    assert [(a["verb"], a["ok"], a["run_id"]) for a in actions] == [("measure", True, run.run_id)]
     assert rec.config["settings"]["identity"] == {"dut_name": "Refex wing box", "serial_number": "SN-0042",
                                                   "part_number": "PN-7-100", "project": "GSE-7",
                                                   "operator": "A. Tester", "note": "first fit check"}
