@@ -19,6 +19,7 @@ from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import Calibration
+from rgse_daemon.verdict import status_of
 
 #: Largest accepted difference between the measurement's and the calibration's mean A3/A5 motor temperature (K).
 THERMAL_MISMATCH_K = 3.0
@@ -47,7 +48,8 @@ class MassResult:
                 "samples_used": self.samples_used, "samples_total": self.samples_total,
                 "calibration_id": self.calibration_id, "method": self.method, "cog_m": None,
                 "warnings": self.warnings, "u_components_kg": self.u_components_kg,
-                "motor_temp_k": self.motor_temp_k, "operating_point": self.operating_point}
+                "motor_temp_k": self.motor_temp_k, "operating_point": self.operating_point,
+                "status": status_of({"warnings": self.warnings})}
 
 
 def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: pp.Preprocessing,

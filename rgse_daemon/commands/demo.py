@@ -358,6 +358,7 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
         "cog_robot_time_s": float(timing["cog_robot_time_s"]) * TIME_SCALE,
         "wall_s": {"calibration": t_cal, "measurement": t_meas, "total": time.monotonic() - t_start},
         "warnings": result.get("warnings", []),
+        "status": result.get("status", "ok"),
         "report": str(report_path) if report_path is not None else None,
     }}
 
@@ -434,6 +435,8 @@ def run(args: argparse.Namespace) -> int:
           f"total {w['total']:.1f} s (simulator at {summary['time_scale']:g}x)")
     if summary["report"] is not None:
         print(f"report: {summary['report']}")
+    print(f"status: {summary['status']}" + (f" ({len(summary['warnings'])} warning(s))" if summary["warnings"]
+                                              else ""))
     for warning in summary["warnings"]:
         print(f"warning: {warning}")
     return 0

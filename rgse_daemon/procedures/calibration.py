@@ -56,6 +56,7 @@ from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import motor_temps_k, prepare, warm_up
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import LoopState, PointState, RunKind, Store
+from rgse_daemon.verdict import with_status
 
 CALIBRATION_FILE = "CAL.json"
 
@@ -301,10 +302,12 @@ def campaign_plan(
     doc, summary = fitted
     used_idx = {lp.index for lp in used}
     shas = sorted({f.sha256 for f in progress.trace_files if f.loop_index in used_idx})
-    summary = {**summary, "run_id": run.run_id, "robot": s.robot, "trace_sha256": shas, "warnings": warnings,
-               "compute_s": time.monotonic() - t0}
+    summary = with_status({**summary, "run_id": run.run_id, "robot": s.robot, "trace_sha256": shas,
+                           "warnings": warnings, "compute_s": time.monotonic() - t0})
     yield d.Result(summary, shas, calibration=doc)
-    yield m.Emit(Event("result", f"calibration {doc['calibration_id']} ({summary['method']}) active",
+    n = len(summary["warnings"] or ())
+    yield m.Emit(Event("result", f"{summary['status']}: calibration {doc['calibration_id']} ({summary['method']}) "
+                                 f"active" + (f"; {n} warning{'s' if n != 1 else ''}" if n else ""),
                        step="result", data=summary))
     return summary
 

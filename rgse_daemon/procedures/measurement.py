@@ -38,6 +38,7 @@ from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import prepare
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import RunKind, Store
+from rgse_daemon.verdict import with_status
 
 CALIBRATION_FILE = "CAL.json"
 
@@ -59,6 +60,15 @@ def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_
 def _finish(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> dict[str, Any]:
     write_measurement_dir(run_dir, s, traces, cal_doc)
     return compute_mass(run_dir, run_dir / CALIBRATION_FILE, s.fixture_mass_kg)
+
+
+def result_line(result: dict[str, Any], figure: str) -> str:
+    """The text of a run's ``result`` event: its status, the DuT's name, the figure and the warnings' count, e.g.
+    ``warning: Refex wing box: mass 107.312 kg ± 0.220 kg (k = 2); 2 warnings``."""
+    name = (result.get("identity") or {}).get("dut_name")
+    n = len(result.get("warnings") or ())
+    return (f"{result['status']}: " + (f"{name}: " if name else "") + figure
+            + (f"; {n} warning{'s' if n != 1 else ''}" if n else ""))
 
 
 def timing_summary(outcomes: list[LoopOutcome], compute_s: float) -> dict[str, Any]:
@@ -106,10 +116,12 @@ def measurement_plan(
         "warnings": [*result.get("warnings", []), *(warnings or [])],
         "controller_copies_deleted": all(o.deleted for o in outcomes),
         "timing": timing_summary(outcomes, compute_s),
+        **({"identity": s.identity} if s.identity else {}),
     }
+    result = with_status(result)
     yield d.Result(result, shas)
-    yield m.Emit(Event("result", f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg (k = 2)",
-                       step="result", data=result))
+    yield m.Emit(Event("result", result_line(result, f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg "
+                                                     f"(k = 2)"), step="result", data=result))
     return result
 
 

@@ -53,7 +53,7 @@ from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.inertia import REPEATS, check_feasible, inertia_step
 from rgse_daemon.procedures.loop import LoopOutcome, loop
-from rgse_daemon.procedures.measurement import CALIBRATION_FILE, timing_summary
+from rgse_daemon.procedures.measurement import CALIBRATION_FILE, result_line, timing_summary
 from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.procedures.programs import (
     COG_TRACE_CONFIG_NAME,
@@ -69,6 +69,7 @@ from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import prepare
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import RunKind, Store
+from rgse_daemon.verdict import with_status
 
 
 @dataclass(frozen=True)
@@ -274,16 +275,18 @@ def properties_plan(
                    "mass_robot_time_s": sum(o.timing.robot_s for o in mass_loops),
                    "cog_robot_time_s": sum(o.timing.robot_s for o in pose_loops),
                    "inertia_robot_time_s": sum(o.timing.robot_s for o in inertia_loops)},
+        **({"identity": s.identity} if s.identity else {}),
     }
+    result = with_status(result)
     yield d.Result(result, shas)
     for w in result["warnings"]:  # e.g. payload torques beyond what the torsional calibration covered
         yield m.Emit(Event("log", f"warning: {w}", step="result", data={"warning": w}))
     mm = [1000.0 * v for v in result["cog_m"]]
     umm = [1000.0 * v for v in result["U_cog_m"]]
-    yield m.Emit(Event("result", f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg, CoG (flange) "
-                                 f"x {mm[0]:.1f} ± {umm[0]:.1f}, y {mm[1]:.1f} ± {umm[1]:.1f}, "
-                                 f"z {mm[2]:.1f} ± {umm[2]:.1f} mm (k = 2)" + _inertia_text(result), step="result",
-                       data=result))
+    yield m.Emit(Event("result", result_line(result, f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg, "
+                                                     f"CoG (flange) x {mm[0]:.1f} ± {umm[0]:.1f}, y {mm[1]:.1f} ± "
+                                                     f"{umm[1]:.1f}, z {mm[2]:.1f} ± {umm[2]:.1f} mm (k = 2)"
+                                                     + _inertia_text(result)), step="result", data=result))
     return result
 
 

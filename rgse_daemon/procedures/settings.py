@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from rgse_daemon import kinematics as kin
@@ -33,6 +33,8 @@ class RunSettings:
     g_m_s2: float = kin.G_PAPER_M_S2
     lever_difference_m: float = kin.D4_M
     meas_pose_deg: tuple[float, ...] = tuple(float(v) for v in kin.measurement_pose())
+    identity: dict[str, str] | None = field(default=None, hash=False)
+    """Who and what is measured (interfaces §4.3 ``identity``), published with the result; None: not given."""
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> RunSettings:
