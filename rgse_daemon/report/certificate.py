@@ -80,13 +80,6 @@ def load(repo: Repository, run_id: str) -> CertificateData:
     return CertificateData(run, result, calibration, manifest[-1].sha256 if manifest else None, len(files))
 
 
-def _status(doc: dict[str, Any]) -> str:
-    status = doc.get("status")
-    if status in ("ok", "warning", "refused"):
-        return str(status)
-    return "warning" if doc.get("warnings") else "ok"
-
-
 def _fmt(value: float, u: float | None, unit: str, scale: float = 1.0, digits: int = 3) -> tuple[str, str]:
     v = f"{value * scale:.{digits}f} {unit}"
     return v, (f"{u * scale:.{digits}f} {unit}" if u is not None and math.isfinite(u) else "-")
@@ -146,7 +139,7 @@ class _Page(FPDF):
 def certificate_pdf(data: CertificateData) -> bytes:
     """The certificate as PDF bytes (A4, one page)."""
     doc = data.result.result
-    status = _status(doc)
+    status = data.result.status
     pdf = _Page(format="A4")
     pdf.run_id = data.run.id
     pdf.set_auto_page_break(False)
