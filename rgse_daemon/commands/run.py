@@ -84,7 +84,7 @@ class StdinLines:
 
 def answer_on(stdin: StdinLines) -> Callable[[Prompt], Awaitable[str | None]]:
     async def answer(prompt: Prompt) -> str | None:
-        _say(f"rgse run: point {prompt.point_index}: {prompt.message} (press Enter when done; a note may be typed)")
+        _say(f"rgse run: {prompt.message} (press Enter when done; a note may be typed)")
         line = await stdin.line()
         if line is None:
             raise RunFailed(prompt.run_id, "aborted", "end of input on stdin: nobody to confirm the prompt")
@@ -94,7 +94,7 @@ def answer_on(stdin: StdinLines) -> Callable[[Prompt], Awaitable[str | None]]:
 
 
 def tell(prompt: Prompt) -> None:
-    _say(f"rgse run: point {prompt.point_index}: {prompt.message} (waiting for the operator's confirmation)")
+    _say(f"rgse run: {prompt.message} (waiting for the operator's confirmation)")
 
 
 async def follow(rgse: RgseClient, run: Run, args: argparse.Namespace, timeout_s: float) -> int:
