@@ -356,6 +356,12 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
         "cog_scheme": COG_SCHEME,
         "mass_robot_time_s": float(timing["mass_robot_time_s"]) * TIME_SCALE,
         "cog_robot_time_s": float(timing["cog_robot_time_s"]) * TIME_SCALE,
+        # why the mass loops stopped (pipeline/stopping.py: loop term below share, target U met, max loops)
+        "stop_reason": result.get("stop_reason"),
+        "stop_rule": result.get("stop_rule"),
+        # the campaign's loops (motion, settling, recording) as the real robot needs them, its points' stop reasons
+        "calibration_robot_time_s": float(calibration.get("robot_time_s", 0.0)) * TIME_SCALE,
+        "calibration_points_stop": calibration.get("points_stop", []),
         "wall_s": {"calibration": t_cal, "measurement": t_meas, "total": time.monotonic() - t_start},
         "warnings": result.get("warnings", []),
         "report": str(report_path) if report_path is not None else None,
@@ -425,7 +431,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"principal moment I{k}: {v:7.3f} ± {u:.3f} kg·m² (U, k = 2), true {t:7.3f}   "
                   f"{'within' if abs(v - t) <= u else 'OUTSIDE'} U")
         print(f"inertia excitation (DuT and tare): robot time {summary['inertia_robot_time_s'] / 60:.1f} min")
-    print(f"{summary['loops']} mass loops and the CoG poses: robot time {summary['robot_time_s'] / 60:.1f} min "
+    print(f"calibration campaign: robot time {summary['calibration_robot_time_s'] / 60:.1f} min (loops; warm-ups "
+          f"and load changes not counted)")
+    print(f"{summary['loops']} mass loops ({summary['stop_reason']}) and the CoG poses: robot time "
+          f"{summary['robot_time_s'] / 60:.1f} min "
           f"(mass {summary['mass_robot_time_s'] / 60:.1f}, CoG {summary['cog_robot_time_s'] / 60:.1f}; real-time "
           f"equivalent), "
           f"daemon overhead {summary['overhead_s']:.2f} s ({summary['overhead_pct_of_robot_time']:.2f} %)")
