@@ -91,7 +91,10 @@ DEADLINE_S = 600.0
 INERTIA_FILE_RATE_BYTES_S = 100e3 * TIME_SCALE
 
 
-def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_port: int | None = None) -> Config:
+def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_port: int | None = None,
+                time_scale: float = TIME_SCALE, file_rate_bytes_s: float | None = None) -> Config:
+    """The demo's daemon configuration; ``time_scale`` the simulator's, ``file_rate_bytes_s`` the controller file
+    rate the daemon sizes its file deadlines by (None: the default; bench/robot_time.py scales both)."""
     mqtt: dict[str, Any] = {"enabled": False}
     if mqtt_url is not None:
         u = urlsplit(mqtt_url)
@@ -103,7 +106,8 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
         {
             "robot": {"name": ROBOT},
             "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge",
-                           "share_dir": str(sim.share_dir)},
+                           "share_dir": str(sim.share_dir),
+                           **({} if file_rate_bytes_s is None else {"file_rate_bytes_s": file_rate_bytes_s})},
             "paths": {"data_dir": str(data_dir)},
             # the demo shares a 2-core machine with its simulated controller (and, under `make test`, with the test
             # run): a scheduling hiccup of the daemon's event loop > 0.1 s is a stale snapshot and trips the
@@ -111,10 +115,10 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
             "limits": {"snapshot_stale_s": 0.5},
             # the daemon waits in wall time; the simulated controller's clock runs TIME_SCALE times faster, so the
             # paper's 2 x 2 s of settling after each brake-release move is 4 s / TIME_SCALE here
-            "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S / TIME_SCALE, "trace_period_s": 0.012,
+            "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S / time_scale, "trace_period_s": 0.012,
                             "trace_samples": 1000, "warmup_cycles": 2, "fixture_mass_kg": FIXTURE_MASS_KG,
                             "payload_lever_max_m": 1.0, "warmup_until_steady": True,
-                            "warmup_steady_window_s": 300.0 / TIME_SCALE, "warmup_max_s": 2400.0 / TIME_SCALE},
+                            "warmup_steady_window_s": 300.0 / time_scale, "warmup_max_s": 2400.0 / time_scale},
             "mqtt": mqtt,
             "console": {"enabled": console_port is not None, "port": 8080 if console_port is None else console_port},
         },
