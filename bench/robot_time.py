@@ -35,9 +35,20 @@ import numpy as np
 
 from rgse_daemon.app import Daemon
 from rgse_daemon.commands import demo
+from rgse_daemon.controller import Controller
+from rgse_daemon.io.topics import Topics
 from rgse_daemon.krl.render import globals_dat_text
+from rgse_daemon.procedures import documents as d
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.procedures.measurement import measurement_loops
+from rgse_daemon.procedures.programs import static_checker
 from rgse_daemon.procedures.properties import PropertiesSettings
+from rgse_daemon.procedures.recorder import StoreRecorder
 from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.procedures.warmup import prepare
+from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
+from rgse_daemon.store import RunKind, Store
 from rgse_daemon.trace import read_trace_set
 from simulators.krc4 import physics as ph
 from simulators.krc4.process import SimProcess
@@ -63,6 +74,7 @@ def _run_row(name: str, result: dict[str, Any], scale: float, true_kg: float) ->
         "u_loops_share": result["u_components_kg"]["loops"] / result["u_kg"],
         "pull_total_s_real": [lp["pull_total_s"] * scale for lp in per],
         "pull_wait_s_real": [lp["pull_s"] * scale for lp in per],
+        "predict_s_mean": float(np.mean([lp.get("predict_s", 0.0) for lp in per[2:]] or [0.0])),
     }
     if "loops_wall_s" in t:
         over = float(t["loops_wall_s"]) - loops_robot_wall
@@ -121,6 +133,46 @@ async def robot_runs(scale: float, seed: int) -> dict[str, Any]:
             "campaign_wall_s": cal_wall, "campaign_points_stop": cal.get("points_stop", [])}
 
 
+async def overhead_run(scale: float, seed: int, loops: int) -> dict[str, Any]:
+    """The daemon's overhead on the loops' path near real time: a series of ``loops`` mass loops (no warm-up; the
+    stop rule's interim budget is timed in the calibrated runs above and added) on a simulator at ``scale`` with
+    the controller's file work at 40 kB/s x ``scale``. The engine, monitor, recorder and store as the daemon runs
+    them."""
+    rate = FILE_RATE_BYTES_S * scale
+    with tempfile.TemporaryDirectory(prefix="rgse-overhead-") as tmp:
+        root = Path(tmp)
+        sim = SimProcess(root / "share", seed=seed, time_scale=scale, globals_dat=globals_dat_text(),
+                         file_rate_bytes_s=rate)
+        await asyncio.to_thread(sim.start)
+        try:
+            cfg = demo.demo_config(sim, root / "data", None, time_scale=scale, file_rate_bytes_s=rate)
+            s = RunSettings.from_config(cfg, loops=loops, warmup_cycles=0)
+            async with Controller.connect(cfg.controller) as krc, await Store.open(None, cfg.paths.data_dir) as store:
+                engine = RunEngine(krc, checker=static_checker(cfg.limits, cfg.measurement.payload_lever_max_m),
+                                   monitor=Monitor(krc, stale_periods=cfg.limits.snapshot_stale_s
+                                                   / DEFAULT_POLL_PERIOD_S),
+                                   share_dir=cfg.controller.share_dir)
+                recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+
+                def plan(run: d.RunContext) -> m.Plan:
+                    yield from prepare(s, None)
+                    t0 = time.monotonic()
+                    outcomes, _ = yield from measurement_loops(run, s, None, lambda i: f"ovh_l{i:02d}")
+                    return outcomes, time.monotonic() - t0
+
+                outcomes, wall = await engine.execute(
+                    d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json()}), plan, recorder)
+        finally:
+            await asyncio.to_thread(sim.stop)
+    robot = sum(o.timing.robot_s for o in outcomes)
+    last = outcomes[-1].timing.pull_s
+    return {"scale": scale, "loops": loops, "robot_min": robot * scale / 60.0, "overhead_pct": 100.0 * (wall - robot)
+            / robot, "last_pull_pct": 100.0 * last / robot, "pull_total_s_real": [o.timing.pull_total_s * scale
+                                                                               for o in outcomes],
+            "pull_wait_s_real": [o.timing.pull_s * scale for o in outcomes],
+            "settle_record_s_real": [(o.timing.settle_s + o.timing.record_s) * scale for o in outcomes]}
+
+
 async def _wait(task: asyncio.Task[Any]) -> Any:
     async with asyncio.timeout(3600):
         return await task
@@ -172,12 +224,16 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=demo.SEED)
     ap.add_argument("--hash-mb", type=float, default=200.0)
     ap.add_argument("--hash-runs", type=int, default=5)
-    ap.add_argument("--skip-robot", action="store_true", help="only the read + hash rows")
+    ap.add_argument("--skip-robot", action="store_true", help="no calibrated runs (the overhead and hash rows only)")
+    ap.add_argument("--overhead-scale", type=float, default=4.0, help="the overhead run's time scale (0: none)")
+    ap.add_argument("--overhead-loops", type=int, default=3)
     args = ap.parse_args()
     out: dict[str, Any] = {"time_scale": args.time_scale, "seed": args.seed,
                            "file_rate_bytes_s_real": FILE_RATE_BYTES_S}
     if not args.skip_robot:
         out.update(asyncio.run(robot_runs(args.time_scale, args.seed)))
+    if args.overhead_scale > 0:
+        out["overhead"] = asyncio.run(overhead_run(args.overhead_scale, args.seed, args.overhead_loops))
     out["hash"] = hash_rows(args.hash_mb, args.hash_runs)
     _print_table(out)
     print(json.dumps(out))
@@ -205,6 +261,16 @@ def _print_table(out: dict[str, Any]) -> None:
               f"(warm-ups and load changes not counted); paper 480 min")
         print(f"pull per loop at 40 kB/s (real s): in all {np.mean(rule['pull_total_s_real']):.2f}, waited "
               f"{rule['pull_wait_s_real']}")
+    o = out.get("overhead")
+    if o is not None:
+        predict = [r.get("predict_s_mean", 0.0) for r in rows if r["run"] == "stop rule"]
+        print(f"overhead near real time (x{o['scale']:g}, {o['loops']} loops, {o['robot_min']:.2f} min robot time): "
+              f"{o['overhead_pct']:.2f} % of robot time (goal <= 1 %), of which the last loop's pull "
+              f"{o['last_pull_pct']:.2f} %; daemon CPU counts x{o['scale']:g}" + (
+                  f"; plus the stop rule's interim budget, {predict[0]:.2f} s a loop from the 3rd" if predict else ""))
+        print(f"  pulls (real s): in all {[round(v, 1) for v in o['pull_total_s_real']]}, waited "
+              f"{[round(v, 1) for v in o['pull_wait_s_real']]}, next loop's settling + recording "
+              f"{[round(v, 1) for v in o['settle_record_s_real']]}")
     h = out["hash"]
     print(f"read + hash vs numpy.fromfile ({h['size_mb']:.0f} MB, warm cache, fromfile {h['fromfile_mb_s']:.0f} MB/s;"
           f" goal >= 0.5x): no hash {h['read, no hash']:.2f}x, SHA-256 {h['read + SHA-256']:.2f}x, "

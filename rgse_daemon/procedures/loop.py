@@ -35,6 +35,8 @@ class LoopTiming:
     pull_s: float = 0.0
     store_s: float = 0.0
     pull_total_s: float = 0.0
+    predict_s: float = 0.0
+    """The stop rule's interim budget after this loop (on the robot's path)."""
 
     @property
     def robot_s(self) -> float:
@@ -42,12 +44,12 @@ class LoopTiming:
 
     @property
     def overhead_s(self) -> float:
-        return self.pull_s + self.store_s
+        return self.pull_s + self.store_s + self.predict_s
 
     def to_json(self) -> dict[str, float]:
         return {"robot_s": self.robot_s, "overhead_s": self.overhead_s, "motion_s": self.motion_s,
                 "settle_s": self.settle_s, "record_s": self.record_s, "pull_s": self.pull_s, "store_s": self.store_s,
-                "pull_total_s": self.pull_total_s}
+                "pull_total_s": self.pull_total_s, "predict_s": self.predict_s}
 
 
 @dataclass

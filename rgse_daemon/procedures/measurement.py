@@ -122,7 +122,9 @@ def measurement_loops(run: d.RunContext, s: RunSettings, cal_doc: dict[str, Any]
         prediction = None
         analysed = [o.trace for o in outcomes if not o.pending]
         if cal_doc is not None and analysed and rule.min_loops <= i < rule.max_loops and not rule.fixed:
+            t0 = time.monotonic()
             got = yield m.Process("predict U", interim_budget, (run.run_dir, s, analysed, cal_doc))
+            out.timing.predict_s = time.monotonic() - t0
             if got is not None:
                 prediction = predict(i, len(analysed), got[0], got[1])
         decision = decide(rule, i, prediction)
