@@ -37,6 +37,8 @@ class LoopTiming:
     pull_total_s: float = 0.0
     predict_s: float = 0.0
     """The stop rule's interim budget after this loop (on the robot's path)."""
+    render_s: float = 0.0
+    """Rendering the next loop's move beyond the settling it overlaps (on the robot's path)."""
 
     @property
     def robot_s(self) -> float:
@@ -44,12 +46,12 @@ class LoopTiming:
 
     @property
     def overhead_s(self) -> float:
-        return self.pull_s + self.store_s + self.predict_s
+        return self.pull_s + self.store_s + self.predict_s + self.render_s
 
     def to_json(self) -> dict[str, float]:
         return {"robot_s": self.robot_s, "overhead_s": self.overhead_s, "motion_s": self.motion_s,
                 "settle_s": self.settle_s, "record_s": self.record_s, "pull_s": self.pull_s, "store_s": self.store_s,
-                "pull_total_s": self.pull_total_s, "predict_s": self.predict_s}
+                "pull_total_s": self.pull_total_s, "predict_s": self.predict_s, "render_s": self.render_s}
 
 
 @dataclass
@@ -62,6 +64,15 @@ class LoopOutcome:
     index: int = 0
     pending: bool = False
     """Recorded, its files not yet pulled: :func:`collect` (or the next loop's ``previous``) pulls them."""
+    next_program: Any = None
+    """The next loop's brake-release move, rendered while this loop settled, from the axes ``next_axes_deg``."""
+    next_axes_deg: tuple[float, ...] | None = None
+
+
+#: A move rendered ahead is used only if the axes at the next loop's start are within this of the ones it was
+#: rendered from (deg; the monitor's "has moved" tolerance); else it is rendered again. The push checks it against
+#: the live snapshot either way.
+RENDER_AHEAD_TOLERANCE_DEG = 0.01
 
 
 def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *, point_index: int | None = None,
@@ -77,14 +88,22 @@ def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *, point_ind
     :func:`collect`); its outcome is then ``pending``."""
     timing = LoopTiming()
     snap = yield m.ReadState()
-    brake = yield from render_program("rgse_brake_release", s, snap)
+    brake = _ahead(previous, snap)
+    if brake is None:
+        brake = yield from render_program("rgse_brake_release", s, snap)
     yield d.LoopStarted(index, trace, _now(), point_index)
     timing.motion_s = (yield from run_checked(brake, s)) or 0.0
+    t0 = time.monotonic()
+    still = (yield m.ReadState()) if defer else None  # where the robot stands for the next loop's move
     if previous is not None and previous.pending:
         yield m.PullStart(previous.trace, run.run_dir)  # only now: no file work while the robot moves
-    t0 = time.monotonic()
-    yield m.Sleep(s.settle_s)
-    timing.settle_s = time.monotonic() - t0
+    next_program = None
+    if still is not None:  # render the next loop's move while this one settles (CPU; the robot stands still)
+        next_program = yield from render_program("rgse_brake_release", s, still)
+    busy_s = time.monotonic() - t0
+    yield m.Sleep(max(0.0, s.settle_s - busy_s))
+    timing.render_s = max(0.0, busy_s - s.settle_s)
+    timing.settle_s = time.monotonic() - t0 - timing.render_s
     yield d.LoopRecording(index, robot_end_utc=_now(), record_start_utc=_now())
     t0 = time.monotonic()
     yield m.TraceStart(trace, trace_config)
@@ -93,7 +112,8 @@ def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *, point_ind
     yield d.LoopRecorded(index, _now())
     if previous is not None and previous.pending:
         yield from collect(previous, run, s, started=True)
-    outcome = LoopOutcome(trace, timing, index=index, pending=True)
+    outcome = LoopOutcome(trace, timing, index=index, pending=True, next_program=next_program,
+                          next_axes_deg=None if still is None else still.axes_deg)
     if not defer:
         yield from collect(outcome, run, s)
     return outcome
@@ -127,6 +147,18 @@ def collect(outcome: LoopOutcome, run: d.RunContext, s: RunSettings, *,
     outcome.deleted = deleted
     outcome.delete_note = note
     return outcome
+
+
+def _ahead(previous: LoopOutcome | None, snap: Any) -> Any:
+    """The move the previous loop rendered ahead, if the robot still stands where it was rendered from."""
+    if previous is None or previous.next_program is None or previous.next_axes_deg is None:
+        return None
+    axes = getattr(snap, "axes_deg", None)
+    if axes is None or len(axes) != len(previous.next_axes_deg):
+        return None
+    if max(abs(a - b) for a, b in zip(axes, previous.next_axes_deg, strict=True)) > RENDER_AHEAD_TOLERANCE_DEG:
+        return None
+    return previous.next_program
 
 
 def _now() -> datetime:

@@ -77,3 +77,19 @@ async def test_motion_waits_for_the_pull_in_flight(sim: SimulatedKrc4, engine: R
     assert archived_at_push == [names]  # the program went to the controller only once the pull had ended
     assert 0.0 <= waited_s <= total_s and sim.moves >= 1
     assert _on_controller(sim, "first") == sorted(pulled.names)  # nothing deleted: the plan indexes first
+
+
+def test_a_move_rendered_ahead_is_used_only_where_the_robot_still_stands():
+    from types import SimpleNamespace
+
+    from rgse_daemon.procedures.loop import RENDER_AHEAD_TOLERANCE_DEG, LoopOutcome, LoopTiming, _ahead
+
+    axes = (0.0, -90.0, 90.0, 0.0, 45.0, 0.0)
+    prev = LoopOutcome("t", LoopTiming(), next_program="the move", next_axes_deg=axes)
+    near = tuple(a + 0.5 * RENDER_AHEAD_TOLERANCE_DEG for a in axes)
+    moved = (*axes[:4], axes[4] + 2 * RENDER_AHEAD_TOLERANCE_DEG, axes[5])
+    assert _ahead(prev, SimpleNamespace(axes_deg=near)) == "the move"
+    assert _ahead(prev, SimpleNamespace(axes_deg=moved)) is None  # rendered again from the live axes
+    assert _ahead(prev, SimpleNamespace(axes_deg=None)) is None
+    assert _ahead(None, SimpleNamespace(axes_deg=axes)) is None
+    assert _ahead(LoopOutcome("t", LoopTiming()), SimpleNamespace(axes_deg=axes)) is None
