@@ -280,22 +280,29 @@ class RunEngine:
             if self.monitor is not None and not self.dry_run:
                 self.monitor.expect(Expect.IDLE)
                 async with self.monitor.running(self._on_trip):
-                    result = await self._drive(finalize_wrapper(plan))
+                    result = await self._drive_plan(plan)
             else:
-                result = await self._drive(finalize_wrapper(plan))
+                result = await self._drive_plan(plan)
             if self._interrupt is not None:  # a trip or abort after the plan's last step: not a completed run
                 raise self._interrupt
-            if self._pulls:  # a plan bug: a background pull never collected (its files would not be indexed)
-                raise RgseError(f"the plan ended with pulls not joined: {', '.join(sorted(self._pulls))}")
             outcome = EngineState.DONE
             return result
         except PlanAborted:
             outcome = EngineState.ABORTED
             raise
         finally:
-            await self._cancel_pulls()
             self._running = False
             self._set_state(outcome)
+
+    async def _drive_plan(self, plan: m.Plan) -> Any:
+        """The plan inside its finaliser; background pulls end with it, still under the monitor."""
+        try:
+            result = await self._drive(finalize_wrapper(plan))
+            if self._pulls:  # a plan bug: a background pull never collected (its files would not be indexed)
+                raise RgseError(f"the plan ended with pulls not joined: {', '.join(sorted(self._pulls))}")
+            return result
+        finally:
+            await self._cancel_pulls()
 
     def _on_trip(self, trip: InterlockTrip) -> None:
         self.emit(Event("alarm", str(trip), data={"watcher": trip.watcher, "detail": trip.detail}))

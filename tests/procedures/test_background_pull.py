@@ -93,3 +93,17 @@ def test_a_move_rendered_ahead_is_used_only_where_the_robot_still_stands():
     assert _ahead(prev, SimpleNamespace(axes_deg=None)) is None
     assert _ahead(None, SimpleNamespace(axes_deg=axes)) is None
     assert _ahead(LoopOutcome("t", LoopTiming()), SimpleNamespace(axes_deg=axes)) is None
+
+
+async def test_a_plan_that_leaves_a_pull_unjoined_fails(sim: SimulatedKrc4, engine: RunEngine, settings: RunSettings,
+                                                        tmp_path: Path):
+    """Its files would never be indexed (nor the controller copies deleted): a plan bug, never a completed run."""
+    from rgse_daemon.errors import RgseError
+
+    def plan() -> m.Plan:
+        yield from _record(settings, "orphan")
+        yield m.PullStart("orphan", tmp_path / "run")
+
+    with pytest.raises(RgseError, match="pulls not joined: orphan"):
+        await engine.run(plan())
+    assert engine.pulls_in_flight == () and len(_on_controller(sim, "orphan")) >= 4
