@@ -97,3 +97,32 @@ def test_a_rule_that_cannot_hold_is_refused(kw):
 
 def test_min_loops_is_the_consistency_checks_three():
     assert st.MIN_LOOPS == 3 and StopRule(max_loops=10).min_loops == 3
+
+
+def test_a_campaign_point_weighs_each_axis_against_its_reproducibility():
+    # A5's loop term is the larger share of its own scatter: it decides
+    p = st.point_prediction(3, 2, (2.0, 3.0), (40.0, 10.0))
+    assert p.u_loops_kg == pytest.approx(3.0 * math.sqrt(2 / 3))
+    assert p.loop_share == pytest.approx(p.u_loops_kg / math.hypot(10.0, p.u_loops_kg))
+    rule = StopRule(max_loops=10, loop_share=0.2)
+    assert decide(rule, 3, p).stop is False  # 0.24 of A5's scatter: more loops still matter there
+    quiet = st.point_prediction(3, 2, (2.0, 0.5), (40.0, 10.0))
+    assert decide(rule, 3, quiet).reason == st.LOOP_SHARE
+
+
+def test_point_loop_term_is_the_standard_error_of_the_mean_torque():
+    import numpy as np
+
+    from rgse_daemon.pipeline import preprocess as pp
+    from rgse_daemon.pipeline import uncertainty as unc
+
+    rng = np.random.default_rng(5)
+    offsets = (0.0, 3.0, -3.0)  # Nm between loops, far above the within-loop noise
+    loops = [(100.0 + o + 0.1 * rng.standard_normal(1000), 50.0 + 0.1 * rng.standard_normal(1000), 0.012)
+             for o in offsets]
+    lt3, lt5 = st.point_loop_term_nm(loops)
+    means3 = np.array([pp.process_loop(a, 0.012).torque_nm for a, _, _ in loops])
+    assert lt3 == pytest.approx(unc.loop_spread_kg(means3, np.array(
+        [unc.batch_means_se(pp.kept_samples(a, 0.012)) for a, _, _ in loops])))
+    assert lt3 == pytest.approx(means3.std(ddof=1) / math.sqrt(3), rel=1e-6)  # the between-loop error wins
+    assert 0 < lt5 < 0.1 * lt3
