@@ -259,8 +259,8 @@ def _print_table(out: dict[str, Any]) -> None:
               f"{props['cog_min']:.2f}; today {TODAY_PROPERTIES_MIN})")
         print(f"campaign (demo's 16 points x 2 loops): robot time {out['campaign_robot_min']:.1f} min of loops "
               f"(warm-ups and load changes not counted); paper 480 min")
-        print(f"pull per loop at 40 kB/s (real s): in all {np.mean(rule['pull_total_s_real']):.2f}, waited "
-              f"{rule['pull_wait_s_real']}")
+        print(f"pull per loop at x{out['time_scale']:g} (real s): its own time "
+              f"{np.mean(rule['pull_total_s_real']):.2f}, waited {[round(v, 1) for v in rule['pull_wait_s_real']]}")
     o = out.get("overhead")
     if o is not None:
         predict = [r.get("predict_s_mean", 0.0) for r in rows if r["run"] == "stop rule"]
@@ -268,7 +268,7 @@ def _print_table(out: dict[str, Any]) -> None:
               f"{o['overhead_pct']:.2f} % of robot time (goal <= 1 %), of which the last loop's pull "
               f"{o['last_pull_pct']:.2f} %; daemon CPU counts x{o['scale']:g}" + (
                   f"; plus the stop rule's interim budget, {predict[0]:.2f} s a loop from the 3rd" if predict else ""))
-        print(f"  pulls (real s): in all {[round(v, 1) for v in o['pull_total_s_real']]}, waited "
+        print(f"  pulls (real s): their own time {[round(v, 1) for v in o['pull_total_s_real']]}, waited "
               f"{[round(v, 1) for v in o['pull_wait_s_real']]}, next loop's settling + recording "
               f"{[round(v, 1) for v in o['settle_record_s_real']]}")
     h = out["hash"]

@@ -26,8 +26,8 @@ from rgse_daemon.procedures.settings import RunSettings
 @dataclass
 class LoopTiming:
     """Robot time (motion, settling, recording: what the controller takes) and daemon overhead (pull, archive,
-    store), both in s. ``pull_s`` is the time the plan waited for the pull; a pull that overlapped the next loop
-    took ``pull_total_s`` in all (equal to ``pull_s`` for a pull on the plan's own path)."""
+    store), both in s. ``pull_s`` is the time the plan waited for the pull; ``pull_total_s`` the pull's own time
+    (list, read, verify, archive), which the next loop's settling and recording hide when it overlapped them."""
 
     motion_s: float = 0.0
     settle_s: float = 0.0
@@ -128,7 +128,9 @@ def collect(outcome: LoopOutcome, run: d.RunContext, s: RunSettings, *,
     timing = outcome.timing
     if started:
         joined = yield m.PullJoin(outcome.trace)
-        pulled, timing.pull_s, timing.pull_total_s = joined if joined is not None else (None, 0.0, 0.0)
+        pulled, timing.pull_s, _ = joined if joined is not None else (None, 0.0, 0.0)
+        if pulled is not None:
+            timing.pull_total_s = pulled.duration_s  # the pull's own time, as it overlapped the next loop
     else:
         pulled = yield m.Pull(outcome.trace, run.run_dir, s.trace_timeout_s)
         if pulled is not None:
