@@ -112,8 +112,10 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
                                                                        stop_loop_share=0.2))
     assert result is not None
     n = result["loops"]
-    # the stop rule: three loops at least; the loop term of this seed's run was below 20 % of u (U about 1.7 kg)
-    assert result["stop_reason"] == "loop term below share" and n == 3, (result["stop_reason"], result["stop_rule"])
+    # the stop rule: three loops at least; the loop term of this seed's run was below 20 % of u after 3 (predicted
+    # share 0.15 in two runs; the loops' own scatter from two of them is a rough estimate, so 4 or 5 may come)
+    assert result["stop_reason"] == "loop term below share" and 3 <= n < 6, (result["stop_reason"],
+                                                                              result["stop_rule"])
     rule = result["stop_rule"]
     assert rule["loops_analysed"] == n - 1 and rule["predicted_loop_share"] <= 0.2 and rule["max_loops"] == 6
     assert result["u_components_kg"]["loops"] <= 0.25 * result["u_kg"]  # the rule's prediction held
@@ -140,7 +142,7 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     # the campaign's trace period is in its CAL.json; the DuT traced at the same one draws no period warning
     assert cal.document["fit"]["sample_period_s"] == cfg.measurement.trace_period_s == 0.012
     assert not [w for w in result["warnings"] if "sample period" in w], result["warnings"]
-    assert result["calibration_id"] == cal.id and result["loops"] == 3
+    assert result["calibration_id"] == cal.id and result["loops"] == n
 
     # raw files: archived, hashed, indexed, reproducible; controller copies gone
     mrun = await store.get_run(result["run_id"])
@@ -162,7 +164,7 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
                == result["mass_kg"] for o in outbox)
     # progress: loop i/n with an eta, and the result
     loops = [e for e in events if e.kind == "loop"]
-    assert [(e.loop_index, e.loop_count) for e in loops] == [(1, 6), (2, 6), (3, 6)]
+    assert [(e.loop_index, e.loop_count) for e in loops] == [(i, 6) for i in range(1, n + 1)]
     assert loops[-1].eta_s == 0.0 and all(e.data["robot_s"] > 0 for e in loops)
     # every loop's pull is timed in the result: in all, and what the run waited for it (the last one's in full)
     per_loop = result["timing"]["per_loop"]
