@@ -69,6 +69,11 @@ CHECK_TIMEOUT_S = 30.0
 BROKER_TIMEOUT_S = 5.0
 
 
+#: The checks that need the controller's link, in their order after the ``controller`` line.
+CONTROLLER_CHECKS = ("protocol", "mode and safety", "variables", "handshake globals", "resident program",
+                     "trace configuration", "file round trip", "allowed writes", "controller watchdog")
+
+
 @dataclass(frozen=True)
 class Check:
     """One line of the checklist: ``ok`` None means not applicable (not configured)."""
@@ -142,9 +147,8 @@ async def run_doctor(cfg: Config, krl_defaults: TemplateDefaults, *, record: boo
         add(Check("controller", False, f"cannot talk to {where}: {type(exc).__name__}: {exc}",
                   "check the controller's address and port (controller.host/port), the network and the firewall, "
                   "and that C3 Bridge (or KUKAVARPROXY) runs on the KR C4 (Windows side, port 7000)"))
-        for name in ("protocol", "mode and safety", "variables", "handshake globals", "resident program",
-                     "trace configuration", "file round trip", "allowed writes", "controller watchdog"):
-            add(Check(name, False, "not checked: the controller is not reachable", "fix the controller line first"))
+        # one line for what depends on the link, not one failed line each: one thing is wrong, and it is above
+        add(Check("controller checks", None, "not run until the controller answers: " + ", ".join(CONTROLLER_CHECKS)))
     add(await _guarded("safety I/O", _modbus(cfg)))
     add(await _guarded("scale", _scale(cfg)))
     add(await _guarded("broker", _broker(cfg)))

@@ -96,8 +96,13 @@ async def test_healthy_setup_passes_and_records_the_layout(sim: SimulatedKrc4, h
 
 async def test_unreachable_controller(sim: SimulatedKrc4, healthy: Config) -> None:
     cfg = healthy.model_copy(update={"controller": healthy.controller.model_copy(update={"port": 1})})
-    failed = _failed(await _doctor(cfg))
+    report = await _doctor(cfg)
+    failed = _failed(report)
     assert "controller" in failed and "controller.host/port" in failed["controller"]
+    # issue #34: one real failure is one failed line, not nine (the checks that need the link say they did not run)
+    assert list(failed) == ["controller"] and report.text().endswith("1 check(s) failed")
+    skipped = next(c for c in report.checks if c.name == "controller checks")
+    assert skipped.ok is None and "not run until the controller answers: protocol" in skipped.detail
 
 
 async def test_old_c3_bridge_version(tmp_path: Path) -> None:
