@@ -1,14 +1,37 @@
 """``rgse daemon --config FILE``: run the service until SIGTERM/SIGINT (the systemd entry point); exit 0 after a
-clean stop. The configuration is validated completely before any network I/O (exit 2 when it is not valid)."""
+clean stop. The configuration is validated completely before any network I/O (exit 2 when it is not valid).
+
+Without ``-v`` it says on stderr what it serves when it starts and when the controller first answers (two lines: a
+person who started it in a terminal sees that it runs; the journal gets the same), nothing more unless warned."""
 
 from __future__ import annotations
 
 import argparse
 import asyncio
 import signal
+import sys
 
 from rgse_daemon.app import Daemon
-from rgse_daemon.config import load_config
+from rgse_daemon.config import Config, load_config
+from rgse_daemon.store import describe_store
+
+
+def _say(text: str) -> None:
+    print(f"rgse daemon: {text}", file=sys.stderr, flush=True)
+
+
+def serving(cfg: Config) -> str:
+    """The start line: robot, controller, store, MQTT and console."""
+    c = cfg.controller
+    mqtt = f"mqtt {cfg.mqtt.host}:{cfg.mqtt.port}" if cfg.mqtt.enabled else "mqtt off"
+    console = f"console http://{cfg.console.host}:{cfg.console.port}/" if cfg.console.enabled else "console off"
+    return (f"robot {cfg.robot.name}, controller {c.host}:{c.port}, {describe_store(cfg.store.url, cfg.paths.data_dir)}"
+            f", {mqtt}, {console}; waiting for the controller")
+
+
+async def _announce_connected(daemon: Daemon) -> None:
+    await daemon.connected.wait()
+    _say("controller connected; runs can start")
 
 
 async def _serve(daemon: Daemon) -> None:
@@ -16,11 +39,15 @@ async def _serve(daemon: Daemon) -> None:
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    _say(serving(daemon.cfg))
+    announce = asyncio.create_task(_announce_connected(daemon))
     try:
         await daemon.run(stop)
     finally:
+        announce.cancel()
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
+        _say("stopped")
 
 
 def run(args: argparse.Namespace) -> int:
