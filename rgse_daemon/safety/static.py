@@ -61,7 +61,7 @@ from rgse_daemon.kinematics import (
 )
 from rgse_daemon.krl import ast as k
 from rgse_daemon.krl.abstract import AbstractInterpreter, Pose, State, TooComplex, pose_key, written_names
-from rgse_daemon.krl.lexer import Tok, tokenize
+from rgse_daemon.krl.lexer import OutOfTime, Tok, tokenize
 from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.render import MIN_VEL_AXIS_PCT
 from rgse_daemon.krl.values import UNKNOWN, Value, describe, is_number
@@ -552,9 +552,9 @@ def _mode_violation(ctx: CheckContext) -> Violation | None:
     return Violation(0, 0, "MODE", f"mode {ctx.mode!r} refused: only T1 (or AUT with cleared area and key switch)")
 
 
-def _forbidden_tokens(text: str, file: str) -> list[Violation]:
+def _forbidden_tokens(text: str, file: str, deadline: float | None = None) -> list[Violation]:
     found = []
-    for tok in tokenize(text, file):
+    for tok in tokenize(text, file, deadline):
         if tok.kind is Tok.NAME and tok.text in FORBIDDEN_KEYWORDS:
             found.append(Violation(tok.line, tok.column, "STATEMENT", f"{tok.text} is not allowed in RGSE programs"))
     return found
@@ -617,16 +617,20 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
     line_ends = _line_end_violations(src_text) + (_line_end_violations(dat_text) if dat_text is not None else [])
     if line_ends:
         return sorted(violations + line_ends)
-    forbidden = _forbidden_tokens(src_text, file)
-    if dat_text is not None:
-        forbidden += _forbidden_tokens(dat_text, file)
     try:
-        module = parse_src(src_text, file)
-        data = parse_dat(dat_text, _dat_name(file)) if dat_text is not None else None
-    except KrlSyntaxError:
-        if forbidden:
-            return sorted(violations + forbidden)
-        raise
+        forbidden = _forbidden_tokens(src_text, file, deadline)
+        if dat_text is not None:
+            forbidden += _forbidden_tokens(dat_text, file, deadline)
+        try:
+            module = parse_src(src_text, file, deadline)
+            data = parse_dat(dat_text, _dat_name(file), deadline) if dat_text is not None else None
+        except KrlSyntaxError:
+            if forbidden:
+                return sorted(violations + forbidden)
+            raise
+    except OutOfTime as exc:
+        return sorted([*violations, Violation(exc.line, 0, "COMPLEXITY",
+                                              f"not read within {ctx.time_budget_s:g} s: too complex to verify")])
     violations += forbidden
     main = module.main
     if not 0.0 <= ctx.payload_mass_kg <= ctx.limits.max_payload_kg:
