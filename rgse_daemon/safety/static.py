@@ -19,16 +19,27 @@ Rules (``Violation.rule``):
                   ``EXTERNAL_AXIS``: a target with a non-zero E1..E6 (the cell has none; their motion is not verified).
 ``PAYLOAD``       payload mass ≤ ``limits.max_payload_kg``; ``A5_TORQUE``: static A5 torque of the payload along
                   every motion ≤ ``limits.max_a5_torque_nm`` (load diagram, paper Fig. 16).
+``WORKSPACE``     the flange, the wrist centre, the elbow or the DuT's box (``cell.payload_box_flange_m``) leaves
+                  the cell (``ctx.cell``: floor, walls) or enters a keep-out box anywhere on a PTP's joint path
+                  (sampled, with a margin for the path between samples: :meth:`_Checker.workspace_violation`); names
+                  the pose.
+``MOTION_TIME``   the upper bound of the program's motion time (or of a FOR's passes) is above ``limits.max_motion_s``
+                  (:meth:`_Checker.motion_time_s`); ``UNBOUNDED``: motions inside a loop whose passes cannot be
+                  counted (a LOOP without EXIT, a WHILE/REPEAT the check cannot follow), unless every pass waits for
+                  a host command (:meth:`~rgse_daemon.krl.abstract.AbstractInterpreter.paced_by_host`): then the bound
+                  applies per pass (docs/security.md).
 ``REL_AMPLITUDE`` a relative (brake-release) move of more than ``limits.brake_release_max_deg`` on any axis.
 ``WRITE``         a variable written that is neither the program's own nor on the allow-list; ``SYSVAR``: a system
                   variable other than $VEL_AXIS/$ACC_AXIS/$VEL.CP/$APO/$OV_PRO and the $TRACE members the daemon
                   writes (exactly those of the allow-list); ``OV_PRO``: $OV_PRO not a
-                  constant in 0..100; ``VELOCITY``: a motion setting that is not a constant in range.
+                  constant in 1..100 (0 stalls every motion);
+                  ``VELOCITY``: a motion setting that is not a constant in range.
 ``CALL``          a subprogram or function call the check cannot see into (only pure math built-ins are allowed).
 ``STATEMENT``     INTERRUPT, TRIGGER, GOTO, SWITCH, LIN/LIN_REL (Cartesian path: unverifiable without IK),
                   approximate positioning, extra routines.
 ``LOOP``          a loop whose effect does not settle, a FOR whose body writes its counter or what its bounds read;
-                  ``COMPLEXITY``: too much to verify (statements, motion checks, time budget, expression depth).
+                  ``COMPLEXITY``: too much to verify (statements, motion checks, expression depth, a file above
+                  :data:`MAX_PROGRAM_BYTES`, the time budget, which counts from the first byte: reading too).
 ``UNSURE``        the controller's result is not documented (INT overflow, a REAL rounding tie, 32-bit and 64-bit
                   REAL evaluation disagree, an uninitialised field); ``RUNTIME``: the controller would stop with an
                   error (division by zero, a type mismatch); ``LINE_END``: a line end or character whose meaning on
