@@ -85,11 +85,15 @@ def static_checker(
     against the live context — mode, safety inputs and axes from the snapshot, every point within
     ``payload_lever_max_m`` of the flange for the speed bound, ``payload`` (mass kg, CoG in the flange frame m: what
     the run mounts, :func:`~rgse_daemon.safety.static.mounted_payload` of the config) for the load diagram, and
-    ``cell`` (default: the default cell) for the workspace."""
+    ``cell`` (default: the default cell) for the workspace. The engine passes ``payload=`` to the returned check once
+    a plan declared what it mounted (``m.Mounted``: a calibration point's bodies)."""
     points = tuple(tuple(p) for p in cube_corners(payload_lever_max_m))
-    mass_kg, cog = payload
+    default_kg, default_cog = payload
 
-    def check(prog: m.Program, snap: Snapshot) -> None:
+    def check(prog: m.Program, snap: Snapshot,
+              payload: tuple[float, tuple[float, float, float]] | None = None) -> None:
+        """``payload``: the load a plan declared mounted (``m.Mounted``), instead of the configured one."""
+        mass_kg, cog = payload if payload is not None else (default_kg, default_cog)
         inp = inputs() if inputs is not None else None
         ctx = CheckContext(
             limits=limits,
