@@ -65,7 +65,6 @@ from rgse_daemon.kinematics import (
     G_PAPER_M_S2,
     JOINT_LIMITS_DEG,
     MAX_AXIS_SPEED_DEG_S,
-    axis_lines,
     gravity_torques_nm,
     joint_frames,
     max_point_speed_mm_s,
@@ -423,7 +422,7 @@ class _Checker(AbstractInterpreter):
         for s in np.linspace(0.0, 1.0, n):
             q = q0 + s * (q1 - q0)
             frames = joint_frames(q)
-            origins, _ = axis_lines(q)
+            origins = frames[:, :3, 3]  # frame i's origin lies on axis Ai (kinematics.joint_frames)
             rot, o6 = frames[5, :3, :3], frames[5, :3, 3]
             pts = np.vstack([corners @ rot.T + o6, o6, frames[4, :3, 3], frames[2, :3, 3]])
             r_max = max(r_max, float(np.linalg.norm(pts[:, None, :] - origins[None, :, :], axis=2).max()))
@@ -446,7 +445,9 @@ class _Checker(AbstractInterpreter):
                 k_lo, k_hi = np.array(kb.min_m) - margin, np.array(kb.max_m) + margin
                 hit = next((what for what, p in zip(names[8:], pts[8:], strict=True)
                             if np.all(p > k_lo) and np.all(p < k_hi)), None)
-                if hit is None and _box_hits_box(pts[8] + rot @ b_centre, rot, b_half, k_lo, k_hi):
+                box_lo, box_hi = pts[:8].min(axis=0), pts[:8].max(axis=0)  # apart: the box is too (cheap first)
+                if (hit is None and np.all(box_hi > k_lo) and np.all(box_lo < k_hi)
+                        and _box_hits_box(pts[8] + rot @ b_centre, rot, b_half, k_lo, k_hi)):
                     hit = "the payload box"
                 if hit is not None:
                     return (f"{hit} enters keep-out box {j + 1} ({_mm(kb.min_m)} .. {_mm(kb.max_m)} mm) at {where} "
@@ -459,8 +460,7 @@ def _box_hits_box(centre: np.ndarray, rot: np.ndarray, half: np.ndarray, lo: np.
     ``hi`` overlap (separating axis theorem: they are apart iff some face normal or edge cross product separates)."""
     a_centre, a_half = (lo + hi) / 2.0, (hi - lo) / 2.0
     d = centre - a_centre
-    axes = [*np.eye(3), *rot.T]
-    axes += [np.cross(e, c) for e in np.eye(3) for c in rot.T]
+    axes = np.vstack([np.eye(3), rot.T, np.cross(np.eye(3)[:, None, :], rot.T[None, :, :]).reshape(9, 3)])
     for axis in axes:
         norm = float(np.linalg.norm(axis))
         if norm < 1e-9:
