@@ -240,3 +240,21 @@ def test_the_budget_counts_the_parse() -> None:
     worker.join(timeout=60.0)
     assert not worker.is_alive()
     assert [v.rule for v in results[0]] == ["COMPLEXITY"]
+
+
+def test_the_keep_out_test_is_exact_for_a_turned_box() -> None:
+    """A cube turned 45° about z whose bounding box overlaps a keep-out box that the cube itself misses (its corner
+    points away), and the same cube moved 0.1 m closer, which does reach in."""
+    import numpy as np
+
+    from rgse_daemon.safety.static import _box_hits_box
+
+    c, s = np.cos(np.pi / 4), np.sin(np.pi / 4)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    half = np.array([0.5, 0.5, 0.5])
+    lo, hi = np.array([0.6, 0.6, -1.0]), np.array([2.0, 2.0, 1.0])
+    # the turned cube's corners lie 0.707 m out on the x and y axes, so its bounding box reaches the keep-out box
+    # (from 0.6 m); its face towards (1, 1) lies at x + y = 0.707, the keep-out's nearest corner at x + y = 1.2
+    assert not _box_hits_box(np.zeros(3), rot, half, lo, hi)
+    assert _box_hits_box(np.array([0.5, 0.5, 0.0]), rot, half, lo, hi)
+    assert _box_hits_box(np.zeros(3), np.eye(3), np.array([0.7, 0.7, 0.5]), lo, hi)
