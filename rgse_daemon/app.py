@@ -65,6 +65,7 @@ from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.latch import SafetyLatch
 from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
+from rgse_daemon.safety.static import mounted_payload
 from rgse_daemon.services.admission import Busy, NotConnected, RunAdmission
 from rgse_daemon.services.heartbeat import Heartbeat
 from rgse_daemon.services.link import ControllerLink, DaemonCounters
@@ -336,7 +337,8 @@ class Daemon:
         engine = RunEngine(
             krc,
             checker=static_checker(self.cfg.limits, self.cfg.measurement.payload_lever_max_m, inputs,
-                                   require_watchdog=self.cfg.controller.watchdog_required),
+                                   require_watchdog=self.cfg.controller.watchdog_required,
+                                   payload=mounted_payload(self.cfg), cell=self.cfg.cell),
             monitor=Monitor(krc, inputs=inputs,
                             stale_periods=self.cfg.limits.snapshot_stale_s / DEFAULT_POLL_PERIOD_S,
                             on_unsafe=self.recovery.on_unsafe if self.recovery is not None else None),

@@ -239,6 +239,12 @@ class LimitsConfig(_Section):
     brake_release_max_deg: float = Field(45.0, gt=0.0, le=90.0)
     snapshot_stale_s: float = Field(0.1, ge=0.05, le=1.0)
     """The runtime monitor polls at 20 Hz; a snapshot older than this (link lost or slow) trips the interlock."""
+    max_motion_s: float = Field(600.0, gt=0.0, le=3600.0)
+    """Upper bound of one program's motion time (s), or of one pass of a loop that waits for a host command each
+    pass (the resident program): a program whose estimated bound is longer is refused (bounded motion)."""
+    axis_ramp_max_s: float = Field(2.0, gt=0.0, le=10.0)
+    """The longest an axis can take to reach its maximum speed at 100 % ``$ACC_AXIS`` and override (s): the motion
+    time bound's assumption about accelerations, which KUKA does not publish (a KR 500 takes well under 1 s)."""
 
 
 class StoreConfig(_Section):
@@ -297,6 +303,44 @@ class MeasurementConfig(_Section):
 
 Coordinate_m = Annotated[float, Field(ge=-3.0, le=3.0)]
 Angle_deg = Annotated[float, Field(ge=-360.0, le=360.0)]
+CellCoordinate_m = Annotated[float, Field(ge=-20.0, le=20.0)]
+Point_m = Array[tuple[CellCoordinate_m, CellCoordinate_m, CellCoordinate_m]]
+
+
+class BoxConfig(_Section):
+    """An axis-aligned box (m): ``min_m`` and ``max_m`` corners."""
+
+    min_m: Point_m
+    max_m: Point_m
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BoxConfig:
+        if not all(lo < hi for lo, hi in zip(self.min_m, self.max_m, strict=True)):
+            raise ValueError(f"min_m {self.min_m} must be below max_m {self.max_m} on every axis")
+        return self
+
+
+class CellConfig(_Section):
+    """The cell the robot moves in, for the static check's workspace rule: in the robot's base frame ($ROBROOT: on
+    the A1 axis at the robot's foot, z up, x forward at A1 = 0), m. The flange, the wrist centre, the elbow and the
+    box of DuT and fixture must stay inside the cell, above the floor and out of every keep-out box along every
+    motion. Defaults: the paper's cell, the robot on its 600 mm frame."""
+
+    floor_z_m: float = Field(-0.6, ge=-5.0, le=0.0)
+    """Height of the floor in the base frame: minus the height of the robot's frame (paper: 600 mm)."""
+    walls: BoxConfig = BoxConfig(min_m=(-4.5, -4.5, -0.6), max_m=(4.5, 4.5, 5.0))
+    """The cell's walls and ceiling (its floor is ``floor_z_m``, whichever is higher counts)."""
+    keep_out: Array[tuple[BoxConfig, ...]] = (BoxConfig(min_m=(-0.7, -0.7, -0.6), max_m=(0.7, 0.7, 0.0)),)
+    """Boxes nothing may enter; default: the robot's 600 mm frame under its base."""
+    payload_box_flange_m: BoxConfig = BoxConfig(min_m=(-1.0, -1.0, 0.0), max_m=(1.0, 1.0, 1.5))
+    """The box around DuT and fixture in the flange frame (m; z out of the flange, x down in the home pose). Keep it
+    within ``measurement.payload_lever_max_m`` of the flange on every axis (the speed bound's cube)."""
+    dut_mass_kg: float | None = Field(None, ge=0.0, le=611.0)
+    """The DuT's expected mass (kg) for the load diagram check of every push (with the fixture's mass and CoG);
+    ``None``: the heaviest the limits allow, less the fixture."""
+    dut_cog_flange_m: Array[tuple[Coordinate_m, Coordinate_m, Coordinate_m]] | None = None
+    """The DuT's expected CoG in the flange frame (m); ``None``: on the flange axis, as far out as the A5 torque
+    limit allows the heaviest payload with 10 % margin in the measurement pose."""
 
 
 class FixtureFrameConfig(_Section):
@@ -414,6 +458,7 @@ class Config(BaseSettings):
     store: StoreConfig = StoreConfig()
     measurement: MeasurementConfig = MeasurementConfig()
     properties: PropertiesConfig = PropertiesConfig()
+    cell: CellConfig = CellConfig()
     mqtt: MqttConfig = MqttConfig()
     console: ConsoleConfig = ConsoleConfig()
     modbus: ModbusConfig | None = None

@@ -5,8 +5,11 @@
 
 * mode T1, hazard area not cleared, key switch not confirmed (so only T1 passes);
 * start pose: the measurement pose (``kinematics.measurement_pose()``), where every RGSE procedure starts and ends;
-* payload: the heaviest the limits allow (``limits.max_payload_kg``) with its CoG on the flange axis as far in front
-  of the flange as the A5 torque limit allows with 10 % margin (load diagram, paper Fig. 16);
+* payload: the fixture plus the DuT (:func:`~rgse_daemon.safety.static.mounted_payload`): ``--payload KG`` and
+  ``--cog X Y Z`` (flange frame, m) if given, else ``cell.dut_mass_kg``/``cell.dut_cog_flange_m``, else the worst
+  credible: the heaviest the limits allow with its CoG on the flange axis as far in front of the flange as the A5
+  torque limit allows with 10 % margin (load diagram, paper Fig. 16);
+* the cell (``cell``: floor, walls, keep-out boxes, the DuT's box) for the workspace rule;
 * payload points whose speed matters: the corners of a cube of half side ``measurement.payload_lever_max_m`` around
   the flange, i.e. every point of a fixture + DuT reaching that far (speed is convex in the point);
 * override: 100 % can be in force (the operator can raise it on the smartPAD).
@@ -22,11 +25,12 @@ default context; a refused rendering is a bug and exits 3.
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
-from rgse_daemon.config import Config, LimitsConfig, load_config
+from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import ConfigError, DataError
-from rgse_daemon.kinematics import D6_M, G_PAPER_M_S2, measurement_pose
+from rgse_daemon.kinematics import measurement_pose
 from rgse_daemon.krl.render import (
     GLOBALS_DAT,
     TEMPLATES,
@@ -36,7 +40,7 @@ from rgse_daemon.krl.render import (
     globals_dat_text,
     render,
 )
-from rgse_daemon.safety.static import CheckContext, check_program
+from rgse_daemon.safety.static import MAX_PROGRAM_BYTES, CheckContext, check_program, mounted_payload
 
 EXIT_OK = 0
 EXIT_REFUSED = 3
@@ -48,20 +52,10 @@ CONFIG_KEYS: dict[str, tuple[str, ...]] = {
     "rgse_resident": ("measurement.warmup_amplitude_deg", "measurement.warmup_cycles", "measurement.brake_release_deg"),
 }
 
-#: Margin below the A5 torque limit for the default payload's CoG.
-A5_TORQUE_MARGIN = 0.9
-
-
-def default_payload(limits: LimitsConfig) -> tuple[float, tuple[float, float, float]]:
-    """Mass (kg) and CoG (flange frame, m) of the conservative default payload (see the module docstring)."""
-    mass_kg = limits.max_payload_kg
-    lever_m = A5_TORQUE_MARGIN * limits.max_a5_torque_nm / (mass_kg * G_PAPER_M_S2)
-    return mass_kg, (0.0, 0.0, max(0.0, lever_m - D6_M))
-
-
-def default_context(cfg: Config) -> CheckContext:
+def default_context(cfg: Config, payload_kg: float | None = None,
+                    cog_flange_m: tuple[float, float, float] | None = None) -> CheckContext:
     """The context ``rgse krl check`` and ``rgse krl render`` check in (see the module docstring)."""
-    mass_kg, cog = default_payload(cfg.limits)
+    mass_kg, cog = mounted_payload(cfg, payload_kg, cog_flange_m)
     return CheckContext(
         limits=cfg.limits,
         mode="T1",
@@ -72,6 +66,7 @@ def default_context(cfg: Config) -> CheckContext:
         payload_points_flange_m=tuple(cube_corners(cfg.measurement.payload_lever_max_m)),
         start_axes_deg=tuple(float(v) for v in measurement_pose()),
         require_watchdog=cfg.controller.watchdog_required,
+        cell=cfg.cell,
     )
 
 
@@ -91,10 +86,17 @@ def template_defaults(cfg: Config) -> TemplateDefaults:
 
 
 def _read_text(path: Path) -> str:
+    """The file as stored (ISO-8859-1, no newline translation: a lone CR is refused); a file above the check's size
+    limit is refused after reading at most one byte more than the limit."""
     try:
-        return path.read_bytes().decode("latin-1")  # as stored: no newline translation (a lone CR is refused)
+        with path.open("rb") as f:
+            raw = f.read(MAX_PROGRAM_BYTES + 1)
     except OSError as exc:
         raise DataError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    if len(raw) > MAX_PROGRAM_BYTES:
+        raise DataError(f"{path}: more than {MAX_PROGRAM_BYTES} bytes, above what the interlock's check reads: "
+                        "refused unread")
+    return raw.decode("latin-1")
 
 
 def _dat_beside(src: Path) -> Path | None:
@@ -114,7 +116,14 @@ def check(args: argparse.Namespace) -> int:
         raise DataError(f"{src_path}: an unrendered template (it holds {{{{...}}}} placeholders), not a program: "
                         f"render it with rgse krl render --out DIR [--config FILE], then check DIR/{src_path.name}")
     cfg = load_config(args.config)
-    violations = check_program(src, dat, default_context(cfg), file=str(src_path))
+    payload_kg: float | None = getattr(args, "payload", None)
+    cog = getattr(args, "cog", None)
+    if payload_kg is not None and not (math.isfinite(payload_kg) and payload_kg >= 0.0):
+        raise DataError(f"--payload {payload_kg:g}: the DuT's mass must be a finite number of kg >= 0")
+    if cog is not None and not all(math.isfinite(c) and abs(c) <= 3.0 for c in cog):
+        raise DataError(f"--cog {' '.join(f'{c:g}' for c in cog)}: the CoG must be finite, within 3 m of the flange")
+    ctx = default_context(cfg, payload_kg, tuple(cog) if cog is not None else None)
+    violations = check_program(src, dat, ctx, file=str(src_path))
     for v in violations:
         print(f"{src_path}:{v}")
     if violations:

@@ -90,6 +90,13 @@ class State:
     vel_axis_pct: tuple[float, ...]
     override_pct: float
     env: tuple[tuple[str, Any], ...]
+    #: Upper bound of the motion time (s) since the start of the program (or of the loop pass being interpreted).
+    motion_s: float = 0.0
+    #: The *smallest* $VEL_AXIS, $ACC_AXIS (% per axis) and $OV_PRO (%) any path can have set, for the time bound
+    #: (0: not set by the program, the subclass's floor applies; the override: 100 % unless the program lowers it).
+    vel_axis_min_pct: tuple[float, ...] = (0.0,) * 6
+    acc_axis_min_pct: tuple[float, ...] = (0.0,) * 6
+    override_min_pct: float = 100.0
 
     def var(self, name: str) -> Any:
         for n, v in self.env:
@@ -126,7 +133,17 @@ def join(states: Sequence[State | None]) -> State | None:
     for n in names:
         values = [s.var(n) for s in live]
         env.append((n, values[0] if all(_same(v, values[0]) for v in values) else UNKNOWN))
-    return State(poses, vel, ov, tuple(env))
+    return State(poses, vel, ov, tuple(env), **_join_timing(live))
+
+
+def _join_timing(live: Sequence[State]) -> dict[str, Any]:
+    """The time-bound fields of a join: the longest motion time, the smallest speed settings."""
+    return {
+        "motion_s": max(s.motion_s for s in live),
+        "vel_axis_min_pct": tuple(min(s.vel_axis_min_pct[i] for s in live) for i in range(6)),
+        "acc_axis_min_pct": tuple(min(s.acc_axis_min_pct[i] for s in live) for i in range(6)),
+        "override_min_pct": min(s.override_min_pct for s in live),
+    }
 
 
 @dataclass
@@ -214,6 +231,20 @@ class AbstractInterpreter(ABC):
     @abstractmethod
     def start_unknown(self, stmt: k.Motion) -> None:
         ...
+
+    def motion_time_s(self, start: Pose, target: Pose, st: State) -> float:
+        """Upper bound of the time (s) of the motion ``start`` → ``target`` with the settings of ``st``."""
+        return 0.0
+
+    def host_written(self, name: str) -> bool:
+        """Whether the host (the daemon, over the link) writes variable ``name`` (a pacing WAIT FOR reads one)."""
+        return False
+
+    def loop_motion_s(self, stmt: k.Stmt, per_pass_s: float, passes: int | None, paced: bool, exits: bool) -> float:
+        """The motion time of a loop interpreted as a fixpoint: ``per_pass_s`` per pass, ``passes`` known or not,
+        ``paced``: every pass waits for the host first (:meth:`paced_by_host`), ``exits``: an EXIT can end it.
+        Subclasses report a loop whose motion time has no bound."""
+        return per_pass_s * (passes if passes is not None else 1)
 
     # --- declarations ---
     def declare(self, decl: k.Decl, st: State) -> State:
@@ -375,7 +406,7 @@ class AbstractInterpreter(ABC):
             case k.While() | k.Repeat():
                 return self.in_loop(lambda: self.conditional_loop(stmt, st))
             case k.Loop(body=body):
-                return self.in_loop(lambda: self.fixpoint(body, st, stmt.pos, counter=None, endless=True))
+                return self.in_loop(lambda: self.fixpoint(body, st, stmt.pos, counter=None, endless=True, loop=stmt))
             case k.CallStmt(name=name, args=args):
                 for a in args:
                     self.check_calls(a)
@@ -440,14 +471,17 @@ class AbstractInterpreter(ABC):
                 # the counter's value after the loop is not documented: unknown
                 done = out.normal.with_var(stmt.var, UNKNOWN) if out.normal is not None else None
                 return Outcome(join([done, *(e.with_var(stmt.var, UNKNOWN) for e in exits)]), [], returns)
-        return self.fixpoint(stmt.body, st, stmt.pos, counter=stmt.var, endless=False)
+        passes = None
+        if certain and all(is_int(v) for v in (start, stop, step)):
+            passes = max(0, (stop - start) // step + 1)  # type: ignore[operator]
+        return self.fixpoint(stmt.body, st, stmt.pos, counter=stmt.var, endless=False, loop=stmt, passes=passes)
 
     def conditional_loop(self, stmt: k.While | k.Repeat, st: State) -> Outcome:
         """WHILE/REPEAT: run pass by pass while the condition is known; otherwise a fixpoint."""
         unrolled = self.unroll(stmt, st)
         if unrolled is not None:
             return unrolled
-        return self.fixpoint(stmt.body, st, stmt.pos, counter=None, endless=False)
+        return self.fixpoint(stmt.body, st, stmt.pos, counter=None, endless=False, loop=stmt)
 
     def unroll(self, stmt: k.While | k.Repeat, st: State) -> Outcome | None:
         cur: State | None = st
@@ -469,16 +503,22 @@ class AbstractInterpreter(ABC):
             cur = res.normal
         return None
 
-    def fixpoint(self, body: Sequence[k.Stmt], st: State, pos: k.Pos, counter: str | None, endless: bool) -> Outcome:
-        head = st.with_var(counter, UNKNOWN) if counter else st
+    def fixpoint(self, body: Sequence[k.Stmt], st: State, pos: k.Pos, counter: str | None, endless: bool,
+                 loop: k.Stmt | None = None, passes: int | None = None) -> Outcome:
+        # Each pass is interpreted from a head whose motion time is 0: the passes' time is bounded separately (the
+        # longest pass found, times the passes if they are known; see loop_motion_s), so the head can settle.
+        head = replace(st.with_var(counter, UNKNOWN) if counter else st, motion_s=0.0)
         exits: list[State] = []
         returns: list[State] = []
+        per_pass_s = 0.0
         for _ in range(MAX_FIXPOINT_ITERATIONS):
             res = self.block(body, head)
             exits += res.exits
             returns += res.returns
+            per_pass_s = max([per_pass_s, *(s.motion_s for s in (res.normal, *res.exits, *res.returns) if s)])
             new_head = join([head, res.normal])
             assert new_head is not None
+            new_head = replace(new_head, motion_s=0.0)
             if counter:
                 new_head = new_head.with_var(counter, UNKNOWN)
             if new_head == head:
@@ -492,8 +532,40 @@ class AbstractInterpreter(ABC):
                 "times): its motions cannot be bounded, refused",
             )
             head = replace(head, poses=None)
+        loop_s = per_pass_s
+        if loop is not None:
+            paced = not isinstance(loop, k.For) and self.paced_by_host(body, st)
+            loop_s = self.loop_motion_s(loop, per_pass_s, passes, paced, bool(exits) or not endless)
         normal = join(exits) if endless else join([head, *exits])
-        return Outcome(normal, [], returns)
+        after = st.motion_s + loop_s
+        return Outcome(None if normal is None else replace(normal, motion_s=after), [],
+                       [replace(r, motion_s=after) for r in returns])
+
+    def paced_by_host(self, body: Sequence[k.Stmt], st: State) -> bool:
+        """Whether every pass of a loop body waits for the host before it can move: a top-level ``WAIT FOR`` on a
+        variable the host writes comes before any motion, and the body's last statement gives that variable a
+        constant value for which the condition is FALSE (``RGSE_CMD = 0`` ... ``WAIT FOR RGSE_CMD <> 0``). The next
+        pass then moves only after the host wrote a new value: one command, one pass."""
+        wait = None
+        for s in body:
+            if isinstance(s, k.WaitFor):
+                wait = s
+                break
+            if any(isinstance(x, k.Motion) for x in all_stmts([s])):
+                return False
+        last = body[-1] if body else None
+        if wait is None or not isinstance(last, k.Assign) or not isinstance(last.target, k.Name):
+            return False
+        name = last.target.name
+        if not self.host_written(name) or name not in read_names(wait.condition):
+            return False
+        try:
+            reset = Evaluator(read=lambda e: UNKNOWN, call=lambda c: UNKNOWN, strict=True).evaluate(last.value)
+            ev = Evaluator(read=lambda e: reset if isinstance(e, k.Name) and e.name == name else UNKNOWN,
+                           call=lambda c: UNKNOWN, strict=True)
+            return ev.evaluate(wait.condition) is False
+        except (Unsure, EvalError):
+            return False
 
     # --- assignments ---
     def assign(self, target: k.Expr, value_expr: k.Expr, st: State, pos: k.Pos) -> State:
@@ -610,6 +682,7 @@ class AbstractInterpreter(ABC):
                     return replace(st, poses=frozenset({target}))
             return st
         targets = set()
+        time_s = 0.0
         for start in sorted(st.poses):
             if stmt.relative:
                 delta = [fields.get(a, 0.0) for a in AXIS_FIELDS]
@@ -619,9 +692,11 @@ class AbstractInterpreter(ABC):
                 target = pose_key(fields.get(a, s) for a, s in zip(AXIS_FIELDS, start, strict=True))
             if self.check_target(target, stmt.pos):
                 self.check_path(start, target, st, stmt.pos)
+                time_s = max(time_s, self.motion_time_s(start, target, st))
                 targets.add(target)
         if not targets:
             return st  # every target refused: the check goes on from the poses before (the program is refused anyway)
+        st = replace(st, motion_s=st.motion_s + time_s)
         if len(targets) > MAX_POSES:
             return replace(st, poses=None)
         return replace(st, poses=frozenset(targets))

@@ -7,6 +7,7 @@ Identifiers and enum literals are upper-cased (KRL is case-insensitive); strings
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from enum import Enum
 
@@ -48,8 +49,21 @@ _NAME_CHARS = _NAME_START | set("0123456789")
 _DIGITS = set("0123456789")
 
 
-def tokenize(text: str, file: str = "<string>") -> list[Token]:
+class OutOfTime(Exception):
+    """Reading took past the caller's ``deadline`` (``time.monotonic()``); ``line``: where it stopped."""
+
+    def __init__(self, line: int) -> None:
+        super().__init__(f"reading stopped at line {line}: out of time")
+        self.line = line
+
+
+#: Lines (lexer) or tokens (parser) between two looks at the deadline.
+DEADLINE_STRIDE = 256
+
+
+def tokenize(text: str, file: str = "<string>", deadline: float | None = None) -> list[Token]:
     """Split KRL source into tokens, ending with one ``EOF``; consecutive line ends collapse into one ``NEWLINE``.
+    ``deadline``: raise :class:`OutOfTime` once ``time.monotonic()`` passes it (checked every few lines).
 
     Raises
     ------
@@ -64,6 +78,8 @@ def tokenize(text: str, file: str = "<string>") -> list[Token]:
 
     lines = text.replace("\r\n", "\n").replace("\r", "\n").split("\n")
     for line_no, line in enumerate(lines, 1):
+        if deadline is not None and line_no % DEADLINE_STRIDE == 0 and time.monotonic() > deadline:
+            raise OutOfTime(line_no)
         i = 0
         n = len(line)
         stripped = line.lstrip()

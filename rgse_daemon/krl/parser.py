@@ -8,6 +8,8 @@ column; nothing else escapes.
 
 from __future__ import annotations
 
+import time
+
 from rgse_daemon.errors import KrlSyntaxError
 from rgse_daemon.krl.ast import (
     APPROX_KINDS,
@@ -52,7 +54,7 @@ from rgse_daemon.krl.ast import (
     WaitSec,
     While,
 )
-from rgse_daemon.krl.lexer import Tok, Token, tokenize
+from rgse_daemon.krl.lexer import DEADLINE_STRIDE, OutOfTime, Tok, Token, tokenize
 
 #: Words that cannot name a variable (struct members and aggregate fields may still use them).
 KEYWORDS = (
@@ -74,9 +76,10 @@ MAX_NESTING = 64
 
 
 class _Parser:
-    def __init__(self, text: str, file: str) -> None:
+    def __init__(self, text: str, file: str, deadline: float | None = None) -> None:
         self.file = file
-        self.toks = tokenize(text, file)
+        self.deadline = deadline
+        self.toks = tokenize(text, file, deadline)
         self.i = 0
         self.depth = 0
 
@@ -92,6 +95,8 @@ class _Parser:
         tok = self.toks[self.i]
         if tok.kind is not Tok.EOF:
             self.i += 1
+            if self.deadline is not None and self.i % DEADLINE_STRIDE == 0 and time.monotonic() > self.deadline:
+                raise OutOfTime(tok.line)
         return tok
 
     def error(self, message: str, tok: Token | None = None) -> KrlSyntaxError:
@@ -557,14 +562,16 @@ def _is_lvalue(expr: Expr) -> bool:
     return isinstance(expr, Name)
 
 
-def parse_src(text: str, file: str = "<string>") -> Module:
-    """Parse a ``.src`` module (headers, then one or more ``DEF``/``DEFFCT`` routines)."""
-    return _Parser(text, file).src_module()
+def parse_src(text: str, file: str = "<string>", deadline: float | None = None) -> Module:
+    """Parse a ``.src`` module (headers, then one or more ``DEF``/``DEFFCT`` routines). ``deadline``
+    (``time.monotonic()``): raise :class:`~rgse_daemon.krl.lexer.OutOfTime` once it has passed."""
+    return _Parser(text, file, deadline).src_module()
 
 
-def parse_dat(text: str, file: str = "<string>") -> DataList:
-    """Parse a ``.dat`` data list (``DEFDAT name [PUBLIC]`` … declarations … ``ENDDAT``)."""
-    return _Parser(text, file).dat_module()
+def parse_dat(text: str, file: str = "<string>", deadline: float | None = None) -> DataList:
+    """Parse a ``.dat`` data list (``DEFDAT name [PUBLIC]`` … declarations … ``ENDDAT``); ``deadline`` as in
+    :func:`parse_src`."""
+    return _Parser(text, file, deadline).dat_module()
 
 
 def parse(text: str, file: str = "<string>") -> Module | DataList:

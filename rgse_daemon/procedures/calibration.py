@@ -107,6 +107,14 @@ class CampaignPoint:
                     f"z {z:.0f} mm (every CoG pose)")
         return f"test adapter with {self.n_cb} calibration bodies at {self.cb_lever_a5_m:.3f} m from A5"
 
+    def payload(self) -> tuple[float, tuple[float, float, float]]:
+        """Mass (kg) and CoG (flange frame, m) of this point's load, for the load diagram check of its pushes. A
+        torsional point's bodies sit at ``cb_cog_flange_m``; the others on the flange axis, ``lever_a5_m`` in front of
+        the A5 axis in the measurement pose (where the flange axis is horizontal, d6 in front of the wrist centre)."""
+        if self.cb_cog_flange_m is not None:
+            return self.mass_kg, self.cb_cog_flange_m
+        return self.mass_kg, (0.0, 0.0, max(0.0, self.lever_a5_m - kin.D6_M))
+
     def spec(self) -> dict[str, Any]:
         return asdict(self)
 
@@ -306,6 +314,7 @@ def campaign_plan(
         note = yield m.Confirm(f"mount {point.label} (point {rec.index + 1}/{n}) and confirm",
                                data={"point_index": rec.index, **point.spec()})
         yield d.PointStarted(rec.index, f"point {rec.index + 1}/{n} ({point.label}): {note or 'confirmed'}", note)
+        yield m.Mounted(*point.payload())  # every push from here checks the load diagram with this point's load
         if not prepared:
             warnings += yield from prepare(s, inputs)
             prepared = True

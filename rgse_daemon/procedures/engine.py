@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import time
 from collections.abc import Callable, Coroutine
@@ -71,8 +72,9 @@ CLOSE_TIMEOUT_S = 10.0
 DocumentSubscriber = Callable[[d.Document], None]
 """Sees every document after the recorder made it durable; called on the event loop, must not block."""
 
-ProgramChecker = Callable[[m.Program, Snapshot], None]
-"""Raise :class:`InterlockError` if ``program`` may not run in the state ``snapshot`` shows."""
+ProgramChecker = Callable[..., None]
+"""``checker(program, snapshot)``: raise :class:`InterlockError` if ``program`` may not run in the state ``snapshot``
+shows. After a plan's ``Mounted`` it is called with ``payload=(kg, cog_flange_m)`` too (the load just mounted)."""
 
 
 class EngineState(StrEnum):
@@ -172,6 +174,8 @@ class RunEngine:
         self._trace_armed = False
         self._running = False
         self._pulls: dict[str, tuple[asyncio.Task[Any], float]] = {}
+        #: (kg, flange-frame CoG m) of the load a ``Mounted`` message declared in this plan; None: the checker's own
+        self._mounted: tuple[float, tuple[float, float, float]] | None = None
 
     # --- control from outside (CLI, MQTT) -----------------------------------------------------------------------
     def subscribe(self, subscriber: Subscriber) -> Callable[[], None]:
@@ -274,6 +278,7 @@ class RunEngine:
         self.run_id = run_id
         self._interrupt = None
         self._trace_armed = False
+        self._mounted = None
         self._set_state(EngineState.RUNNING)
         outcome = EngineState.FAILED
         try:
@@ -390,11 +395,15 @@ class RunEngine:
         snap = await self._snapshot()
         try:
             # the check is numeric work: off the event loop, so the monitor keeps polling
-            await self._bounded(f"static check {prog.name}", asyncio.to_thread(self.checker, prog, snap), 60.0)
+            check = self.checker if self._mounted is None else functools.partial(self.checker, payload=self._mounted)
+            await self._bounded(f"static check {prog.name}", asyncio.to_thread(check, prog, snap), 60.0)
         except InterlockError as exc:
             self.emit(Event("alarm", f"program {prog.name} refused: {exc}",
                             data={"watcher": "static_check", "program": prog.name, "detail": str(exc)}))
             raise
+
+    async def _do_Mounted(self, msg: m.Mounted) -> None:
+        self._mounted = (float(msg.mass_kg), msg.cog_flange_m)
 
     async def _do_Push(self, msg: m.Push) -> str:
         prog = msg.program

@@ -122,6 +122,21 @@ class StopProgram(Msg):
     """Stop the robot interpreter if a program is active (idempotent; part of every finaliser)."""
 
 
+@dataclass(frozen=True)
+class Mounted(Msg):
+    """The load the operator has just mounted on the flange: ``mass_kg`` at ``cog_flange_m`` (flange frame, m). Every
+    later ``Push`` of the plan checks the load diagram with it instead of the configured DuT (a calibration point's
+    bodies). Changes nothing outside the daemon: executed in a dry run too."""
+
+    inert: ClassVar[bool] = True
+
+    mass_kg: float
+    cog_flange_m: tuple[float, float, float]
+
+    def describe(self) -> str:
+        return f"Mounted {self.mass_kg:g} kg at {self.cog_flange_m} m"
+
+
 # --- variables and files -----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ReadState(Msg):

@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Callable, Generator, Sequence
 from typing import Any
 
-from rgse_daemon.config import LimitsConfig
+from rgse_daemon.config import CellConfig, LimitsConfig
 from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
 from rgse_daemon.krl.render import RenderedProgram, TemplateDefaults, cube_corners, default_params, render
@@ -78,16 +78,23 @@ def trace_config_xml(s: RunSettings, modules: Sequence[str] = TRACE_MODULES) -> 
 
 
 def static_checker(
-    limits: LimitsConfig, payload_lever_max_m: float, inputs: Callable[[], SafetyInputs] | None = None,
-    *, require_watchdog: bool = True,
+    limits: LimitsConfig, payload_lever_max_m: float, inputs: Callable[[], SafetyInputs] | None = None, *,
+    require_watchdog: bool = True, payload: tuple[float, tuple[float, float, float]] = (0.0, (0.0, 0.0, 0.0)),
+    cell: CellConfig | None = None,
 ) -> ProgramChecker:
     """The engine's ``Push`` check: the interlock's static check (:func:`~rgse_daemon.safety.static.ensure_allowed`)
     against the live context — mode, safety inputs and axes from the snapshot, every point within
-    ``payload_lever_max_m`` of the flange for the speed bound. The DuT's mass is what is being measured, so the load
-    diagram check gets none (0 kg); the runtime monitor's speed watcher still applies."""
+    ``payload_lever_max_m`` of the flange for the speed bound, ``payload`` (mass kg, CoG in the flange frame m: what
+    the run mounts, :func:`~rgse_daemon.safety.static.mounted_payload` of the config) for the load diagram, and
+    ``cell`` (default: the default cell) for the workspace. The engine passes ``payload=`` to the returned check once
+    a plan declared what it mounted (``m.Mounted``: a calibration point's bodies)."""
     points = tuple(tuple(p) for p in cube_corners(payload_lever_max_m))
+    default_kg, default_cog = payload
 
-    def check(prog: m.Program, snap: Snapshot) -> None:
+    def check(prog: m.Program, snap: Snapshot,
+              payload: tuple[float, tuple[float, float, float]] | None = None) -> None:
+        """``payload``: the load a plan declared mounted (``m.Mounted``), instead of the configured one."""
+        mass_kg, cog = payload if payload is not None else (default_kg, default_cog)
         inp = inputs() if inputs is not None else None
         ctx = CheckContext(
             limits=limits,
@@ -95,8 +102,11 @@ def static_checker(
             area_cleared=bool(inp is not None and inp.valid and inp.area_cleared and inp.estop_ok),
             key_confirmed=bool(inp is not None and inp.valid and inp.aut_permitted),
             payload_points_flange_m=points,  # type: ignore[arg-type]
+            payload_mass_kg=mass_kg,
+            payload_cog_flange_m=cog,
             start_axes_deg=snap.axes_deg,
             require_watchdog=require_watchdog,
+            **({"cell": cell} if cell is not None else {}),
         )
         try:
             ensure_allowed(prog.src_text, prog.dat_text, ctx, file=f"{prog.name}.src")

@@ -19,11 +19,21 @@ Rules (``Violation.rule``):
                   ``EXTERNAL_AXIS``: a target with a non-zero E1..E6 (the cell has none; their motion is not verified).
 ``PAYLOAD``       payload mass ≤ ``limits.max_payload_kg``; ``A5_TORQUE``: static A5 torque of the payload along
                   every motion ≤ ``limits.max_a5_torque_nm`` (load diagram, paper Fig. 16).
+``WORKSPACE``     the flange, the wrist centre, the elbow or the DuT's box (``cell.payload_box_flange_m``) leaves
+                  the cell (``ctx.cell``: floor, walls) or enters a keep-out box anywhere on a PTP's joint path
+                  (sampled, with a margin for the path between samples: :meth:`_Checker.workspace_violation`); names
+                  the pose.
+``MOTION_TIME``   the upper bound of the program's motion time (or of a FOR's passes) is above ``limits.max_motion_s``
+                  (:meth:`_Checker.motion_time_s`); ``UNBOUNDED``: motions inside a loop whose passes cannot be
+                  counted (a LOOP without EXIT, a WHILE/REPEAT the check cannot follow), unless every pass waits for
+                  a host command (:meth:`~rgse_daemon.krl.abstract.AbstractInterpreter.paced_by_host`): then the bound
+                  applies per pass (docs/security.md).
 ``REL_AMPLITUDE`` a relative (brake-release) move of more than ``limits.brake_release_max_deg`` on any axis.
 ``WRITE``         a variable written that is neither the program's own nor on the allow-list; ``SYSVAR``: a system
                   variable other than $VEL_AXIS/$ACC_AXIS/$VEL.CP/$APO/$OV_PRO and the $TRACE members the daemon
                   writes (exactly those of the allow-list); ``OV_PRO``: $OV_PRO not a
-                  constant in 0..100; ``VELOCITY``: a motion setting that is not a constant in range.
+                  constant in 1..100 (0 stalls every motion);
+                  ``VELOCITY``: a motion setting that is not a constant in range.
 ``CALL``          a subprogram or function call the check cannot see into (only pure math built-ins are allowed).
 ``WATCHDOG``      the controller-side watchdog (:func:`watchdog_violations`): the only interrupt allowed is the
                   watchdog's (``INTERRUPT DECL 1 WHEN $TIMER_FLAG[16] OR $TIMER_STOP[16] DO R( )`` at the top level
@@ -34,7 +44,8 @@ Rules (``Violation.rule``):
 ``STATEMENT``     other INTERRUPT forms, TRIGGER, GOTO, SWITCH, LIN/LIN_REL (Cartesian path: unverifiable without IK),
                   approximate positioning, extra routines.
 ``LOOP``          a loop whose effect does not settle, a FOR whose body writes its counter or what its bounds read;
-                  ``COMPLEXITY``: too much to verify (statements, motion checks, time budget, expression depth).
+                  ``COMPLEXITY``: too much to verify (statements, motion checks, expression depth, a file above
+                  :data:`MAX_PROGRAM_BYTES`, the time budget, which counts from the first byte: reading too).
 ``UNSURE``        the controller's result is not documented (INT overflow, a REAL rounding tie, 32-bit and 64-bit
                   REAL evaluation disagree, an uninitialised field); ``RUNTIME``: the controller would stop with an
                   error (division by zero, a type mismatch); ``LINE_END``: a line end or character whose meaning on
@@ -47,12 +58,13 @@ Any doubt refuses: the check may be stricter than the robot needs, never looser.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from rgse_daemon.config import LimitsConfig
+from rgse_daemon.config import CellConfig, Config, LimitsConfig
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
 from rgse_daemon.kinematics import (
     D6_M,
@@ -60,6 +72,7 @@ from rgse_daemon.kinematics import (
     JOINT_LIMITS_DEG,
     MAX_AXIS_SPEED_DEG_S,
     gravity_torques_nm,
+    joint_frames,
     max_point_speed_mm_s,
 )
 from rgse_daemon.krl import ast as k
@@ -74,7 +87,7 @@ from rgse_daemon.krl.abstract import (
     written_names,
 )
 from rgse_daemon.krl.formatter import format_expr
-from rgse_daemon.krl.lexer import Tok, tokenize
+from rgse_daemon.krl.lexer import OutOfTime, Tok, tokenize
 from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.render import MIN_VEL_AXIS_PCT
 from rgse_daemon.krl.values import UNKNOWN, Value, describe, is_number
@@ -87,6 +100,15 @@ FORBIDDEN_KEYWORDS = frozenset({"TRIGGER", "GOTO", "SWITCH", "CONTINUE", "ANIN",
 MAX_MOTION_CHECKS = 20_000
 #: Sampling of the joint path for the static A5 torque (deg, sum over the axes between samples).
 TORQUE_STEP_DEG = 0.25
+#: Sampling of the joint path for the workspace rule (deg, sum over the axes between samples); the margin that
+#: covers the path between samples is computed from it (:meth:`_Checker.workspace_violation`).
+WORKSPACE_STEP_DEG = 0.5
+#: The smallest $OV_PRO a program may set (%): an INT, so the smallest above the renderer's 0.01 % axis speed floor
+#: (0 stalls every motion; 0.4 is stored as 0).
+MIN_OV_PRO_PCT = 1
+#: Largest .src or .dat text the check reads (characters, ISO-8859-1: bytes). The templates' largest rendering is
+#: a few kB; a bigger file is refused before it is read or parsed (a 7.8 MB program took 96 s and 1.2 GB).
+MAX_PROGRAM_BYTES = 256 * 1024
 
 
 @dataclass(frozen=True, order=True)
@@ -138,6 +160,8 @@ class CheckContext:
     #: The controller-side watchdog must be armed before the first motion (``WATCHDOG``; the daemon's push and
     #: ``rgse krl check`` set it from ``controller.watchdog_required``).
     require_watchdog: bool = False
+    #: The cell (floor, walls, keep-out boxes) the flange, wrist, elbow and payload must stay in.
+    cell: CellConfig = field(default_factory=CellConfig)
     #: Well below the 60 s the daemon's push waits for the check (procedures/engine.py): the check always ends first.
     time_budget_s: float = 20.0
 
@@ -150,14 +174,21 @@ class CheckContext:
 class _Checker(AbstractInterpreter):
     """The T1 rules, applied at each motion and write the abstract interpreter finds."""
 
-    def __init__(self, ctx: CheckContext) -> None:
+    def __init__(self, ctx: CheckContext, deadline: float | None = None) -> None:
         super().__init__(time_budget_s=ctx.time_budget_s)
+        if deadline is not None:
+            self.deadline = deadline  # the budget counts from the check's first byte (check_program)
         self.ctx = ctx
         self.limits = ctx.limits
         self.found: dict[tuple[str, int, int], Violation] = {}
         self.motion_checks = 0
         self._speed_cache: dict[tuple[Pose, Pose, tuple[float, ...]], float] = {}
         self._torque_cache: dict[tuple[Pose, Pose], float] = {}
+        self._workspace_cache: dict[tuple[Pose, Pose], str | None] = {}
+        b = ctx.cell.payload_box_flange_m
+        corners = [(x, y, z) for x in (b.min_m[0], b.max_m[0]) for y in (b.min_m[1], b.max_m[1])
+                   for z in (b.min_m[2], b.max_m[2])]
+        self.box_points = np.array([(0.0, 0.0, 0.0), *corners, ctx.payload_cog_flange_m], dtype=float)
         self.points = [tuple(map(float, p)) for p in ctx.payload_points_flange_m]
         self.points.append(tuple(map(float, ctx.payload_cog_flange_m)))
 
@@ -193,8 +224,8 @@ class _Checker(AbstractInterpreter):
                 vel = list(st.vel_axis_pct)
                 for i in range(6) if idx is UNKNOWN else (idx - 1,):  # type: ignore[operator]
                     vel[i] = 100.0 if idx is UNKNOWN else float(value)  # type: ignore[arg-type]
-                return replace(st, vel_axis_pct=tuple(vel))
-            return st
+                st = replace(st, vel_axis_pct=tuple(vel))
+            return _set_slowest(st, name, idx, value)
         if name == "$VEL":
             if not (isinstance(target, k.Member) and isinstance(target.base, k.Name) and target.member == "CP"):
                 self.report("SYSVAR", pos, "only $VEL.CP of $VEL may be written")
@@ -205,10 +236,13 @@ class _Checker(AbstractInterpreter):
             if not isinstance(target, k.Name):
                 self.report("SYSVAR", pos, "$OV_PRO is a scalar")
                 return replace(st, override_pct=100.0)
-            if not (is_number(value) and 0 <= value <= 100):  # type: ignore[operator]
-                self.report("OV_PRO", pos, f"$OV_PRO must be a constant in 0..100 %, not {_show(value)}")
-                return replace(st, override_pct=100.0)
-            return replace(st, override_pct=max(st.override_pct, float(value)))  # type: ignore[arg-type]
+            if not (is_number(value) and MIN_OV_PRO_PCT <= value <= 100):  # type: ignore[operator]
+                # (an INT: 0.4 is stored as 0, and 0 stalls every motion, as $VEL_AXIS below its floor would)
+                self.report("OV_PRO", pos, f"$OV_PRO must be a constant in {MIN_OV_PRO_PCT}..100 %, not {_show(value)}"
+                            " (below the smallest speed a motion is allowed: it would stall)")
+                return replace(st, override_pct=100.0, override_min_pct=float(MIN_OV_PRO_PCT))
+            return replace(st, override_pct=max(st.override_pct, float(value)),  # type: ignore[arg-type]
+                           override_min_pct=float(value))  # type: ignore[arg-type]
         if name == "$APO" and isinstance(target, k.Name | k.Member):
             return st  # approximation is refused at the motions that would use it
         written = _written_text(target)
@@ -278,6 +312,7 @@ class _Checker(AbstractInterpreter):
             raise TooComplex(f"more than {MAX_MOTION_CHECKS} motion checks", pos)
         if start != target:
             self.check_speed(start, target, st, pos)
+        self.check_workspace(start, target, pos)
         # The load diagram applies to holding a pose as much as to moving: a motion to where the robot already is
         # still has to be within it (found by the property test: PTP {A1 0} with 611 kg at 0.5 m from the flange).
         torque = self._torque_cache.get((start, target))
@@ -333,6 +368,153 @@ class _Checker(AbstractInterpreter):
         step_rad = math.radians(l1_deg / (n - 1))
         return worst + 2.0 * self.ctx.payload_mass_kg * G_PAPER_M_S2 * lever_m * step_rad
 
+    # --- bounded motion ----------------------------------------------------------------------------------------------
+    def motion_time_s(self, start: Pose, target: Pose, st: State) -> float:
+        """Upper bound of a PTP's time: per axis the time of a trapezoid at the *smallest* speed and acceleration
+        any path can have set (``$VEL_AXIS``/``$ACC_AXIS`` not set by the program: their floor, 0.01 %), at the
+        program's own override (100 % unless it sets a lower $OV_PRO; the operator lowering it on the smartPAD holds
+        the motion, enabling switch in hand); the synchronised PTP ends with its slowest axis. Accelerations: full
+        speed within ``limits.axis_ramp_max_s`` at 100 % (KUKA publishes none; the override scales time, so the
+        acceleration goes with its square)."""
+        ov = max(st.override_min_pct, float(MIN_OV_PRO_PCT)) / 100.0
+        floor = float(np.float32(MIN_VEL_AXIS_PCT))
+        worst = 0.0
+        for i, (q0, q1) in enumerate(zip(start, target, strict=True)):
+            d = abs(q1 - q0)
+            if d == 0.0:
+                continue
+            v = MAX_AXIS_SPEED_DEG_S[i] * max(st.vel_axis_min_pct[i], floor) / 100.0 * ov
+            a = MAX_AXIS_SPEED_DEG_S[i] / self.limits.axis_ramp_max_s * max(st.acc_axis_min_pct[i], floor) / 100.0
+            a *= ov * ov
+            worst = max(worst, d / v + v / a if d >= v * v / a else 2.0 * math.sqrt(d / a))
+        return worst
+
+    def host_written(self, name: str) -> bool:
+        return self.ctx.link_writable(name)
+
+    def loop_motion_s(self, stmt: k.Stmt, per_pass_s: float, passes: int | None, paced: bool, exits: bool) -> float:
+        if per_pass_s <= 0.0:
+            return 0.0
+        if passes is not None:
+            total = per_pass_s * passes
+            if not total <= self.limits.max_motion_s:
+                self.report("MOTION_TIME", stmt.pos,
+                            f"{passes} passes of up to {per_pass_s:.3g} s of motion each: up to {total:.3g} s, above "
+                            f"limits.max_motion_s = {self.limits.max_motion_s:g} s")
+            return total
+        if paced and exits:
+            return per_pass_s  # one pass per host command: bounded per command (docs/security.md)
+        why = ("a LOOP without a reachable EXIT" if isinstance(stmt, k.Loop) and not exits
+               else "a loop whose number of passes cannot be proven")
+        self.report("UNBOUNDED", stmt.pos,
+                    f"motions inside {why} (and not paced by a host command each pass): its motion time has no bound")
+        return per_pass_s
+
+    # --- workspace ---------------------------------------------------------------------------------------------------
+    def check_workspace(self, start: Pose, target: Pose, pos: k.Pos) -> None:
+        key = (start, target)
+        if key not in self._workspace_cache:
+            self._workspace_cache[key] = self.workspace_violation(start, target)
+        problem = self._workspace_cache[key]
+        if problem is not None:
+            self.report("WORKSPACE", pos, problem)
+
+    def workspace_violation(self, start: Pose, target: Pose) -> str | None:
+        """The first place on the joint path ``start`` → ``target`` where the payload box (DuT and fixture,
+        ``cell.payload_box_flange_m``), the flange, the wrist centre or the elbow leaves the cell or enters a keep-out
+        box; None: none. The cell's walls and floor are half-spaces, so the box's corners decide; a keep-out box is
+        tested against the rotated payload box exactly (separating axes).
+
+        Sampling argument: between two samples the joints turn by at most ``step`` (rad, L1), so any point moves by
+        at most ``step·r`` with r its largest distance from an axis, and from the nearer sample by half that. r grows
+        along the step by at most 2·step·r: every test is made with ``margin = step/2·r_max·(1 + 2·step)`` to spare,
+        r_max the largest distance of a tested point from an axis origin over the samples (≥ its distance from the
+        axis line)."""
+        q0, q1 = np.array(start), np.array(target)
+        l1 = float(np.abs(q1 - q0).sum())
+        n = max(1, int(np.ceil(l1 / WORKSPACE_STEP_DEG))) + 1
+        cell = self.ctx.cell
+        lo = np.array(cell.walls.min_m, dtype=float)
+        lo[2] = max(lo[2], cell.floor_z_m)
+        hi = np.array(cell.walls.max_m, dtype=float)
+        step = math.radians(l1 / (n - 1)) if n > 1 else 0.0
+        box = cell.payload_box_flange_m
+        b_centre = (np.array(box.min_m) + np.array(box.max_m)) / 2.0
+        b_half = (np.array(box.max_m) - np.array(box.min_m)) / 2.0
+        corners = self.box_points[1:9]
+        samples = []
+        r_max = 0.0
+        for s in np.linspace(0.0, 1.0, n):
+            q = q0 + s * (q1 - q0)
+            frames = joint_frames(q)
+            origins = frames[:, :3, 3]  # frame i's origin lies on axis Ai (kinematics.joint_frames)
+            rot, o6 = frames[5, :3, :3], frames[5, :3, 3]
+            pts = np.vstack([corners @ rot.T + o6, o6, frames[4, :3, 3], frames[2, :3, 3]])
+            r_max = max(r_max, float(np.linalg.norm(pts[:, None, :] - origins[None, :, :], axis=2).max()))
+            samples.append((q, rot, pts))
+        margin = step / 2.0 * r_max * (1.0 + 2.0 * step)
+        names = ["the payload box"] * 8 + ["the flange", "the wrist centre", "the elbow"]
+        for q, rot, pts in samples:
+            where = "A1..A6 = (" + ", ".join(f"{v:.1f}" for v in q) + ") deg"
+            spare = f"margin {margin * 1000:.0f} mm between path samples"
+            for what, p in zip(names, pts, strict=True):
+                if p[2] - margin < lo[2]:
+                    floor = "floor" if lo[2] == cell.floor_z_m else "cell"
+                    return (f"{what} reaches z = {p[2] * 1000:.0f} mm at {where}, at or below the {floor} at "
+                            f"z = {lo[2] * 1000:.0f} mm (cell.floor_z_m; {spare})")
+                out = [f"{'xyz'[i]} = {v * 1000:.0f} mm" for i, v in enumerate(p)
+                       if v - margin < lo[i] or v + margin > hi[i]]
+                if out:
+                    return f"{what} leaves the cell at ({', '.join(out)}) at {where} (cell.walls; {spare})"
+            for j, kb in enumerate(cell.keep_out):
+                k_lo, k_hi = np.array(kb.min_m) - margin, np.array(kb.max_m) + margin
+                hit = next((what for what, p in zip(names[8:], pts[8:], strict=True)
+                            if np.all(p > k_lo) and np.all(p < k_hi)), None)
+                box_lo, box_hi = pts[:8].min(axis=0), pts[:8].max(axis=0)  # apart: the box is too (cheap first)
+                if (hit is None and np.all(box_hi > k_lo) and np.all(box_lo < k_hi)
+                        and _box_hits_box(pts[8] + rot @ b_centre, rot, b_half, k_lo, k_hi)):
+                    hit = "the payload box"
+                if hit is not None:
+                    return (f"{hit} enters keep-out box {j + 1} ({_mm(kb.min_m)} .. {_mm(kb.max_m)} mm) at {where} "
+                            f"(cell.keep_out; {spare})")
+        return None
+
+
+def _box_hits_box(centre: np.ndarray, rot: np.ndarray, half: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> bool:
+    """Whether a box (``centre``, axes the columns of ``rot``, half sizes ``half``) and an axis-aligned box ``lo`` ..
+    ``hi`` overlap (separating axis theorem: they are apart iff some face normal or edge cross product separates)."""
+    a_centre, a_half = (lo + hi) / 2.0, (hi - lo) / 2.0
+    d = centre - a_centre
+    axes = np.vstack([np.eye(3), rot.T, np.cross(np.eye(3)[:, None, :], rot.T[None, :, :]).reshape(9, 3)])
+    for axis in axes:
+        norm = float(np.linalg.norm(axis))
+        if norm < 1e-9:
+            continue
+        u = axis / norm
+        r_box = float(np.sum(half * np.abs(rot.T @ u)))
+        r_aabb = float(np.sum(a_half * np.abs(u)))
+        if abs(float(d @ u)) > r_box + r_aabb:
+            return False
+    return True
+
+
+def _set_slowest(st: State, name: str, idx: Value, value: Value) -> State:
+    """The smallest $VEL_AXIS/$ACC_AXIS any path can have set, after writing ``value`` (% or UNKNOWN) to axis
+    ``idx`` (UNKNOWN: any axis; a refused value counts as the floor, 0)."""
+    pct = float(value) if is_number(value) else 0.0  # type: ignore[arg-type]
+    attr = "vel_axis_min_pct" if name == "$VEL_AXIS" else "acc_axis_min_pct"
+    values = list(getattr(st, attr))
+    for i in range(6):
+        if idx is UNKNOWN:
+            values[i] = min(values[i], pct)
+        elif i == idx - 1:  # type: ignore[operator]
+            values[i] = pct
+    return replace(st, **{attr: tuple(values)})
+
+
+def _mm(p: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{v * 1000:.0f}" for v in p) + ")"
+
 
 def _written_text(target: k.Expr) -> str | None:
     """A written system variable as the allow-list names it: ``$TRACE.MODE``, ``$TRACE.NAME[]`` (None: indexed)."""
@@ -356,6 +538,36 @@ def _pcts(values: Sequence[float]) -> str:
     return "/".join(f"{v:g}" for v in values)
 
 
+# --- the payload ------------------------------------------------------------------------------------------------------
+#: Margin below the A5 torque limit for the CoG of a DuT whose CoG is not configured.
+A5_TORQUE_MARGIN = 0.9
+
+
+def mounted_payload(cfg: Config, dut_mass_kg: float | None = None,
+                    dut_cog_flange_m: Sequence[float] | None = None) -> tuple[float, tuple[float, float, float]]:
+    """Mass (kg) and CoG (flange frame, m) of what a run mounts, for the load diagram: the fixture
+    (``measurement.fixture_mass_kg`` at ``properties.fixture.cog_flange_m``, the flange if not set) plus the DuT
+    (``dut_mass_kg``/``dut_cog_flange_m`` if given, else ``cell.dut_mass_kg``/``cell.dut_cog_flange_m``).
+
+    What is not configured is the worst credible: the DuT's mass the heaviest the limits allow with the fixture; its
+    CoG (the whole payload's) on the flange axis as far out as the A5 torque limit allows that mass with 10 % margin in
+    the measurement pose. A configured DuT heavier or farther out than that is what the load diagram check refuses."""
+    fixture_kg = cfg.measurement.fixture_mass_kg
+    fixture_cog = np.array(cfg.properties.fixture.cog_flange_m or (0.0, 0.0, 0.0), dtype=float)
+    dut_kg = dut_mass_kg if dut_mass_kg is not None else cfg.cell.dut_mass_kg
+    if dut_kg is None:
+        dut_kg = max(0.0, cfg.limits.max_payload_kg - fixture_kg)
+    total = fixture_kg + dut_kg
+    if total <= 0.0:
+        return 0.0, (0.0, 0.0, 0.0)
+    cog = dut_cog_flange_m if dut_cog_flange_m is not None else cfg.cell.dut_cog_flange_m
+    if cog is None:
+        lever_m = A5_TORQUE_MARGIN * cfg.limits.max_a5_torque_nm / (total * G_PAPER_M_S2)
+        return total, (0.0, 0.0, max(0.0, lever_m - D6_M))
+    both = (fixture_kg * fixture_cog + dut_kg * np.array(cog, dtype=float)) / total
+    return total, (float(both[0]), float(both[1]), float(both[2]))
+
+
 # --- entry points -----------------------------------------------------------------------------------------------------
 def _mode_violation(ctx: CheckContext) -> Violation | None:
     mode = ctx.mode.strip().upper().lstrip("#")
@@ -376,9 +588,9 @@ def _mode_violation(ctx: CheckContext) -> Violation | None:
     return Violation(0, 0, "MODE", f"mode {ctx.mode!r} refused: only T1 (or AUT with cleared area and key switch)")
 
 
-def _forbidden_tokens(text: str, file: str) -> list[Violation]:
+def _forbidden_tokens(text: str, file: str, deadline: float | None = None) -> list[Violation]:
     found = []
-    for tok in tokenize(text, file):
+    for tok in tokenize(text, file, deadline):
         if tok.kind is Tok.NAME and tok.text in FORBIDDEN_KEYWORDS:
             found.append(Violation(tok.line, tok.column, "STATEMENT", f"{tok.text} is not allowed in RGSE programs"))
     return found
@@ -388,6 +600,16 @@ def _forbidden_tokens(text: str, file: str) -> list[Violation]:
 #: reads a line beyond its editor's length (cut, wrapped, refused) is not documented, and a cut line can change
 #: meaning (``$VEL_AXIS[1] = 100.0 <spaces> - 99.0``).
 MAX_LINE_CHARS = 250
+
+
+def _size_violations(src_text: str, dat_text: str | None) -> list[Violation]:
+    """A .src or .dat text above :data:`MAX_PROGRAM_BYTES`: refused before it is parsed."""
+    found = []
+    for what, text in (("program", src_text), ("data list", dat_text)):
+        if text is not None and len(text) > MAX_PROGRAM_BYTES:
+            found.append(Violation(0, 0, "COMPLEXITY", f"{what} of {len(text)} characters, above the "
+                                                       f"{MAX_PROGRAM_BYTES} the check reads: too big to verify"))
+    return found
 
 
 def _line_end_violations(text: str) -> list[Violation]:
@@ -420,23 +642,31 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
     KrlSyntaxError
         The program (or data list) does not parse (and holds none of the refused keywords).
     """
+    deadline = time.monotonic() + ctx.time_budget_s  # the budget counts from the first byte: parsing too
     violations: list[Violation] = []
     mode = _mode_violation(ctx)
     if mode is not None:
         violations.append(mode)
+    too_big = _size_violations(src_text, dat_text)
+    if too_big:
+        return sorted(violations + too_big)
     line_ends = _line_end_violations(src_text) + (_line_end_violations(dat_text) if dat_text is not None else [])
     if line_ends:
         return sorted(violations + line_ends)
-    forbidden = _forbidden_tokens(src_text, file)
-    if dat_text is not None:
-        forbidden += _forbidden_tokens(dat_text, file)
     try:
-        module = parse_src(src_text, file)
-        data = parse_dat(dat_text, _dat_name(file)) if dat_text is not None else None
-    except KrlSyntaxError:
-        if forbidden:
-            return sorted(violations + forbidden)
-        raise
+        forbidden = _forbidden_tokens(src_text, file, deadline)
+        if dat_text is not None:
+            forbidden += _forbidden_tokens(dat_text, file, deadline)
+        try:
+            module = parse_src(src_text, file, deadline)
+            data = parse_dat(dat_text, _dat_name(file), deadline) if dat_text is not None else None
+        except KrlSyntaxError:
+            if forbidden:
+                return sorted(violations + forbidden)
+            raise
+    except OutOfTime as exc:
+        return sorted([*violations, Violation(exc.line, 0, "COMPLEXITY",
+                                              f"not read within {ctx.time_budget_s:g} s: too complex to verify")])
     violations += forbidden
     main = module.main
     if not 0.0 <= ctx.payload_mass_kg <= ctx.limits.max_payload_kg:
@@ -462,8 +692,9 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
                 f"routine {extra.name}: only a module's main routine is verified",
             )
         )
-    checker = _Checker(ctx)
+    checker = _Checker(ctx, deadline)
     try:
+        checker.check_time(main.pos)
         checker.found.update(_start_pose(checker, ctx, violations))
         state = State(None, (100.0,) * 6, 0.0, ())
         if data is not None:
@@ -482,7 +713,12 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
         checker.params = {p.name for p in main.params}
         checker.own.update(checker.params)
         state = replace(state, poses=checker.start_poses)
-        checker.block(main.body, state)
+        end = checker.block(main.body, state)
+        total_s = max((s.motion_s for s in (end.normal, *end.returns) if s is not None), default=0.0)
+        if not total_s <= ctx.limits.max_motion_s:
+            violations.append(Violation(main.pos.line, main.pos.column, "MOTION_TIME",
+                                        f"the program's motion takes up to {total_s:.4g} s, above "
+                                        f"limits.max_motion_s = {ctx.limits.max_motion_s:g} s"))
     except TooComplex as exc:
         where = exc.pos if exc.pos.line else main.pos
         violations.append(Violation(where.line, where.column, "COMPLEXITY", f"{exc}: too complex to verify"))

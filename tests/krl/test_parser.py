@@ -213,3 +213,23 @@ def test_parse_dispatches_on_first_keyword_and_dat_rejects_trailing_text() -> No
     assert isinstance(parse("&ACCESS RV\nDEFDAT x\nENDDAT\n"), DataList)
     with pytest.raises(KrlSyntaxError, match="after ENDDAT"):
         parse_dat("DEFDAT x\nENDDAT\nDEF a()\nEND\n")
+
+
+def test_reading_stops_at_a_deadline_that_has_passed() -> None:
+    """The interlock's budget counts from the first byte: the lexer and the parser look at the caller's deadline
+    (issue #31: a 7.8 MB program took 96 s to read before the check's budget even started)."""
+    import time
+
+    from rgse_daemon.krl.lexer import OutOfTime, tokenize
+    from rgse_daemon.krl.parser import parse_dat, parse_src
+
+    src = "DEF big( )\n" + "  X = 1\n" * 5000 + "END\n"
+    past = time.monotonic() - 1.0
+    with pytest.raises(OutOfTime) as exc:
+        tokenize(src, "big.src", past)
+    assert 0 < exc.value.line <= 5002
+    with pytest.raises(OutOfTime):
+        parse_src(src, "big.src", past)
+    with pytest.raises(OutOfTime):
+        parse_dat("DEFDAT big\n" + "  DECL INT X = 1\n" * 5000 + "ENDDAT\n", "big.dat", past)
+    assert len(parse_src(src, "big.src", time.monotonic() + 600.0).main.body) == 5000  # a deadline ahead: read

@@ -50,6 +50,9 @@ def make_config(sim: SimulatedKrc4, data_dir: Path, **measurement: object) -> Co
                        "request_timeout_s": 2.0, "watchdog_bound_s": 1.0},  # a loaded machine: as the monitor
         "paths": {"data_dir": str(data_dir)},
         "measurement": ms,
+        # support.plans.long_motion runs 60 warm-up cycles (up to 3186 s of motion by the check's bound): the tests
+        # that interrupt it need a program that long to be allowed
+        "limits": {"max_motion_s": 3600.0},
     })
 
 

@@ -205,3 +205,40 @@ async def test_abort_during_the_finaliser_still_aborts_the_run(sim, engine: RunE
     with pytest.raises(PlanAborted, match="as the plan ended"):
         await asyncio.wait_for(engine.run(plan()), 30)
     assert engine.state == "aborted"
+
+
+def _mounts_then_pushes(s: RunSettings, mass_kg: float) -> m.Plan:
+    """A calibration point's shape: the operator mounted a load (declared), then the move to the measurement pose."""
+    snap = yield m.ReadState()
+    yield m.Mounted(mass_kg, (0.0, 0.0, 0.6))
+    yield m.Push(program("rgse_meas_pose", s, axes_of(snap, s.meas_pose_deg)))
+
+
+@pytest.mark.parametrize("dry_run", [False, True])
+async def test_a_push_after_mounted_checks_the_load_diagram_with_that_load(sim, krc, cfg, settings, dry_run):
+    """Issue #31: the push check uses the load the plan mounted. 450 kg at 0.6 m out is 3929 Nm at A5 in the
+    measurement pose (above 3330 Nm): refused before a byte is sent; 100 kg at the same place is allowed."""
+    engine = make_engine(krc, cfg, dry_run=dry_run)
+    with pytest.raises(InterlockError, match="A5_TORQUE"):
+        await engine.run(_mounts_then_pushes(settings, 450.0))
+    programs = sim.share_dir / "R1" / "PROGRAM"
+    assert not programs.exists() or not any(programs.iterdir())
+    # the next plan starts without the last plan's load: the checker's configured payload (0 kg here) again
+    await engine.run(_pushes(settings))
+    await engine.run(_mounts_then_pushes(settings, 100.0))
+
+
+def _pushes(s: RunSettings) -> m.Plan:
+    snap = yield m.ReadState()
+    yield m.Push(program("rgse_meas_pose", s, axes_of(snap, s.meas_pose_deg)))
+
+
+def test_a_calibration_point_declares_its_load() -> None:
+    from rgse_daemon.kinematics import D6_M
+    from rgse_daemon.procedures.calibration import mass_point, torque_point, torsional_point
+
+    kg, cog = mass_point(10).payload()
+    assert kg == pytest.approx(209.3) and cog[:2] == (0.0, 0.0) and cog[2] == pytest.approx(0.35 - D6_M)
+    kg, cog = torque_point(0.8).payload()
+    assert kg > 200.0 and cog[2] > 0.4
+    assert torsional_point(4, (0.1, 0.0, 0.4)).payload() == (pytest.approx(83.72), (0.1, 0.0, 0.4))

@@ -132,11 +132,15 @@ def test_worst_case_over_branches_and_loops() -> None:
     resident = program(
         "  LOOP\n    WAIT FOR RGSE_CMD <> 0\n    IF RGSE_CMD == 1 THEN\n      PTP {A3 100}\n    ELSE\n"
         "      PTP {A3 80, A5 0}\n      PTP_REL {A5 5}\n    ENDIF\n    IF RGSE_CMD == 99 THEN\n      EXIT\n    ENDIF\n"
-        "  ENDLOOP\n  PTP {A3 90, A5 0}"
+        "    RGSE_CMD = 0\n  ENDLOOP\n  PTP {A3 90, A5 0}"
     )
     assert rules(resident) == set()  # absolute targets in every branch: the set of poses settles
     drifting = resident.replace("PTP {A3 80, A5 0}", "PTP {A3 80}")
     assert rules(drifting) == {"LOOP"}  # A5 creeps by 5 deg per pass: unbounded
+    # without the reset at the end of each pass, WAIT FOR RGSE_CMD <> 0 passes at once the next time: the loop is
+    # not paced by the host and moves without end
+    unpaced = resident.replace("    RGSE_CMD = 0\n", "")
+    assert unpaced != resident and rules(unpaced) == {"UNBOUNDED"}
 
 
 def test_constant_targets_from_the_data_list_and_locals() -> None:
@@ -235,4 +239,6 @@ def test_cli_render_writes_checked_programs(tmp_path: Path, capsys: pytest.Captu
 
 def test_the_smallest_axis_speed_the_renderer_uses_is_allowed() -> None:
     """The floor of $VEL_AXIS / $ACC_AXIS is the renderer's own smallest speed: what it renders, the check passes."""
-    assert rules(program("  $VEL_AXIS[3] = 0.01\n  $ACC_AXIS[3] = 0.01\n  PTP {A3 85}")) == set()
+    assert rules(program("  $VEL_AXIS[3] = 0.01\n  $ACC_AXIS[3] = 0.01\n  PTP {A3 89}")) == set()
+    # (5 deg at 0.01 % of A3's 70 deg/s take 714 s: above limits.max_motion_s, refused for its time)
+    assert rules(program("  $VEL_AXIS[3] = 0.01\n  $ACC_AXIS[3] = 0.01\n  PTP {A3 85}")) == {"MOTION_TIME"}
