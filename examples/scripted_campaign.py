@@ -101,7 +101,7 @@ async def ask_on_terminal(prompt: Prompt) -> str | None:
     """The person at the robot: mount the load, press Enter (a typed line becomes the recorded note). End of input
     means nobody is there to confirm: the run is aborted, not left waiting."""
     try:
-        line = await asyncio.to_thread(input, f"point {prompt.point_index}: {prompt.message}\n"
+        line = await asyncio.to_thread(input, f"{prompt.message}\n"
                                               "mounted? note (Enter): ")
     except EOFError:
         raise RunFailed(prompt.run_id, "aborted", "end of input on stdin: nobody to confirm the prompt") from None

@@ -408,8 +408,8 @@ class Daemon:
                                     self.engine is not None, link_error=self.link_error)
 
     async def start_measurement(self, *, loops: int | None = None, fixture_mass_kg: float | None = None,
-                                dry_run: bool = False) -> asyncio.Task[Any]:
-        overrides: dict[str, Any] = {}
+                                dry_run: bool = False, identity: dict[str, str] | None = None) -> asyncio.Task[Any]:
+        overrides: dict[str, Any] = {"identity": identity} if identity else {}
         if loops is not None:
             overrides["loops"] = loops
         if fixture_mass_kg is not None:
@@ -467,12 +467,15 @@ class Daemon:
     # --- CommandHandler (MQTT cmd/<verb>) ---------------------------------------------------------------------------
     async def measure(self, cmd: MeasureCommand) -> dict[str, Any]:
         task = await self.start_measurement(loops=cmd.loops, fixture_mass_kg=cmd.fixture_mass_kg,
-                                            dry_run=cmd.dry_run)
+                                            dry_run=cmd.dry_run,
+                                            identity=cmd.identity.as_json() if cmd.identity else None)
         kind = self.admission.kind or "measurement"  # "properties" when every measurement is one
         return {"accepted": kind, "run_id": await self.admission.started(task), "dry_run": cmd.dry_run}
 
     async def properties(self, cmd: PropertiesCommand) -> dict[str, Any]:
         overrides: dict[str, Any] = {}
+        if cmd.identity is not None and cmd.identity.as_json():
+            overrides["identity"] = cmd.identity.as_json()
         if cmd.loops is not None:
             overrides["loops"] = cmd.loops
         if cmd.fixture_mass_kg is not None:

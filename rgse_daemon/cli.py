@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import json
 import logging
 import math
 import os
@@ -23,6 +24,7 @@ from rgse_daemon.errors import (
     EXIT_FAILED,
     EXIT_OK,
     EXIT_REFUSED,
+    EXIT_WARNINGS,
     ConfigError,
     DataError,
     KrlSyntaxError,
@@ -31,8 +33,13 @@ from rgse_daemon.errors import (
 from rgse_daemon.logs import ENV_VAR as LOG_FORMAT_ENV
 from rgse_daemon.logs import FORMATS as LOG_FORMATS
 from rgse_daemon.logs import choose_format, setup_logging
+from rgse_daemon.verdict import refusal
 
-__all__ = ["EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_OK", "EXIT_REFUSED", "build_parser", "main"]
+__all__ = ["EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_OK", "EXIT_REFUSED", "EXIT_WARNINGS", "build_parser", "main"]
+
+#: Offline computations whose ``--json`` prints a refusal as one JSON object on stdout (interfaces §1.3), so that a
+#: script reading stdout always gets an object with a ``status``, a refusal's ``reason`` among it.
+JSON_REFUSALS = frozenset({"mass", "cog", "inertia"})
 
 
 class _Parser(argparse.ArgumentParser):
@@ -151,6 +158,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its robot and store)")
     p.add_argument("--note", metavar="TEXT", help="why, recorded with the activation")
     _add_json(p)
+
+    p = sub.add_parser("certificate", help="the one-page PDF measurement certificate of a run's result")
+    p.add_argument("run_id", metavar="RUN_ID")
+    p.add_argument("--out", type=Path, metavar="FILE.pdf",
+                   help="where to write it (default <data_dir>/reports/certificate-RUN_ID.pdf)")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its store)")
 
     p = sub.add_parser("runs", help="the history of runs and results from the store: filter, table, CSV, JSON")
     p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its store)")
@@ -277,6 +290,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also the inertia tensor: DuT and tare excitation, a prompt to take the DuT off "
                         "(default: properties.inertia)")
     r.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
+    for q in (m, r):  # the DuT's identity: stored with the run, shown in its report, published with its result
+        q.add_argument("--dut-name", metavar="NAME", help="the DuT's name (e.g. the spacecraft's)")
+        q.add_argument("--serial-number", metavar="SN", help="the DuT's serial number")
+        q.add_argument("--part-number", metavar="PN", help="the DuT's part number")
+        q.add_argument("--project", metavar="NAME", help="the project the measurement is for")
+        q.add_argument("--operator", metavar="NAME", help="who runs the measurement")
+        q.add_argument("--note", metavar="TEXT", help="a free note, kept with the run")
     for q in (m, c, r):
         q.add_argument("--config", type=Path, required=True, metavar="FILE")
         q.add_argument("--on-prompt", choices=("stdin", "wait"), default="stdin",
@@ -300,11 +320,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(module.run(args))
     except (ConfigError, DataError, KrlSyntaxError) as exc:
+        _json_refusal(args, exc)
         if args.debug:
             raise
         print(f"rgse {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except RgseError as exc:
+        _json_refusal(args, exc)
         if args.debug:
             raise
         print(f"rgse {args.command}: failed: {type(exc).__name__}: {exc}", file=sys.stderr)
@@ -317,6 +339,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return EXIT_OK
+
+
+def _json_refusal(args: argparse.Namespace, exc: RgseError) -> None:
+    """With ``--json``, an offline computation's refusal is its one JSON object on stdout (the line on stderr stays)."""
+    if getattr(args, "json", False) and args.command in JSON_REFUSALS:
+        print(json.dumps(refusal(str(exc), error=type(exc).__name__)), flush=True)
 
 
 if __name__ == "__main__":

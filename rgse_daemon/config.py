@@ -256,7 +256,16 @@ class MeasurementConfig(_Section):
     """The in-line measurement run (paper Fig. 24) and its trace recording."""
 
     loops: int = Field(10, ge=1, le=100)
-    """Measurement loops, each: brake-release move → settle → trace (paper: 10)."""
+    """The most measurement loops, each: brake-release move → settle → trace (paper: 10). A run stops earlier when
+    more loops no longer change U (``stop_loop_share``, ``stop_target_U_kg``; rgse_daemon/pipeline/stopping.py)."""
+    min_loops: int = Field(3, ge=3, le=100)
+    """The fewest loops the stop rule stops at (>= 3: the loop-to-loop consistency check needs three;
+    ``pipeline.stopping.MIN_LOOPS``). A ``loops`` below it is the run's count."""
+    stop_loop_share: float = Field(0.2, ge=0.0, lt=1.0)
+    """Stop once the loop term of U is at most this share of u: more loops could then shrink U by at most
+    1 - sqrt(1 - share²) (2 % at 0.2). 0 switches the test off."""
+    stop_target_U_kg: float | None = Field(None, gt=0.0)
+    """Stop once U (k = 2) predicted for the loops measured is at most this (kg); None: no target."""
     settle_s: float = Field(4.0, ge=0.0, le=120.0)
     """Waiting time after the brake-release move before recording (paper: 2 × 2 s)."""
     trace_period_s: Literal[0.001, 0.004, 0.012] = 0.012

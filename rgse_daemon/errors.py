@@ -11,6 +11,9 @@ EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
 EXIT_REFUSED = 3
+#: A result was computed and carries warnings (status ``warning``, rgse_daemon.verdict): ``rgse mass``, ``rgse cog``,
+#: ``rgse run``. Its figure is printed; a script that files it must read the warnings.
+EXIT_WARNINGS = 4
 
 
 class RgseError(Exception):

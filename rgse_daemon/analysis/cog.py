@@ -38,6 +38,7 @@ from rgse_daemon.pipeline.cog import CogPose, cog_poses
 from rgse_daemon.pipeline.uncertainty import COVERAGE_K
 from rgse_daemon.trace.diadem import read_trace_set
 from rgse_daemon.trace.names import plain_name
+from rgse_daemon.verdict import status_of
 
 #: Largest difference (deg) between a reading's pose and the calibration's pose of the same name.
 POSE_TOLERANCE_DEG = 0.5
@@ -115,7 +116,8 @@ class CogResult:
         return {"cog_flange_m": list(self.cog_flange_m), "U_cog_flange_m": list(self.U_cog_flange_m),
                 "cog_dut_m": list(self.cog_dut_m), "U_cog_dut_m": list(self.U_cog_dut_m), "k": int(COVERAGE_K),
                 "mass_kg": self.mass_kg, "U_mass_kg": self.U_mass_kg, "scheme": self.scheme,
-                "n_poses": self.n_poses, "warnings": list(self.warnings), "budget": self.budget}
+                "n_poses": self.n_poses, "warnings": list(self.warnings), "budget": self.budget,
+                "status": status_of({"warnings": self.warnings})}
 
 
 def _three(v: np.ndarray) -> tuple[float, float, float]:
@@ -412,12 +414,14 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
     doc, _cal, pre = calfile.read(calibration_path)
     run = read_properties_dir(directory, pre or pp.PAPER)
     calfile.check_robot(calibration_path, doc, run.robot)
+    mass_warnings: list[str] = []
     if mass_kg is None:
         if run.mass_kg is not None:
             mass_kg, u_mass_kg = run.mass_kg, run.u_mass_kg
         else:
             mass = mass_analysis.compute(Path(directory), Path(calibration_path))
             mass_kg, u_mass_kg = mass.mass_kg, mass.u_kg
+            mass_warnings = [f"mass: {w}" for w in mass.warnings]  # the mass the CoG rests on: its warnings hold
     try:
         result = compute_cog(run.readings, doc, mass_kg=mass_kg, u_mass_kg=u_mass_kg or 0.0, fixture=run.fixture,
                              g_m_s2=run.g_m_s2)
@@ -425,7 +429,10 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
         raise DataError(str(exc).replace("CAL.json", str(calibration_path))) from None
     cal_period_s = calfile.sample_period_s(calibration_path, doc)
     rate = None if run.period_s is None else mass_analysis.period_mismatch(run.period_s, cal_period_s, pre or pp.PAPER)
-    return result if rate is None else dataclasses.replace(result, warnings=(*result.warnings, rate))
+    warnings = [*mass_warnings, *result.warnings, *([rate] if rate is not None else [])]
+    # (a trace-period warning is the mass loops' and the poses' alike: said once)
+    warnings = list(dict.fromkeys(w for w in warnings if rate is None or w != f"mass: {rate}"))
+    return dataclasses.replace(result, warnings=tuple(warnings))
 
 
 # ---------------------------------------------------------------------------------------------------------------------

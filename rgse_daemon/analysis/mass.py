@@ -6,6 +6,7 @@ its raw files."""
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import Calibration
+from rgse_daemon.verdict import status_of
 
 #: Largest accepted difference between the measurement's and the calibration's mean A3/A5 motor temperature (K).
 THERMAL_MISMATCH_K = 3.0
@@ -47,7 +49,8 @@ class MassResult:
                 "samples_used": self.samples_used, "samples_total": self.samples_total,
                 "calibration_id": self.calibration_id, "method": self.method, "cog_m": None,
                 "warnings": self.warnings, "u_components_kg": self.u_components_kg,
-                "motor_temp_k": self.motor_temp_k, "operating_point": self.operating_point}
+                "motor_temp_k": self.motor_temp_k, "operating_point": self.operating_point,
+                "status": status_of({"warnings": self.warnings})}
 
 
 def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: pp.Preprocessing,
@@ -111,6 +114,16 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
     if mismatch is not None:
         result.warnings.append(mismatch)
     return result
+
+
+def budget(directory: Path, traces: Sequence[str], calibration_path: Path, fixture_mass_kg: float,
+           g_m_s2: float | None = None, g_u_m_s2: float = 0.0) -> MassResult:
+    """The mass and its U budget from the loops ``traces`` of ``directory`` so far, by the same :func:`measure` as
+    :func:`compute` (no manifest needed): what the stop rule (pipeline/stopping.py) predicts from during a run."""
+    doc, cal, pre = calfile.read(calibration_path)
+    loops = read_loops(directory, tuple(traces))
+    return measure(loops, cal, doc, pre or pp.PAPER, fixture_mass_kg, g_m_s2, g_u_m_s2,
+                   calfile.alternatives(calibration_path, doc, cal))
 
 
 def _ms(period_s: float) -> str:

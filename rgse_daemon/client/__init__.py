@@ -8,6 +8,7 @@ from rgse_daemon.client.types import (
     CampaignPoint,
     DaemonState,
     FixtureFrame,
+    Identity,
     MeasurementResult,
     ProgressEvent,
     Prompt,
@@ -20,7 +21,7 @@ from rgse_daemon.client.types import (
 )
 
 __all__ = [
-    "CalibrationResult", "CampaignPoint", "DaemonState", "FixtureFrame", "MeasurementResult", "ProgressEvent",
-    "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "RgseClient", "Run", "RunFailed",
-    "SyncClient", "SyncRun", "WaitTimeout", "load_points",
+    "CalibrationResult", "CampaignPoint", "DaemonState", "FixtureFrame", "Identity", "MeasurementResult",
+    "ProgressEvent", "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "RgseClient", "Run",
+    "RunFailed", "SyncClient", "SyncRun", "WaitTimeout", "load_points",
 ]

@@ -32,6 +32,7 @@ from .types import (
     CampaignPoint,
     DaemonState,
     FixtureFrame,
+    Identity,
     MeasurementResult,
     ProgressEvent,
     Prompt,
@@ -177,16 +178,18 @@ class RgseClient:
         return reply
 
     async def measure(self, *, loops: int | None = None, fixture_mass_kg: float | None = None,
-                      dry_run: bool = False) -> Run:
-        """Start a measurement of the mounted DuT; the run's handle (a dry run has ``run_id`` ``None``)."""
+                      dry_run: bool = False, identity: Identity | None = None) -> Run:
+        """Start a measurement of the mounted DuT (named by ``identity``); the run's handle (a dry run has
+        ``run_id`` ``None``)."""
         reply = await self._command("measure", {"loops": loops, "fixture_mass_kg": fixture_mass_kg,
-                                                "dry_run": dry_run or None})
+                                                "dry_run": dry_run or None,
+                                                "identity": identity.as_command() if identity else None})
         return Run(self, reply.get("run_id"), "measurement")
 
     async def properties(self, *, loops: int | None = None, loops_per_pose: int | None = None,
                          scheme: str | None = None, fixture_mass_kg: float | None = None,
                          fixture: FixtureFrame | None = None, inertia: bool | None = None,
-                         dry_run: bool = False) -> Run:
+                         dry_run: bool = False, identity: Identity | None = None) -> Run:
         """Start a mass-properties run of the mounted DuT: its mass, then its CoG in the poses of ``scheme``
         (``"paper"`` or ``"full"``), with ``inertia`` then its inertia tensor (the run asks the operator to take the
         DuT off for the tare: answer that prompt); ``None`` takes the daemon's ``[measurement]``/``[properties]``
@@ -194,7 +197,7 @@ class RgseClient:
         reply = await self._command("properties", {
             "loops": loops, "loops_per_pose": loops_per_pose, "scheme": scheme, "fixture_mass_kg": fixture_mass_kg,
             "fixture": fixture.as_command() if fixture is not None else None, "inertia": inertia,
-            "dry_run": dry_run or None})
+            "dry_run": dry_run or None, "identity": identity.as_command() if identity else None})
         return Run(self, reply.get("run_id"), "properties")
 
     async def calibrate(self, points: Sequence[CampaignPoint] | None = None, *, method: str | None = None) -> Run:
@@ -215,9 +218,12 @@ class RgseClient:
 
     # --- results ------------------------------------------------------------------------------------------------
     async def result(self, run_id: str, kind: RunKind | None = None, timeout_s: float | None = None) -> Result:
-        """The result of ``run_id`` (retained on the broker: also of a run that ended before this client)."""
+        """The result of ``run_id`` (retained on the broker: also of a run that ended before this client);
+        :class:`RunFailed` (state ``refused``, its reason) for a result whose status is ``refused``."""
         doc = await self.until(lambda: self._results.get(run_id), f"the result of run {run_id}",
                                timeout_s or self.timeout_s)
+        if doc.get("status") == "refused":  # no figure: the reason is what there is (rgse_daemon.verdict)
+            raise RunFailed(run_id, "refused", str(doc.get("reason") or "no reason given"))
         if kind == "calibration" or (kind is None and "mass_kg" not in doc):
             return CalibrationResult.of(run_id, doc)
         if kind == "properties" or (kind is None and doc.get("cog_m") is not None):

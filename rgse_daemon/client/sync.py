@@ -15,7 +15,15 @@ from types import TracebackType
 from typing import Any, Self, TypeVar
 
 from rgse_daemon.client.client import DEFAULT_ABORT_REASON, RgseClient, Run
-from rgse_daemon.client.types import CampaignPoint, DaemonState, FixtureFrame, ProgressEvent, Prompt, Result
+from rgse_daemon.client.types import (
+    CampaignPoint,
+    DaemonState,
+    FixtureFrame,
+    Identity,
+    ProgressEvent,
+    Prompt,
+    Result,
+)
 from rgse_daemon.config import Config
 from rgse_daemon.io.operator import DEFAULT_TIMEOUT_S
 
@@ -87,16 +95,16 @@ class SyncClient:
         return self.call(self.client.ready(timeout_s), timeout_s)
 
     def measure(self, *, loops: int | None = None, fixture_mass_kg: float | None = None,
-                dry_run: bool = False) -> SyncRun:
+                dry_run: bool = False, identity: Identity | None = None) -> SyncRun:
         return SyncRun(self, self.call(self.client.measure(loops=loops, fixture_mass_kg=fixture_mass_kg,
-                                                           dry_run=dry_run)))
+                                                           dry_run=dry_run, identity=identity)))
 
     def properties(self, *, loops: int | None = None, loops_per_pose: int | None = None, scheme: str | None = None,
                    fixture_mass_kg: float | None = None, fixture: FixtureFrame | None = None,
-                   inertia: bool | None = None, dry_run: bool = False) -> SyncRun:
+                   inertia: bool | None = None, dry_run: bool = False, identity: Identity | None = None) -> SyncRun:
         return SyncRun(self, self.call(self.client.properties(
             loops=loops, loops_per_pose=loops_per_pose, scheme=scheme, fixture_mass_kg=fixture_mass_kg,
-            fixture=fixture, inertia=inertia, dry_run=dry_run)))
+            fixture=fixture, inertia=inertia, dry_run=dry_run, identity=identity)))
 
     def calibrate(self, points: Sequence[CampaignPoint] | None = None, *, method: str | None = None) -> SyncRun:
         return SyncRun(self, self.call(self.client.calibrate(points, method=method)))

@@ -15,6 +15,7 @@ from pydantic import ValidationError
 
 from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.io.commands import CalibrationPoint
+from rgse_daemon.verdict import Status, status_of
 
 #: Engine states after which a run is over (the state persists until the next run).
 TERMINAL = frozenset({"done", "failed", "aborted"})
@@ -148,6 +149,37 @@ class Prompt:
 
 
 @dataclass(frozen=True)
+class Identity:
+    """Who and what a run measures (the ``identity`` of the ``measure``/``properties`` commands, interfaces §4.3):
+    stored with the run, shown in its report and published with its result."""
+
+    dut_name: str | None = None
+    serial_number: str | None = None
+    """The DuT's serial number."""
+    part_number: str | None = None
+    project: str | None = None
+    operator: str | None = None
+    note: str | None = None
+
+    def as_command(self) -> dict[str, str] | None:
+        doc = {k: v for k, v in self.__dict__.items() if v}
+        return doc or None
+
+    @classmethod
+    def of(cls, doc: Any) -> Identity | None:
+        """The ``identity`` object of a result, None without one."""
+        if not isinstance(doc, dict):
+            return None
+        return cls(**{k: str(doc[k]) for k in cls.__dataclass_fields__ if isinstance(doc.get(k), str)})
+
+
+def _status(doc: dict[str, Any]) -> Status:
+    """The result's ``status`` as the daemon sent it, else derived by the same rule (a daemon before it)."""
+    value = doc.get("status")
+    return value if value in ("ok", "warning", "refused") else status_of(doc)
+
+
+@dataclass(frozen=True)
 class MeasurementResult:
     """The result of a measurement run (§4.2 ``result``; the fields of ``rgse mass --json``)."""
 
@@ -164,6 +196,9 @@ class MeasurementResult:
     method: str | None
     warnings: tuple[str, ...]
     raw: dict[str, Any] = field(repr=False)
+    status: Status = "ok"
+    """``ok``, ``warning`` (read :attr:`warnings`) or ``refused`` (rgse_daemon.verdict)."""
+    identity: Identity | None = None
 
     @classmethod
     def of(cls, run_id: str, doc: dict[str, Any]) -> MeasurementResult:
@@ -173,7 +208,8 @@ class MeasurementResult:
         return cls(run_id=run_id, robot=_s(doc, "robot"), mass_kg=mass, u_kg=_f(doc, "u_kg"), U_kg=_f(doc, "U_kg"),
                    k=_f(doc, "k"), gross_mass_kg=_f(doc, "gross_mass_kg"), fixture_mass_kg=_f(doc, "fixture_mass_kg"),
                    loops=_i(doc, "loops"), calibration_id=_s(doc, "calibration_id"), method=_s(doc, "method"),
-                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc)
+                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc, status=_status(doc),
+                   identity=Identity.of(doc.get("identity")))
 
 
 @dataclass(frozen=True)
@@ -190,6 +226,7 @@ class CalibrationResult:
     loo_max_abs_err_kg: float | None
     warnings: tuple[str, ...]
     raw: dict[str, Any] = field(repr=False)
+    status: Status = "ok"
 
     @classmethod
     def of(cls, run_id: str, doc: dict[str, Any]) -> CalibrationResult:
@@ -200,7 +237,7 @@ class CalibrationResult:
                    points=_i(doc, "points"), in_sample_mean_abs_err_pct=_f(doc, "in_sample_mean_abs_err_pct"),
                    loo_mean_abs_err_pct=_f(doc, "loo_mean_abs_err_pct"),
                    loo_max_abs_err_kg=_f(doc, "loo_max_abs_err_kg"),
-                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc)
+                   warnings=tuple(str(w) for w in doc.get("warnings") or ()), raw=doc, status=_status(doc))
 
 
 def _xyz(doc: dict[str, Any], key: str) -> tuple[float, float, float] | None:
@@ -248,6 +285,8 @@ class PropertiesResult:
     principal_axes_dut: Matrix3 | None = None
     inertia_cog_dut_kgm2: Matrix3 | None = None
     U_inertia_cog_dut_kgm2: Matrix3 | None = None
+    status: Status = "ok"
+    identity: Identity | None = None
 
     @classmethod
     def of(cls, run_id: str, doc: dict[str, Any]) -> PropertiesResult:
@@ -263,7 +302,8 @@ class PropertiesResult:
                    U_principal_moments_kgm2=_xyz(doc, "U_principal_moments_kgm2"),
                    principal_axes_dut=_matrix(doc, "principal_axes_dut"),
                    inertia_cog_dut_kgm2=_matrix(doc, "inertia_cog_dut_kgm2"),
-                   U_inertia_cog_dut_kgm2=_matrix(doc, "U_inertia_cog_dut_kgm2"))
+                   U_inertia_cog_dut_kgm2=_matrix(doc, "U_inertia_cog_dut_kgm2"), status=_status(doc),
+                   identity=Identity.of(doc.get("identity")))
 
 
 Result = MeasurementResult | CalibrationResult | PropertiesResult

@@ -7,13 +7,18 @@ import json
 from pathlib import Path
 
 from rgse_daemon.analysis.cog import compute_cog_dir
+from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS
 
 
 def run(args: argparse.Namespace) -> int:
     result = compute_cog_dir(Path(args.traces), Path(args.calibration))
+    doc = result.to_json()
+    code = EXIT_WARNINGS if result.warnings else EXIT_OK
     if args.json:
-        print(json.dumps(result.to_json()))
-        return 0
+        print(json.dumps(doc))
+        return code
+    print(f"status: {doc['status']}" + (f" ({len(result.warnings)} warning(s), read them below)"
+                                         if result.warnings else ""))
     mm = [v * 1000.0 for v in result.cog_flange_m]
     umm = [v * 1000.0 for v in result.U_cog_flange_m]
     dmm = [v * 1000.0 for v in result.cog_dut_m]
@@ -26,4 +31,4 @@ def run(args: argparse.Namespace) -> int:
           f"calibration {result.budget.get('calibration_id')}")
     for w in result.warnings:
         print(f"warning: {w}")
-    return 0
+    return code

@@ -91,7 +91,10 @@ DEADLINE_S = 600.0
 INERTIA_FILE_RATE_BYTES_S = 100e3 * TIME_SCALE
 
 
-def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_port: int | None = None) -> Config:
+def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_port: int | None = None,
+                time_scale: float = TIME_SCALE, file_rate_bytes_s: float | None = None) -> Config:
+    """The demo's daemon configuration; ``time_scale`` the simulator's, ``file_rate_bytes_s`` the controller file
+    rate the daemon sizes its file deadlines by (None: the default; bench/robot_time.py scales both)."""
     mqtt: dict[str, Any] = {"enabled": False}
     if mqtt_url is not None:
         u = urlsplit(mqtt_url)
@@ -103,7 +106,8 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
         {
             "robot": {"name": ROBOT},
             "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge",
-                           "share_dir": str(sim.share_dir)},
+                           "share_dir": str(sim.share_dir),
+                           **({} if file_rate_bytes_s is None else {"file_rate_bytes_s": file_rate_bytes_s})},
             "paths": {"data_dir": str(data_dir)},
             # the demo shares a 2-core machine with its simulated controller (and, under `make test`, with the test
             # run): a scheduling hiccup of the daemon's event loop > 0.1 s is a stale snapshot and trips the
@@ -111,10 +115,10 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
             "limits": {"snapshot_stale_s": 0.5},
             # the daemon waits in wall time; the simulated controller's clock runs TIME_SCALE times faster, so the
             # paper's 2 x 2 s of settling after each brake-release move is 4 s / TIME_SCALE here
-            "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S / TIME_SCALE, "trace_period_s": 0.012,
+            "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S / time_scale, "trace_period_s": 0.012,
                             "trace_samples": 1000, "warmup_cycles": 2, "fixture_mass_kg": FIXTURE_MASS_KG,
                             "payload_lever_max_m": 1.0, "warmup_until_steady": True,
-                            "warmup_steady_window_s": 300.0 / TIME_SCALE, "warmup_max_s": 2400.0 / TIME_SCALE},
+                            "warmup_steady_window_s": 300.0 / time_scale, "warmup_max_s": 2400.0 / time_scale},
             "mqtt": mqtt,
             "console": {"enabled": console_port is not None, "port": 8080 if console_port is None else console_port},
         },
@@ -356,8 +360,15 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
         "cog_scheme": COG_SCHEME,
         "mass_robot_time_s": float(timing["mass_robot_time_s"]) * TIME_SCALE,
         "cog_robot_time_s": float(timing["cog_robot_time_s"]) * TIME_SCALE,
+        # why the mass loops stopped (pipeline/stopping.py: loop term below share, target U met, max loops)
+        "stop_reason": result.get("stop_reason"),
+        "stop_rule": result.get("stop_rule"),
+        # the campaign's loops (motion, settling, recording) as the real robot needs them, its points' stop reasons
+        "calibration_robot_time_s": float(calibration.get("robot_time_s", 0.0)) * TIME_SCALE,
+        "calibration_points_stop": calibration.get("points_stop", []),
         "wall_s": {"calibration": t_cal, "measurement": t_meas, "total": time.monotonic() - t_start},
         "warnings": result.get("warnings", []),
+        "status": result.get("status", "ok"),
         "report": str(report_path) if report_path is not None else None,
     }}
 
@@ -425,7 +436,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"principal moment I{k}: {v:7.3f} ± {u:.3f} kg·m² (U, k = 2), true {t:7.3f}   "
                   f"{'within' if abs(v - t) <= u else 'OUTSIDE'} U")
         print(f"inertia excitation (DuT and tare): robot time {summary['inertia_robot_time_s'] / 60:.1f} min")
-    print(f"{summary['loops']} mass loops and the CoG poses: robot time {summary['robot_time_s'] / 60:.1f} min "
+    print(f"calibration campaign: robot time {summary['calibration_robot_time_s'] / 60:.1f} min (loops; warm-ups "
+          f"and load changes not counted)")
+    print(f"{summary['loops']} mass loops ({summary['stop_reason']}) and the CoG poses: robot time "
+          f"{summary['robot_time_s'] / 60:.1f} min "
           f"(mass {summary['mass_robot_time_s'] / 60:.1f}, CoG {summary['cog_robot_time_s'] / 60:.1f}; real-time "
           f"equivalent), "
           f"daemon overhead {summary['overhead_s']:.2f} s ({summary['overhead_pct_of_robot_time']:.2f} %)")
@@ -434,6 +448,8 @@ def run(args: argparse.Namespace) -> int:
           f"total {w['total']:.1f} s (simulator at {summary['time_scale']:g}x)")
     if summary["report"] is not None:
         print(f"report: {summary['report']}")
+    print(f"status: {summary['status']}" + (f" ({len(summary['warnings'])} warning(s))" if summary["warnings"]
+                                              else ""))
     for warning in summary["warnings"]:
         print(f"warning: {warning}")
     return 0

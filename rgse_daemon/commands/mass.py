@@ -7,19 +7,26 @@ import json
 from pathlib import Path
 
 from rgse_daemon.analysis.mass import compute
+from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS
 from rgse_daemon.pipeline.envelope import DEFAULT_LIMIT
+from rgse_daemon.verdict import OK
 
 
 def run(args: argparse.Namespace) -> int:
+    """Exit 0 for a result without warnings, 4 (EXIT_WARNINGS) for one with warnings; a refusal raises (exit 2, and
+    with ``--json`` the refusal's JSON object, see :func:`rgse_daemon.cli.main`)."""
     result = compute(Path(args.traces), Path(args.calibration), args.fixture_mass,
                      getattr(args, "envelope_limit", DEFAULT_LIMIT))
+    doc = result.to_json()
     if args.json:
-        print(json.dumps(result.to_json()))
+        print(json.dumps(doc))
     else:
+        print(f"status: {doc['status']}" + (f" ({len(result.warnings)} warning(s), read them below)"
+                                             if result.warnings else ""))
         print(f"mass {result.mass_kg:.3f} kg ± {result.U_kg:.3f} kg (k = 2)  gross {result.gross_mass_kg:.3f} kg, "
               f"fixture {result.fixture_mass_kg:.3f} kg, {result.loops} loops, "
               f"{result.samples_used}/{result.samples_total} samples, calibration {result.calibration_id} "
               f"({result.method})")
         for w in result.warnings:
             print(f"warning: {w}")
-    return 0
+    return EXIT_OK if doc["status"] == OK else EXIT_WARNINGS

@@ -14,7 +14,9 @@ the run); with ``wait`` the prompt is answered elsewhere (``rgse confirm``, the 
 ``--timeout`` (default 3600 s, the whole run) passes or the command is interrupted: a script that stops following
 does not leave the robot running unwatched.
 
-Exit 0 when the run is done; 1 when the daemon refused it, it failed or was aborted, or the deadline passed; 2 on
+Exit 0 when the run is done and its result has no warnings; 4 when it is done and its result has warnings (status
+``warning``: the warnings are printed under the figure); 1 when the daemon refused it, it failed or was aborted, or
+the deadline passed (with ``--json`` then one object with ``status`` ``refused``, ``state`` and the ``reason``); 2 on
 a bad configuration, points file or option, or when the broker is unreachable.
 """
 
@@ -30,6 +32,7 @@ from collections.abc import Awaitable, Callable
 
 from rgse_daemon.client import (
     FixtureFrame,
+    Identity,
     Prompt,
     Refused,
     RgseClient,
@@ -39,7 +42,8 @@ from rgse_daemon.client import (
     load_points,
 )
 from rgse_daemon.commands.operator_cli import run_operator
-from rgse_daemon.errors import EXIT_FAILED, EXIT_OK, ConfigError
+from rgse_daemon.errors import EXIT_FAILED, EXIT_OK, EXIT_WARNINGS, ConfigError
+from rgse_daemon.verdict import OK, REFUSED, refusal
 
 DEFAULT_RUN_TIMEOUT_S = 3600.0
 #: Bound of the abort sent when the command gives up on a run.
@@ -80,7 +84,7 @@ class StdinLines:
 
 def answer_on(stdin: StdinLines) -> Callable[[Prompt], Awaitable[str | None]]:
     async def answer(prompt: Prompt) -> str | None:
-        _say(f"rgse run: point {prompt.point_index}: {prompt.message} (press Enter when done; a note may be typed)")
+        _say(f"rgse run: {prompt.message} (press Enter when done; a note may be typed)")
         line = await stdin.line()
         if line is None:
             raise RunFailed(prompt.run_id, "aborted", "end of input on stdin: nobody to confirm the prompt")
@@ -90,7 +94,7 @@ def answer_on(stdin: StdinLines) -> Callable[[Prompt], Awaitable[str | None]]:
 
 
 def tell(prompt: Prompt) -> None:
-    _say(f"rgse run: point {prompt.point_index}: {prompt.message} (waiting for the operator's confirmation)")
+    _say(f"rgse run: {prompt.message} (waiting for the operator's confirmation)")
 
 
 async def follow(rgse: RgseClient, run: Run, args: argparse.Namespace, timeout_s: float) -> int:
@@ -117,8 +121,13 @@ async def follow(rgse: RgseClient, run: Run, args: argparse.Namespace, timeout_s
         printing.cancel()
         await asyncio.gather(printing, return_exceptions=True)
     assert result is not None
+    if not args.json:
+        identity = getattr(result, "identity", None)
+        name = f" ({identity.dut_name})" if identity is not None and identity.dut_name else ""
+        n = len(result.warnings)
+        print(f"run {run.run_id}{name}: status {result.status}" + (f", {n} warning(s) below" if n else ""))
     if args.json:
-        print(json.dumps(result.raw))
+        print(json.dumps({**result.raw, "status": result.status}))
     elif run.kind == "properties":
         r = result.raw
         mm = [1000.0 * v for v in r["cog_m"]]
@@ -137,12 +146,21 @@ async def follow(rgse: RgseClient, run: Run, args: argparse.Namespace, timeout_s
     else:
         print(f"run {run.run_id}: calibration {result.raw.get('calibration_id')}, LOO mean |error| "
               f"{result.raw.get('loo_mean_abs_err_pct', float('nan')):.2f} %")
+    if not args.json:
+        for w in result.warnings:
+            print(f"warning: {w}")
     if args.report is not None:
         calibration_id = result.raw.get("calibration_id") if run.kind == "calibration" else None
         path = await rgse.report(None if calibration_id else run.run_id, calibration_id=calibration_id,
                                  out_dir=args.report)
         _say(f"rgse run: report {path}")
-    return EXIT_OK
+    return EXIT_OK if result.status == OK else EXIT_WARNINGS
+
+
+def _no_result(args: argparse.Namespace, reason: str, state: str, run_id: str | None = None) -> None:
+    """With ``--json``: the one JSON object of a run without a result (refused, failed, aborted, given up)."""
+    if args.json:
+        print(json.dumps(refusal(reason, state=state, run_id=run_id)), flush=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -151,6 +169,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--timeout {args.timeout!r}: must be a finite number of seconds > 0")
     points = load_points(args.points) if getattr(args, "points", None) is not None else None
     fixture = _fixture(args)
+    identity = Identity(*(getattr(args, k, None) for k in ("dut_name", "serial_number", "part_number", "project",
+                                                           "operator", "note")))
     rgse = RgseClient.from_config(args.config)
 
     async def main() -> int:
@@ -158,15 +178,17 @@ def run(args: argparse.Namespace) -> int:
             try:
                 if args.run_kind == "measure":
                     run_ = await rgse.measure(loops=args.loops, fixture_mass_kg=args.fixture_mass,
-                                              dry_run=args.dry_run)
+                                              dry_run=args.dry_run, identity=identity)
                 elif args.run_kind == "properties":
                     run_ = await rgse.properties(loops=args.loops, loops_per_pose=args.loops_per_pose,
                                                  scheme=args.scheme, fixture_mass_kg=args.fixture_mass,
-                                                 fixture=fixture, inertia=args.inertia, dry_run=args.dry_run)
+                                                 fixture=fixture, inertia=args.inertia, dry_run=args.dry_run,
+                                                 identity=identity)
                 else:
                     run_ = await rgse.calibrate(points, method=args.method)
             except Refused as exc:
                 _say(f"rgse run: refused by the daemon: {exc.reason}")
+                _no_result(args, exc.reason, REFUSED)
                 return EXIT_FAILED
             if run_.run_id is None:
                 _say("rgse run: accepted without a run id (a dry run moves nothing and stores nothing)")
@@ -177,6 +199,8 @@ def run(args: argparse.Namespace) -> int:
                 _say(f"rgse run: failed: {exc}")
                 if run_.end_state() is None:
                     await _abort(run_, f"rgse run gave up: {exc}")
+                _no_result(args, getattr(exc, "reason", str(exc)), getattr(exc, "state", "timeout")
+                           if not isinstance(exc, Refused) else REFUSED, run_.run_id)
                 return EXIT_FAILED
             except asyncio.CancelledError:
                 await _abort(run_, "rgse run interrupted")

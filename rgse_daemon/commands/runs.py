@@ -32,21 +32,12 @@ FIELDS = (
     "calibration_id", "method", "robot_time_s", "warnings",
 )
 IDENTITY = ("dut_name", "serial_number", "part_number", "project", "operator", "note")
-STATUSES = ("ok", "warning", "refused")
 #: Separator of the warnings in one CSV cell.
 WARNING_SEPARATOR = " | "
 
 
 def _time(value: datetime | None) -> str | None:
     return value.astimezone(UTC).isoformat().replace("+00:00", "Z") if value is not None else None
-
-
-def _status(result: dict[str, Any]) -> str:
-    """The result's status as stored with it; a result stored before statuses existed: from its warnings."""
-    status = result.get("status")
-    if status in STATUSES:
-        return str(status)
-    return "warning" if result.get("warnings") else "ok"
 
 
 def row(run: RunRecord, result: ResultRecord | None) -> dict[str, Any]:
@@ -61,13 +52,15 @@ def row(run: RunRecord, result: ResultRecord | None) -> dict[str, Any]:
     identity = doc.get("identity") if isinstance(doc.get("identity"), dict) else {}
     for key in IDENTITY:
         out[key] = identity.get(key)
-    cog = doc.get("cog_m") if isinstance(doc.get("cog_m"), list) else None
-    u_cog = doc.get("U_cog_m") if isinstance(doc.get("U_cog_m"), list) else None
+    cog = doc.get("cog_dut_m") or doc.get("cog_m")  # the DuT frame where the run knew it, else the flange frame
+    u_cog = doc.get("U_cog_dut_m") or doc.get("U_cog_m")
+    cog = cog if isinstance(cog, list) else None
+    u_cog = u_cog if isinstance(u_cog, list) else None
     for i, axis in enumerate("xyz"):
         out[f"cog_{axis}_m"] = cog[i] if cog and len(cog) == 3 else None
         out[f"U_cog_{axis}_m"] = u_cog[i] if u_cog and len(u_cog) == 3 else None
     warnings = doc.get("warnings") if isinstance(doc.get("warnings"), list) else []
-    out.update(result_id=result.id, status=_status(doc), mass_kg=doc.get("mass_kg"), U_kg=doc.get("U_kg"),
+    out.update(result_id=result.id, status=result.status, mass_kg=doc.get("mass_kg"), U_kg=doc.get("U_kg"),
                calibration_id=result.calibration_id or doc.get("calibration_id"), method=doc.get("method"),
                robot_time_s=doc.get("robot_time_s"), warnings=[str(w) for w in warnings])
     return out

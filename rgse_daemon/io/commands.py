@@ -9,10 +9,11 @@ can still be answered.
 
 Verbs and fields (units in the names):
 
-``measure``    ``{request_id, loops?, fixture_mass_kg?, dry_run?, token?}``
+``measure``    ``{request_id, loops?, fixture_mass_kg?, dry_run?, identity?, token?}``
 ``properties`` ``{request_id, loops?, loops_per_pose?, scheme?, fixture_mass_kg?, fixture?, inertia?, dry_run?,
-               token?}``: mass, then the CoG poses (then the inertia); ``fixture`` = ``{cog_flange_m,
-               dut_origin_flange_m?, dut_abc_deg?}``
+               identity?, token?}``: mass, then the CoG poses (then the inertia); ``fixture`` = ``{cog_flange_m,
+               dut_origin_flange_m?, dut_abc_deg?}``; ``identity`` = ``{dut_name?, serial_number?, part_number?,
+               project?, operator?, note?}``
 ``calibrate``  ``{request_id, points?, method?, token?}``; a point is a manifest ``[[point]]`` without traces
 ``abort``      ``{request_id, run_id?, reason, token?}``
 ``confirm``    ``{request_id, run_id, point?, token?}``: the operator confirms the load of a campaign point
@@ -84,6 +85,32 @@ class _Command(BaseModel):
     token: Token = None
 
 
+#: One line of an identity (a name, a serial number): at most 200 characters, control characters escaped.
+Line = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(escape_controls)]
+
+
+class Identity(BaseModel):
+    """Who and what is measured (interfaces §4.3 ``identity``): stored with the run, shown in its report, published
+    with its result. Every field is optional; an empty identity is no identity."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True)
+
+    dut_name: Line | None = None
+    """The DuT's name, e.g. the spacecraft's."""
+    serial_number: Line | None = None
+    part_number: Line | None = None
+    project: Line | None = None
+    operator: Line | None = None
+    """Who runs the measurement."""
+    note: Text | None = None
+    """A free note of the operator."""
+
+    def as_json(self) -> dict[str, str] | None:
+        """The fields given, or None when none is."""
+        doc = self.model_dump(exclude_none=True)
+        return doc or None
+
+
 class MeasureCommand(_Command):
     """Start an in-line mass measurement of the mounted DuT."""
 
@@ -94,6 +121,8 @@ class MeasureCommand(_Command):
     """Mass of the fixture (MPA, adapters) subtracted from the gross mass; ``None``: the configured value."""
     dry_run: bool = False
     """Check the plan and the interlock, render and check the KRL, but move nothing."""
+    identity: Identity | None = None
+    """The DuT's name, serial and part number, project, operator and a note (:class:`Identity`)."""
 
 
 Coordinate = Annotated[float, Field(ge=-3.0, le=3.0)]
@@ -129,6 +158,8 @@ class PropertiesCommand(_Command):
     inertia: bool | None = None
     """Also the inertia (DuT and tare excitation, a prompt to take the DuT off); ``None``: ``properties.inertia``."""
     dry_run: bool = False
+    identity: Identity | None = None
+    """As the ``measure`` command's."""
 
 
 class CalibrationPoint(BaseModel):

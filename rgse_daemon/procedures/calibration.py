@@ -18,6 +18,7 @@ the robot's active calibration.
 from __future__ import annotations
 
 import asyncio
+import math
 import secrets
 import time
 from collections.abc import Callable, Generator, Sequence
@@ -32,14 +33,15 @@ from rgse_daemon.config import Config
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.topics import Topics
-from rgse_daemon.manifest import TORSIONAL_KIND
+from rgse_daemon.manifest import TORSIONAL_KIND, read_loops
 from rgse_daemon.pipeline.cog import cog_poses
+from rgse_daemon.pipeline.stopping import StopDecision, decide, point_loop_term_nm, point_prediction
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.directory import setup_toml, traces_toml
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
-from rgse_daemon.procedures.loop import LoopOutcome, loop
+from rgse_daemon.procedures.loop import LoopOutcome, collect, loop
 from rgse_daemon.procedures.preconditions import PreconditionError, verify_start
 from rgse_daemon.procedures.programs import (
     COG_TRACE_CONFIG_NAME,
@@ -56,6 +58,7 @@ from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import motor_temps_k, prepare, warm_up
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import LoopState, PointState, RunKind, Store
+from rgse_daemon.verdict import with_status
 
 CALIBRATION_FILE = "CAL.json"
 
@@ -234,15 +237,55 @@ def _finish(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, lis
 
 
 # --- the plan ---------------------------------------------------------------------------------------------------------
+def reproducibility_of(cal_doc: dict[str, Any] | None) -> tuple[float, float] | None:
+    """The A3/A5 reproducibility (Nm) of a calibration document: the scatter a new mounting adds, what a campaign
+    point's loops are weighed against (None: no calibration, or one written before it: each point takes ``loops``)."""
+    if cal_doc is None:
+        return None
+    try:
+        rep = cal_doc["fit"]["uncertainty"]["reproducibility"]
+        out = (float(rep["rms_a3_nm"]), float(rep["rms_a5_nm"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+    return out if all(math.isfinite(v) and v > 0 for v in out) else None
+
+
+def point_loop_term(run_dir: Path, traces: list[str]) -> tuple[float, float] | None:
+    """The loop term (Nm, A3 and A5) of a campaign point's loops archived so far; None if they give none."""
+    try:
+        loops = read_loops(run_dir, tuple(traces))
+        out = point_loop_term_nm([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in loops])
+    except (DataError, ValueError):
+        return None
+    return out if all(math.isfinite(v) for v in out) else None
+
+
+def _point_decision(run: d.RunContext, s: RunSettings, outcomes: list[LoopOutcome],
+                    reproducibility_nm: tuple[float, float] | None) -> Generator[m.Msg, Any, StopDecision]:
+    """The stop rule for a campaign point after ``len(outcomes)`` loops (pipeline/stopping.py; share test only)."""
+    rule = replace(s.stop_rule, target_U_kg=None)
+    i = len(outcomes)
+    analysed = [o.trace for o in outcomes if not o.pending]
+    prediction = None
+    if reproducibility_nm is not None and analysed and rule.min_loops <= i < rule.max_loops and not rule.fixed:
+        got = yield m.Process("point loop term", point_loop_term, (run.run_dir, analysed))
+        if got is not None:
+            prediction = point_prediction(i, len(analysed), got, reproducibility_nm)
+    return decide(rule, i, prediction)
+
+
 def campaign_plan(
     run: d.RunContext,
     s: RunSettings,
     *,
     method: str = "auto",
     inputs: Callable[[], SafetyInputs] | None = None,
+    reference: dict[str, Any] | None = None,
 ) -> m.Plan:
     """The campaign as a plan over the points recorded for the run (see the module docstring); returns the
-    calibration summary (None in a dry run)."""
+    calibration summary (None in a dry run). ``reference``: the robot's active calibration document, if any: its
+    reproducibility is what each point's loops are weighed against by the stop rule (pipeline/stopping.py)."""
+    reproducibility_nm = reproducibility_of(reference)
     progress: d.CampaignProgress = yield m.ReadCampaign()
     next_index = 1 + max((lp.index for lp in progress.loops), default=0)
     session = secrets.token_hex(2)  # new trace names on every (re)start: raw files are never replaced
@@ -250,6 +293,9 @@ def campaign_plan(
     warnings: list[str] = []
     warm_temps: tuple[float, ...] | None = None
     n = len(progress.points)
+    stops: list[dict[str, Any]] = []
+    robot_s = 0.0
+    decision = StopDecision(False, "")
     for rec in progress.points:
         point = CampaignPoint.from_spec(rec.spec)
         if rec.state == PointState.DONE:
@@ -272,20 +318,33 @@ def campaign_plan(
                 warnings += more
             yield from run_checked((yield from render_program("rgse_meas_pose", s, snap)), s)
         if point.kind == TORSIONAL_KIND:
-            next_index = yield from _torsional_point(run, s, point, rec.index, n, next_index, session)
+            next_index, point_robot_s = yield from _torsional_point(run, s, point, rec.index, n, next_index, session)
+            robot_s += point_robot_s
             yield d.PointDone(rec.index)
             warm_temps = motor_temps_k((yield m.ReadState()))
             continue
         outcomes: list[LoopOutcome] = []
+        previous: LoopOutcome | None = None
         for j in range(1, s.loops + 1):
             yield m.Checkpoint(f"point {rec.index} loop {j}")
             trace = f"cal{rec.index:02d}_{session}_l{j:02d}"
-            out = yield from loop(next_index, trace, run, s, point_index=rec.index)
+            # the pull of loop j overlaps loop j+1 (collected before the point ends)
+            out = yield from loop(next_index, trace, run, s, point_index=rec.index, previous=previous, defer=True)
+            previous = out
             next_index += 1
             outcomes.append(out)
-            yield m.Emit(Event("loop", f"point {rec.index + 1}/{n} loop {j}/{s.loops} done", step="loop",
+            decision = yield from _point_decision(run, s, outcomes, reproducibility_nm)
+            yield m.Emit(Event("loop", f"point {rec.index + 1}/{n} loop {j}/{s.loops} done"
+                               + (f" ({decision.reason})" if decision.stop else ""), step="loop",
                                loop_index=j, loop_count=s.loops, data={"point_index": rec.index,
-                                                                       **out.timing.to_json()}))
+                                                                       **out.timing.to_json(), **decision.to_json()}))
+            if decision.stop:
+                break
+        if previous is not None:
+            yield from collect(previous, run, s)
+        stops.append({"point_index": rec.index, "loops": len(outcomes), "stop_reason": decision.reason,
+                      "robot_time_s": sum(o.timing.robot_s for o in outcomes)})
+        robot_s += stops[-1]["robot_time_s"]
         yield d.PointDone(rec.index)
         warm_temps = motor_temps_k((yield m.ReadState()))  # the thermal state the point was measured in
     # every point done: the campaign directory from the recorded loops (this session's and earlier ones)
@@ -301,10 +360,16 @@ def campaign_plan(
     doc, summary = fitted
     used_idx = {lp.index for lp in used}
     shas = sorted({f.sha256 for f in progress.trace_files if f.loop_index in used_idx})
-    summary = {**summary, "run_id": run.run_id, "robot": s.robot, "trace_sha256": shas, "warnings": warnings,
-               "compute_s": time.monotonic() - t0}
+    summary = with_status({
+        **summary, "run_id": run.run_id, "robot": s.robot, "trace_sha256": shas, "warnings": warnings,
+        "compute_s": time.monotonic() - t0, "points_stop": stops,
+        "robot_time_s": robot_s, "robot_time_note": "loops (motion, settling, recording) of this session",
+        "stop_rule": {"max_loops": s.loops, "min_loops": s.stop_rule.min_loops, "loop_share": s.stop_loop_share,
+                      "reproducibility_nm": None if reproducibility_nm is None else list(reproducibility_nm)}})
     yield d.Result(summary, shas, calibration=doc)
-    yield m.Emit(Event("result", f"calibration {doc['calibration_id']} ({summary['method']}) active",
+    n = len(summary["warnings"] or ())
+    yield m.Emit(Event("result", f"{summary['status']}: calibration {doc['calibration_id']} ({summary['method']}) "
+                                 f"active" + (f"; {n} warning{'s' if n != 1 else ''}" if n else ""),
                        step="result", data=summary))
     return summary
 
@@ -323,10 +388,11 @@ def _pose_program(s: RunSettings, start: tuple[float, ...], pose: tuple[float, .
 
 
 def _torsional_point(run: d.RunContext, s: RunSettings, point: CampaignPoint, index: int, n: int, next_index: int,
-                     session: str) -> Generator[m.Msg, Any, int]:
+                     session: str) -> Generator[m.Msg, Any, tuple[int, float]]:
     """A torsional point: in every pose of its scheme, approached as :func:`cog_poses` prescribes (A4/A6 from
     below), ``loops`` × (brake-release move about the pose → settle → trace of the A3–A6 drives), then back to the
-    measurement pose. Returns the next loop index."""
+    measurement pose. Returns the next loop index and the loops' robot time (s)."""
+    robot_s = 0.0
     yield m.PutFile(TRACE_DIR + COG_TRACE_CONFIG_NAME, trace_config_xml(s, COG_TRACE_MODULES).encode("utf-8"))
     poses = cog_poses(s.meas_pose_deg, point.scheme or "full")
     for k, pose in enumerate(poses, 1):
@@ -337,16 +403,19 @@ def _torsional_point(run: d.RunContext, s: RunSettings, point: CampaignPoint, in
         yield from _move(pose.q_approach_deg, s)
         yield from _move(pose.q_deg, s)
         at_pose = replace(s, meas_pose_deg=pose.q_deg)  # the brake-release move turns A3/A5 about this pose
+        previous: LoopOutcome | None = None
         for j in range(1, s.loops + 1):
             trace = pose_trace_name(index, session, k, j)
             out = yield from loop(next_index, trace, run, at_pose, point_index=index,
-                                  trace_config=COG_TRACE_CONFIG_NAME)
+                                  trace_config=COG_TRACE_CONFIG_NAME, previous=previous, defer=j < s.loops)
+            previous = out
+            robot_s += out.timing.robot_s
             next_index += 1
             yield m.Emit(Event("loop", f"point {index + 1}/{n} pose {pose.name} loop {j}/{s.loops} done",
                                step="loop", loop_index=j, loop_count=s.loops,
                                data={"point_index": index, "pose": pose.name, **out.timing.to_json()}))
     yield from _move(s.meas_pose_deg, s)
-    return next_index
+    return next_index, robot_s
 
 
 async def run_calibration(
@@ -374,4 +443,7 @@ async def run_calibration(
                             points=tuple(p.spec() for p in pts))
     else:
         opening = d.OpenRun(RunKind.CALIBRATION, s.robot, resume_run_id=run_id)
-    return await engine.execute(opening, lambda run: campaign_plan(run, s, method=method, inputs=inputs), recorder)
+    active = await recorder.active_calibration(s.robot)
+    reference = None if active is None else active.document
+    return await engine.execute(opening, lambda run: campaign_plan(run, s, method=method, inputs=inputs,
+                                                                   reference=reference), recorder)

@@ -171,6 +171,7 @@ class RunEngine:
         self._delivered = False
         self._trace_armed = False
         self._running = False
+        self._pulls: dict[str, tuple[asyncio.Task[Any], float]] = {}
 
     # --- control from outside (CLI, MQTT) -----------------------------------------------------------------------
     def subscribe(self, subscriber: Subscriber) -> Callable[[], None]:
@@ -199,6 +200,11 @@ class RunEngine:
         """The operator confirms the pending :class:`~messages.Confirm` (e.g. 'calibration body 3 mounted')."""
         self._confirm_note = note
         self._confirm.set()
+
+    @property
+    def pulls_in_flight(self) -> tuple[str, ...]:
+        """Traces whose background pull (:class:`~messages.PullStart`) has not been joined yet."""
+        return tuple(self._pulls)
 
     @property
     def waiting_for_confirmation(self) -> bool:
@@ -274,9 +280,9 @@ class RunEngine:
             if self.monitor is not None and not self.dry_run:
                 self.monitor.expect(Expect.IDLE)
                 async with self.monitor.running(self._on_trip):
-                    result = await self._drive(finalize_wrapper(plan))
+                    result = await self._drive_plan(plan)
             else:
-                result = await self._drive(finalize_wrapper(plan))
+                result = await self._drive_plan(plan)
             if self._interrupt is not None:  # a trip or abort after the plan's last step: not a completed run
                 raise self._interrupt
             outcome = EngineState.DONE
@@ -288,6 +294,16 @@ class RunEngine:
             self._running = False
             self._set_state(outcome)
 
+    async def _drive_plan(self, plan: m.Plan) -> Any:
+        """The plan inside its finaliser; background pulls end with it, still under the monitor."""
+        try:
+            result = await self._drive(finalize_wrapper(plan))
+            if self._pulls:  # a plan bug: a background pull never collected (its files would not be indexed)
+                raise RgseError(f"the plan ended with pulls not joined: {', '.join(sorted(self._pulls))}")
+            return result
+        finally:
+            await self._cancel_pulls()
+
     def _on_trip(self, trip: InterlockTrip) -> None:
         self.emit(Event("alarm", str(trip), data={"watcher": trip.watcher, "detail": trip.detail}))
         self._deliver(trip)
@@ -297,6 +313,8 @@ class RunEngine:
             return
         self._interrupt = exc
         self._resume.set()
+        for task, _ in self._pulls.values():  # nothing was deleted: the files stay on the controller
+            task.cancel()
         if self._current is not None and not self._current.done():
             self._current.cancel()
 
@@ -351,6 +369,8 @@ class RunEngine:
         if handler is None:
             raise RgseError(f"the engine does not know message {type(msg).__name__}")
         _log.debug("%s", msg.describe())
+        if isinstance(msg, _AFTER_PULLS):
+            await self._pulls_ended(msg.describe())
         return await handler(msg)
 
     async def _snapshot(self) -> Snapshot:
@@ -484,6 +504,54 @@ class RunEngine:
             return await pull_trace(self.krc, msg.trace, msg.dest_dir, trace_dir=self.trace_dir,
                                     share_dir=self.share_dir, **({"modules": msg.modules} if msg.modules else {}))
 
+    async def _do_PullStart(self, msg: m.PullStart) -> None:
+        if msg.trace in self._pulls:
+            raise RgseError(f"trace {msg.trace}: a pull of it is already in flight")
+        task = asyncio.get_running_loop().create_task(self._do_Pull(m.Pull(msg.trace, msg.dest_dir,
+                                                                             modules=msg.modules)),
+                                                      name=f"rgse:pull {msg.trace}")
+        task.add_done_callback(self._pull_ended)
+        self._pulls[msg.trace] = (task, time.monotonic())
+
+    def _pull_ended(self, task: asyncio.Task[Any]) -> None:
+        """A background pull that failed stops the run now, as a pull on the plan's own path would."""
+        if not task.cancelled() and task.exception() is not None:
+            self._deliver(task.exception())  # type: ignore[arg-type]
+
+    async def _do_PullJoin(self, msg: m.PullJoin) -> tuple[Any, float, float]:
+        entry = self._pulls.get(msg.trace)
+        if entry is None:
+            raise RgseError(f"trace {msg.trace}: no pull of it in flight")
+        task, started = entry
+        t0 = time.monotonic()
+        try:
+            pulled = await self._bounded(f"pull {msg.trace}", asyncio.shield(task), msg.timeout_s)
+        finally:
+            if task.done():
+                self._pulls.pop(msg.trace, None)
+        t1 = time.monotonic()
+        return pulled, t1 - t0, t1 - started
+
+    async def _pulls_ended(self, what: str) -> None:
+        """Before a motion or file message: every background pull must have ended (the file-window rule: no motion
+        while file work blocks the controller's status reads); a failed one raises its error."""
+        for trace, (task, _) in list(self._pulls.items()):
+            if not task.done():
+                _log.debug("%s waits for the pull of %s", what, trace)
+                await self._bounded(f"{what}: the pull of {trace}", asyncio.shield(task), REQUEST_TIMEOUT_S + 600.0)
+            if not task.cancelled() and task.exception() is not None:
+                raise task.exception()  # type: ignore[misc]
+
+    async def _cancel_pulls(self) -> None:
+        pulls, self._pulls = self._pulls, {}
+        for task, _ in pulls.values():
+            task.cancel()
+        if pulls:
+            await asyncio.wait([t for t, _ in pulls.values()], timeout=CLEANUP_TIMEOUT_S)
+        for task, _ in pulls.values():
+            if task.done() and not task.cancelled() and task.exception() is not None:
+                _log.warning("background pull %s ended with %r", task.get_name(), task.exception())
+
     async def _do_DeleteTraceCopies(self, msg: m.DeleteTraceCopies) -> tuple[bool, str]:
         return await self._bounded(f"delete {msg.pulled.trace} on the controller", msg.pulled.delete_copies(),
                                    msg.timeout_s)
@@ -552,6 +620,10 @@ class RunEngine:
     def _expect(self, expect: Expect) -> None:
         if self.monitor is not None:
             self.monitor.expect(expect)
+
+
+#: Messages that wait for every background pull first (motion, or file work of their own).
+_AFTER_PULLS = (m.Push, m.Select, m.Start, m.PutFile, m.Pull)
 
 
 def _enum(value: object) -> str:

@@ -207,6 +207,33 @@ class Pull(Msg):
 
 
 @dataclass(frozen=True)
+class PullStart(Msg):
+    """Start pulling trace ``trace`` like :class:`Pull`, in the background, so that the next loop's settling and
+    recording overlap it (the pull stays under the monitor's file-window rule: it opens only at standstill, and the
+    engine lets no motion message (``Push``, ``Select``, ``Start``, ``PutFile``, ``Pull``) run before every pull in
+    flight has ended). A failed pull interrupts the plan at once. Collect it with :class:`PullJoin`. Reply: None."""
+
+    trace: str
+    dest_dir: Path
+    modules: tuple[str, ...] = ()
+
+    def describe(self) -> str:
+        return f"PullStart {self.trace} → {self.dest_dir}"
+
+
+@dataclass(frozen=True)
+class PullJoin(Msg):
+    """Wait for the background pull of ``trace`` (:class:`PullStart`). Reply: (``PulledTrace``, the seconds the plan
+    waited for it, the seconds the pull took in all); a failed pull raises its error."""
+
+    trace: str
+    timeout_s: float = 600.0
+
+    def describe(self) -> str:
+        return f"PullJoin {self.trace}"
+
+
+@dataclass(frozen=True)
 class DeleteTraceCopies(Msg):
     """Delete the controller copies of a pulled trace — only once the store indexed its files. Reply: (deleted,
     note); a failed delete is not an error (the note says why)."""

@@ -46,6 +46,7 @@ from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.topics import Topics
 from rgse_daemon.pipeline.cog import SCHEMES, CogPose, cog_poses
+from rgse_daemon.pipeline.stopping import StopDecision
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.directory import setup_toml, traces_toml
@@ -53,7 +54,13 @@ from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.inertia import REPEATS, check_feasible, inertia_step
 from rgse_daemon.procedures.loop import LoopOutcome, loop
-from rgse_daemon.procedures.measurement import CALIBRATION_FILE, timing_summary
+from rgse_daemon.procedures.measurement import (
+    CALIBRATION_FILE,
+    measurement_loops,
+    result_line,
+    stop_json,
+    timing_summary,
+)
 from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.procedures.programs import (
     COG_TRACE_CONFIG_NAME,
@@ -69,6 +76,7 @@ from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import prepare
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import RunKind, Store
+from rgse_daemon.verdict import with_status
 
 
 @dataclass(frozen=True)
@@ -161,20 +169,11 @@ def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, 
 
 
 # --- the steps ----------------------------------------------------------------------------------------------------
-def mass_step(run: d.RunContext, s: RunSettings, tag: str,
-              first_index: int) -> Generator[m.Msg, Any, list[LoopOutcome]]:
-    """The mass loops in the measurement pose (as the measurement run's)."""
-    outcomes: list[LoopOutcome] = []
-    for i in range(1, s.loops + 1):
-        yield m.Checkpoint(f"mass loop {i}")
-        yield m.Emit(Event("step", f"mass loop {i}/{s.loops}", step="loop", loop_index=i, loop_count=s.loops,
-                           data={"phase": "mass"}))
-        out = yield from loop(first_index + i - 1, f"dut_{tag}_l{i:02d}", run, s)
-        outcomes.append(out)
-        per_loop_s = sum(o.timing.robot_s + o.timing.overhead_s for o in outcomes) / len(outcomes)
-        yield m.Emit(Event("loop", f"mass loop {i}/{s.loops} done", step="loop", loop_index=i, loop_count=s.loops,
-                           eta_s=per_loop_s * (s.loops - i), data={"phase": "mass", **out.timing.to_json()}))
-    return outcomes
+def mass_step(run: d.RunContext, s: RunSettings, tag: str, first_index: int, cal_doc: dict[str, Any] | None = None
+              ) -> Generator[m.Msg, Any, tuple[list[LoopOutcome], StopDecision]]:
+    """The mass loops in the measurement pose (as the measurement run's, under the same stop rule)."""
+    return (yield from measurement_loops(run, s, cal_doc, lambda i: f"dut_{tag}_l{i:02d}", first_index,
+                                         event_data={"phase": "mass"}, label="mass loop"))
 
 
 def move_to(pose: Sequence[float], s: RunSettings) -> Generator[m.Msg, Any, float]:
@@ -209,9 +208,12 @@ def cog_step(run: d.RunContext, s: RunSettings, p: PropertiesSettings, tag: str,
         yield from move_to(pose.q_deg, s)
         at_pose = replace(s, meas_pose_deg=pose.q_deg)  # the brake-release move turns A3/A5 about this pose
         traces = []
+        previous: LoopOutcome | None = None
         for j in range(1, n + 1):
             yield m.Checkpoint(f"CoG pose {pose.name} loop {j}")
-            out = yield from loop(index, pose_trace_name(tag, k, j), run, at_pose, trace_config=COG_TRACE_CONFIG_NAME)
+            out = yield from loop(index, pose_trace_name(tag, k, j), run, at_pose, trace_config=COG_TRACE_CONFIG_NAME,
+                                  previous=previous, defer=j < n)  # a pull overlaps the pose's next loop
+            previous = out
             index += 1
             outcomes.append(out)
             traces.append(out.trace)
@@ -237,7 +239,7 @@ def properties_plan(
     tag = run.run_id.rsplit("-", 1)[-1][:8].lower()
     yield m.Emit(Event("step", f"mass: {s.loops} loops in the measurement pose", step="mass",
                        data={"phase": "mass", "loops": s.loops}))
-    mass_loops = yield from mass_step(run, s, tag, 1)
+    mass_loops, decision = yield from mass_step(run, s, tag, 1, cal_doc)
     yield m.Emit(Event("step", f"CoG: {len(cog_poses(s.meas_pose_deg, p.scheme))} poses ({p.scheme}) x "
                                f"{p.loops_per_pose} loops", step="cog", data={"phase": "cog", "scheme": p.scheme}))
     poses, pose_loops = yield from cog_step(run, s, p, tag, 1 + len(mass_loops))
@@ -270,20 +272,24 @@ def properties_plan(
         "trace_sha256": shas,
         "warnings": [*result.get("warnings", []), *(warnings or [])],
         "controller_copies_deleted": all(o.deleted for o in outcomes),
+        "stop_reason": decision.reason,
+        "stop_rule": stop_json(s, decision),
         "timing": {**timing_summary(outcomes, compute_s),
                    "mass_robot_time_s": sum(o.timing.robot_s for o in mass_loops),
                    "cog_robot_time_s": sum(o.timing.robot_s for o in pose_loops),
                    "inertia_robot_time_s": sum(o.timing.robot_s for o in inertia_loops)},
+        **({"identity": s.identity} if s.identity else {}),
     }
+    result = with_status(result)
     yield d.Result(result, shas)
     for w in result["warnings"]:  # e.g. payload torques beyond what the torsional calibration covered
         yield m.Emit(Event("log", f"warning: {w}", step="result", data={"warning": w}))
     mm = [1000.0 * v for v in result["cog_m"]]
     umm = [1000.0 * v for v in result["U_cog_m"]]
-    yield m.Emit(Event("result", f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg, CoG (flange) "
-                                 f"x {mm[0]:.1f} ± {umm[0]:.1f}, y {mm[1]:.1f} ± {umm[1]:.1f}, "
-                                 f"z {mm[2]:.1f} ± {umm[2]:.1f} mm (k = 2)" + _inertia_text(result), step="result",
-                       data=result))
+    yield m.Emit(Event("result", result_line(result, f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg, "
+                                                     f"CoG (flange) x {mm[0]:.1f} ± {umm[0]:.1f}, y {mm[1]:.1f} ± "
+                                                     f"{umm[1]:.1f}, z {mm[2]:.1f} ± {umm[2]:.1f} mm (k = 2)"
+                                                     + _inertia_text(result)), step="result", data=result))
     return result
 
 

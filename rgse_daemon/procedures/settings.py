@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from rgse_daemon import kinematics as kin
 from rgse_daemon.config import Config
+from rgse_daemon.pipeline.stopping import MIN_LOOPS, StopRule
 
 
 @dataclass(frozen=True)
@@ -30,9 +31,15 @@ class RunSettings:
     warmup_steady_k: float = 1.0
     warmup_steady_window_s: float = 300.0
     warmup_max_s: float = 2400.0
+    min_loops: int = 3
+    stop_loop_share: float = 0.0
+    """0 (with no ``stop_target_U_kg``): always ``loops`` loops; the config's default is 0.2."""
+    stop_target_U_kg: float | None = None
     g_m_s2: float = kin.G_PAPER_M_S2
     lever_difference_m: float = kin.D4_M
     meas_pose_deg: tuple[float, ...] = tuple(float(v) for v in kin.measurement_pose())
+    identity: dict[str, str] | None = field(default=None, hash=False)
+    """Who and what is measured (interfaces §4.3 ``identity``), published with the result; None: not given."""
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> RunSettings:
@@ -58,8 +65,15 @@ class RunSettings:
             warmup_steady_k=ms.warmup_steady_k,
             warmup_steady_window_s=ms.warmup_steady_window_s / scale,
             warmup_max_s=ms.warmup_max_s / scale,
+            min_loops=ms.min_loops,
+            stop_loop_share=ms.stop_loop_share,
+            stop_target_U_kg=ms.stop_target_U_kg,
         )
         return replace(base, **overrides)
+
+    @property
+    def stop_rule(self) -> StopRule:
+        return StopRule(self.loops, max(self.min_loops, MIN_LOOPS), self.stop_loop_share, self.stop_target_U_kg)
 
     @property
     def trace_time_s(self) -> float:

@@ -28,6 +28,7 @@ from rgse_daemon.report.data import (
     ReportMeta,
 )
 from rgse_daemon.store import TraceFileRecord
+from rgse_daemon.verdict import status_of
 
 _CSS = """
 body{font-family:system-ui,-apple-system,"Segoe UI",Roboto,sans-serif;margin:0;color:#1b1b1b;background:#f4f5f7}
@@ -47,6 +48,9 @@ img{display:block;max-width:100%;height:auto;margin:.4em 0 1em}
 .ok{background:#dff3e3;color:#185c27}.bad{background:#fbe0e0;color:#8a1a1a}.info{background:#e3ecf9;color:#1d3f73}
 span.t{white-space:nowrap}.key td:first-child{width:280px;color:#444}
 .warn{background:#fff6dd;border-left:4px solid #e0a800;padding:6px 10px;margin:.5em 0}
+.status{display:inline-block;padding:2px 12px;border-radius:6px;font-weight:700;font-size:1.1em}
+.status.ok{background:#dff3e3;color:#185c27}.status.warning{background:#fff6dd;color:#7a5600}
+.status.refused{background:#fbe0e0;color:#8a1a1a}
 footer{margin-top:2em;color:#666;font-size:.8em}
 """
 
@@ -291,9 +295,7 @@ def _result_summary(view: MeasurementView) -> str:
         ("result id", code(view.result.id, "result_id")),
         ("result stored", when(view.result.created_utc)),
     ]
-    out = kv(rows)
-    for w in res.get("warnings") or []:
-        out += f'<p class="warn">warning: {t(w)}</p>'
+    out = kv(rows)  # (the warnings are at the top of the report, with the status)
     if len(view.all_results) > 1:
         out += (f'<p class="warn">{len(view.all_results)} results are stored for this run; the newest is shown. '
                 "Others: " + ", ".join(code(r.id) for r in view.all_results[:-1]) + "</p>")
@@ -415,10 +417,37 @@ def _inertia_section(inertia: dict[str, Any]) -> str:
     return out
 
 
+#: The identity fields of a run (interfaces §4.3 ``identity``), in the order the report shows them.
+IDENTITY_FIELDS = (("dut_name", "DuT"), ("serial_number", "serial number"), ("part_number", "part number"),
+                   ("project", "project"), ("operator", "operator"), ("note", "note"))
+
+
+def status_head(result: dict[str, Any], identity: dict[str, Any] | None) -> str:
+    """The top of a run's report: the result's status (``ok``, ``warning``, ``refused``), every warning, and who
+    and what was measured (the run's identity)."""
+    status = status_of(result)
+    warnings = result.get("warnings") or []
+    out = (f'<p>status <span class="status {status}" data-field="status" data-value="{t(status)}">{t(status)}</span> '
+           + (f"{len(warnings)} warning(s): read them before filing the result" if warnings else "no warnings")
+           + "</p>")
+    for w in warnings:
+        out += f'<p class="warn">warning: <span data-field="warning" data-value="{t(w)}">{t(w)}</span></p>'
+    if result.get("reason"):
+        out += f'<p class="warn">refused: {t(result["reason"])}</p>'
+    who = identity or {}
+    rows = [(label, f'<span data-field="identity.{key}" data-value="{t(who[key])}">{t(who[key])}</span>')
+            for key, label in IDENTITY_FIELDS if who.get(key)]
+    out += kv(rows) if rows else "<p>No identity was given for this run (DuT name, serial number, project, " \
+                                 "operator: <code>rgse run measure --dut-name ...</code>).</p>"
+    return out
+
+
 def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
     run = view.run
     n_checks = len(view.checks) + len(view.calibration.checks)
+    identity = view.result.result.get("identity") or (run.config.get("settings") or {}).get("identity")
     body = [
+        status_head(view.result.result, identity),
         f"<p>{badge(True, f'{n_checks} consistency checks passed', '')} "
         "(raw files verified, result recomputed from them and found equal)</p>",
         "<h2>Result</h2>", _result_summary(view),

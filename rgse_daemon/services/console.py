@@ -8,15 +8,18 @@ One page (``console.html``) and a small HTTP API beside it:
                            then ``state`` at the state rate and ``progress`` for every engine event as it happens
 ``POST /api/confirm``      ``{run_id, point?, message?, token?}``: the ``confirm`` command
 ``POST /api/abort``        ``{run_id?, reason, token?}``: the ``abort`` command
-``GET /api/history``       the robot's latest runs with their results and report links
+``POST /api/measure``      ``{loops?, identity?, token?}``: the ``measure`` command (a run for a named DuT)
+``POST /api/properties``   ``{loops?, identity?, token?}``: the ``properties`` command
+``GET /api/history``       the robot's latest runs with their results (status, warnings, the DuT's identity), the
+                           reason of a failed or aborted run, and report links
 ``GET /report/run/ID``     the HTML report of a run (``/report/calibration/ID`` of a calibration), from the store,
                            rendered on the console's own thread (:data:`REPORT_QUEUE`)
 
 The actions are the MQTT commands: checked by the same :func:`~rgse_daemon.io.commands.parse_command` (schema and
 ``mqtt.command_tokens``) and answered by the same handler, so the console can confirm only what the daemon asks
-for. Without ``command_tokens`` the console acts only with ``command_auth = "open_lab_bench"``: the broker's ACL
-(``broker_acl``) does not see this page. Each action, accepted or refused, is recorded in the store as an event
-``console_action`` with ``source: "console"``.
+for, and start only what MQTT may start (admission's rules alike). Without ``command_tokens`` the console acts only
+with ``command_auth = "open_lab_bench"``: the broker's ACL (``broker_acl``) does not see this page. Each action,
+accepted or refused, is recorded in the store as an event ``console_action`` with ``source: "console"``.
 """
 
 from __future__ import annotations
@@ -123,6 +126,7 @@ class Console:
         app = web.Application(client_max_size=MAX_PAYLOAD_BYTES)
         app.add_routes([web.get("/", self._page), web.get("/events", self._events),
                         web.post("/api/confirm", self._confirm), web.post("/api/abort", self._abort),
+                        web.post("/api/measure", self._measure), web.post("/api/properties", self._properties),
                         web.get("/api/history", self._history),
                         web.get(r"/report/{what:run|calibration}/{id:[A-Za-z0-9_.\-]+}", self._report)])
         self._runner = web.AppRunner(app, handle_signals=False, access_log=None, shutdown_timeout=SHUTDOWN_TIMEOUT_S,
@@ -241,7 +245,7 @@ class Console:
         await resp.prepare(request)
         q: asyncio.Queue[tuple[str, Any] | None] = asyncio.Queue(CLIENT_QUEUE)
         hello = {"robot": self.robot, "token_required": bool(self._tokens), "run": self.run,
-                 "state": await self._fresh_state(), "torque": list(self.torque)}
+                 "state": await self._fresh_state(), "torque": list(self.torque), "state_period_s": self.period_s}
         self._clients.add(q)
         try:
             async with asyncio.timeout(WRITE_TIMEOUT_S):
@@ -287,6 +291,8 @@ class Console:
             error = exc.problem if isinstance(exc, CommandRefused) else str(exc)
             await self._record(f"console {verb} refused: {error}", {**record, "ok": False, "error": error})
             return web.json_response({"ok": False, "error": error}, status=409)
+        if verb in ("measure", "properties") and isinstance(reply.get("run_id"), str):
+            record["run_id"] = reply["run_id"]  # the run the console started
         await self._record(f"console {verb}", {**record, "ok": True})
         return web.json_response({"ok": True, **reply})
 
@@ -310,6 +316,12 @@ class Console:
     async def _abort(self, request: web.Request) -> web.Response:
         return await self._act("abort", request)
 
+    async def _measure(self, request: web.Request) -> web.Response:
+        return await self._act("measure", request)
+
+    async def _properties(self, request: web.Request) -> web.Response:
+        return await self._act("properties", request)
+
     async def _history(self, request: web.Request) -> web.Response:
         runs = (await self._store.list_runs(robot=self.robot))[-HISTORY_RUNS:]
         rows = []
@@ -321,7 +333,10 @@ class Console:
             if res is not None:
                 link = f"/report/calibration/{res['calibration_id']}" if kind == "calibration" and \
                     res.get("calibration_id") else f"/report/run/{r.id}"
-            rows.append({"run_id": r.id, "kind": kind, "state": str(r.state), "result": res, "report": link})
+            identity = (r.config.get("settings") or {}).get("identity") if isinstance(r.config, dict) else None
+            rows.append({"run_id": r.id, "kind": kind, "state": str(r.state), "result": res, "report": link,
+                         "status": results[-1].status if results else None, "detail": r.detail,
+                         "identity": identity, "ended": r.ended_utc.isoformat() if r.ended_utc else None})
         return web.json_response({"robot": self.robot, "runs": rows})
 
     async def _report(self, request: web.Request) -> web.StreamResponse:

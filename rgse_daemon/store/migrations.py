@@ -128,7 +128,18 @@ _V1 = (
     "CREATE INDEX outbox_pending ON outbox(published_utc, id)",
 )
 
-MIGRATIONS: tuple[Migration, ...] = (Migration(1, "initial schema", _V1),)
+# A result's status (rgse_daemon.verdict): ok, warning or refused, so that a query finds the results with warnings
+# without parsing every document. Results stored before have NULL here; the repository derives theirs from the
+# document when it reads them.
+_V2 = (
+    "ALTER TABLE results ADD COLUMN status TEXT CHECK (status IS NULL OR status IN ('ok', 'warning', 'refused'))",
+    "CREATE INDEX results_status ON results(status)",
+)
+
+MIGRATIONS: tuple[Migration, ...] = (
+    Migration(1, "initial schema", _V1),
+    Migration(2, "result status", _V2),
+)
 
 _VERSION_TABLE = """CREATE TABLE IF NOT EXISTS schema_version (
     version INTEGER PRIMARY KEY,

@@ -152,6 +152,8 @@ class ResultRecord:
     created_utc: datetime
     trace_sha256: tuple[str, ...]
     """The archived raw files the result was computed from (sorted)."""
+    status: str = "ok"
+    """``ok``, ``warning`` or ``refused`` (rgse_daemon.verdict), the column ``results.status``."""
 
 
 @dataclass(frozen=True)

@@ -47,6 +47,7 @@ from rgse_daemon.store.records import (
     opt_from_text,
     to_text,
 )
+from rgse_daemon.verdict import status_of
 
 Clock = Callable[[], datetime]
 
@@ -503,8 +504,9 @@ class Repository:
                     "files of this run; a result must be reproducible from its raw files"
                 )
             self._db.execute(
-                "INSERT INTO results (id, run_id, calibration_id, result, created_utc) VALUES (?, ?, ?, ?, ?)",
-                (result_id, run_id, cal_id if isinstance(cal_id, str) else None, text, self._now()),
+                "INSERT INTO results (id, run_id, calibration_id, result, created_utc, status)"
+                " VALUES (?, ?, ?, ?, ?, ?)",
+                (result_id, run_id, cal_id if isinstance(cal_id, str) else None, text, self._now(), status_of(result)),
             )
             for f in files:
                 if f["sha256"] in hashes:
@@ -730,13 +732,15 @@ def _calibration(r: Row) -> CalibrationRecord:
 
 
 def _result(r: Row, hashes: tuple[str, ...]) -> ResultRecord:
+    result = json.loads(r["result"])
     return ResultRecord(
         id=r["id"],
         run_id=r["run_id"],
         calibration_id=r["calibration_id"],
-        result=json.loads(r["result"]),
+        result=result,
         created_utc=from_text(r["created_utc"]),
         trace_sha256=hashes,
+        status=r["status"] or status_of(result),  # NULL: stored before the column existed
     )
 
 

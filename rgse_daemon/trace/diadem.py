@@ -41,6 +41,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path, PureWindowsPath
 
+import blake3
 import numpy as np
 
 from rgse_daemon.errors import DataError
@@ -98,6 +99,8 @@ class TraceFile:
     """Hex SHA-256 of each raw file read (the ``.dat`` and its data file), by file name."""
     global_header: dict[int, str]
     time_channel: str = ZEIT
+    blake3: dict[str, str] = field(default_factory=dict)
+    """Hex BLAKE3 of each raw file read, by file name (``with_blake3=True``; else empty)."""
 
     def channel(self, name: str) -> Channel:
         """The channel called ``name`` (code 200); DataError naming the file if it has none."""
@@ -136,6 +139,14 @@ class TraceSet:
         out: dict[str, str] = {}
         for tf in self.files.values():
             out.update(tf.sha256)
+        return out
+
+    @property
+    def blake3(self) -> dict[str, str]:
+        """BLAKE3 of every raw file of the set, by file name (read with ``with_blake3=True``)."""
+        out: dict[str, str] = {}
+        for tf in self.files.values():
+            out.update(tf.blake3)
         return out
 
 
@@ -277,14 +288,14 @@ def _spec(index: int, block: dict[int, str], source: str) -> _Spec:
 
 # --- data --------------------------------------------------------------------------------------------------------
 def _read_raw(
-    path: Path, specs: list[_Spec], source: str, with_sha256: bool
-) -> tuple[dict[str, np.ndarray], bool, str | None]:
+    path: Path, specs: list[_Spec], source: str, with_sha256: bool, with_blake3: bool = False
+) -> tuple[dict[str, np.ndarray], bool, dict[str, str]]:
     """The raw values of each channel of one data file (read-only), whether all are finite and, if asked, the
     SHA-256 of the file's bytes.
 
     The file's size is checked against the header (codes 220/221, :func:`_layout`) and :data:`MAX_DATA_BYTES`
     *before* a byte of it is read, and no more than that is ever read: a 2 GB file behind a 40-sample header is
-    refused at once instead of filling the memory. The SHA-256 hashes the buffer already read."""
+    refused at once instead of filling the memory. The digests (by algorithm name) hash the buffer already read."""
     dtype = _DTYPES["REAL64"]
     try:
         with open(path, "rb") as f:
@@ -303,13 +314,23 @@ def _read_raw(
         raise DataError(f"{path}: cannot read data file: {exc}") from exc
     if raw.size != n_values:
         raise DataError(f"{path}: data file changed while reading ({raw.size * dtype.itemsize} of {size} bytes)")
-    digest = hashlib.sha256(raw.view(np.uint8)).hexdigest() if with_sha256 else None
+    digest = _digests(raw.view(np.uint8), with_sha256, with_blake3)
     raw.flags.writeable = False
     finite = _all_finite(raw)
     if isinstance(layout, int):  # BLOCK: a table of ``layout`` columns, one row per sample
         table = raw.reshape(-1, layout)
         return {s.name: table[:, s.pointer - 1] for s in specs}, finite, digest
     return {s.name: raw[sl] for s, sl in zip(specs, layout, strict=True)}, finite, digest
+
+
+def _digests(data: bytes | np.ndarray, with_sha256: bool, with_blake3: bool) -> dict[str, str]:
+    """SHA-256 (what the archive records) and/or BLAKE3 (several times faster, on every core) of ``data``."""
+    out = {}
+    if with_sha256:
+        out["sha256"] = hashlib.sha256(data).hexdigest()
+    if with_blake3:
+        out["blake3"] = blake3.blake3(data, max_threads=blake3.blake3.AUTO).hexdigest()
+    return out
 
 
 def _layout(specs: list[_Spec], n_values: int, path: Path) -> int | list[slice]:
@@ -410,11 +431,15 @@ def _time_period_s(spec: _Spec, values: np.ndarray, source: str) -> float:
     return period_s
 
 
-def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha256: bool = True) -> TraceFile:
+def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha256: bool = True,
+                    with_blake3: bool = False) -> TraceFile:
     """Read one ``.dat`` header and its data file(s).
 
     ``with_sha256=False`` skips hashing (``TraceFile.sha256`` is then empty): SHA-256 runs at ~2 GB/s, several
-    times slower than the rest of the reader, and only the archive and the results need it.
+    times slower than the rest of the reader, and only the archive and the results need it (their records are
+    SHA-256). ``with_blake3=True`` fills ``TraceFile.blake3``: BLAKE3 on every core, for integrity checks of a
+    whole archive's re-analysis where no SHA-256 record is compared (``bench/robot_time.py``: read + BLAKE3 vs
+    ``numpy.fromfile``).
 
     ``module`` defaults to the part of the file stem after its last ``_`` (``run1_NextGenDrive#3`` ->
     ``NextGenDrive#3``): KUKA module names contain no underscore, trace names may.
@@ -451,7 +476,9 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
     by_file: dict[str, list[_Spec]] = {}
     for s in explicit:
         by_file.setdefault(s.data_file, []).append(s)
-    sha256 = {dat_path.name: hashlib.sha256(header_bytes).hexdigest()} if with_sha256 else {}
+    header_digest = _digests(header_bytes, with_sha256, with_blake3)
+    sha256 = {dat_path.name: header_digest["sha256"]} if with_sha256 else {}
+    b3 = {dat_path.name: header_digest["blake3"]} if with_blake3 else {}
     raw_by_name: dict[str, tuple[np.ndarray, bool]] = {}
     data_paths: list[Path] = []
     for file_name in by_file:
@@ -467,9 +494,11 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
         inside(dat_path.parent, dat_path.with_name(file_name))
     for file_name, group in by_file.items():
         data_path = dat_path.with_name(file_name)
-        columns, finite, digest = _read_raw(data_path, group, source, with_sha256)
-        if digest is not None:
-            sha256[file_name] = digest
+        columns, finite, digest = _read_raw(data_path, group, source, with_sha256, with_blake3)
+        if "sha256" in digest:
+            sha256[file_name] = digest["sha256"]
+        if "blake3" in digest:
+            b3[file_name] = digest["blake3"]
         raw_by_name.update({name: (column, finite) for name, column in columns.items()})
         data_paths.append(data_path)
 
@@ -508,6 +537,7 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
         sha256=sha256,
         global_header=global_header,
         time_channel=time_spec.name,
+        blake3=b3,
     )
 
 
@@ -533,13 +563,15 @@ def read_trace_set(
     *,
     max_workers: int = 2,
     with_sha256: bool = True,
+    with_blake3: bool = False,
 ) -> TraceSet:
     """Read the files ``<name>_<module>.dat`` of one trace.
 
     ``modules=None`` reads every module present (file stems ``<name>_<module>`` whose module part has no
     underscore, so trace ``run`` does not swallow trace ``run_2``); a requested module that is absent is a
     DataError, as is a trace with no files at all. Files are read on up to ``max_workers`` threads: reading and
-    hashing release the GIL, so the two cores overlap. ``with_sha256`` as for :func:`read_trace_file`.
+    hashing release the GIL, so the two cores overlap. ``with_sha256``, ``with_blake3`` as for
+    :func:`read_trace_file`.
     """
     directory = Path(directory)
     plain_name(name, f"{directory}: trace name")
@@ -556,7 +588,7 @@ def read_trace_set(
         inside(directory, p)
 
     def read_one(path: Path, module: str) -> TraceFile:
-        return read_trace_file(path, module, with_sha256=with_sha256)
+        return read_trace_file(path, module, with_sha256=with_sha256, with_blake3=with_blake3)
 
     if max_workers <= 1 or len(paths) == 1:
         read = [read_one(p, m) for p, m in zip(paths, wanted, strict=True)]

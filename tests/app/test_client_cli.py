@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rgse_daemon import calfile
 from simulators.krc4.physics import campaign_point_payload, dut_payload
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.client import SHORT_CAMPAIGN, write_points
@@ -96,9 +97,38 @@ async def test_run_measure_prints_the_mass(sim: SimulatedKrc4, private_broker: M
     async with running_daemon(cfg) as rd:
         await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
         ran = await rgse_run("measure", "--config", config, "--loops", "2")
-    assert ran.rc == 0, ran.err
+    warned = "status warning" in ran.out.splitlines()[0]
+    assert ran.rc == (4 if warned else 0), ran.err  # interfaces §1.1: 4 for a result with warnings
     assert ran.out.startswith("run ") and " kg, U " in ran.out and "(k = 2" in ran.out, ran.out
     assert "rgse run: loop: 2/2" in ran.err, ran.err
+
+
+async def test_run_measure_of_a_named_dut_with_warnings_exits_4_and_publishes_status_and_identity(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, calibration_doc: dict[str, Any],
+        tmp_path: Path) -> None:
+    """A calibration campaign that ran 15 K cooler than this robot now: the result warns (motor temperatures); the
+    command says ``status warning`` first, prints the warnings, exits 4; --json has status and identity."""
+    cfg, config = setup(tmp_path, sim, private_broker)
+    cool = {ax: t - 15.0 for ax, t in calibration_doc["thermal_state_k"].items()}
+    await seed_calibration(cfg, calfile.seal({**calibration_doc, "thermal_state_k": cool}))
+    sim.mount(DUT)
+    who = ["--dut-name", "Refex wing box", "--serial-number", "SN-0042", "--part-number", "PN-7-100",
+           "--project", "GSE-7", "--operator", "A. Tester", "--note", "first fit check"]
+    async with running_daemon(cfg) as rd:
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        text = await rgse_run("measure", "--config", config, "--loops", "1", *who[:2])
+        ran = await rgse_run("measure", "--config", config, "--loops", "1", "--json", *who)
+    assert text.rc == 4, text.err
+    first, *rest = text.out.splitlines()
+    assert first.startswith("run ") and "(Refex wing box): status warning, " in first, text.out
+    assert any(line.startswith("warning: motor temperatures differ") for line in rest), text.out
+    assert ran.rc == 4, ran.err
+    assert ran.out.count("\n") == 1
+    result = json.loads(ran.out)
+    assert result["status"] == "warning" and any("motor temperatures differ" in w for w in result["warnings"])
+    assert result["identity"] == {"dut_name": "Refex wing box", "serial_number": "SN-0042",
+                                  "part_number": "PN-7-100", "project": "GSE-7", "operator": "A. Tester",
+                                  "note": "first fit check"}
 
 
 async def test_end_of_input_aborts_the_campaign_and_exits_1(
@@ -164,4 +194,11 @@ async def test_run_properties_refused_without_a_cog_calibration_and_on_a_half_fi
                              close_stdin=True)
         assert ran.rc == 1 and ran.out == ""
         assert "refused by the daemon" in ran.err and "no torsional section" in ran.err
+        # with --json the refusal is one object on stdout, with its reason
+        ran = await rgse_run("properties", "--config", config, "--scheme", "paper", "--fixture-cog", "0", "0", "0.05",
+                             "--json", close_stdin=True)
+        assert ran.rc == 1 and ran.out.count("\n") == 1, ran.out
+        refused = json.loads(ran.out)
+        assert refused["status"] == "refused" and refused["state"] == "refused"
+        assert "no torsional section" in refused["reason"]
         assert not rd.daemon.run_active

@@ -122,6 +122,12 @@ async def test_an_abort_by_clicking_and_a_token_when_one_is_configured(sim: Simu
         await page.type_into("#token", "s3cret")
         await page.click("#abort")
         await page.wait_for("document.getElementById('run-state').textContent === 'aborted'", "the run aborted")
+        # the reason of the aborted run, on the page (it showed none)
+        await page.wait_for("document.getElementById('run-reason').innerText.includes('aborted by the operator')",
+                            "the abort's reason shown")
+        row = str(await page.evaluate(f"[...document.querySelectorAll('#history tr')].find(r => r.innerText.includes("
+                                      f"'{run_id}')).innerText"))
+        assert "aborted" in row and "reason: aborted by the operator (console)" in row, row
     async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
         assert (await store.get_run(run_id)).state == RunState.ABORTED
         actions = [e.data for e in await store.events(run_id=run_id) if e.kind == "console_action"]

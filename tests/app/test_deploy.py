@@ -57,8 +57,8 @@ def test_sim_config_loads_and_scales_the_robots_time_to_the_simulator() -> None:
     assert sim.settle_s == pytest.approx(real.settle_s / 100)
     assert sim.warmup_steady_window_s == pytest.approx(real.warmup_steady_window_s / 100)
     assert sim.warmup_max_s == pytest.approx(real.warmup_max_s / 100)
-    assert (sim.loops, sim.trace_samples, sim.program_timeout_s) == (real.loops, real.trace_samples,
-                                                                     real.program_timeout_s)
+    assert (sim.trace_samples, sim.program_timeout_s) == (real.trace_samples, real.program_timeout_s)
+    assert sim.loops == 3  # a rehearsal's runs are short
 
 
 def test_example_config_loads_and_mentions_every_key() -> None:

@@ -361,6 +361,23 @@ def test_parse_command_without_a_broker() -> None:
     assert parse_command("abort", b'{"request_id": "r", "reason": "x", "token": "s3cret-1"}', TOKENS).reason == "x"
 
 
+def test_the_identity_of_a_measure_or_properties_command() -> None:
+    """interfaces §4.3 ``identity``: the given keys kept (control characters escaped), unknown keys, empty or
+    overlong values and non-strings refused."""
+    cmd = parse_command("measure", json.dumps({"request_id": "r", "identity": {
+        "dut_name": "Refex wing box", "serial_number": "SN-0042", "note": "bolts\x1b[2J torqued"}}))
+    assert cmd.identity is not None and cmd.identity.as_json() == {
+        "dut_name": "Refex wing box", "serial_number": "SN-0042", "note": "bolts\\x1b[2J torqued"}
+    assert parse_command("properties", json.dumps({"request_id": "r", "identity": {"project": "GSE-7"}})
+                         ).identity.as_json() == {"project": "GSE-7"}
+    assert parse_command("measure", json.dumps({"request_id": "r", "identity": {}})).identity.as_json() is None
+    for bad, said in (({"customer": "ESA"}, "identity.customer: unknown field"),
+                      ({"dut_name": ""}, "identity.dut_name"), ({"dut_name": "x" * 201}, "identity.dut_name"),
+                      ({"serial_number": 42}, "identity.serial_number")):
+        with pytest.raises(CommandRefused, match=said):
+            parse_command("measure", json.dumps({"request_id": "r", "identity": bad}))
+
+
 async def _run(*argv: str) -> None:
     proc = await asyncio.create_subprocess_exec(
         *argv, stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.STDOUT

@@ -17,10 +17,13 @@ from tests.support.cli import fitted_dirs
 
 
 def run_json(capsys, argv: list[str]) -> dict:
-    assert main(argv) == 0
+    code = main(argv)
     out = capsys.readouterr().out
     assert out.count("\n") == 1  # exactly one JSON object
-    return json.loads(out)
+    doc = json.loads(out)
+    # rgse mass: exit 0 for a result without warnings, 4 with warnings (interfaces §1.1); the other commands 0
+    assert code == (4 if doc.get("status") == "warning" else 0), (code, doc.get("status"), doc.get("warnings"))
+    return doc
 
 
 def test_calibrate_points_paper_and_auto(tmp_path, capsys, paper_dir):
@@ -115,6 +118,30 @@ def test_operating_point_outside_widens_u_and_far_outside_is_refused(tmp_path, c
     res = run_json(capsys, ["mass", "--traces", str(tmp_path / "big"), "--calibration", str(dirs / "CAL.json"),
                             "--envelope-limit", "2", "--json"])
     assert res["operating_point"] == "outside" and res["U_kg"] > 0
+
+
+def test_status_exit_4_for_warnings_and_a_json_refusal_is_one_object_with_its_reason(tmp_path, capsys, dirs):
+    """interfaces §1.1/§1.3: a result with warnings is status "warning" and exit 4 (the text says so first); a
+    refusal with --json prints one JSON object on stdout, status "refused" with the reason, and exits 2."""
+    write_measurement(tmp_path / "heavy", 420.0, seed=7, n_samples=600, n_loops=2)
+    argv = ["mass", "--traces", str(tmp_path / "heavy"), "--calibration", str(dirs / "CAL.json")]
+    assert main([*argv, "--json"]) == 4
+    res = json.loads(capsys.readouterr().out)
+    assert res["status"] == "warning" and res["warnings"]
+    assert main(argv) == 4
+    out = capsys.readouterr().out
+    assert out.startswith(f"status: warning ({len(res['warnings'])} warning(s)") and "warning: " in out
+    ok = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(dirs / "CAL.json"), "--json"])
+    assert ok["status"] == ("warning" if ok["warnings"] else "ok")
+
+    write_measurement(tmp_path / "big", 600.0, seed=7, n_samples=600, n_loops=2)
+    assert main(["mass", "--traces", str(tmp_path / "big"), "--calibration", str(dirs / "CAL.json"), "--json"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out.count("\n") == 1, captured.out  # exactly one JSON object
+    refused = json.loads(captured.out)
+    assert refused["status"] == "refused" and "far outside the calibrated envelope" in refused["reason"]
+    assert refused["error"] == "OperatingPointError" and refused["warnings"] == []
+    assert "far outside the calibrated envelope" in captured.err  # the line on stderr stays
 
 
 def test_missing_trace(tmp_path, capsys, dirs):
@@ -282,7 +309,7 @@ def test_a_measurement_at_another_trace_period_than_the_calibration_draws_a_warn
     same = run_json(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(dirs / "CAL.json"), "--json"])
     assert not any("sample period" in w for w in same["warnings"]), same["warnings"]
     assert set(res["u_components_kg"]) == set(same["u_components_kg"])
-    assert main(argv) == 0
+    assert main(argv) == 4  # a result with warnings (interfaces §1.1)
     assert f"warning: {PERIOD_WARNING}\n" in capsys.readouterr().out
     # rgse calibrate's summary names the period to measure at (a points CSV has none, and says nothing)
     assert main(["calibrate", "--campaign", str(dirs / "cal"), "--out", str(tmp_path / "again.json")]) == 0

@@ -19,8 +19,10 @@ from tests.support import simcampaign as sc
 
 
 def _json(capsys, argv: list[str]) -> dict:
-    assert main(argv) == 0
-    return json.loads(capsys.readouterr().out)
+    code = main(argv)
+    doc = json.loads(capsys.readouterr().out)
+    assert code == (4 if doc.get("status") == "warning" else 0), (code, doc.get("warnings"))  # interfaces §1.1
+    return doc
 
 
 @pytest.mark.slow
@@ -66,8 +68,19 @@ def test_calibrate_mass_and_cog_from_trace_files(tmp_path, capsys):
     both = compute_properties(other)
     assert len([w for w in both["warnings"] if w.startswith(said)]) == 1, both["warnings"]
 
+    # the mass run's warnings stay in the CoG's result (a calibration campaign 10 K warmer than the loops)
+    doc_warm = {**doc, "thermal_state_k": {ax: t + 10.0 for ax, t in doc["thermal_state_k"].items()}}
+    warm = tmp_path / "prop_warm"
+    shutil.copytree(prop, warm)
+    (warm / "CAL.json").write_text(json.dumps(calfile.seal(doc_warm)))
+    mass_warm = _json(capsys, ["mass", "--traces", str(warm), "--calibration", str(warm / "CAL.json"), "--json"])
+    said = [w for w in mass_warm["warnings"] if w.startswith("motor temperatures differ")]
+    assert said and mass_warm["status"] == "warning", mass_warm["warnings"]
+    res_warm = _json(capsys, ["cog", "--traces", str(warm), "--calibration", str(warm / "CAL.json"), "--json"])
+    assert f"mass: {said[0]}" in res_warm["warnings"] and res_warm["status"] == "warning", res_warm["warnings"]
+
     # the human form, and a calibration without the torsional section refused with the reason
-    assert main(["cog", "--traces", str(prop), "--calibration", str(cal_json)]) == 0
+    assert main(["cog", "--traces", str(prop), "--calibration", str(cal_json)]) == (4 if res["warnings"] else 0)
     assert "CoG (flange)" in capsys.readouterr().out
     del doc["torsional"]
     old = tmp_path / "OLD.json"

@@ -93,9 +93,37 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     sim.mount(dut_payload(DUT_MASS_KG, (0.0, 0.05, 0.25), fixture_mass_kg=FIXTURE_KG))
     events: list[Event] = []
     engine.subscribe(events.append)
-    result = await run_measurement(engine, store, cfg, settings=steady(cfg, loops=3, trace_samples=600))
+    # the pull of loop N overlaps loop N+1, and nothing is deleted on the controller before it is archived and
+    # indexed: seen from the documents as the store makes them durable
+    on_controller = {}
+    overlap = []
+
+    def watch(doc: d.Document) -> None:
+        if isinstance(doc, d.LoopStarted):
+            on_controller[doc.index] = doc.trace
+        if isinstance(doc, d.LoopRecording) and doc.index > 1:
+            overlap.append((doc.index - 1, on_controller[doc.index - 1] in engine.pulls_in_flight))
+        if isinstance(doc, d.TraceArchived):
+            left = {p.name for p in (sim.share_dir / "TRACE").iterdir()}
+            assert {f.path.name for f in doc.files} <= left, "a trace file left the controller before its index"
+
+    engine.subscribe_documents(watch)
+    result = await run_measurement(engine, store, cfg, settings=steady(cfg, loops=6, trace_samples=600,
+                                                                       stop_loop_share=0.2))
     assert result is not None
-    assert [type(doc).__name__ for doc in docs] == ["OpenRun", *loop_docs * 3, "Result", "CloseRun"]
+    n = result["loops"]
+    # the stop rule: three loops at least; the loop term of this seed's run was below 20 % of u after 3 (predicted
+    # share 0.15 in two runs; the loops' own scatter from two of them is a rough estimate, so 4 or 5 may come)
+    assert result["stop_reason"] == "loop term below share" and 3 <= n < 6, (result["stop_reason"],
+                                                                              result["stop_rule"])
+    rule = result["stop_rule"]
+    assert rule["loops_analysed"] == n - 1 and rule["predicted_loop_share"] <= 0.2 and rule["max_loops"] == 6
+    assert result["u_components_kg"]["loops"] <= 0.25 * result["u_kg"]  # the rule's prediction held
+    assert overlap == [(i, True) for i in range(1, n)]
+    seq = ["LoopStarted", "LoopRecording", "LoopRecorded"]
+    assert [type(doc).__name__ for doc in docs] == [
+        "OpenRun", *seq, *[t for _ in range(n - 1) for t in (*seq, "TraceArchived")], "TraceArchived", "Result",
+        "CloseRun"]
     assert sim.truth is not None and sim.truth.payload_mass_kg > DUT_MASS_KG + FIXTURE_KG  # + the MPA
     err_kg = abs(result["mass_kg"] - DUT_MASS_KG)
     # One seed cannot test a 95 % coverage (tests/offline/test_coverage.py does, over 120 seeds): here a gross error
@@ -114,7 +142,7 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     # the campaign's trace period is in its CAL.json; the DuT traced at the same one draws no period warning
     assert cal.document["fit"]["sample_period_s"] == cfg.measurement.trace_period_s == 0.012
     assert not [w for w in result["warnings"] if "sample period" in w], result["warnings"]
-    assert result["calibration_id"] == cal.id and result["loops"] == 3
+    assert result["calibration_id"] == cal.id and result["loops"] == n
 
     # raw files: archived, hashed, indexed, reproducible; controller copies gone
     mrun = await store.get_run(result["run_id"])
@@ -136,8 +164,12 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
                == result["mass_kg"] for o in outbox)
     # progress: loop i/n with an eta, and the result
     loops = [e for e in events if e.kind == "loop"]
-    assert [(e.loop_index, e.loop_count) for e in loops] == [(1, 3), (2, 3), (3, 3)]
-    assert loops[-1].eta_s == 0.0 and all(e.data["robot_s"] > 0 and e.data["overhead_s"] > 0 for e in loops)
+    assert [(e.loop_index, e.loop_count) for e in loops] == [(i, 6) for i in range(1, n + 1)]
+    assert loops[-1].eta_s == 0.0 and all(e.data["robot_s"] > 0 for e in loops)
+    # every loop's pull is timed in the result: in all, and what the run waited for it (the last one's in full)
+    per_loop = result["timing"]["per_loop"]
+    assert all(lp["pull_total_s"] > 0 and lp["pull_s"] >= 0 for lp in per_loop)
+    assert per_loop[-1]["pull_s"] == per_loop[-1]["pull_total_s"]
     assert next(e for e in events if e.kind == "result").data["mass_kg"] == result["mass_kg"]
     # the same DuT after an hour with the brakes applied, measured without a warm-up and traced at 4 ms (the campaign
     # at 12 ms): the result says both, and so does its MQTT message

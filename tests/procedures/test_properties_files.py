@@ -53,10 +53,13 @@ def test_the_stored_result_is_what_rgse_mass_and_cog_give_on_its_directory(tmp_p
     write_properties_dir(run_dir, _settings(), man["measurement"]["traces"], "paper", fixture, measured, cal_doc)
 
     result = compute_properties(run_dir)
-    assert main(["cog", "--traces", str(run_dir), "--calibration", str(run_dir / "CAL.json"), "--json"]) == 0
+    code = main(["cog", "--traces", str(run_dir), "--calibration", str(run_dir / "CAL.json"), "--json"])
     cog = json.loads(capsys.readouterr().out)
-    assert main(["mass", "--traces", str(run_dir), "--calibration", str(run_dir / "CAL.json"), "--json"]) == 0
+    assert code == (4 if cog["warnings"] else 0) and cog["status"] == ("warning" if cog["warnings"] else "ok")
+    code = main(["mass", "--traces", str(run_dir), "--calibration", str(run_dir / "CAL.json"), "--json"])
     mass = json.loads(capsys.readouterr().out)
+    assert code == (4 if mass["warnings"] else 0)
+    assert result["status"] == "warning"  # the daemon's result of the same directory says the same
     assert result["cog_m"] == cog["cog_flange_m"] and result["U_cog_m"] == cog["U_cog_flange_m"]
     assert result["cog_dut_m"] == cog["cog_dut_m"] and result["mass_kg"] == mass["mass_kg"]
     # a 300 kg DuT loads the axes far beyond the torsional points: the result says so

@@ -117,7 +117,11 @@ def test_measurement_report_shows_the_trace_period_warning(tmp_path: Path) -> No
     period = [w for w in filled.result["warnings"] if "sample period" in w]
     assert len(period) == 1 and period[0].startswith("trace sample period 12 ms differs from the calibration "
                                                      "campaign's 4 ms"), filled.result["warnings"]
-    assert f'<p class="warn">warning: {period[0]}</p>' in html.unescape(path.read_text(encoding="utf-8"))
+    text = html.unescape(path.read_text(encoding="utf-8"))
+    shown = f'<p class="warn">warning: <span data-field="warning" data-value="{period[0]}">{period[0]}</span></p>'
+    # at the top, with the status, before the first section
+    assert shown in text and text.index(shown) < text.index("<h2>Result</h2>"), text[:3000]
+    assert '<span class="status warning" data-field="status" data-value="warning">warning</span>' in text
 
 
 def test_report_refuses_a_corrupted_raw_file(world: World, tmp_path: Path) -> None:

@@ -89,3 +89,29 @@ def test_runs_lists_exports_and_filters_the_history(world: World, tmp_path: Path
     assert main(["runs", "--config", str(config), "--since", "yesterday"]) == 2
     assert "--since 'yesterday': expected a date" in capsys.readouterr().err
     assert main(["runs", "--config", str(config), "--since", "2026-12-01", "--until", "2026-11-01"]) == 2
+
+
+def test_certificate_is_one_page_with_identity_result_status_and_calibration(
+        world: World, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue #34: the one-page PDF certificate, read back as text as a person (or a PDM import) would."""
+    from pypdf import PdfReader
+
+    config, ids = _history(world, tmp_path)
+    out = tmp_path / "cert.pdf"
+    assert main(["certificate", ids["named"], "--config", str(config), "--out", str(out)]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    reader = PdfReader(out)
+    assert len(reader.pages) == 1
+    text = " ".join(reader.pages[0].extract_text().split())
+    mass, u = world.filled.result["mass_kg"], world.filled.result["U_kg"]
+    for needed in ("Mass properties measurement certificate", "STATUS: WARNING - 2 warning(s)",
+                   "loop 2 set aside: a step of 31 Nm in A5", "ReFEx wing box", "SN-0042", "RFX-WB-1",
+                   "A. Kottmeier", f"{mass:.3f} kg", f"{u:.3f} kg", world.filled.calibration_id, "SHA-256",
+                   "ECSS-E-10-03C", "k = 2"):
+        assert needed in text, (needed, text)
+    assert f"+/- {0.0005 * mass:.3f} kg (0.05 %)" in text  # the ECSS band beside U
+
+    # a run without a result has nothing to certify: exit 2 naming why
+    assert main(["certificate", ids["failed"], "--config", str(config), "--out", str(tmp_path / "x.pdf")]) == 2
+    err = capsys.readouterr().err
+    assert "has no result" in err and "interlock trip" in err and not (tmp_path / "x.pdf").exists()

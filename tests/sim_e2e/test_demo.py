@@ -36,7 +36,16 @@ def test_demo_json_agrees_with_truth_within_u(tmp_path: Path) -> None:
     for key in ("mass_kg", "true_mass_kg", "U_kg", "loops", "robot_time_s", "overhead_s", "calibration"):
         assert key in out, key
     assert "loo_mean_abs_err_pct" in out["calibration"]
-    assert out["loops"] == 10 and out["true_mass_kg"] == 107.3 and out["seed"] == 2024
+    assert out["true_mass_kg"] == 107.3 and out["seed"] == 2024
+    # the stop rule (pipeline/stopping.py): at least three loops, at most the configured ten, and why it stopped
+    assert 3 <= out["loops"] <= 10
+    assert out["stop_reason"] in ("loop term below share", "target U met", "max loops")
+    assert (out["loops"] == 10) == (out["stop_reason"] == "max loops")
+    # robot time of the result and of the campaign that calibrated it (real-time equivalents)
+    assert 0 < out["mass_robot_time_s"] < out["robot_time_s"] and out["calibration_robot_time_s"] > 0
+    # the demo's campaign takes two loops a point, fewer than the rule's three: each point its configured two
+    stops = out["calibration_points_stop"]
+    assert stops and all(p["loops"] == 2 and p["stop_reason"] == "max loops" for p in stops), stops
     # the measured mass agrees with the simulator's truth within its expanded uncertainty
     err = out["mass_kg"] - out["true_mass_kg"]
     assert abs(err) <= out["U_kg"], f"measured {out['mass_kg']:.3f} ± {out['U_kg']:.3f} kg, true 107.3 kg"

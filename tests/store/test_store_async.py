@@ -12,6 +12,7 @@ import pytest
 
 from rgse_daemon.store import OutboxMessage, RunState, Store, StoreError, StoreTimeout, archive_file, archive_root
 from rgse_daemon.store.backend import SQLITE_FILENAME
+from rgse_daemon.store.migrations import MIGRATIONS
 
 from .conftest import PG_URL, ROBOT, PgSchemas, calibration_doc
 
@@ -42,7 +43,7 @@ async def test_a_measurement_through_the_async_store(store: Store, tmp_path: Pat
     assert await store.pending_outbox() == []
     assert (await store.get_result(result.id)).trace_sha256 == (archived.sha256,)
     assert (await store.get_run(run.id)).state == RunState.COMPLETED
-    assert store.dialect in ("sqlite", "postgresql") and await store.schema_version() == 1
+    assert store.dialect in ("sqlite", "postgresql") and await store.schema_version() == len(MIGRATIONS)
 
 
 async def test_close_is_idempotent_and_a_closed_store_refuses_calls(store_url: str | None, data_dir: Path) -> None:

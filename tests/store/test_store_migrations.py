@@ -30,20 +30,22 @@ def _tables(db: Backend) -> set[str]:
     return {r["name"] for r in rows}
 
 
-EXTRA = Migration(2, "operator notes", ("CREATE TABLE notes (id {id_pk}, text TEXT NOT NULL)",))
+N = len(MIGRATIONS)  # the project's own migrations; the tests' extra ones come after them
+EXTRA = Migration(N + 1, "operator notes", ("CREATE TABLE notes (id {id_pk}, text TEXT NOT NULL)",))
 BROKEN = Migration(
-    3, "half broken", ("CREATE TABLE half (x INTEGER)", "ALTER TABLE no_such_table ADD COLUMN y INTEGER")
+    N + 2, "half broken", ("CREATE TABLE half (x INTEGER)", "ALTER TABLE no_such_table ADD COLUMN y INTEGER")
 )
 
 
 def test_migrations_apply_in_order_once_and_are_recorded(store_url: str | None, data_dir: Path) -> None:
     db = _backend(store_url, data_dir)
     try:
-        assert migrate(db, _now, (*MIGRATIONS, EXTRA)) == [1, 2]
+        assert migrate(db, _now, (*MIGRATIONS, EXTRA)) == list(range(1, N + 2))
         assert migrate(db, _now, (*MIGRATIONS, EXTRA)) == []  # idempotent
-        assert current_version(db) == 2
+        assert current_version(db) == N + 1
         rows = db.execute("SELECT version, name, applied_utc FROM schema_version ORDER BY version")
-        assert [(r["version"], r["name"]) for r in rows] == [(1, "initial schema"), (2, "operator notes")]
+        names = [(r["version"], r["name"]) for r in rows]
+        assert names[0] == (1, "initial schema") and names[-1] == (N + 1, "operator notes")
         assert {"runs", "loops", "trace_files", "calibrations", "results", "events", "outbox", "notes"} <= _tables(db)
         db.execute("INSERT INTO notes (text) VALUES (?)", ("autoincrement works",))
         assert db.execute("SELECT id FROM notes")[0]["id"] == 1
@@ -56,7 +58,7 @@ def test_a_failing_migration_is_rolled_back_whole(store_url: str | None, data_di
     try:
         with pytest.raises(StoreError, match="no_such_table"):
             migrate(db, _now, (*MIGRATIONS, EXTRA, BROKEN))
-        assert current_version(db) == 2  # 1 and 2 stay applied; 3 left no trace
+        assert current_version(db) == N + 1  # 1..N+1 stay applied; N+2 left no trace
         assert "half" not in _tables(db)
     finally:
         db.close()
@@ -65,7 +67,7 @@ def test_a_failing_migration_is_rolled_back_whole(store_url: str | None, data_di
 def test_badly_numbered_migrations_are_refused(data_dir: Path) -> None:
     db = _backend(None, data_dir)
     try:
-        with pytest.raises(StoreError, match=r"numbered 1\.\.n without gaps, got \[1, 3\]"):
+        with pytest.raises(StoreError, match=rf"numbered 1\.\.n without gaps, got \[1, .*{N + 2}\]"):
             migrate(db, _now, (*MIGRATIONS, BROKEN))
         with pytest.raises(StoreError, match="without gaps"):
             migrate(db, _now, ())
@@ -79,7 +81,7 @@ def test_a_database_from_a_newer_daemon_is_refused(store_url: str | None, data_d
         migrate(db, _now, (*MIGRATIONS, EXTRA))
     finally:
         db.close()
-    with pytest.raises(StoreError, match="schema version 2 is newer than this program knows \\(1\\)"):
+    with pytest.raises(StoreError, match=f"schema version {N + 1} is newer than this program knows \\({N}\\)"):
         Repository.open(store_url, data_dir)
 
 
@@ -100,6 +102,6 @@ def test_concurrent_first_opens_migrate_exactly_once(store_url: str | None, data
         t.start()
     for t in threads:
         t.join(timeout=30)
-    assert outcomes == [1, 1, 1]
+    assert outcomes == [N, N, N]
     with Repository.open(store_url, data_dir) as repo:
-        assert repo.schema_version() == 1
+        assert repo.schema_version() == N

@@ -27,6 +27,7 @@ from rgse_daemon.store import (
     archive_root,
     relative_path,
 )
+from rgse_daemon.store.migrations import MIGRATIONS
 
 from .conftest import ROBOT, calibration_doc
 
@@ -55,10 +56,10 @@ def _run_with_files(repo: Repository, n: int = 2) -> tuple[str, list[str]]:
 
 def test_open_creates_the_schema_once(store_url: str | None, data_dir: Path) -> None:
     with Repository.open(store_url, data_dir) as repo:
-        assert repo.schema_version() == 1
+        assert repo.schema_version() == len(MIGRATIONS)
         repo.create_run("measurement", ROBOT, {})
     with Repository.open(store_url, data_dir) as repo:  # re-open: nothing re-applied, data still there
-        assert repo.schema_version() == 1
+        assert repo.schema_version() == len(MIGRATIONS)
         assert len(repo.list_runs()) == 1
 
 
@@ -197,6 +198,22 @@ def test_a_result_must_reference_archived_raw_files_and_is_idempotent(repo: Repo
     assert other.id != res.id and len(repo.results(run_id)) == 2
     with pytest.raises(StoreError, match="MQTT topic 'rgse/#'"):
         repo.record_result(run_id, {**RESULT, "mass_kg": 1.0}, hashes, publish=OutboxMessage("rgse/#"))
+
+
+def test_a_result_has_its_status_in_its_own_column_also_for_rows_stored_before_it(repo: Repository) -> None:
+    """ok / warning from the result's warnings, refused from its status; the column is queryable on SQLite and
+    PostgreSQL, and a row of the former schema (status NULL) reads with the status its document gives."""
+    run_id, hashes = _run_with_files(repo)
+    ok = repo.record_result(run_id, {**RESULT, "warnings": []}, hashes)
+    warned = repo.record_result(run_id, {**RESULT, "mass_kg": 107.5, "warnings": ["loops disagree"]}, hashes)
+    refused = repo.record_result(run_id, {"status": "refused", "reason": "too few loops", "warnings": []}, hashes)
+    assert (ok.status, warned.status, refused.status) == ("ok", "warning", "refused")
+    rows = repo._db.execute("SELECT id, status FROM results WHERE run_id = ? ORDER BY status", (run_id,))
+    assert [(r["id"], r["status"]) for r in rows] == [(ok.id, "ok"), (refused.id, "refused"), (warned.id, "warning")]
+    with pytest.raises(StoreError):
+        repo._db.execute("UPDATE results SET status = 'fine' WHERE id = ?", (ok.id,))
+    repo._db.execute("UPDATE results SET status = NULL WHERE id = ?", (warned.id,))  # as stored before migration 2
+    assert repo.get_result(warned.id).status == "warning"
 
 
 def test_outbox_rows_are_marked_published_never_deleted(repo: Repository) -> None:

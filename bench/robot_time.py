@@ -1,0 +1,282 @@
+"""Robot time per honest result (issue 35): the stop rule against the fixed 10 loops, the daemon's overhead at the
+controller's default file rate, a properties run, and read + hash against ``numpy.fromfile`` - side by side, one run.
+
+One simulated KR C4 (``rgse demo``'s: seed, scatter, drift and noise as rough as the demo's) in its own process and
+the whole daemon; the demo's calibration campaign; then with the demo's wing box mounted:
+
+* ``stop rule``: an in-line mass run under the configured rule (loop term <= 20 % of u, at least 3, at most 10),
+* ``fixed 10``: the same run with the rule off (``stop_loop_share = 0``: 10 loops, today's run),
+* ``properties``: mass (stop rule) and CoG (the demo's ``paper`` scheme, 2 loops a pose).
+
+Robot time is the loops' motion + settling + recording as the real robot needs them (wall time x the simulator's
+time scale). The controller's file work runs at the daemon's default ``file_rate_bytes_s`` (40 kB/s) scaled by the
+same factor, so a pull takes the share of a loop it would take on the real robot. The overhead is the loops' wall
+time (first loop's start to the last loop's files indexed) minus their robot time: pushes, handshakes, waits for a
+pull, the store, the stop rule's interim budget, the last loop's pull. The daemon's own CPU work is *not* faster
+with the time scale, so at ``--time-scale`` S the overhead is an upper bound (its CPU part counts S times).
+
+Run: ``.venv/bin/python bench/robot_time.py [--time-scale 50] [--seed 2024] [--hash-mb 200]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import hashlib
+import json
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import blake3
+import numpy as np
+
+from rgse_daemon.app import Daemon
+from rgse_daemon.commands import demo
+from rgse_daemon.controller import Controller
+from rgse_daemon.io.topics import Topics
+from rgse_daemon.krl.render import globals_dat_text
+from rgse_daemon.procedures import documents as d
+from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.engine import RunEngine
+from rgse_daemon.procedures.measurement import measurement_loops
+from rgse_daemon.procedures.programs import static_checker
+from rgse_daemon.procedures.properties import PropertiesSettings
+from rgse_daemon.procedures.recorder import StoreRecorder
+from rgse_daemon.procedures.settings import RunSettings
+from rgse_daemon.procedures.warmup import prepare
+from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
+from rgse_daemon.store import RunKind, Store
+from rgse_daemon.trace import read_trace_set
+from simulators.krc4 import physics as ph
+from simulators.krc4.process import SimProcess
+from simulators.krc4.tracefiles import write_trace_set
+
+#: The daemon's default controller file rate (config.ControllerConfig.file_rate_bytes_s), B/s of real time.
+FILE_RATE_BYTES_S = 40_000.0
+#: Issue 35's reference figures (min of robot time): today's 10-loop mass and properties runs, the paper's run.
+TODAY_MASS_MIN, TODAY_PROPERTIES_MIN, PAPER_MIN = 11.5, 16.75, 25.0
+
+
+def _run_row(name: str, result: dict[str, Any], scale: float, true_kg: float) -> dict[str, Any]:
+    t = result["timing"]
+    robot_wall = float(t.get("mass_robot_time_s", t["robot_time_s"])) if name != "properties" \
+        else float(t["robot_time_s"])
+    loops_robot_wall = float(t["robot_time_s"])
+    per = t["per_loop"]
+    row = {
+        "run": name, "loops": result["loops"], "stop_reason": result.get("stop_reason"),
+        "robot_min": robot_wall * scale / 60.0,
+        "mass_kg": result["mass_kg"], "U_kg": result["U_kg"], "error_kg": result["mass_kg"] - true_kg,
+        "within_U": abs(result["mass_kg"] - true_kg) <= result["U_kg"],
+        "u_loops_share": result["u_components_kg"]["loops"] / result["u_kg"],
+        "pull_total_s_real": [lp["pull_total_s"] * scale for lp in per],
+        "pull_wait_s_real": [lp["pull_s"] * scale for lp in per],
+        "predict_s_mean": float(np.mean([lp.get("predict_s", 0.0) for lp in per[2:]] or [0.0])),
+    }
+    if "loops_wall_s" in t:
+        over = float(t["loops_wall_s"]) - loops_robot_wall
+        row["overhead_pct_upper"] = 100.0 * over / loops_robot_wall
+        row["last_pull_pct"] = 100.0 * per[-1]["pull_s"] / loops_robot_wall
+        row["overhead_pct_without_last_pull"] = 100.0 * (over - per[-1]["pull_s"]) / loops_robot_wall
+    if name == "properties":
+        row["mass_min"] = float(t["mass_robot_time_s"]) * scale / 60.0
+        row["cog_min"] = float(t["cog_robot_time_s"]) * scale / 60.0
+    return row
+
+
+async def robot_runs(scale: float, seed: int) -> dict[str, Any]:
+    rate = FILE_RATE_BYTES_S * scale
+    with tempfile.TemporaryDirectory(prefix="rgse-robot-time-") as tmp:
+        root = Path(tmp)
+        sim = SimProcess(root / "share", seed=seed, time_scale=scale, globals_dat=globals_dat_text(),
+                         file_rate_bytes_s=rate)
+        await asyncio.to_thread(sim.start)
+        try:
+            cfg = demo.demo_config(sim, root / "data", None, time_scale=scale, file_rate_bytes_s=rate)
+            ref: list[Daemon] = []
+            operator = demo.Operator(sim, ref, demo.SilentView())
+            daemon = Daemon(cfg, on_event=operator)
+            ref.append(daemon)
+            stop = asyncio.Event()
+            service = asyncio.create_task(daemon.run(stop), name="rgse-bench-daemon")
+            try:
+                async with asyncio.timeout(30):
+                    await daemon.connected.wait()
+                t0 = time.monotonic()
+                cal = await _wait(await daemon.start_calibration(
+                    points=demo.CAMPAIGN, method="auto",
+                    settings=RunSettings.from_config(cfg, loops=demo.CAMPAIGN_LOOPS, warmup_cycles=1)))
+                cal_wall = time.monotonic() - t0
+                await sim.mount(demo.DUT.payload())
+                rows = []
+                rule = await _wait(await daemon.start_measurement())
+                rows.append(_run_row("stop rule", rule, scale, demo.DUT_MASS_KG))
+                daemon.cfg = cfg.model_copy(update={"measurement": cfg.measurement.model_copy(
+                    update={"stop_loop_share": 0.0})})
+                fixed = await _wait(await daemon.start_measurement())
+                rows.append(_run_row("fixed 10", fixed, scale, demo.DUT_MASS_KG))
+                daemon.cfg = cfg
+                props = await _wait(await daemon.start_properties(props=PropertiesSettings(
+                    demo.COG_SCHEME, demo.PROPERTIES_LOOPS_PER_POSE, ph.fixture_cog_flange_m(),
+                    demo.DUT.dut_origin_flange_m, demo.DUT.dut_abc_deg, False)))
+                rows.append(_run_row("properties", props, scale, demo.DUT_MASS_KG))
+            finally:
+                stop.set()
+                async with asyncio.timeout(60):
+                    await service
+        finally:
+            await asyncio.to_thread(sim.stop)
+    return {"rows": rows, "campaign_robot_min": float(cal.get("robot_time_s", 0.0)) * scale / 60.0,
+            "campaign_wall_s": cal_wall, "campaign_points_stop": cal.get("points_stop", [])}
+
+
+async def overhead_run(scale: float, seed: int, loops: int) -> dict[str, Any]:
+    """The daemon's overhead on the loops' path near real time: a series of ``loops`` mass loops (no warm-up; the
+    stop rule's interim budget is timed in the calibrated runs above and added) on a simulator at ``scale`` with
+    the controller's file work at 40 kB/s x ``scale``. The engine, monitor, recorder and store as the daemon runs
+    them."""
+    rate = FILE_RATE_BYTES_S * scale
+    with tempfile.TemporaryDirectory(prefix="rgse-overhead-") as tmp:
+        root = Path(tmp)
+        sim = SimProcess(root / "share", seed=seed, time_scale=scale, globals_dat=globals_dat_text(),
+                         file_rate_bytes_s=rate)
+        await asyncio.to_thread(sim.start)
+        try:
+            cfg = demo.demo_config(sim, root / "data", None, time_scale=scale, file_rate_bytes_s=rate)
+            s = RunSettings.from_config(cfg, loops=loops, warmup_cycles=0)
+            async with Controller.connect(cfg.controller) as krc, await Store.open(None, cfg.paths.data_dir) as store:
+                engine = RunEngine(krc, checker=static_checker(cfg.limits, cfg.measurement.payload_lever_max_m),
+                                   monitor=Monitor(krc, stale_periods=cfg.limits.snapshot_stale_s
+                                                   / DEFAULT_POLL_PERIOD_S),
+                                   share_dir=cfg.controller.share_dir)
+                recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+
+                def plan(run: d.RunContext) -> m.Plan:
+                    yield from prepare(s, None)
+                    t0 = time.monotonic()
+                    outcomes, _ = yield from measurement_loops(run, s, None, lambda i: f"ovh_l{i:02d}")
+                    return outcomes, time.monotonic() - t0
+
+                outcomes, wall = await engine.execute(
+                    d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json()}), plan, recorder)
+        finally:
+            await asyncio.to_thread(sim.stop)
+    robot = sum(o.timing.robot_s for o in outcomes)
+    last = outcomes[-1].timing.pull_s
+    return {"scale": scale, "loops": loops, "robot_min": robot * scale / 60.0, "overhead_pct": 100.0 * (wall - robot)
+            / robot, "last_pull_pct": 100.0 * last / robot, "pull_total_s_real": [o.timing.pull_total_s * scale
+                                                                               for o in outcomes],
+            "pull_wait_s_real": [o.timing.pull_s * scale for o in outcomes],
+            "settle_record_s_real": [(o.timing.settle_s + o.timing.record_s) * scale for o in outcomes]}
+
+
+async def _wait(task: asyncio.Task[Any]) -> Any:
+    async with asyncio.timeout(3600):
+        return await task
+
+
+def _best_s(fn: Callable[[], object], runs: int) -> float:
+    best = float("inf")
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def hash_rows(mb: float, runs: int) -> dict[str, float]:
+    """Read + hash of a trace set against ``numpy.fromfile`` of its .r64 files (warm page cache)."""
+    n_modules, channels = 6, ("Sollposition", "Istposition", "Positionsschleppfehler", "Geschwindigkeitsdifferenz",
+                              "Motortemperatur", "Istmoment", "Iststrom")
+    n = int(mb * 1e6 / (8 * n_modules * len(channels)))
+    rng = np.random.default_rng(0)
+    modules = {f"NextGenDrive#{k}": {c: (rng.standard_normal(n), "x") for c in channels}
+               for k in range(1, n_modules + 1)}
+    with tempfile.TemporaryDirectory(prefix="rgse-bench-hash-") as tmp:
+        d = Path(tmp)
+        write_trace_set(d, "b", 0.004, modules)
+        r64 = sorted(d.glob("b_*.r64"))
+        total = sum(p.stat().st_size for p in r64) / 1e6
+
+        def fromfile() -> list[np.ndarray]:
+            return [np.fromfile(p, dtype="<f8") for p in r64]
+
+        fromfile()
+        ff = _best_s(fromfile, runs)
+        out = {"size_mb": total, "fromfile_mb_s": total / ff}
+        for name, kw in (("read, no hash", {"with_sha256": False}), ("read + SHA-256", {}),
+                         ("read + BLAKE3", {"with_sha256": False, "with_blake3": True})):
+            s = _best_s(lambda kw=kw: read_trace_set(d, "b", **kw), runs)
+            out[name] = ff / s
+        data = [p.read_bytes() for p in r64]
+        out["SHA-256 alone, 1 thread MB/s"] = total / _best_s(lambda: [hashlib.sha256(b).digest() for b in data], runs)
+        out["BLAKE3 alone MB/s"] = total / _best_s(
+            lambda: [blake3.blake3(b, max_threads=blake3.blake3.AUTO).digest() for b in data], runs)
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--time-scale", type=float, default=50.0)
+    ap.add_argument("--seed", type=int, default=demo.SEED)
+    ap.add_argument("--hash-mb", type=float, default=200.0)
+    ap.add_argument("--hash-runs", type=int, default=5)
+    ap.add_argument("--skip-robot", action="store_true", help="no calibrated runs (the overhead and hash rows only)")
+    ap.add_argument("--overhead-scale", type=float, default=4.0, help="the overhead run's time scale (0: none)")
+    ap.add_argument("--overhead-loops", type=int, default=3)
+    args = ap.parse_args()
+    out: dict[str, Any] = {"time_scale": args.time_scale, "seed": args.seed,
+                           "file_rate_bytes_s_real": FILE_RATE_BYTES_S}
+    if not args.skip_robot:
+        out.update(asyncio.run(robot_runs(args.time_scale, args.seed)))
+    if args.overhead_scale > 0:
+        out["overhead"] = asyncio.run(overhead_run(args.overhead_scale, args.seed, args.overhead_loops))
+    out["hash"] = hash_rows(args.hash_mb, args.hash_runs)
+    _print_table(out)
+    print(json.dumps(out))
+
+
+def _print_table(out: dict[str, Any]) -> None:
+    rows = out.get("rows", [])
+    print(f"robot time per result (seed {out['seed']}, simulator x{out['time_scale']:g}, controller file rate "
+          f"{out['file_rate_bytes_s_real'] / 1e3:g} kB/s real)")
+    print(f"{'run':<11} {'loops':>5} {'stop reason':<22} {'robot min':>9} {'U kg':>6} {'err kg':>7} {'in U':>5} "
+          f"{'loop/u':>6} {'overhead %':>10} {'w/o last pull %':>15}")
+    for r in rows:
+        print(f"{r['run']:<11} {r['loops']:>5} {r['stop_reason']!s:<22} {r['robot_min']:>9.2f} {r['U_kg']:>6.2f} "
+              f"{r['error_kg']:>+7.2f} {'yes' if r['within_U'] else 'NO':>5} {r['u_loops_share']:>6.3f} "
+              f"{r.get('overhead_pct_upper', float('nan')):>10.2f} "
+              f"{r.get('overhead_pct_without_last_pull', float('nan')):>15.2f}")
+    if rows:
+        props = next(r for r in rows if r["run"] == "properties")
+        rule = next(r for r in rows if r["run"] == "stop rule")
+        print(f"goals: in-line mass {rule['robot_min']:.2f} min (<= 4; today {TODAY_MASS_MIN}, paper {PAPER_MIN}); "
+              f"overhead {rule['overhead_pct_upper']:.2f} % (<= 1 %, upper bound at x{out['time_scale']:g}); "
+              f"properties {props['robot_min']:.2f} min (<= 8; mass {props['mass_min']:.2f} + CoG "
+              f"{props['cog_min']:.2f}; today {TODAY_PROPERTIES_MIN})")
+        print(f"campaign (demo's 16 points x 2 loops): robot time {out['campaign_robot_min']:.1f} min of loops "
+              f"(warm-ups and load changes not counted); paper 480 min")
+        print(f"pull per loop at x{out['time_scale']:g} (real s): its own time "
+              f"{np.mean(rule['pull_total_s_real']):.2f}, waited {[round(v, 1) for v in rule['pull_wait_s_real']]}")
+    o = out.get("overhead")
+    if o is not None:
+        predict = [r.get("predict_s_mean", 0.0) for r in rows if r["run"] == "stop rule"]
+        print(f"overhead near real time (x{o['scale']:g}, {o['loops']} loops, {o['robot_min']:.2f} min robot time): "
+              f"{o['overhead_pct']:.2f} % of robot time (goal <= 1 %), of which the last loop's pull "
+              f"{o['last_pull_pct']:.2f} %; daemon CPU counts x{o['scale']:g}" + (
+                  f"; plus the stop rule's interim budget, {predict[0]:.2f} s a loop from the 3rd" if predict else ""))
+        print(f"  pulls (real s): their own time {[round(v, 1) for v in o['pull_total_s_real']]}, waited "
+              f"{[round(v, 1) for v in o['pull_wait_s_real']]}, next loop's settling + recording "
+              f"{[round(v, 1) for v in o['settle_record_s_real']]}")
+    h = out["hash"]
+    print(f"read + hash vs numpy.fromfile ({h['size_mb']:.0f} MB, warm cache, fromfile {h['fromfile_mb_s']:.0f} MB/s;"
+          f" goal >= 0.5x): no hash {h['read, no hash']:.2f}x, SHA-256 {h['read + SHA-256']:.2f}x, "
+          f"BLAKE3 {h['read + BLAKE3']:.2f}x (SHA-256 {h['SHA-256 alone, 1 thread MB/s']:.0f} MB/s, BLAKE3 "
+          f"{h['BLAKE3 alone MB/s']:.0f} MB/s)")
+
+
+if __name__ == "__main__":
+    main()
