@@ -96,6 +96,8 @@ from rgse_daemon.safety.allowlist import WATCHDOG_CONDITION, WATCHDOG_INTERRUPT,
 
 #: Statement keywords the check refuses outright (the parser does not accept them either).
 FORBIDDEN_KEYWORDS = frozenset({"TRIGGER", "GOTO", "SWITCH", "CONTINUE", "ANIN", "ANOUT"})
+#: Refused outright in a data list too (in a program the WATCHDOG rule judges them).
+FORBIDDEN_IN_DATA = FORBIDDEN_KEYWORDS | {"INTERRUPT", "BRAKE"}
 #: Motion checks (pairs start → target) before the program is refused as too complex to verify.
 MAX_MOTION_CHECKS = 20_000
 #: Sampling of the joint path for the static A5 torque (deg, sum over the axes between samples).
@@ -588,10 +590,11 @@ def _mode_violation(ctx: CheckContext) -> Violation | None:
     return Violation(0, 0, "MODE", f"mode {ctx.mode!r} refused: only T1 (or AUT with cleared area and key switch)")
 
 
-def _forbidden_tokens(text: str, file: str, deadline: float | None = None) -> list[Violation]:
+def _forbidden_tokens(text: str, file: str, deadline: float | None = None,
+                      keywords: frozenset[str] = FORBIDDEN_KEYWORDS) -> list[Violation]:
     found = []
     for tok in tokenize(text, file, deadline):
-        if tok.kind is Tok.NAME and tok.text in FORBIDDEN_KEYWORDS:
+        if tok.kind is Tok.NAME and tok.text in keywords:
             found.append(Violation(tok.line, tok.column, "STATEMENT", f"{tok.text} is not allowed in RGSE programs"))
     return found
 
@@ -656,7 +659,7 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
     try:
         forbidden = _forbidden_tokens(src_text, file, deadline)
         if dat_text is not None:
-            forbidden += _forbidden_tokens(dat_text, file, deadline)
+            forbidden += _forbidden_tokens(dat_text, file, deadline, FORBIDDEN_IN_DATA)
         try:
             module = parse_src(src_text, file, deadline)
             data = parse_dat(dat_text, _dat_name(file), deadline) if dat_text is not None else None
