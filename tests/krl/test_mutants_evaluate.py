@@ -596,3 +596,16 @@ def test_merge_converts_only_known_structures_and_keeps_the_mode() -> None:
     assert convert("POS", KrlStruct(None, (("S", 2.5),)), strict=False) == KrlStruct("POS", (("S", 3),))
     with pytest.raises(Unsure):
         convert("POS", KrlStruct(None, (("S", 2.5),)))
+
+
+def test_a_literal_tie_with_the_lower_neighbour() -> None:
+    # 16777218.999999999 reads as binary64 16777219.0, halfway between the binary32 values 16777218 and 16777220
+    # (ties to even: 16777220); read directly, the decimal is below the tie: 16777218. Not documented which: refused.
+    assert float("16777218.999999999") == 16777219.0
+    with pytest.raises(Unsure, match="depends on how it is read"):
+        real_literal(16777219.0, "16777218.999999999")
+    with pytest.raises(Unsure, match="depends on how it is read"):
+        real_literal(-16777219.0, "-16777218.999999999")
+    assert real_literal(16777219.0, "16777219.0") == 16777220.0
+    with pytest.raises(Unsure):
+        ev("16777218.999999999")
