@@ -609,3 +609,19 @@ def test_a_literal_tie_with_the_lower_neighbour() -> None:
     assert real_literal(16777219.0, "16777219.0") == 16777220.0
     with pytest.raises(Unsure):
         ev("16777218.999999999")
+
+
+def test_or_is_not_exor() -> None:
+    # TRUE OR TRUE is where OR and EXOR differ
+    assert both("TRUE OR TRUE") == (True, True)
+    assert both("TRUE EXOR TRUE") == (False, False)
+    assert both("TRUE OR FALSE") == (True, True)
+
+
+def test_an_operator_the_evaluator_does_not_know_is_an_error_at_its_place() -> None:
+    e = Evaluator(read=lambda n: UNKNOWN, call=lambda c: UNKNOWN)
+    where = k.Pos(4, 2)
+    for a, b in ((1.0, 2.0), (1, 2)):
+        with pytest.raises(EvalError) as info:
+            e.binary("MOD", a, b, where)
+        assert info.value.reason == "unknown operator MOD" and info.value.pos == where
