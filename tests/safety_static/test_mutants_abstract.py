@@ -62,7 +62,15 @@ def test_for_counter_values_reach_the_body() -> None:
 
 
 def test_for_refusals() -> None:
-    assert rules("  FOR I = 1 TO 3 STEP 0\n    PTP_REL {A3 1}\n  ENDFOR") >= {"LOOP"}
+    assert rules("  FOR I = 1 TO 3 STEP 0\n    PTP_REL {A3 1}\n  ENDFOR") == {"LOOP"}
+    assert rules("  FOR I = 1 TO 3 STEP 0\n  ENDFOR") == {"LOOP"}
+    # a REAL step is rounded; 0.5 is a tie (not documented which way): refused at the FOR
+    v = found(program("  FOR I = 1 TO 3 STEP 0.5\n  ENDFOR"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
+    v = found(program("  FOR I = 1.5 TO 3\n  ENDFOR"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
+    v = found(program("  FOR I = 1 TO 2.5\n  ENDFOR"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
     assert rules("  FOR R = 1 TO 3\n  ENDFOR") == {"LOOP"}  # a REAL counter
     assert rules("  FOR RGSE_STEP = 1 TO 3\n  ENDFOR") == {"LOOP"}  # not this program's variable
     assert rules("  FOR I = 1 TO 3\n    I = 1\n  ENDFOR") >= {"LOOP"}
