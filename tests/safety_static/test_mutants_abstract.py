@@ -421,3 +421,13 @@ def test_declarations() -> None:
         "TARGET"}  # an untracked type: its value is never known
     # a variable's value before it is written is not taken as known (the controller leaves it uninitialised)
     assert {v.rule for v in found(program("  PTP {A3 N2}", DECLS + "  DECL INT N2\n"))} <= {"TARGET", "UNSURE"}
+
+
+def test_a_declared_initial_value_takes_the_declared_type() -> None:
+    assert found(program("  PTP {A3 N2}", DECLS + "  DECL INT N2 = 144.4\n")) == []
+    assert {v.rule for v in found(program("  PTP {A3 N2}", DECLS + "  DECL INT N2 = 144.6\n"))} == {"JOINT_LIMIT"}
+
+
+def test_a_target_of_another_structure_type_is_named() -> None:
+    v = found(program("  PTP {LOAD: M 1}"))
+    assert [(x.rule, x.message) for x in v] == [("TARGET", "PTP target of type LOAD: only E6AXIS/AXIS")]
