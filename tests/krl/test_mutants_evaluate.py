@@ -596,3 +596,32 @@ def test_merge_converts_only_known_structures_and_keeps_the_mode() -> None:
     assert convert("POS", KrlStruct(None, (("S", 2.5),)), strict=False) == KrlStruct("POS", (("S", 3),))
     with pytest.raises(Unsure):
         convert("POS", KrlStruct(None, (("S", 2.5),)))
+
+
+def test_a_literal_tie_with_the_lower_neighbour() -> None:
+    # 16777218.999999999 reads as binary64 16777219.0, halfway between the binary32 values 16777218 and 16777220
+    # (ties to even: 16777220); read directly, the decimal is below the tie: 16777218. Not documented which: refused.
+    assert float("16777218.999999999") == 16777219.0
+    with pytest.raises(Unsure, match="depends on how it is read"):
+        real_literal(16777219.0, "16777218.999999999")
+    with pytest.raises(Unsure, match="depends on how it is read"):
+        real_literal(-16777219.0, "-16777218.999999999")
+    assert real_literal(16777219.0, "16777219.0") == 16777220.0
+    with pytest.raises(Unsure):
+        ev("16777218.999999999")
+
+
+def test_or_is_not_exor() -> None:
+    # TRUE OR TRUE is where OR and EXOR differ
+    assert both("TRUE OR TRUE") == (True, True)
+    assert both("TRUE EXOR TRUE") == (False, False)
+    assert both("TRUE OR FALSE") == (True, True)
+
+
+def test_an_operator_the_evaluator_does_not_know_is_an_error_at_its_place() -> None:
+    e = Evaluator(read=lambda n: UNKNOWN, call=lambda c: UNKNOWN)
+    where = k.Pos(4, 2)
+    for a, b in ((1.0, 2.0), (1, 2)):
+        with pytest.raises(EvalError) as info:
+            e.binary("MOD", a, b, where)
+        assert info.value.reason == "unknown operator MOD" and info.value.pos == where

@@ -62,7 +62,15 @@ def test_for_counter_values_reach_the_body() -> None:
 
 
 def test_for_refusals() -> None:
-    assert rules("  FOR I = 1 TO 3 STEP 0\n    PTP_REL {A3 1}\n  ENDFOR") >= {"LOOP"}
+    assert rules("  FOR I = 1 TO 3 STEP 0\n    PTP_REL {A3 1}\n  ENDFOR") == {"LOOP"}
+    assert rules("  FOR I = 1 TO 3 STEP 0\n  ENDFOR") == {"LOOP"}
+    # a REAL step is rounded; 0.5 is a tie (not documented which way): refused at the FOR
+    v = found(program("  FOR I = 1 TO 3 STEP 0.5\n  ENDFOR"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
+    v = found(program("  FOR I = 1.5 TO 3\n  ENDFOR"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
+    v = found(program("  FOR I = 1 TO 2.5\n  ENDFOR"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
     assert rules("  FOR R = 1 TO 3\n  ENDFOR") == {"LOOP"}  # a REAL counter
     assert rules("  FOR RGSE_STEP = 1 TO 3\n  ENDFOR") == {"LOOP"}  # not this program's variable
     assert rules("  FOR I = 1 TO 3\n    I = 1\n  ENDFOR") >= {"LOOP"}
@@ -349,3 +357,77 @@ def test_an_unknown_element_of_a_cartesian_array_is_cartesian() -> None:
     src = program("  QP[RGSE_N] = {X 1}\n  PTP QP[1]", decls)
     assert {v.rule for v in found(src)} == {"CARTESIAN"}
     assert {v.rule for v in found(program("  PTP QP[1]", decls))} == {"CARTESIAN"}
+
+
+# --- system variables' types, places, statements ---------------------------------------------------------------------
+@pytest.mark.parametrize(("write", "verdict"), [
+    ("$ACC.CP = TRUE", {"RUNTIME", "SYSVAR"}),  # REAL ← BOOL fails before the write is refused
+    ("$VEL.CP = TRUE", {"RUNTIME", "VELOCITY"}), ("$ACC_AXIS[1] = TRUE", {"RUNTIME", "VELOCITY"}),
+    ("$VEL_AXIS[1] = 2.5", set()), ("$OV_PRO = 50.5", {"UNSURE", "OV_PRO"}), ("$OV_PRO = 50.4", set()),
+    ("$VEL.CP = 1", set()), ("$APO.CDIS = TRUE", set()),
+])
+def test_system_variables_are_typed(write: str, verdict: set[str]) -> None:
+    assert rules(f"  {write}") == verdict
+
+
+def test_vel_axis_is_a_real() -> None:
+    # $VEL_AXIS is REAL: 12.3 % of A3 is too fast for this path, 12 % is not; as an INT 12.3 would become 12
+    assert rules("  $VEL_AXIS[3] = 12\n  PTP {A3 110}") == set()
+    assert rules("  $VEL_AXIS[3] = 12.3\n  PTP {A3 110}") == {"SPEED"}
+
+
+def test_errors_are_reported_where_they_are() -> None:
+    v = found(program("  B = 1 AND TRUE"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 9, "RUNTIME")]
+    assert v[0].message == "the controller stops here: AND needs BOOLs, not INT 1 and BOOL TRUE"
+    v = found(program("  I = 2147483647 + 1"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 18, "UNSURE")]
+    assert v[0].message == "INT overflow (2147483648 is outside -2147483648..2147483647): refused"
+    # a conversion at the assignment has no place of its own: the statement's
+    v = found(program("  I = 2.5"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
+    # binary32 after each step: 1.0E8 + 1.0 is 1.0E8, minus 1.0E8 is 0; with binary64 intermediates it is 1
+    v = found(program("  R = 1.0E8 + 1.0 - 1.0E8"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
+    assert v[0].message == ("the value is REAL 0.0 computed in 32-bit REAL but REAL 1.0 with 64-bit "
+                            "intermediates: which one the controller gets is not documented, refused")
+    v = found(program("  A[1.5] = 1"))
+    assert [(x.line, x.column, x.rule) for x in v] == [(BODY_LINE, 3, "UNSURE")]
+    assert v[0].message.startswith("array index REAL 1.5 is not an INT")
+    v = found(program("  IF 2 THEN\n  ENDIF"))
+    assert [(x.line, x.rule, x.message) for x in v] == [(BODY_LINE, "RUNTIME", "the condition is INT 2, not a BOOL")]
+
+
+def test_wait_halt_and_calls() -> None:
+    assert rules("  WAIT SEC 1 / 0") == {"RUNTIME"}
+    assert rules("  WAIT SEC 0.5\n  HALT\n  PTP {A3 144}") == set()
+    v = found(program("  my_sub(f(1))\n  PTP {A3 100}"))
+    assert [(x.line, x.rule) for x in v] == [(BODY_LINE, "CALL"), (BODY_LINE, "CALL"), (BODY_LINE + 1,
+                                                                                         "START_UNKNOWN")]
+    assert {x.message for x in v if x.rule == "CALL"} == {
+        "call of subprogram MY_SUB: the check cannot see into it, refused",
+        "call of F(): the check cannot see into functions, refused"}
+    assert rules("  I = ABS(-2.25) + SQRT(4)") == set()
+    assert rules("  PTP {A3 g(1)}") == {"CALL", "TARGET"}
+    assert rules("  A[f(1)] = 1") == {"CALL"}
+
+
+def test_declarations() -> None:
+    assert found(program("  PTP {A3 N2}", DECLS + "  DECL INT N2 = 144\n")) == []
+    assert {v.rule for v in found(program("  PTP {A3 N2}", DECLS + "  DECL INT N2 = 145\n"))} == {"JOINT_LIMIT"}
+    assert {v.rule for v in found(program("", DECLS + "  DECL INT N2 = 1 / 0\n"))} == {"RUNTIME"}
+    assert {v.rule for v in found(program("", DECLS + "  DECL LOAD LD = {M 1 / 0}\n"))} == {"RUNTIME"}
+    assert {v.rule for v in found(program("  LD = {M 1}\n  PTP {A3 LD.M}", DECLS + "  DECL LOAD LD\n"))} == {
+        "TARGET"}  # an untracked type: its value is never known
+    # a variable's value before it is written is not taken as known (the controller leaves it uninitialised)
+    assert {v.rule for v in found(program("  PTP {A3 N2}", DECLS + "  DECL INT N2\n"))} <= {"TARGET", "UNSURE"}
+
+
+def test_a_declared_initial_value_takes_the_declared_type() -> None:
+    assert found(program("  PTP {A3 N2}", DECLS + "  DECL INT N2 = 144.4\n")) == []
+    assert {v.rule for v in found(program("  PTP {A3 N2}", DECLS + "  DECL INT N2 = 144.6\n"))} == {"JOINT_LIMIT"}
+
+
+def test_a_target_of_another_structure_type_is_named() -> None:
+    v = found(program("  PTP {LOAD: M 1}"))
+    assert [(x.rule, x.message) for x in v] == [("TARGET", "PTP target of type LOAD: only E6AXIS/AXIS")]

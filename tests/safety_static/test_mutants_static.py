@@ -19,7 +19,8 @@ from rgse_daemon.config import LimitsConfig
 from rgse_daemon.errors import KrlSyntaxError
 from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, max_point_speed_mm_s
 from rgse_daemon.krl import ast as k
-from rgse_daemon.safety.static import CheckContext, Violation, _Checker, check_program
+from rgse_daemon.krl.abstract import State, TooComplex
+from rgse_daemon.safety.static import MAX_MOTION_CHECKS, CheckContext, Violation, _Checker, check_program
 
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
 CTX = CheckContext(start_axes_deg=MEAS)
@@ -494,3 +495,16 @@ def test_a_write_to_no_variable_is_named_as_such() -> None:
     (v,) = checker.found.values()
     assert v == Violation(5, 3, "WRITE", "write to an expression that is not a variable: not a variable of this "
                                          "program and not on the allow-list")
+
+
+def test_the_motion_check_budget_is_exact() -> None:
+    checker = _Checker(CTX)
+    checker.motion_checks = MAX_MOTION_CHECKS - 1
+    checker.check_path(MEAS, MEAS, _state(), k.Pos(9, 3))  # the 20000th: still checked
+    with pytest.raises(TooComplex, match="more than 20000 motion checks") as info:
+        checker.check_path(MEAS, MEAS, _state(), k.Pos(9, 3))
+    assert info.value.pos == k.Pos(9, 3) and MAX_MOTION_CHECKS == 20_000
+
+
+def _state() -> State:
+    return State(frozenset({MEAS}), (2.0,) * 6, 0.0, ())
