@@ -40,7 +40,7 @@ from aiohttp import web
 
 from rgse_daemon.config import ConsoleConfig
 from rgse_daemon.errors import RgseError
-from rgse_daemon.io.commands import MAX_PAYLOAD_BYTES, CommandRefused, parse_command
+from rgse_daemon.io.commands import MAX_PAYLOAD_BYTES, CommandRefused, DuplicateKey, loads_strict, parse_command
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.report import build_report
 from rgse_daemon.services.signals import STATE_LIGHT
@@ -258,10 +258,12 @@ class Console:
     async def _act(self, verb: str, request: web.Request) -> web.Response:
         try:
             async with asyncio.timeout(BODY_TIMEOUT_S):
-                body = await request.json()
+                body = await request.json(loads=loads_strict)
         except TimeoutError:
             return web.json_response({"ok": False, "error": f"request body not received within {BODY_TIMEOUT_S:g} s"},
                                      status=408)
+        except DuplicateKey as exc:
+            return web.json_response({"ok": False, "error": str(exc)}, status=400)
         except ValueError:
             body = None
         except web.HTTPRequestEntityTooLarge:

@@ -69,6 +69,14 @@ async def test_a_body_nested_too_deeply_is_a_400_with_its_reason(console: Runnin
                                                                       "command"})
 
 
+async def test_a_body_with_a_key_given_twice_is_a_400_naming_the_key(console: RunningDaemon) -> None:
+    """Issue 31 6e: the console's API is as strict as the MQTT commands: a duplicate key is refused, not last-wins."""
+    port = console.daemon.console.port
+    body = json.dumps({"reason": "x", "token": COMMAND_TOKEN})[:-1].encode() + b', "reason": "y"}'
+    status, text = await exchange(port, post("/api/abort", body))
+    assert (status, json.loads(text)) == (400, {"ok": False, "error": "duplicate key 'reason' in the JSON object"})
+
+
 async def closed_by_server(reader: asyncio.StreamReader) -> bool:
     """Whether the server closes the connection (EOF) within the hang guard, reading whatever it sends first."""
     try:

@@ -155,6 +155,11 @@ async def test_a_command_seen_again_is_answered_again_and_not_run_twice(
         ("calibrate", {"request_id": "x-9", "points": [{"kind": "zero"}]}, "x-9", "points.0.mass_kg"),
         ("selfdestruct", {"request_id": "x-10"}, None, "unknown verb 'selfdestruct'"),
         ("measure", {"loops": 3}, None, "request_id: Field required"),
+        # issue 31 6e: the last of two equal keys does not silently win (a run that is not the dry run asked for)
+        ("measure", b'{"request_id": "x-11", "dry_run": true, "dry_run": false}', "x-11", "duplicate key 'dry_run'"),
+        ("calibrate", b'{"request_id": "x-12", "points": [{"kind": "zero", "mass_kg": 0, "mass_kg": 5, '
+                      b'"lever_a3_m": 1.29, "lever_a5_m": 0.265}]}', "x-12", "duplicate key 'mass_kg'"),
+        ("abort", b'{"request_id": "x-13", "request_id": "x-14", "reason": "x"}', None, "duplicate key 'request_id'"),
     ],
 )
 async def test_bad_commands_are_refused_without_effect(
