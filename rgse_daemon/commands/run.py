@@ -14,7 +14,8 @@ the run); with ``wait`` the prompt is answered elsewhere (``rgse confirm``, the 
 ``--timeout`` (default 3600 s, the whole run) passes or the command is interrupted: a script that stops following
 does not leave the robot running unwatched.
 
-Exit 0 when the run is done; 1 when the daemon refused it, it failed or was aborted, or the deadline passed; 2 on
+Exit 0 when the run is done; 1 when the daemon refused it, it failed, was aborted or interrupted (its daemon died
+during it: the restarted daemon's final result says so, and nothing is left to abort), or the deadline passed; 2 on
 a bad configuration, points file or option, or when the broker is unreachable.
 """
 
