@@ -488,17 +488,23 @@ class Daemon:
         return {"accepted": "calibration", "run_id": await self.admission.started(task),
                 "points": len(points) if points else None}
 
+    @property
+    def run_engine(self) -> RunEngine | None:
+        """The engine of the run in progress (a dry run has one of its own), None without a run."""
+        return self.admission.engine if self.run_active else None
+
     async def abort(self, cmd: AbortCommand) -> dict[str, Any]:
-        engine = self.engine
-        if engine is None or not self.run_active:
+        engine = self.run_engine
+        if engine is None:
             raise RgseError("no run in progress")
         if cmd.run_id is not None and engine.run_id != cmd.run_id:
-            raise RgseError(f"run {cmd.run_id} is not the run in progress ({engine.run_id})")
+            now = "a dry run" if engine.dry_run else engine.run_id
+            raise RgseError(f"run {cmd.run_id} is not the run in progress ({now})")
         engine.abort(cmd.reason)
-        return {"aborting": engine.run_id}
+        return {"aborting": engine.run_id, "dry_run": engine.dry_run}
 
     async def confirm(self, cmd: ConfirmCommand) -> dict[str, Any]:
-        engine = self.engine
+        engine = self.run_engine
         if engine is None or not engine.waiting_for_confirmation:
             raise RgseError("no run waits for a confirmation")
         if engine.run_id != cmd.run_id:

@@ -58,6 +58,8 @@ class RunAdmission:
         self._on_refused = on_refused
         self.task: asyncio.Task[Any] | None = None
         self.kind: str | None = None
+        self.engine: RunEngine | None = None
+        """The engine of the current (or last) run: the daemon's own, or a dry run's (abort and confirm go to it)."""
         self.stopping = False
         self.last_result: Any = None
         self.last_error: str | None = None
@@ -102,6 +104,7 @@ class RunAdmission:
             why = f" ({link_error})" if link_error else ""
             raise self.refuse(kind, NotConnected(f"not connected: controller {c.host}:{c.port} is not connected{why}"))
         self.kind = kind
+        self.engine = engine
         self._started = started = asyncio.get_running_loop().create_future()
 
         async def runner() -> Any:
