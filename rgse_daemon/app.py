@@ -135,7 +135,8 @@ class Daemon:
         self.alarms = Alarms(self._publish_alarm, self.light)
         self.link = ControllerLink(cfg.controller, self.counters, self.alarms, busy=lambda: self.run_active,
                                    data_dir=cfg.paths.data_dir)
-        self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed, self._run_refused)
+        self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed, self._run_refused,
+                                      on_link_lost=self.link.lost_during_run)
         self._confirm_data: dict[str, Any] = {}
         self._prompt_open = False
         self._tasks: list[asyncio.Task[Any]] = []
@@ -363,6 +364,8 @@ class Daemon:
                 self.mqtt.publish_progress(ev.run_id, ev.to_json())
         if ev.kind == "alarm":
             self.light.want("red")
+            if ev.data.get("watcher") == "link":  # the interlock tripped on the controller link: the link alarm too
+                self.link.lost_during_run(str(ev.data.get("detail") or ev.message))
         elif ev.kind == "state":
             self.light.want_for_state(ev.data.get("state"))
 
