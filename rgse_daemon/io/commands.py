@@ -236,6 +236,20 @@ def loads_strict(text: bytes | str) -> Any:
     return json.loads(text, object_pairs_hook=_unique_pairs)
 
 
+def authorised(payload: bytes | str, tokens: Sequence[str]) -> bool:
+    """Whether ``payload`` is a JSON object (within the size limit) with one of ``tokens`` (any payload when there
+    are none): the cheap check that lets a command take the urgent lane before the whole schema is read."""
+    if not tokens:
+        return True
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        return False
+    try:
+        doc = loads_strict(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return False
+    return isinstance(doc, dict) and _token_ok(doc.get("token"), tokens)
+
+
 def parse_command(verb: str, payload: bytes | str, tokens: Sequence[str] = ()) -> Command:
     """Validate one command; raises :class:`CommandRefused` (with the ``request_id`` if readable) otherwise.
 

@@ -248,17 +248,18 @@ async def test_without_the_right_token_nothing_happens(guarded: Session, handler
     # unauthorised and against the schema: the sender learns it is unauthorised, nothing about the schema
     await guarded.send("measure", {"request_id": "t-4", "bogus": 1})
     refused = await guarded.replies(4)
-    assert [(v, r["request_id"], r["ok"]) for v, r in refused] == [
+    # abort comes on a connection of its own (issue 31 6d): its reply's place among the others is not fixed
+    assert sorted((r["request_id"], v, r["ok"]) for v, r in refused) == sorted((rid, v, ok) for v, rid, ok in [
         ("measure", "t-1", False),
         ("measure", "t-2", False),
         ("abort", "t-3", False),
         ("measure", "t-4", False),
-    ]
+    ])
     assert all("unauthorised" in r["error"] and "bogus" not in r["error"] for _, r in refused)
     assert handler.calls == [] and guarded.bridge.counters.refused_commands == 4
 
     await guarded.send("measure", {"request_id": "t-5", "loops": 3, "token": TOKENS[1]})
-    ((_, ok),) = (await guarded.replies(5))[4:]
+    (ok,) = [r for _, r in await guarded.replies(5) if r["request_id"] == "t-5"]
     assert ok["ok"] is True and ok["request_id"] == "t-5"
     ((verb, cmd),) = handler.calls
     assert verb == "measure" and cmd.loops == 3 and "s3cret" not in repr(cmd)
