@@ -13,9 +13,10 @@ import uuid
 from collections.abc import AsyncIterator
 from typing import Any
 
+import aiomqtt
 import pytest
 
-from rgse_daemon.io.mqtt import MqttBridge
+from rgse_daemon.io.mqtt import INCOMING_QUEUE, Inbox, MqttBridge
 from rgse_daemon.store import Store
 from tests.support.mqtt import ROBOT, Collector, MosquittoProcess, RecordingHandler, mqtt_config
 from tests.support.polling import wait_until
@@ -82,3 +83,26 @@ async def test_abort_and_confirm_are_answered_through_a_flood_on_another_topic(
     assert flooded > 1000  # the flood was real: thousands refused meanwhile
     assert answered == SENT, f"{answered} of {SENT} {verb} commands answered during the flood ({flooded} refused)"
     assert [v for v, _ in handler.calls] == [verb] * SENT
+
+
+async def test_while_the_urgent_connection_is_down_an_authorised_abort_jumps_the_full_queue(store: Store) -> None:
+    """The main connection's incoming queue (what serves abort and confirm while their own connection is down): an
+    authorised abort is taken ahead of a full queue of junk; one without the right token waits in line with it."""
+    bridge = MqttBridge(mqtt_config("127.0.0.1", 1, PREFIX, command_tokens=TOKENS), ROBOT, store,
+                        RecordingHandler(), "1", timeout_s=5)
+    inbox = Inbox(INCOMING_QUEUE, urgent=bridge._urgent_message)
+
+    def message(verb: str, doc: dict[str, Any]) -> aiomqtt.Message:
+        return aiomqtt.Message(f"{PREFIX}/cmd/{verb}", json.dumps(doc).encode(), qos=1, retain=False, mid=1,
+                               properties=None)
+
+    for i in range(INCOMING_QUEUE):
+        inbox.put_nowait(message("measure", {"request_id": f"junk-{i}"}))
+    with pytest.raises(asyncio.QueueFull):
+        inbox.put_nowait(message("measure", {"request_id": "one-more"}))
+    with pytest.raises(asyncio.QueueFull):  # no token: no place of its own
+        inbox.put_nowait(message("abort", {"request_id": "forged", "reason": "x"}))
+    inbox.put_nowait(message("abort", {"request_id": "real", "reason": "x", "token": TOKENS[0]}))
+    first = await inbox.get()
+    assert json.loads(first.payload)["request_id"] == "real"
+    assert json.loads((await inbox.get()).payload)["request_id"] == "junk-0"
