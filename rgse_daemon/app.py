@@ -138,7 +138,8 @@ class Daemon:
         self.link = ControllerLink(cfg.controller, self.counters, self.alarms, busy=lambda: self.run_active,
                                    data_dir=cfg.paths.data_dir)
         self.heartbeat: Heartbeat | None = None
-        self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed, self._run_refused)
+        self.admission = RunAdmission(cfg, self.counters, self._current_inputs, self._run_failed, self._run_refused,
+                                      on_link_lost=self.link.lost_during_run)
         self._confirm_data: dict[str, Any] = {}
         self._prompt_open = False
         self._tasks: list[asyncio.Task[Any]] = []
@@ -371,6 +372,8 @@ class Daemon:
                 self.mqtt.publish_progress(ev.run_id, ev.to_json())
         if ev.kind == "alarm":
             self.light.want("red")
+            if ev.data.get("watcher") == "link":  # the interlock tripped on the controller link: the link alarm too
+                self.link.lost_during_run(str(ev.data.get("detail") or ev.message))
         elif ev.kind == "state":
             self.light.want_for_state(ev.data.get("state"))
 
@@ -499,17 +502,23 @@ class Daemon:
         return {"accepted": "calibration", "run_id": await self.admission.started(task),
                 "points": len(points) if points else None}
 
+    @property
+    def run_engine(self) -> RunEngine | None:
+        """The engine of the run in progress (a dry run has one of its own), None without a run."""
+        return self.admission.engine if self.run_active else None
+
     async def abort(self, cmd: AbortCommand) -> dict[str, Any]:
-        engine = self.engine
-        if engine is None or not self.run_active:
+        engine = self.run_engine
+        if engine is None:
             raise RgseError("no run in progress")
         if cmd.run_id is not None and engine.run_id != cmd.run_id:
-            raise RgseError(f"run {cmd.run_id} is not the run in progress ({engine.run_id})")
+            now = "a dry run" if engine.dry_run else engine.run_id
+            raise RgseError(f"run {cmd.run_id} is not the run in progress ({now})")
         engine.abort(cmd.reason)
-        return {"aborting": engine.run_id}
+        return {"aborting": engine.run_id, "dry_run": engine.dry_run}
 
     async def confirm(self, cmd: ConfirmCommand) -> dict[str, Any]:
-        engine = self.engine
+        engine = self.run_engine
         if engine is None or not engine.waiting_for_confirmation:
             raise RgseError("no run waits for a confirmation")
         if engine.run_id != cmd.run_id:

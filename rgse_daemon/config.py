@@ -442,6 +442,10 @@ class ConsoleConfig(_Section):
     """Address to listen on; the default serves only this machine (put a reverse proxy with TLS in front)."""
     port: int = Field(8080, ge=0, le=65535)
     """TCP port; 0 picks a free one (tests)."""
+    allowed_hosts: Array[tuple[Annotated[str, Field(min_length=1, max_length=253)], ...]] = ()
+    """Host names (without port) the console answers to besides ``host``, ``localhost``, ``127.0.0.1`` and ``::1``
+    (and this machine's names when ``host`` is a wildcard): e.g. the name a TLS reverse proxy forwards. A request for
+    any other ``Host`` is refused, so that a DNS-rebound name cannot reach the page."""
 
 
 class Config(BaseSettings):

@@ -23,7 +23,7 @@ from rgse_daemon.pipeline.calibration import CalibrationPoints, reference_mass_c
 from rgse_daemon.pipeline.cog import SCHEMES
 from rgse_daemon.trace.config import PERIOD_MAX_S, PERIOD_MIN_S
 from rgse_daemon.trace.diadem import read_trace_set
-from rgse_daemon.trace.names import plain_name
+from rgse_daemon.trace.names import inside, plain_name
 
 MODULE_A3 = "NextGenDrive#3"
 MODULE_A5 = "NextGenDrive#5"
@@ -185,7 +185,9 @@ def _traces(d: dict[str, Any], where: str) -> tuple[str, ...]:
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    """The TOML document of ``path`` (a UTF-8 byte order mark is allowed); DataError naming the file otherwise."""
+    """The TOML document of ``path`` (a UTF-8 byte order mark is allowed); DataError naming the file otherwise.
+    Like a trace file, a manifest symbolically linked out of its own directory is refused."""
+    inside(path.parent, path)
     try:
         raw = path.read_bytes()
     except FileNotFoundError:

@@ -10,7 +10,8 @@
 One connection (:class:`rgse_daemon.io.operator.Session`) holds the subscriptions for the client's lifetime: the
 daemon's state and status, every run's progress and result, and the alarms; so nothing a run says between two
 calls of a script is missed. Every wait takes a deadline; a refusal raises :class:`Refused` with the daemon's
-reason, a failed or aborted run :class:`RunFailed`, a wait that ends at its deadline :class:`WaitTimeout`.
+reason, a failed, aborted or interrupted run (its daemon died during it) :class:`RunFailed`, a wait that ends at its
+deadline :class:`WaitTimeout`.
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ from rgse_daemon.errors import DataError
 from rgse_daemon.io.operator import DEFAULT_TIMEOUT_S, Endpoint, Session, describe_status, endpoint_of
 
 from .types import (
+    INTERRUPTED,
+    INTERRUPTED_HINT,
     TERMINAL,
     CalibrationResult,
     CampaignPoint,
@@ -222,6 +225,8 @@ class RgseClient:
         :class:`RunFailed` (state ``refused``, its reason) for a result whose status is ``refused``."""
         doc = await self.until(lambda: self._results.get(run_id), f"the result of run {run_id}",
                                timeout_s or self.timeout_s)
+        if doc.get("state") == INTERRUPTED:
+            raise RunFailed(run_id, INTERRUPTED, _interrupted_reason(doc))
         if doc.get("status") == "refused":  # no figure: the reason is what there is (rgse_daemon.verdict)
             raise RunFailed(run_id, "refused", str(doc.get("reason") or "no reason given"))
         if kind == "calibration" or (kind is None and "mass_kg" not in doc):
@@ -276,8 +281,12 @@ class Run:
         return self.run_id
 
     def end_state(self) -> str | None:
-        """``done``, ``failed`` or ``aborted`` once the run is over (from its progress or the daemon's state)."""
+        """``done``, ``failed`` or ``aborted`` once the run is over (from its progress or the daemon's state);
+        ``interrupted`` when its daemon died during it (the restarted daemon's final result says so)."""
         run_id = self._id()
+        result = self.client._results.get(run_id)
+        if result is not None and result.get("state") == INTERRUPTED:
+            return INTERRUPTED
         for ev in reversed(self.client._progress.get(run_id, ())):
             if ev.state in TERMINAL:
                 return ev.state
@@ -320,6 +329,8 @@ class Run:
         run_id = self._id()
         if end == "done":
             return WaitTimeout(f"run {run_id} is over (done): no prompt will come")
+        if end == INTERRUPTED:
+            return RunFailed(run_id, end, _interrupted_reason(self.client._results.get(run_id, {})))
         reason = self.client._failures.get(run_id)
         if reason is None:
             said = [ev.message for ev in self.client._progress.get(run_id, ()) if ev.message]
@@ -328,7 +339,7 @@ class Run:
 
     async def _with_reason(self, exc: Exception) -> Exception:
         """A failed run's ``run_failed`` alarm (with the reason) follows its last state event: wait briefly for it."""
-        if isinstance(exc, RunFailed) and self.run_id not in self.client._failures:
+        if isinstance(exc, RunFailed) and exc.state != INTERRUPTED and self.run_id not in self.client._failures:
             try:
                 reason = await self.client.until(lambda: self.client._failures.get(exc.run_id), "the reason",
                                                  REASON_WAIT_S)
@@ -402,3 +413,9 @@ class Run:
         await self.client.until(lambda: (s := self.client.latest_state) is not None and s.run_id != run_id,
                                 f"the daemon to release run {run_id}", max(deadline - loop.time(), 0.001))
         return result
+
+
+def _interrupted_reason(result: dict[str, Any]) -> str:
+    """Why an interrupted run ended, and what to do: the recovery's ``detail`` and :data:`INTERRUPTED_HINT`."""
+    detail = result.get("detail")
+    return f"{detail if isinstance(detail, str) and detail else 'its daemon stopped'}; {INTERRUPTED_HINT}"

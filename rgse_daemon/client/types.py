@@ -19,6 +19,12 @@ from rgse_daemon.verdict import Status, status_of
 
 #: Engine states after which a run is over (the state persists until the next run).
 TERMINAL = frozenset({"done", "failed", "aborted"})
+#: The end of a run whose daemon died during it: the restarted daemon's recovery publishes the run's final result
+#: with this ``state`` (a measurement or properties run; an interrupted campaign is continued instead).
+INTERRUPTED = "interrupted"
+#: What the hint of an interrupted run tells the operator (nothing is left to abort: the recovery stopped it).
+INTERRUPTED_HINT = ("the daemon stopped during the run; on its restart it stopped program and trace and kept the "
+                    "raw files (docs/recovery.md); nothing is left to abort: start the run again")
 
 
 class Refused(RgseError):
@@ -31,7 +37,8 @@ class Refused(RgseError):
 
 
 class RunFailed(RgseError):
-    """A run ended ``failed`` or ``aborted``; ``reason`` says why as far as the daemon said it (exit status 1)."""
+    """A run ended ``failed``, ``aborted`` or ``interrupted`` (its daemon died during it); ``reason`` says why as
+    far as the daemon said it (exit status 1)."""
 
     def __init__(self, run_id: str, state: str, reason: str) -> None:
         super().__init__(f"run {run_id} {state}: {reason}")

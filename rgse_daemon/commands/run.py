@@ -15,8 +15,9 @@ the run); with ``wait`` the prompt is answered elsewhere (``rgse confirm``, the 
 does not leave the robot running unwatched.
 
 Exit 0 when the run is done and its result has no warnings; 4 when it is done and its result has warnings (status
-``warning``: the warnings are printed under the figure); 1 when the daemon refused it, it failed or was aborted, or
-the deadline passed (with ``--json`` then one object with ``status`` ``refused``, ``state`` and the ``reason``); 2 on
+``warning``: the warnings are printed under the figure); 1 when the daemon refused it, it failed, was aborted or
+interrupted (its daemon died during it: the restarted daemon's final result says so, and nothing is left to abort),
+or the deadline passed (with ``--json`` then one object with ``status`` ``refused``, ``state`` and the ``reason``); 2 on
 a bad configuration, points file or option, or when the broker is unreachable.
 """
 

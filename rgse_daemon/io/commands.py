@@ -223,6 +223,16 @@ def _schema_problem(exc: ValidationError) -> str:
     return "schema: " + "; ".join(problems)
 
 
+def _readable_id(rid: object) -> str | None:
+    return rid if isinstance(rid, str) and 0 < len(rid) <= 64 else None
+
+
+def _request_id(payload: bytes | str) -> str | None:
+    """The ``request_id`` of a payload refused for a duplicate key (another key), so that the refusal is answered."""
+    doc = json.loads(payload)  # parsed once already: it is valid JSON
+    return _readable_id(doc.get("request_id")) if isinstance(doc, dict) else None
+
+
 def _token_ok(given: object, tokens: Sequence[str]) -> bool:
     if not isinstance(given, str):
         return False
@@ -232,25 +242,65 @@ def _token_ok(given: object, tokens: Sequence[str]) -> bool:
     return ok
 
 
+class DuplicateKey(ValueError):
+    """A JSON object that gives one key twice (the json module would keep the last silently)."""
+
+    def __init__(self, key: str) -> None:
+        super().__init__(f"duplicate key {key!r} in the JSON object")
+        self.key = key
+
+
+def _unique_pairs(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    doc: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in doc:
+            raise DuplicateKey(key)
+        doc[key] = value
+    return doc
+
+
+def loads_strict(text: bytes | str) -> Any:
+    """``json.loads``, refusing an object (at any depth) that gives a key twice with :class:`DuplicateKey`.
+
+    Every JSON the daemon takes in as a command (MQTT, the console's API) is read by this: the schema is strict, and
+    ``{"dry_run": true, "dry_run": false}`` is not one of its shapes."""
+    return json.loads(text, object_pairs_hook=_unique_pairs)
+
+
+def authorised(payload: bytes | str, tokens: Sequence[str]) -> bool:
+    """Whether ``payload`` is a JSON object (within the size limit) with one of ``tokens`` (any payload when there
+    are none): the cheap check that lets a command take the urgent lane before the whole schema is read."""
+    if not tokens:
+        return True
+    if len(payload) > MAX_PAYLOAD_BYTES:
+        return False
+    try:
+        doc = loads_strict(payload)
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        return False
+    return isinstance(doc, dict) and _token_ok(doc.get("token"), tokens)
+
+
 def parse_command(verb: str, payload: bytes | str, tokens: Sequence[str] = ()) -> Command:
     """Validate one command; raises :class:`CommandRefused` (with the ``request_id`` if readable) otherwise.
 
-    Order: verb, size, JSON object, authorisation (if ``tokens``), schema.
+    Order: verb, size, JSON object (no key given twice), authorisation (if ``tokens``), schema.
     """
     if verb not in COMMANDS:
         raise CommandRefused(verb, f"unknown verb {shown_verb(verb)!r}; expected one of {', '.join(COMMANDS)}")
     if len(payload) > MAX_PAYLOAD_BYTES:
         raise CommandRefused(verb, f"payload of {len(payload)} bytes exceeds {MAX_PAYLOAD_BYTES}")
     try:
-        doc: Any = json.loads(payload)
+        doc: Any = loads_strict(payload)
+    except DuplicateKey as exc:
+        raise CommandRefused(verb, str(exc), None if exc.key == "request_id" else _request_id(payload)) from None
     except (ValueError, UnicodeDecodeError) as exc:
         raise CommandRefused(verb, f"malformed JSON: {exc}") from exc
     except RecursionError:  # e.g. 60 000 nested '[': a RuntimeError, not a ValueError, from the json module
         raise CommandRefused(verb, "malformed JSON: nested too deeply") from None
     if not isinstance(doc, dict):
         raise CommandRefused(verb, f"malformed command: a JSON object expected, got {type(doc).__name__}")
-    rid = doc.get("request_id")
-    request_id = rid if isinstance(rid, str) and 0 < len(rid) <= 64 else None
+    request_id = _readable_id(doc.get("request_id"))
     if tokens and not _token_ok(doc.get("token"), tokens):
         raise CommandRefused(verb, "unauthorised: missing or wrong token", request_id)
     try:

@@ -30,6 +30,10 @@ back, and none of that may lose a measurement result, block a procedure or execu
   Progress (QoS 0) published while disconnected is dropped and counted (``dropped_progress``): stale progress
   is noise. Alarms and replies queued during an outage are sent after the reconnect. The operator prompt
   (``prompt``) is retained with QoS 1: a console or client that reconnects during a prompt finds it.
+* **Abort and confirm have a path of their own** (:data:`URGENT_VERBS`): a second connection to the broker
+  (client id ``<client_id>-urgent``, no will) subscribes to ``cmd/abort`` and ``cmd/confirm`` only and sends their
+  replies, so that a flood on other topics, which the main connection reads behind, cannot starve them. While it is
+  down the main connection serves them, an authorised one ahead of the rest of its incoming queue.
 * **Commands** arrive on ``<prefix>/cmd/<verb>`` (QoS 1) and are validated by :mod:`rgse_daemon.io.commands`.
   Malformed, unauthorised, schema-violating and unknown-verb commands are refused WITHOUT EFFECT: a reply
   ``{request_id, ok: false, error}`` on ``<prefix>/cmd/<verb>/reply`` and an ``alarm``. Valid ones call the
@@ -57,12 +61,14 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import functools
 import json
 import logging
 import math
 import random
 import secrets
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from datetime import datetime
 from enum import StrEnum
@@ -83,6 +89,7 @@ from rgse_daemon.io.commands import (
     ConfirmCommand,
     MeasureCommand,
     PropertiesCommand,
+    authorised,
     parse_command,
     shown_verb,
 )
@@ -100,6 +107,14 @@ _client_log.addFilter(_client_throttle)
 
 #: Command handler calls in flight at once; more are refused ("busy") rather than queued without bound.
 MAX_COMMANDS_IN_FLIGHT = 8
+#: The verbs that stop or steer a run in progress: they come and are answered on a connection of their own (and, while
+#: it is down, an authorised one takes a lane of its own in the main connection's incoming queue), so that a flood of
+#: commands on other topics cannot starve them.
+URGENT_VERBS = frozenset({"abort", "confirm"})
+#: Incoming messages held in the urgent lane; more are refused like a full queue.
+URGENT_INCOMING = 64
+#: Incoming messages held in the ordinary lane (the broker client reads on and drops what does not fit).
+INCOMING_QUEUE = 256
 #: (verb, request_id) of the latest commands run, with their replies: a command seen again (a QoS 1 redelivery after
 #: a lost PUBACK, a script that sends twice) is answered with the first one's reply and not run a second time.
 REMEMBERED_COMMANDS = 1000
@@ -107,6 +122,49 @@ REMEMBERED_COMMANDS = 1000
 
 #: Deadline of the retained "offline" publish when stopping, and of the flush of the queue before it (s).
 STOP_PUBLISH_TIMEOUT_S = 3.0
+
+
+class Inbox(asyncio.Queue[aiomqtt.Message]):
+    """The broker client's incoming queue, in two lanes: what ``urgent(message)`` says is urgent is served first and
+    bounded apart (:data:`URGENT_INCOMING`), so that the ordinary lane, full of a flood, never holds it back; what it
+    says is None is not queued (another connection serves it)."""
+
+    def __init__(self, maxsize: int, urgent: Callable[[aiomqtt.Message], bool | None]) -> None:
+        self._is_urgent = urgent
+        self._lane_urgent = False  # the lane of the message being put (full() and _put() look at it)
+        super().__init__(maxsize)
+
+    def _init(self, maxsize: int) -> None:
+        self._urgent: collections.deque[aiomqtt.Message] = collections.deque()
+        self._ordinary: collections.deque[aiomqtt.Message] = collections.deque()
+
+    def qsize(self) -> int:
+        return len(self._urgent) + len(self._ordinary)
+
+    def empty(self) -> bool:
+        return not (self._urgent or self._ordinary)
+
+    def full(self) -> bool:
+        if self._lane_urgent:
+            return len(self._urgent) >= URGENT_INCOMING
+        return 0 < self.maxsize <= len(self._ordinary)
+
+    def put_nowait(self, item: aiomqtt.Message) -> None:
+        lane = self._is_urgent(item)
+        if lane is None:  # served by the urgent connection: not this one's to queue
+            return
+        self._lane_urgent = lane
+        try:
+            super().put_nowait(item)
+        finally:
+            self._lane_urgent = False
+
+    def _put(self, item: aiomqtt.Message) -> None:
+        (self._urgent if self._lane_urgent else self._ordinary).append(item)
+
+    def _get(self) -> aiomqtt.Message:
+        return self._urgent.popleft() if self._urgent else self._ordinary.popleft()
+
 
 class ConnectionState(StrEnum):
     STOPPED = "stopped"
@@ -270,6 +328,11 @@ class MqttBridge:
         self._state_seq = 0
         self._state_wake = asyncio.Event()
         self._outq: collections.deque[_Out] = collections.deque()
+        self._outq_urgent: collections.deque[_Out] = collections.deque()  # replies to abort and confirm
+        self._urgent_wake = asyncio.Event()
+        self._urgent_up = False  # the urgent connection is subscribed: it serves abort and confirm
+        self._urgent_task: asyncio.Task[None] | None = None
+        self._main_online = asyncio.Event()  # the main connection is subscribed and said online
         self._outq_wake = asyncio.Event()
         self._outq_empty = asyncio.Event()  # set while nothing is queued: what a clean stop waits for
         self._outq_empty.set()
@@ -305,11 +368,19 @@ class MqttBridge:
             log.warning("mqtt %s: command_auth = open_lab_bench: any client that reaches %s:%d can move the robot "
                         "(lab bench only; docs/security.md)", self.prefix, self._cfg.host, self._cfg.port)
         self._task = asyncio.create_task(self._run(), name=f"mqtt-bridge {self.prefix}")
+        self._urgent_task = asyncio.create_task(self._run_urgent(), name=f"mqtt-bridge {self.prefix} abort/confirm")
 
     async def stop(self) -> None:
         """Publish retained offline, disconnect, end the loop and the command tasks; bounded. Idempotent."""
         task, self._task = self._task, None
+        urgent, self._urgent_task = self._urgent_task, None
         self._stopping.set()
+        if urgent is not None:  # it ends on _stopping (a clean disconnect; the main connection says offline)
+            try:
+                await within(asyncio.shield(urgent), self._stop_timeout_s)
+            except TimeoutError:
+                urgent.cancel()
+            await asyncio.gather(urgent, return_exceptions=True)  # bounded: a cancelled connect closes by deadline
         connecting = task is not None and self._state is ConnectionState.CONNECTING
         if connecting:
             # no session to close cleanly: a connect in flight (a broker that does not answer) would hold the stop
@@ -392,7 +463,16 @@ class MqttBridge:
         """A row was added to the outbox: publish it now rather than at the next sweep."""
         self._outbox_wake.set()
 
-    def _enqueue(self, out: _Out) -> None:
+    def _enqueue(self, out: _Out, *, urgent: bool = False) -> None:
+        """Queue ``out``; ``urgent`` (the reply to an abort or a confirm) goes out on the urgent connection while
+        it is up."""
+        if urgent and self._urgent_up:
+            if len(self._outq_urgent) >= self._queue_size:
+                self.counters.dropped_messages += 1
+                return
+            self._outq_urgent.append(out)
+            self._urgent_wake.set()
+            return
         if len(self._outq) >= self._queue_size:
             self.counters.dropped_messages += 1
             self._log.problem("queue", f"mqtt {self.prefix}: outgoing queue full ({self._queue_size}); dropping")
@@ -402,7 +482,13 @@ class MqttBridge:
         self._outq_wake.set()
 
     # --- the reconnect loop -------------------------------------------------------------------------------------
-    def _client(self) -> Client:
+    def _client(self, *, urgent: bool = False) -> Client:
+        if urgent:  # abort and confirm only; no will (the main connection's says offline)
+            return Client(self._cfg.host, self._cfg.port, username=self._cfg.username, password=self._cfg.password,
+                          identifier=f"{self._client_id}-urgent", logger=_client_log, clean_session=True,
+                          keepalive=self._cfg.keepalive_s, timeout=self._timeout_s, tls_context=self._tls,
+                          max_queued_incoming_messages=URGENT_INCOMING,
+                          max_queued_outgoing_messages=self._queue_size)
         will = aiomqtt.Will(
             self.topics.status,
             _dumps({"state": "offline", "version": self._version, "since": None}, "will"),
@@ -421,9 +507,87 @@ class MqttBridge:
             keepalive=self._cfg.keepalive_s,
             timeout=self._timeout_s,
             tls_context=self._tls,
-            max_queued_incoming_messages=256,
+            max_queued_incoming_messages=INCOMING_QUEUE,
             max_queued_outgoing_messages=self._queue_size,
+            queue_type=functools.partial(Inbox, urgent=self._urgent_message),  # type: ignore[arg-type]
         )
+
+    def _urgent_message(self, message: aiomqtt.Message) -> bool | None:
+        """On the main connection: None for an ``abort`` or ``confirm`` while the urgent connection serves them; an
+        authorised one (checked before the queue, as cheaply as that can be) is urgent otherwise."""
+        verb = message.topic.value[len(self.prefix) + len("/cmd/"):]
+        if verb not in URGENT_VERBS:
+            return False
+        if self._urgent_up:
+            return None
+        payload = message.payload
+        return isinstance(payload, bytes | bytearray | str) and \
+            authorised(bytes(payload) if not isinstance(payload, str) else payload, self._cfg.command_tokens)
+
+    async def _run_urgent(self) -> None:
+        """The second connection to the broker: subscribed to ``cmd/abort`` and ``cmd/confirm`` only, it has its own
+        stream from the broker, so that a flood of commands on other topics (which the main connection reads
+        behind) cannot hold an abort back; it sends their replies too. Reconnects with backoff like the main one."""
+        attempt = 0
+        where = f"mqtt {self._cfg.host}:{self._cfg.port} (abort/confirm)"
+        while not self._stopping.is_set():
+            # only beside an online main connection: the broker is there, and a stop during a connect has one
+            # connection to close, not two
+            online = asyncio.ensure_future(self._main_online.wait())
+            stopping = asyncio.ensure_future(self._stopping.wait())
+            try:
+                await asyncio.wait([online, stopping], return_when=asyncio.FIRST_COMPLETED)
+            finally:
+                online.cancel()
+                stopping.cancel()
+            if self._stopping.is_set():
+                return
+            try:
+                async with connection(self._client(urgent=True), close_s=self._timeout_s,
+                                      cancelled_close_s=self._stop_timeout_s,
+                                      on_not_closed=lambda m: self._log.problem("abandoned urgent", m)) as client:
+                    for verb in sorted(URGENT_VERBS):
+                        await client.subscribe(f"{self.prefix}/cmd/{verb}", qos=1, timeout=self._timeout_s)
+                    self._urgent_up = True
+                    attempt = 0
+                    self._log.resolved("urgent", f"{where}: connected")
+                    workers = [asyncio.create_task(self._receive(client), name="mqtt urgent receive"),
+                               asyncio.create_task(self._send_urgent(client), name="mqtt urgent send")]
+                    stop = asyncio.create_task(self._stopping.wait(), name="mqtt urgent stop")
+                    try:
+                        done, _ = await asyncio.wait([*workers, stop], return_when=asyncio.FIRST_COMPLETED)
+                    finally:
+                        self._urgent_up = False
+                        for t in (*workers, stop):
+                            t.cancel()
+                        await asyncio.gather(*workers, stop, return_exceptions=True)
+                    for t in workers:
+                        if t in done:
+                            t.result()
+            except (aiomqtt.MqttError, MqttError, OSError) as exc:
+                self._log.problem("urgent", f"{where}: {exc}")
+            except Exception as exc:  # a bug: the main connection still serves abort and confirm; say so loudly
+                self._log.problem("urgent", f"{where}: unexpected error: {exc!r}", level=logging.ERROR,
+                                  exc_info=True)
+            finally:
+                self._urgent_up = False
+                if self._outq_urgent:  # replies the urgent connection could not send: the main one sends them
+                    self._outq.extendleft(reversed(self._outq_urgent))
+                    self._outq_urgent.clear()
+                    self._outq_empty.clear()
+                    self._outq_wake.set()
+            with contextlib.suppress(TimeoutError):
+                await within(self._stopping.wait(), self._backoff_s(attempt))
+            attempt += 1
+
+    async def _send_urgent(self, client: aiomqtt.Client) -> None:
+        while True:
+            if not self._outq_urgent:
+                self._urgent_wake.clear()
+                await self._urgent_wake.wait()
+                continue
+            await self._publish(client, self._outq_urgent[0])  # on failure it stays first (then goes to the main)
+            self._outq_urgent.popleft()
 
     def _connection(self) -> contextlib.AbstractAsyncContextManager[Client]:
         """``async with client``, except that a connect given up leaves nothing open (:func:`connection`): what it
@@ -486,6 +650,7 @@ class MqttBridge:
         online = {"state": "online", "version": self._version, "since": _now()}
         await self._publish(client, _Out(self.topics.status, _dumps(online, "status"), qos=1, retain=True))
         self._connected = True
+        self._main_online.set()
         self._state = ConnectionState.CONNECTED
         self._online_at = time.monotonic()
         workers = [
@@ -510,6 +675,7 @@ class MqttBridge:
                     empty.cancel()
         finally:
             self._connected = False
+            self._main_online.clear()
             for t in (*workers, stop):
                 t.cancel()
             await asyncio.gather(*workers, stop, return_exceptions=True)
@@ -645,7 +811,7 @@ class MqttBridge:
                           f"{request_id}, the first such) is not run again; copies are answered with the first reply "
                           f"and counted in duplicate_commands", level=logging.INFO)
         if reply is not None:
-            self._enqueue(_Out(self.topics.reply(verb), reply, qos=1))
+            self._enqueue(_Out(self.topics.reply(verb), reply, qos=1), urgent=verb in URGENT_VERBS)
 
     def _refuse(self, exc: CommandRefused) -> None:
         self.counters.refused_commands += 1
@@ -691,4 +857,4 @@ class MqttBridge:
             payload = _dumps({"request_id": cmd.request_id, "ok": False, "error": error}, "reply")
         if (verb, cmd.request_id) in self._remembered:
             self._remembered[(verb, cmd.request_id)] = payload
-        self._enqueue(_Out(self.topics.reply(verb), payload, qos=1))
+        self._enqueue(_Out(self.topics.reply(verb), payload, qos=1), urgent=verb in URGENT_VERBS)

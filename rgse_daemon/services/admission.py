@@ -41,7 +41,8 @@ class NotConnected(RgseError):
 class RunAdmission:
     """Admits one run at a time and holds it: ``task``, ``kind``, its run id once started, its outcome.
 
-    ``on_failed(kind, run_id, error)`` is told when a run ends in an error (the daemon alarms and lights red).
+    ``on_failed(kind, run_id, error)`` is told when a run ends in an error (the daemon alarms and lights red);
+    ``on_link_lost(why)`` before it when that error is the controller link's (the daemon raises the ``link`` alarm).
     ``on_refused(kind, reason)`` is told when a run request is refused before the run started — busy, stopping, not
     connected, the safety latch (:meth:`refuse`), or the run's own start checks (:class:`PreconditionError`: mode,
     no active calibration, ...). A refusal is a request answered "no": nothing was recorded or moved, so it is not a
@@ -50,14 +51,18 @@ class RunAdmission:
 
     def __init__(self, cfg: Config, counters: DaemonCounters, inputs: Callable[[], SafetyInputs | None],
                  on_failed: Callable[[str, str | None, str], None],
-                 on_refused: Callable[[str, str], None]) -> None:
+                 on_refused: Callable[[str, str], None],
+                 on_link_lost: Callable[[str], None] | None = None) -> None:
         self.cfg = cfg
         self.counters = counters
         self._inputs = inputs
         self._on_failed = on_failed
         self._on_refused = on_refused
+        self._on_link_lost = on_link_lost
         self.task: asyncio.Task[Any] | None = None
         self.kind: str | None = None
+        self.engine: RunEngine | None = None
+        """The engine of the current (or last) run: the daemon's own, or a dry run's (abort and confirm go to it)."""
         self.stopping = False
         self.last_result: Any = None
         self.last_error: str | None = None
@@ -102,6 +107,7 @@ class RunAdmission:
             why = f" ({link_error})" if link_error else ""
             raise self.refuse(kind, NotConnected(f"not connected: controller {c.host}:{c.port} is not connected{why}"))
         self.kind = kind
+        self.engine = engine
         self._started = started = asyncio.get_running_loop().create_future()
 
         async def runner() -> Any:
@@ -129,6 +135,8 @@ class RunAdmission:
     def _failed(self, kind: str, exc: Exception) -> None:
         self.last_error = f"{type(exc).__name__}: {exc}"
         log.error("%s run failed: %s", kind, self.last_error)
+        if isinstance(exc, LinkError) and self._on_link_lost is not None:  # the run's own request saw the link go
+            self._on_link_lost(str(exc) or type(exc).__name__)
         self._on_failed(kind, self.run_id, self.last_error)
 
     async def check_start_mode(self, krc: Controller, engine: RunEngine) -> None:

@@ -15,6 +15,12 @@ One page (``console.html``) and a small HTTP API beside it:
 ``GET /report/run/ID``     the HTML report of a run (``/report/calibration/ID`` of a calibration), from the store,
                            rendered on the console's own thread (:data:`REPORT_QUEUE`)
 
+Only the console's own page may act (docs/security.md): every request must name an allowed ``Host`` (against DNS
+rebinding); a POST must come from the page's own origin (``Origin`` and ``Sec-Fetch-Site`` when the browser sends
+them), be ``application/json`` (a form or ``text/plain`` POST, which any page can send without a preflight, is
+refused) and carry the anti-CSRF token of ``hello`` in ``X-RGSE-CSRF``. Every answer forbids framing
+(``X-Frame-Options``, ``frame-ancestors``) and the page has a Content-Security-Policy that allows its own script only.
+
 The actions are the MQTT commands: checked by the same :func:`~rgse_daemon.io.commands.parse_command` (schema and
 ``mqtt.command_tokens``) and answered by the same handler, so the console can confirm only what the daemon asks
 for, and start only what MQTT may start (admission's rules alike). Without ``command_tokens`` the console acts only
@@ -25,12 +31,16 @@ accepted or refused, is recorded in the store as an event ``console_action`` wit
 from __future__ import annotations
 
 import asyncio
+import base64
 import contextlib
+import hashlib
+import hmac
 import json
 import logging
 import math
 import re
 import secrets
+import socket
 import time
 from collections import deque
 from collections.abc import Awaitable, Callable, Sequence
@@ -38,12 +48,13 @@ from concurrent.futures import ThreadPoolExecutor
 from importlib import resources
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from aiohttp import web
 
 from rgse_daemon.config import ConsoleConfig
 from rgse_daemon.errors import RgseError
-from rgse_daemon.io.commands import MAX_PAYLOAD_BYTES, CommandRefused, parse_command
+from rgse_daemon.io.commands import MAX_PAYLOAD_BYTES, CommandRefused, DuplicateKey, loads_strict, parse_command
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.report import build_report
 from rgse_daemon.services.signals import STATE_LIGHT
@@ -83,6 +94,44 @@ REPORT_TIMEOUT_S = 30.0
 
 Handler = Any  # rgse_daemon.io.mqtt.CommandHandler: measure, calibrate, abort, confirm
 
+#: The header that carries the anti-CSRF token of the ``hello`` event on every POST.
+CSRF_HEADER = "X-RGSE-CSRF"
+#: Sent with every answer: no page may frame the console (clickjacking), nothing is sniffed into another type.
+FRAME_HEADERS = {"X-Frame-Options": "DENY", "X-Content-Type-Options": "nosniff", "Referrer-Policy": "no-referrer"}
+#: The page's policy; ``{script}`` is the hash of its one inline script (no other script runs, none from elsewhere).
+PAGE_CSP = ("default-src 'none'; script-src '{script}'; style-src 'self' 'unsafe-inline'; img-src 'self' data:; "
+            "connect-src 'self'; base-uri 'none'; form-action 'none'; frame-ancestors 'none'")
+#: Every other answer (the reports, the API): not to be framed.
+OTHER_CSP = "frame-ancestors 'none'"
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+WILDCARD_HOSTS = ("0.0.0.0", "::", "")
+
+
+class Refusal(Exception):
+    """A request that is not the console's own page acting: answered ``status`` with ``error``."""
+
+    def __init__(self, status: int, error: str) -> None:
+        super().__init__(error)
+        self.status = status
+        self.error = error
+
+
+def allowed_hosts(cfg: ConsoleConfig) -> frozenset[str]:
+    """The host names (lower case, no port) the console answers to."""
+    names = {cfg.host, *LOOPBACK_NAMES, *cfg.allowed_hosts}
+    if cfg.host in WILDCARD_HOSTS:  # listening on every address: this machine's own names too
+        names |= {socket.gethostname(), socket.getfqdn()}
+    return frozenset(n.lower().strip("[]") for n in names if n)
+
+
+def _host_port(netloc: str) -> tuple[str, int | None]:
+    """``(name, port)`` of a ``Host`` header or URL authority (``[::1]:8080`` -> ``("::1", 8080)``); ValueError
+    when it is not one."""
+    parts = urlsplit(f"//{netloc}")
+    if parts.hostname is None or parts.username is not None or parts.path or parts.query or parts.fragment:
+        raise ValueError(netloc)
+    return parts.hostname.lower(), parts.port
+
 
 class Console:
     """The web console of one daemon; :meth:`event` is fed every engine event, :meth:`start`/:meth:`stop` bound
@@ -110,6 +159,10 @@ class Console:
         self._streams = 0
         self._reports = ThreadPoolExecutor(1, thread_name_prefix="rgse-console-report")
         self._reports_pending = 0  # report requests waiting for the thread or rendering
+        self._hosts = allowed_hosts(cfg)
+        self.csrf = secrets.token_urlsafe(32)
+        """The anti-CSRF token of this daemon's life: handed to the page in ``hello`` (which only a page of this
+        origin can read), required in :data:`CSRF_HEADER` on every POST."""
         self.torque: deque[tuple[float, float, float]] = deque(maxlen=int(TORQUE_WINDOW_S * rate_hz) + 1)
         """(Unix time s, A3 N·m, A5 N·m) of the live state, for the plot of a page that (re)connects."""
         self._clients: set[asyncio.Queue[tuple[str, Any] | None]] = set()
@@ -123,7 +176,8 @@ class Console:
     # --- life ----------------------------------------------------------------------------------------------------
     async def start(self) -> None:
         # a body larger than a command may be (interfaces §4.3) is a 413 before it is read whole
-        app = web.Application(client_max_size=MAX_PAYLOAD_BYTES)
+        app = web.Application(client_max_size=MAX_PAYLOAD_BYTES, middlewares=[self._guard])
+        app.on_response_prepare.append(_security_headers)
         app.add_routes([web.get("/", self._page), web.get("/events", self._events),
                         web.post("/api/confirm", self._confirm), web.post("/api/abort", self._abort),
                         web.post("/api/measure", self._measure), web.post("/api/properties", self._properties),
@@ -226,9 +280,58 @@ class Console:
             self.torque.append((time.time(), float(tq[2]), float(tq[4])))
 
     # --- routes --------------------------------------------------------------------------------------------------
+    # --- who may ask ---------------------------------------------------------------------------------------------
+    @web.middleware
+    async def _guard(self, request: web.Request, handler: Callable[[web.Request], Awaitable[web.StreamResponse]]
+                     ) -> web.StreamResponse:
+        """Every request names an allowed Host; a POST is the page's own (origin, JSON, anti-CSRF token)."""
+        try:
+            host = self._check_host(request)
+            if request.method not in ("GET", "HEAD"):
+                self._check_post(request, host)
+        except Refusal as exc:
+            log.warning("console: %s %s refused: %s (peer %s)", request.method, request.path, exc.error,
+                        request.remote)
+            return web.json_response({"ok": False, "error": exc.error}, status=exc.status)
+        return await handler(request)
+
+    def _check_host(self, request: web.Request) -> tuple[str, int | None]:
+        raw = request.headers.get("Host", "")
+        try:
+            host = _host_port(raw)
+        except ValueError:
+            raise Refusal(400, f"Host {raw[:100]!r} is not a host name") from None
+        if host[0] not in self._hosts:  # a DNS-rebound name: this page is not that site's
+            raise Refusal(421, f"Host {host[0][:100]!r} is not one this console answers to (console.allowed_hosts)")
+        return host
+
+    def _check_post(self, request: web.Request, host: tuple[str, int | None]) -> None:
+        site = request.headers.get("Sec-Fetch-Site")
+        if site is not None and site not in ("same-origin", "none"):
+            raise Refusal(403, f"cross-site request (Sec-Fetch-Site: {site[:40]}): only the console's own page acts")
+        origin = request.headers.get("Origin")
+        if origin is not None:
+            parts = urlsplit(origin)
+            default = 443 if parts.scheme == "https" else 80
+            try:
+                o_port = parts.port or default
+            except ValueError:
+                o_port = -1
+            if (parts.scheme not in ("http", "https") or (parts.hostname or "").lower() != host[0]
+                    or o_port != (host[1] or default)):
+                raise Refusal(403, f"cross-origin request from {origin[:100]!r}: only the console's own page acts")
+        ctype = request.headers.get("Content-Type", "").split(";", 1)[0].strip().lower()
+        if ctype != "application/json":
+            raise Refusal(415, f"Content-Type {ctype[:60] or '(none)'!r}: an action is application/json")
+        given = request.headers.get(CSRF_HEADER, "")
+        if not hmac.compare_digest(given.encode(), self.csrf.encode()):
+            raise Refusal(403, f"missing or wrong {CSRF_HEADER} (the token of the page's hello event)")
+
     async def _page(self, request: web.Request) -> web.Response:
         html = resources.files(__package__).joinpath("console.html").read_text(encoding="utf-8")
-        return web.Response(text=html, content_type="text/html", charset="utf-8")
+        csp = PAGE_CSP.format(script=_script_hash(html))
+        return web.Response(text=html, content_type="text/html", charset="utf-8",
+                            headers={"Content-Security-Policy": csp})
 
     async def _events(self, request: web.Request) -> web.StreamResponse:
         if self._streams >= MAX_STREAMS:
@@ -244,7 +347,7 @@ class Console:
         resp = web.StreamResponse(headers={"Content-Type": "text/event-stream", "Cache-Control": "no-store"})
         await resp.prepare(request)
         q: asyncio.Queue[tuple[str, Any] | None] = asyncio.Queue(CLIENT_QUEUE)
-        hello = {"robot": self.robot, "token_required": bool(self._tokens), "run": self.run,
+        hello = {"robot": self.robot, "token_required": bool(self._tokens), "csrf": self.csrf, "run": self.run,
                  "state": await self._fresh_state(), "torque": list(self.torque), "state_period_s": self.period_s}
         self._clients.add(q)
         try:
@@ -262,10 +365,12 @@ class Console:
     async def _act(self, verb: str, request: web.Request) -> web.Response:
         try:
             async with asyncio.timeout(BODY_TIMEOUT_S):
-                body = await request.json()
+                body = await request.json(loads=loads_strict)
         except TimeoutError:
             return web.json_response({"ok": False, "error": f"request body not received within {BODY_TIMEOUT_S:g} s"},
                                      status=408)
+        except DuplicateKey as exc:
+            return web.json_response({"ok": False, "error": str(exc)}, status=400)
         except ValueError:
             body = None
         except web.HTTPRequestEntityTooLarge:
@@ -366,6 +471,19 @@ class Console:
         except RgseError as exc:
             raise web.HTTPNotFound(text=f"no report of {what} {ident}: {exc}") from None
         return web.FileResponse(path, headers={"Content-Type": "text/html; charset=utf-8"})
+
+
+async def _security_headers(request: web.Request, response: web.StreamResponse) -> None:
+    """On every answer (the page, the stream, the API, the reports, the refusals): no framing, no sniffing."""
+    for k, v in FRAME_HEADERS.items():
+        response.headers.setdefault(k, v)
+    response.headers.setdefault("Content-Security-Policy", OTHER_CSP)
+
+
+def _script_hash(html: str) -> str:
+    """``sha256-…`` of the page's one inline script, as a Content-Security-Policy source names it."""
+    body = html.split("<script>", 1)[1].split("</script>", 1)[0]
+    return "sha256-" + base64.b64encode(hashlib.sha256(body.encode("utf-8")).digest()).decode()
 
 
 #: The shapes of a run id and a point that a console action's record keeps as sent (interfaces §4.3 bounds).

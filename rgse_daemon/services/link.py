@@ -1,8 +1,9 @@
 """Controller supervision: keep the KR C4 link up, notice its loss while idle, and reconnect with backoff.
 
-During a run the interlock monitor reads the controller at 20 Hz and trips on a lost link; while idle this job
-probes it every :data:`LINK_PROBE_S`. A loss clears ``connected``, raises the ``link`` alarm once, and the link is
-opened anew with jittered exponential backoff between ``reconnect_min_s`` and ``reconnect_max_s``.
+During a run the interlock monitor reads the controller at 20 Hz and trips on a lost link (the daemon then raises
+the ``link`` alarm through :meth:`ControllerLink.lost_during_run`); while idle this job probes it every
+:data:`LINK_PROBE_S`. A loss clears ``connected``, raises the ``link`` alarm once, and the link is opened anew with
+jittered exponential backoff between ``reconnect_min_s`` and ``reconnect_max_s``.
 """
 
 from __future__ import annotations
@@ -133,6 +134,14 @@ class ControllerLink:
                 await within(stop.wait(), self.backoff_s(attempt))
             attempt += 1
 
+    def lost_during_run(self, why: str) -> None:
+        """The link failed under a run (the interlock's ``link`` trip, or a request of the run): the run's own
+        supervision saw it, not this job's idle probe, and the link may be back before the run has ended. Counted and
+        alarmed as any loss; cleared by the next good probe or connect."""
+        if "link" not in self.alarms.active:
+            self.counters.link_losses += 1
+        self.alarms.raise_("link", f"{self.where} link lost during a run: {why}")
+
     async def _supervise(self, krc: Controller, stop: asyncio.Event) -> str | None:
         """Wait for ``stop`` (returns None) or for the loss of the idle link (returns why)."""
         c = self.cfg
@@ -147,8 +156,10 @@ class ControllerLink:
                 async with asyncio.timeout(probe_s):
                     await krc.read_raw("$MODE_OP")
             except VariableError:
+                self.alarms.clear("link")
                 continue  # the controller answered: the link is up
             except TimeoutError:
                 return f"no answer to a probe within {probe_s:g} s"
             except LinkError as exc:
                 return str(exc) or type(exc).__name__
+            self.alarms.clear("link")  # it answered: a loss seen during a run is over

@@ -13,6 +13,10 @@
    ``{"state": "interrupted", ...}`` (retained, through the durable outbox); a calibration campaign, which the daemon
    continues, an alarm and a progress message.
 
+   A run that *ended* (failed, aborted) with a loop ``recorded`` but not archived — a pull that failed on a full
+   disk or a lost link — is reconciled the same way at the next connect (its state and result stay; a loop whose
+   trace is neither on the controller nor complete here becomes ``failed``).
+
 :meth:`Recovery.on_unsafe` is the interlock monitor's hook for a stop not confirmed by its deadline: latch, alarm,
 event.
 """
@@ -90,8 +94,8 @@ class Recovery:
         try:
             await self._trace_written(krc)
             await self.recover_runs(krc)
-        except (RgseError, TimeoutError) as exc:  # the link or the store failed: the next connect tries again
-            log.error("recovery of interrupted runs incomplete: %s", exc)
+        except (RgseError, TimeoutError, OSError) as exc:  # the link, the store or the disk (still full) failed:
+            log.error("recovery of interrupted runs incomplete: %s", exc)  # the next connect tries again
 
     async def _trace_written(self, krc: Controller) -> None:
         """A trace stopped by the sweep is still being written (``#T_WRITING``): wait for its files (bounded)."""
@@ -127,9 +131,19 @@ class Recovery:
                 continue
             await self.recover_run(krc, run)
             done.append(run.id)
+        # runs that ended (failed, aborted) with a loop's trace recorded but never archived: a pull that failed (the
+        # disk full, the link lost mid-pull) left its files on the controller and maybe some archived, unindexed
+        for state in (RunState.FAILED, RunState.ABORTED):
+            for run in await self.store.list_runs(robot=self.cfg.robot.name, state=state):
+                if any(lp.state == LoopState.RECORDED for lp in await self.store.loops(run.id)):
+                    await self.recover_run(krc, run, ended=True)
+                    done.append(run.id)
         return done
 
-    async def recover_run(self, krc: Controller, run: RunRecord) -> dict[str, Any]:
+    async def recover_run(self, krc: Controller, run: RunRecord, *, ended: bool = False) -> dict[str, Any]:
+        """Pull, index and mark the loops of ``run`` (see the module docstring). ``ended``: a run that ended (failed,
+        aborted) with a loop ``recorded`` but not archived; its state and result stay as they are, and a loop whose
+        trace is neither on the controller nor complete in the archive becomes ``failed`` (nothing left to pull)."""
         archive = archive_root(self.cfg.paths.data_dir)
         run_dir = archive / run.directory
         share_dir = self.cfg.controller.share_dir
@@ -170,17 +184,21 @@ class Recovery:
             new_state = lp.state
             if lp.state == LoopState.RECORDED and complete:
                 new_state = LoopState.ARCHIVED
+            elif lp.state == LoopState.RECORDED and ended and pulled is None:
+                new_state = LoopState.FAILED  # its trace is gone from the controller and incomplete here
             elif lp.state in (LoopState.PENDING, LoopState.RECORDING):
                 new_state = LoopState.INTERRUPTED
             if new_state != lp.state:
                 await self.store.update_loop(run.id, lp.index, state=new_state)
             summary["loops"][str(lp.index)] = {"trace": lp.trace_name, "state": new_state.value,
                                                "complete_set_indexed": complete}
-        message = (f"run {run.id} ({run.kind.value}) recovered after its interruption: {summary['pulled']} trace files "
+        why = f"ended {run.state.value} with a trace not archived" if ended else "recovered after its interruption"
+        message = (f"run {run.id} ({run.kind.value}) {why}: {summary['pulled']} trace files "
                    f"pulled, {summary['indexed']} indexed, {summary['deleted']} deleted on the controller")
         log.warning("%s", message)
         await self.store.add_event("warning", RECOVERED, message, run_id=run.id, data=summary)
-        await self._tell(run, summary)
+        if not ended:
+            await self._tell(run, summary)
         return summary
 
     async def _tell(self, run: RunRecord, summary: dict[str, Any]) -> None:

@@ -242,7 +242,7 @@ async def test_second_measure_is_refused_busy_with_the_reason_in_the_reply(
         wrong = await command(op, "abort", {"run_id": "not-this-run", "reason": "test"})
         assert wrong["ok"] is False and run_id in wrong["error"]
         aborted = await command(op, "abort", {"run_id": run_id, "reason": "operator test"})
-        assert aborted == {"aborting": run_id, "request_id": aborted["request_id"], "ok": True}
+        assert aborted == {"aborting": run_id, "dry_run": False, "request_id": aborted["request_id"], "ok": True}
         with pytest.raises(Exception, match="operator test"):
             await run_end(rd)
     run = await stored_run(cfg, run_id)

@@ -3,12 +3,14 @@ problem (exit 2, no traceback), through the real CLI on real directories."""
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
 import pytest
 
 from rgse_daemon.cli import main
+from rgse_daemon.manifest import load_manifest
 from tests.support.cli import fitted_dirs, one_line_error
 
 
@@ -319,3 +321,22 @@ def test_properties_poses_with_mixed_sample_periods_are_refused(tmp_path, capsys
     err = one_line_error(capsys, ["cog", "--traces", str(d), "--calibration", str(dirs / "CAL.json")])
     assert f"{m}: trace 'dut_l03' (NextGenDrive#3) has sample period 0.012 s, trace 'dut_l02' (NextGenDrive#3) " \
            f"0.004 s" in err, err
+
+
+# --- issue 31 6h: a manifest is read only from its own directory -------------------------------------------------
+def test_manifest_symlinked_out_of_its_directory_is_refused(tmp_path, capsys, dirs):
+    d, m = copy(dirs, tmp_path, "dut")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    os.replace(m, elsewhere / "manifest.toml")  # a valid manifest: only the link's leaving makes it wrong
+    m.symlink_to(elsewhere / "manifest.toml")
+    err = mass_error(capsys, d, dirs / "CAL.json")
+    assert str(m) in err and "symbolic link leads out" in err, err
+
+
+def test_manifest_symlinked_inside_its_directory_is_read(tmp_path, dirs):
+    d, m = copy(dirs, tmp_path, "dut")
+    (d / "keep").mkdir()
+    os.replace(m, d / "keep" / "manifest.toml")
+    m.symlink_to(Path("keep") / "manifest.toml")
+    assert load_manifest(d).measurement_traces

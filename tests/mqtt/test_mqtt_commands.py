@@ -155,6 +155,11 @@ async def test_a_command_seen_again_is_answered_again_and_not_run_twice(
         ("calibrate", {"request_id": "x-9", "points": [{"kind": "zero"}]}, "x-9", "points.0.mass_kg"),
         ("selfdestruct", {"request_id": "x-10"}, None, "unknown verb 'selfdestruct'"),
         ("measure", {"loops": 3}, None, "request_id: Field required"),
+        # issue 31 6e: the last of two equal keys does not silently win (a run that is not the dry run asked for)
+        ("measure", b'{"request_id": "x-11", "dry_run": true, "dry_run": false}', "x-11", "duplicate key 'dry_run'"),
+        ("calibrate", b'{"request_id": "x-12", "points": [{"kind": "zero", "mass_kg": 0, "mass_kg": 5, '
+                      b'"lever_a3_m": 1.29, "lever_a5_m": 0.265}]}', "x-12", "duplicate key 'mass_kg'"),
+        ("abort", b'{"request_id": "x-13", "request_id": "x-14", "reason": "x"}', None, "duplicate key 'request_id'"),
     ],
 )
 async def test_bad_commands_are_refused_without_effect(
@@ -243,17 +248,18 @@ async def test_without_the_right_token_nothing_happens(guarded: Session, handler
     # unauthorised and against the schema: the sender learns it is unauthorised, nothing about the schema
     await guarded.send("measure", {"request_id": "t-4", "bogus": 1})
     refused = await guarded.replies(4)
-    assert [(v, r["request_id"], r["ok"]) for v, r in refused] == [
+    # abort comes on a connection of its own (issue 31 6d): its reply's place among the others is not fixed
+    assert sorted((r["request_id"], v, r["ok"]) for v, r in refused) == sorted((rid, v, ok) for v, rid, ok in [
         ("measure", "t-1", False),
         ("measure", "t-2", False),
         ("abort", "t-3", False),
         ("measure", "t-4", False),
-    ]
+    ])
     assert all("unauthorised" in r["error"] and "bogus" not in r["error"] for _, r in refused)
     assert handler.calls == [] and guarded.bridge.counters.refused_commands == 4
 
     await guarded.send("measure", {"request_id": "t-5", "loops": 3, "token": TOKENS[1]})
-    ((_, ok),) = (await guarded.replies(5))[4:]
+    (ok,) = [r for _, r in await guarded.replies(5) if r["request_id"] == "t-5"]
     assert ok["ok"] is True and ok["request_id"] == "t-5"
     ((verb, cmd),) = handler.calls
     assert verb == "measure" and cmd.loops == 3 and "s3cret" not in repr(cmd)

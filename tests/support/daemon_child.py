@@ -1,6 +1,7 @@
-"""The daemon in a process of its own for the crash tests: ``daemon_child.py CONFIG_JSON measurement|calibration
-[--no-confirm]``. Starts the daemon, starts one run, prints every engine event as a JSON line, confirms the
-operator prompts (unless ``--no-confirm``), and runs until it is killed."""
+"""The daemon in a process of its own for the crash tests: ``daemon_child.py CONFIG_JSON
+measurement|calibration|idle [--no-confirm]``. Starts the daemon, starts one run (none with ``idle``: a client starts
+it), prints every engine event as a JSON line, confirms the operator prompts (unless ``--no-confirm``), and runs until
+it is killed."""
 
 from __future__ import annotations
 
@@ -37,6 +38,8 @@ async def main() -> None:
     await daemon.connected.wait()
     if kind == "measurement":
         await daemon.start_measurement()
+    elif kind == "idle":
+        pass
     else:
         await daemon.start_calibration(points=CAMPAIGN, method="paper")
     print(json.dumps({"kind": "started"}), flush=True)
