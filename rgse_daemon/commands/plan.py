@@ -24,7 +24,7 @@ from rgse_daemon.app import campaign_point
 from rgse_daemon.client import load_points
 from rgse_daemon.config import Config, load_config
 from rgse_daemon.durable import write_atomic
-from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS, ConfigError, DataError
+from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS, ConfigError, DataError, RgseError
 from rgse_daemon.io.commands import CalibrationPoint
 from rgse_daemon.pipeline import planning as pl
 from rgse_daemon.procedures import calibration as cal
@@ -74,7 +74,7 @@ def check_file(path: Path, cfg: Config) -> int:
     try:
         camp = [campaign_point(CalibrationPoint.model_validate(p.as_command()), s.g_m_s2) for p in points]
         cal.check_points_support(camp, METHOD, s)
-    except PreconditionError as exc:
+    except (PreconditionError, RgseError) as exc:
         raise DataError(f"{path}: the planned campaign is refused by the daemon's pre-check: {exc}") from None
     return len(camp)
 

@@ -50,7 +50,8 @@ MAX_A5_TORQUE_NM = 3330.0
 DEFAULT_MAX_DISTANCE = 0.15
 #: The fewest loaded points a plan has (the demo's campaign has 10; the rehearsal's 7 passes the auto method).
 DEFAULT_MIN_LOADED = 6
-#: The DuT grid per axis when a range is given (mass × lever).
+#: The DuT grid per axis when a range is given (mass × lever). Between its nodes the distance to the nearest
+#: calibrated point can exceed the bound a little (0.158 for 0.15 on a 41 × 41 grid over 50-250 kg, 0.40-0.90 m).
 GRID_N = 9
 #: The paper's campaign: 14 points, "estimated to be 480 min" of measurement time for the torque data (§2.4.4).
 PAPER_CAMPAIGN_MIN = 480.0
