@@ -76,6 +76,11 @@ def check_file(path: Path, cfg: Config) -> int:
         cal.check_points_support(camp, METHOD, s)
     except (PreconditionError, RgseError) as exc:
         raise DataError(f"{path}: the planned campaign is refused by the daemon's pre-check: {exc}") from None
+    lo, hi = equipment().rail_a5_m
+    for i, c in enumerate(camp, 1):
+        if c.cb_lever_a5_m is not None and not lo <= c.cb_lever_a5_m <= hi:
+            raise DataError(f"{path} [[point]] #{i}: the bodies would sit at {c.cb_lever_a5_m:.5f} m from A5, off the "
+                            f"test adapter's rail ({lo:g}..{hi:g} m)")
     return len(camp)
 
 
@@ -145,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
                   f"  rgse run calibrate --config FILE --points {args.points_out.name} --method auto",
                   "bodies: calibration bodies of 20.93 kg to mount (on the MPA, or on the test adapter for a torque "
                   "point)"]
-        write_atomic(args.points_out, pl.points_toml(p.points, header))
+        write_atomic(args.points_out, pl.points_toml(p.points, equipment(), header))
         out["points_checked"] = check_file(args.points_out, cfg)
     if args.json:
         print(json.dumps(out))

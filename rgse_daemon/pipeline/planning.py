@@ -396,12 +396,29 @@ def plan(mass_kg: np.ndarray, lever_a5_m: np.ndarray, eq: Equipment, *, loops: i
 
 
 # --- the points file -------------------------------------------------------------------------------------------
-def points_toml(points: Sequence[PlannedPoint], header: Sequence[str] = ()) -> str:
+#: Levers in a points file: 0.1 mm.
+FILE_LEVER_DIGITS = 4
+
+
+def file_lever_a5_m(p: PlannedPoint, eq: Equipment) -> float:
+    """The A5 lever a points file gives for ``p``: rounded to :data:`FILE_LEVER_DIGITS`, a torque point's toward the
+    middle of the rail, so that the rail position the daemon derives from it (app.campaign_point) stays on the rail
+    (rounded to nearest, 10 bodies at 0.60 m came back at 0.59998 m, off the rail)."""
+    if p.kind != "torque" or p.cb_lever_a5_m is None:
+        return round(p.lever_a5_m, FILE_LEVER_DIGITS)
+    q = 10.0**FILE_LEVER_DIGITS
+    inward = math.ceil if p.cb_lever_a5_m <= 0.5 * sum(eq.rail_a5_m) else math.floor
+    return inward(p.lever_a5_m * q) / q
+
+
+def points_toml(points: Sequence[PlannedPoint], eq: Equipment, header: Sequence[str] = ()) -> str:
     """A points file as ``rgse run calibrate --points`` reads it (client.types.load_points): ``[[point]]`` with
-    kind, mass, levers, and ``bodies`` (ignored by the schema; the daemon derives them from the mass)."""
+    kind, mass, levers (:func:`file_lever_a5_m`), and ``bodies`` (ignored by the schema; the daemon derives them
+    from the mass)."""
     lines = [f"# {h}" if h else "#" for h in header]
     for p in points:
+        lever_a5 = file_lever_a5_m(p, eq)
         lines += ["", "[[point]]", f'kind = "{p.kind}"', f"mass_kg = {round(p.mass_kg, 4)!r}",
-                  f"lever_a3_m = {round(p.lever_a3_m, 4)!r}", f"lever_a5_m = {round(p.lever_a5_m, 4)!r}",
-                  f"bodies = {p.n_cb}"]
+                  f"lever_a3_m = {round(lever_a5 + eq.lever_difference_m, FILE_LEVER_DIGITS)!r}",
+                  f"lever_a5_m = {lever_a5!r}", f"bodies = {p.n_cb}"]
     return "\n".join(lines) + "\n"

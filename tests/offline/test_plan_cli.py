@@ -34,8 +34,9 @@ def test_plan_writes_a_points_file_the_daemon_reads_and_accepts(tmp_path, capsys
     camp = [campaign_point(CalibrationPoint.model_validate(p.as_command()), s.g_m_s2) for p in points]
     assert [c.n_cb for c in camp] == [q["bodies"] for q in doc["points"]]
     for c, q in zip(camp, doc["points"], strict=True):
-        if q["kind"] == "torque":  # the rail position the operator is asked for is the planned one
+        if q["kind"] == "torque":  # the rail position the operator is asked for is the planned one, on the rail
             assert c.cb_lever_a5_m == pytest.approx(q["cb_lever_a5_m"], abs=2e-3)
+            assert 0.60 <= c.cb_lever_a5_m <= 1.50
     check_points_support(camp, "auto", s)  # raises if the campaign cannot give an auto calibration
     # the time the command reports is the sum of its parts
     t = doc["time"]

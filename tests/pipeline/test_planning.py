@@ -131,6 +131,14 @@ def test_the_50_250_kg_plan_predicts_time_and_U_from_its_parts(plan_50_250):
 
 def test_points_toml_holds_every_point():
     pts = [pl.zero_point(EQ, 3), pl.stack_point(EQ, 2, 3), pl.adapter_point(EQ, 10, 1.261, 3)]
-    text = pl.points_toml(pts, ["a header"])
+    text = pl.points_toml(pts, EQ, ["a header"])
     assert text.startswith("# a header\n") and text.count("[[point]]") == 3
     assert 'kind = "torque"' in text and "bodies = 10" in text and "mass_kg = 41.86" in text
+
+
+def test_a_torque_point_at_the_rail_end_keeps_its_bodies_on_the_rail_in_the_file():
+    for cb_lever, n in ((0.60, 10), (0.60, 1), (1.50, 10), (1.50, 3)):
+        p = pl.adapter_point(EQ, n, cb_lever, 3)
+        lever = pl.file_lever_a5_m(p, EQ)
+        back = (p.mass_kg * lever - 217.95 / G) / (20.93 * n)  # the rail position the daemon derives from the file
+        assert 0.60 <= back <= 1.50 and back == pytest.approx(cb_lever, abs=1e-3)
