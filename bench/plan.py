@@ -71,13 +71,15 @@ class WarmupClock:
         self.events.append((time.monotonic(), ev))
         self.operator(ev)
 
-    def warmup_wall_s(self) -> tuple[int, float]:
-        """(warm-up runs, their wall time): each run's duration is the median spacing of two runs of one warm-up."""
+    def warmup_wall_s(self) -> tuple[int, int, float]:
+        """(warm-ups, warm-up runs, their wall time): each run's duration is the median spacing of two runs of one
+        warm-up; a warm-up starts with its run 1 (the first, then one after each load change that cooled A3/A5)."""
         runs = [(t, ev.data.get("run")) for t, ev in self.events if ev.kind == "step" and ev.step == "warm-up"]
         spacing = [t1 - t0 for (t0, _), (t1, r1) in itertools.pairwise(runs) if r1 and r1 > 1]
         if not runs:
-            return 0, 0.0
-        return len(runs), len(runs) * (statistics.median(spacing) if spacing else 0.0)
+            return 0, 0, 0.0
+        starts = sum(1 for _, r in runs if r == 1)
+        return starts, len(runs), len(runs) * (statistics.median(spacing) if spacing else 0.0)
 
 
 async def run_campaign(points_file: Path, scale: float, seed: int, loops: int) -> dict[str, Any]:
@@ -105,7 +107,7 @@ async def run_campaign(points_file: Path, scale: float, seed: int, loops: int) -
                 async with asyncio.timeout(3600):
                     cal = await (await daemon.start_calibration(points=points, method="auto", settings=s))
                 wall = time.monotonic() - t0
-                warm_runs, warm_wall = clock.warmup_wall_s()
+                warmups, warm_runs, warm_wall = clock.warmup_wall_s()
                 await sim.mount(demo.DUT.payload())
                 async with asyncio.timeout(3600):
                     res = await (await daemon.start_measurement())
@@ -118,7 +120,7 @@ async def run_campaign(points_file: Path, scale: float, seed: int, loops: int) -
     return {"scale": scale, "seed": seed, "loops_per_point": loops, "points": len(points),
             "campaign_wall_s": wall, "loops_robot_min": float(cal["robot_time_s"]) * scale / 60.0,
             "loops": sum(int(p["loops"]) for p in cal.get("points_stop", [])),
-            "warmup_runs": warm_runs, "warmup_robot_min": warm_wall * scale / 60.0,
+            "warmups": warmups, "warmup_runs": warm_runs, "warmup_robot_min": warm_wall * scale / 60.0,
             "method": cal.get("method"), "calibration_warnings": cal.get("warnings", []),
             "dut_true_kg": demo.DUT_MASS_KG, "dut_mass_kg": res["mass_kg"], "dut_U_kg": res["U_kg"],
             "dut_error_kg": res["mass_kg"] - demo.DUT_MASS_KG,
@@ -156,9 +158,12 @@ def _print(out: dict[str, Any]) -> None:
     if "run" in out:
         r = out["run"]
         total = r["loops_robot_min"] + r["warmup_robot_min"]
-        print(f"{'planned, run (sim x' + format(r['scale'], 'g') + ')':<34} {r['points']:>6} {r['loops']:>5} "
+        print(f"{'planned, run (sim x' + format(r['scale'], 'g') + ', seed ' + str(r['seed']) + ')':<34} "
+              f"{r['points']:>6} {r['loops']:>5} "
               f"{r['loops_robot_min']:>9.1f} {r['warmup_robot_min']:>11.1f} {total:>9.1f} "
               f"{'<=120' if total <= GOAL_MIN else 'OVER':>6}")
+        print(f"  warm-ups run: {r['warmups']} ({r['warmup_runs']} runs of the warm-up move); the simulated operator "
+              f"mounts at once, so the motors have little time to cool between points")
     print(f"{'demo campaign (robot_time.py x50)':<34} {16:>6} {DEMO_CAMPAIGN_LOOPS:>5} "
           f"{DEMO_CAMPAIGN_LOOPS_MIN:>9.1f} {'-':>11} {'-':>9} {'':>6}")
     print(f"{'paper (Table 1, §2.4.4)':<34} {pl.PAPER_CAMPAIGN_POINTS:>6} {'-':>5} {'-':>9} {'-':>11} "
