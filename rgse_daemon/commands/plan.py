@@ -34,10 +34,13 @@ from rgse_daemon.procedures.settings import RunSettings
 METHOD = "auto"
 
 
-def equipment() -> pl.Equipment:
-    """The paper's calibration equipment, as the campaign procedure mounts it."""
+def equipment(cfg: Config | None = None) -> pl.Equipment:
+    """The paper's calibration equipment, as the campaign procedure mounts it, within the configured load diagram
+    (``[limits] max_payload_kg``, ``max_a5_torque_nm``)."""
+    lim = {} if cfg is None else {"max_payload_kg": cfg.limits.max_payload_kg,
+                                  "max_a5_torque_nm": cfg.limits.max_a5_torque_nm}
     return pl.Equipment(cal.CB_MASS_KG, cal.ZERO_LEVER_A5_M, cal.STACK_LEVER_A5_M, cal.STACK_STEP_M, cal.TA_MASS_KG,
-                        cal.TA_TORQUE_A5_NM)
+                        cal.TA_TORQUE_A5_NM, **lim)
 
 
 def time_model(cfg: Config) -> pl.TimeModel:
@@ -52,17 +55,17 @@ def time_model(cfg: Config) -> pl.TimeModel:
 
 
 def make_plan(args: argparse.Namespace, cfg: Config) -> pl.Plan:
-    eq = equipment()
+    eq = equipment(cfg)
     if args.dut:
         if args.mass is not None or args.lever_a5 is not None:
             raise DataError("--dut: give either DuTs or --mass/--lever-a5, not both")
         mass = np.array([d[0] for d in args.dut], float)
         lever = np.array([d[1] for d in args.dut], float)
-        pl.dut_targets(mass, lever, eq.g_m_s2, names=("--dut", "--dut"))
+        pl.dut_targets(mass, lever, eq, names=("--dut", "--dut"))
     else:
         if args.mass is None or args.lever_a5 is None:
             raise DataError("give --mass KG KG and --lever-a5 M M (or --dut KG M, repeated)")
-        mass, lever = pl.grid(tuple(args.mass), tuple(args.lever_a5))
+        mass, lever = pl.grid(tuple(args.mass), tuple(args.lever_a5), eq)
     return pl.plan(mass, lever, eq, loops=args.loops_per_point, max_distance=args.max_distance,
                    tm=time_model(cfg))
 

@@ -80,6 +80,9 @@ class Equipment:
     rail_step_m: float = 0.05
     lever_difference_m: float = kin.D4_M
     g_m_s2: float = kin.G_PAPER_M_S2
+    max_payload_kg: float = MAX_PAYLOAD_KG
+    max_a5_torque_nm: float = MAX_A5_TORQUE_NM
+    """The load diagram the plan keeps to (a lab's ``[limits]`` may be tighter than the robot's)."""
 
 
 @dataclass(frozen=True)
@@ -231,7 +234,7 @@ def check_range(name: str, lo: float, hi: float, unit: str) -> None:
         raise DataError(f"{name} {lo:g} {hi:g}: the minimum is above the maximum")
 
 
-def dut_targets(mass_kg: Sequence[float], lever_a5_m: Sequence[float], g_m_s2: float = kin.G_PAPER_M_S2,
+def dut_targets(mass_kg: Sequence[float], lever_a5_m: Sequence[float], eq: Equipment,
                 names: tuple[str, str] = ("--mass", "--lever-a5")) -> None:
     """Refuse DuTs the robot may not carry: mass > 0 and within the payload, A5 torque within the load diagram;
     the message names the argument (``names``)."""
@@ -244,23 +247,23 @@ def dut_targets(mass_kg: Sequence[float], lever_a5_m: Sequence[float], g_m_s2: f
         raise DataError(f"{names[0]}: a DuT's mass must be > 0 kg, got {float(m.min()):g}")
     if (lv <= 0).any():
         raise DataError(f"{names[1]}: a CoG lever to A5 must be > 0 m, got {float(lv.min()):g}")
-    if (m > MAX_PAYLOAD_KG).any():
+    if (m > eq.max_payload_kg).any():
         raise DataError(f"{names[0]}: {float(m.max()):g} kg is beyond the robot's load diagram "
-                        f"({MAX_PAYLOAD_KG:g} kg payload)")
-    a5 = g_m_s2 * m * lv
-    if (a5 > MAX_A5_TORQUE_NM).any():
+                        f"({eq.max_payload_kg:g} kg payload)")
+    a5 = eq.g_m_s2 * m * lv
+    if (a5 > eq.max_a5_torque_nm).any():
         i = int(np.argmax(a5))
         raise DataError(f"{names[0]}/{names[1]}: {m[i]:g} kg at {lv[i]:g} m from A5 gives {a5[i]:.0f} Nm on A5, "
-                        f"beyond the robot's load diagram ({MAX_A5_TORQUE_NM:g} Nm)")
+                        f"beyond the robot's load diagram ({eq.max_a5_torque_nm:g} Nm)")
 
 
-def grid(mass_kg: tuple[float, float], lever_a5_m: tuple[float, float], n: int = GRID_N
+def grid(mass_kg: tuple[float, float], lever_a5_m: tuple[float, float], eq: Equipment, n: int = GRID_N
          ) -> tuple[np.ndarray, np.ndarray]:
     """A mass × lever grid over the range (both refused as :func:`check_range` and :func:`dut_targets` say)."""
     check_range("--mass", *mass_kg, "kg")
     check_range("--lever-a5", *lever_a5_m, "m")
     mm, ll = np.meshgrid(np.linspace(*mass_kg, n), np.linspace(*lever_a5_m, n), indexing="ij")
-    dut_targets(mm.ravel(), ll.ravel())
+    dut_targets(mm.ravel(), ll.ravel(), eq)
     return mm.ravel(), ll.ravel()
 
 
@@ -288,7 +291,7 @@ def candidates(eq: Equipment, loops: int) -> list[PlannedPoint]:
     steps = round((eq.rail_a5_m[1] - eq.rail_a5_m[0]) / eq.rail_step_m)
     for lever in (round(eq.rail_a5_m[0] + k * eq.rail_step_m, 4) for k in range(steps + 1)):
         out += [adapter_point(eq, n, lever, loops) for n in range(1, eq.max_bodies + 1)]
-    return [p for p in out if p.mass_kg <= MAX_PAYLOAD_KG and p.torques_nm(eq.g_m_s2)[1] <= MAX_A5_TORQUE_NM]
+    return [p for p in out if p.mass_kg <= eq.max_payload_kg and p.torques_nm(eq.g_m_s2)[1] <= eq.max_a5_torque_nm]
 
 
 # --- coverage --------------------------------------------------------------------------------------------------
@@ -375,7 +378,7 @@ def plan(mass_kg: np.ndarray, lever_a5_m: np.ndarray, eq: Equipment, *, loops: i
          tm: TimeModel = TimeModel(), um: UModel = UModel()) -> Plan:
     """Points, coverage, predicted time and U for DuTs (``mass_kg``, ``lever_a5_m`` of each; :func:`grid` for a
     range)."""
-    dut_targets(mass_kg, lever_a5_m, eq.g_m_s2)
+    dut_targets(mass_kg, lever_a5_m, eq)
     points = plan_points(np.asarray(mass_kg, float), np.asarray(lever_a5_m, float), eq, loops, max_distance,
                          min_loaded)
     cov = covered(points, mass_kg, lever_a5_m, eq, max_distance)

@@ -21,7 +21,7 @@ EQ = pl.Equipment(cb_mass_kg=20.93, zero_lever_a5_m=0.265, stack_lever_a5_m=0.27
 
 @pytest.fixture(scope="module")
 def plan_50_250() -> pl.Plan:
-    m, lv = pl.grid((50.0, 250.0), (0.40, 0.90))
+    m, lv = pl.grid((50.0, 250.0), (0.40, 0.90), EQ)
     return pl.plan(m, lv, EQ)
 
 
@@ -72,7 +72,7 @@ def test_the_points_are_loads_the_equipment_can_mount(plan_50_250):
 
 def test_a_lever_range_the_equipment_cannot_reach_is_reported_not_hidden():
     # CoG 0.05-0.15 m from A5: below any load the MPA can carry (the empty MPA is at 0.265 m): A5/A3 ratio too low
-    m, lv = pl.grid((50.0, 100.0), (0.05, 0.15))
+    m, lv = pl.grid((50.0, 100.0), (0.05, 0.15), EQ)
     p = pl.plan(m, lv, EQ)
     assert not p.coverage.covered.all()
     assert p.uncovered and all("envelope" in u for u in p.uncovered)
@@ -96,7 +96,7 @@ def test_a_list_of_duts_is_planned_for_those_duts():
 ])
 def test_bad_input_is_refused_naming_the_argument(mass, lever, words):
     with pytest.raises(DataError) as exc:
-        pl.grid(mass, lever)
+        pl.grid(mass, lever, EQ)
     for w in words:
         assert w in str(exc.value)
 
@@ -143,3 +143,12 @@ def test_a_torque_point_at_the_rail_end_keeps_its_bodies_on_the_rail_in_the_file
         lever = pl.file_lever_a5_m(p, EQ)
         back = (p.mass_kg * lever - 217.95 / G) / (20.93 * n)  # the rail position the daemon derives from the file
         assert 0.60 <= back <= 1.50 and back == pytest.approx(cb_lever, abs=1e-3)
+
+
+def test_a_tighter_configured_load_diagram_is_kept_to():
+    eq = pl.Equipment(**{**EQ.__dict__, "max_payload_kg": 200.0, "max_a5_torque_nm": 2000.0})
+    with pytest.raises(DataError, match=r"--mass: 250 kg is beyond the robot's load diagram \(200 kg payload\)"):
+        pl.grid((50.0, 250.0), (0.4, 0.9), eq)
+    m, lv = pl.grid((50.0, 180.0), (0.4, 0.8), eq)
+    p = pl.plan(m, lv, eq)
+    assert all(q.mass_kg <= 200.0 and G * q.mass_kg * q.lever_a5_m <= 2000.0 for q in p.points)
