@@ -205,6 +205,20 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--points", type=Path, metavar="CSV")
     _add_json(p)
 
+    p = sub.add_parser("plan", help="plan a calibration campaign for a DuT range: points, robot time, predicted U")
+    p.add_argument("--mass", type=finite, nargs=2, metavar=("KG", "KG"),
+                   help="the DuTs' mass range (what is mounted on the MPA), kg")
+    p.add_argument("--lever-a5", type=finite, nargs=2, metavar=("M", "M"),
+                   help="the DuTs' CoG lever range along the flange axis from A5, m")
+    p.add_argument("--dut", type=finite, nargs=2, action="append", metavar=("KG", "M"),
+                   help="one DuT (mass, lever from A5), instead of a range; repeat for a list")
+    p.add_argument("--loops-per-point", type=int, default=3, metavar="N", help="loops per point (default 3)")
+    p.add_argument("--max-distance", type=finite, default=0.15, metavar="D",
+                   help="a DuT is covered within D of a calibrated point (torque over the range's largest, per axis)")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (settling, warm-up)")
+    p.add_argument("--points-out", type=Path, metavar="FILE.toml", help="write the points for rgse run calibrate")
+    _add_json(p)
+
     p = sub.add_parser("report", help="self-contained HTML report of a measurement run or a calibration")
     p.add_argument("run_id", nargs="?", metavar="RUN_ID", help="a measurement run")
     p.add_argument("--calibration", metavar="ID", help="report a calibration instead of a run")

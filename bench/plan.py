@@ -1,0 +1,181 @@
+"""The planned calibration campaign for a 50–250 kg DuT range (issue 35, goal: <= 120 min of robot time, against the
+paper's 480 min), predicted by ``rgse plan`` and, with ``--run``, run on the simulated KR C4 as a lab would run it.
+
+* ``predicted``: the planner's points for 50–250 kg at a CoG lever of 0.40–0.90 m from A5 (the demo's wing box on
+  its fixture sits at about 0.63 m), its predicted robot time by part and its predicted U.
+* ``run`` (``--run``): the planned points file read with ``load_points`` and turned into loads as the daemon does,
+  the campaign run by the whole daemon on ``rgse demo``'s simulator (seed, scatter, drift and noise as rough as the
+  demo's) with the planned loops a point, then an in-line mass run of the demo's wing box with that calibration.
+  Robot time: the campaign result's ``robot_time_s`` (loops) and the warm-ups (the warm-up runs the events announce
+  x the median duration of one run), both x the simulator's time scale. The simulated operator mounts a load at
+  once: load changes cost no time here, so the re-warm-ups the planner assumes after each one are not triggered.
+* ``demo``: the demo's campaign (16 points, 42 loops: bench/robot_time.py measured 54.8 min of loops at x50) and
+  the paper's (14 points, 480 min).
+
+Run: ``.venv/bin/python bench/plan.py [--run] [--time-scale 100] [--seed 2024]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import itertools
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+from rgse_daemon.app import Daemon, campaign_point
+from rgse_daemon.client import load_points
+from rgse_daemon.commands import demo
+from rgse_daemon.commands import plan as plan_cmd
+from rgse_daemon.config import load_config
+from rgse_daemon.io.commands import CalibrationPoint
+from rgse_daemon.krl.render import globals_dat_text
+from rgse_daemon.pipeline import planning as pl
+from rgse_daemon.procedures.events import Event
+from rgse_daemon.procedures.settings import RunSettings
+from simulators.krc4.process import SimProcess
+
+MASS_KG = (50.0, 250.0)
+LEVER_A5_M = (0.40, 0.90)
+#: bench/robot_time.py at x50 (commit c8ada2c): the demo's campaign, 42 loops.
+DEMO_CAMPAIGN_LOOPS_MIN, DEMO_CAMPAIGN_LOOPS = 54.8, 42
+#: The daemon's default controller file rate (B/s of real time), scaled with the simulator as bench/robot_time.py.
+FILE_RATE_BYTES_S = 40_000.0
+GOAL_MIN = 120.0
+
+
+def predicted(points_out: Path) -> dict[str, Any]:
+    args = SimpleNamespace(mass=list(MASS_KG), lever_a5=list(LEVER_A5_M), dut=None, loops_per_point=3,
+                           max_distance=pl.DEFAULT_MAX_DISTANCE, points_out=points_out)
+    cfg = load_config(None)
+    p = plan_cmd.make_plan(args, cfg)  # type: ignore[arg-type]
+    points_out.write_text(pl.points_toml(p.points, plan_cmd.equipment()), encoding="utf-8")
+    out = plan_cmd.to_json(p, args)  # type: ignore[arg-type]
+    out["points_checked"] = plan_cmd.check_file(points_out, cfg)
+    return out
+
+
+class WarmupClock:
+    """The engine's events, timed: warm-up runs (``step`` events of step ``warm-up``) and their wall spacing."""
+
+    def __init__(self, operator: demo.Operator) -> None:
+        self.operator = operator
+        self.events: list[tuple[float, Event]] = []
+
+    def __call__(self, ev: Event) -> None:
+        self.events.append((time.monotonic(), ev))
+        self.operator(ev)
+
+    def warmup_wall_s(self) -> tuple[int, int, float]:
+        """(warm-ups, warm-up runs, their wall time): each run's duration is the median spacing of two runs of one
+        warm-up; a warm-up starts with its run 1 (the first, then one after each load change that cooled A3/A5)."""
+        runs = [(t, ev.data.get("run")) for t, ev in self.events if ev.kind == "step" and ev.step == "warm-up"]
+        spacing = [t1 - t0 for (t0, _), (t1, r1) in itertools.pairwise(runs) if r1 and r1 > 1]
+        if not runs:
+            return 0, 0, 0.0
+        starts = sum(1 for _, r in runs if r == 1)
+        return starts, len(runs), len(runs) * (statistics.median(spacing) if spacing else 0.0)
+
+
+async def run_campaign(points_file: Path, scale: float, seed: int, loops: int) -> dict[str, Any]:
+    rate = FILE_RATE_BYTES_S * scale
+    with tempfile.TemporaryDirectory(prefix="rgse-bench-plan-") as tmp:
+        root = Path(tmp)
+        sim = SimProcess(root / "share", seed=seed, time_scale=scale, globals_dat=globals_dat_text(),
+                         file_rate_bytes_s=rate)
+        await asyncio.to_thread(sim.start)
+        try:
+            cfg = demo.demo_config(sim, root / "data", None, time_scale=scale, file_rate_bytes_s=rate)
+            s = RunSettings.from_config(cfg, loops=loops)
+            points = [campaign_point(CalibrationPoint.model_validate(p.as_command()), s.g_m_s2)
+                      for p in load_points(points_file)]
+            ref: list[Daemon] = []
+            clock = WarmupClock(demo.Operator(sim, ref, demo.SilentView()))
+            daemon = Daemon(cfg, on_event=clock)
+            ref.append(daemon)
+            stop = asyncio.Event()
+            service = asyncio.create_task(daemon.run(stop), name="rgse-bench-plan-daemon")
+            try:
+                async with asyncio.timeout(30):
+                    await daemon.connected.wait()
+                t0 = time.monotonic()
+                async with asyncio.timeout(3600):
+                    cal = await (await daemon.start_calibration(points=points, method="auto", settings=s))
+                wall = time.monotonic() - t0
+                warmups, warm_runs, warm_wall = clock.warmup_wall_s()
+                await sim.mount(demo.DUT.payload())
+                async with asyncio.timeout(3600):
+                    res = await (await daemon.start_measurement())
+            finally:
+                stop.set()
+                async with asyncio.timeout(60):
+                    await service
+        finally:
+            await asyncio.to_thread(sim.stop)
+    return {"scale": scale, "seed": seed, "loops_per_point": loops, "points": len(points),
+            "campaign_wall_s": wall, "loops_robot_min": float(cal["robot_time_s"]) * scale / 60.0,
+            "loops": sum(int(p["loops"]) for p in cal.get("points_stop", [])),
+            "warmups": warmups, "warmup_runs": warm_runs, "warmup_robot_min": warm_wall * scale / 60.0,
+            "method": cal.get("method"), "calibration_warnings": cal.get("warnings", []),
+            "dut_true_kg": demo.DUT_MASS_KG, "dut_mass_kg": res["mass_kg"], "dut_U_kg": res["U_kg"],
+            "dut_error_kg": res["mass_kg"] - demo.DUT_MASS_KG,
+            "dut_within_U": abs(res["mass_kg"] - demo.DUT_MASS_KG) <= res["U_kg"],
+            "dut_u_components_kg": res.get("u_components_kg"), "dut_warnings": res.get("warnings", [])}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--run", action="store_true", help="run the planned campaign on the simulator")
+    ap.add_argument("--time-scale", type=float, default=100.0)
+    ap.add_argument("--seed", type=int, default=demo.SEED)
+    args = ap.parse_args()
+    with tempfile.TemporaryDirectory(prefix="rgse-plan-") as tmp:
+        f = Path(tmp) / "plan.toml"
+        out: dict[str, Any] = {"range": {"mass_kg": MASS_KG, "lever_a5_m": LEVER_A5_M}, "predicted": predicted(f)}
+        if args.run:
+            out["run"] = asyncio.run(run_campaign(f, args.time_scale, args.seed, 3))
+    _print(out)
+    print(json.dumps(out))
+
+
+def _print(out: dict[str, Any]) -> None:
+    p, t = out["predicted"], out["predicted"]["time"]
+    print(f"planned campaign for {out['range']['mass_kg'][0]:g}-{out['range']['mass_kg'][1]:g} kg at "
+          f"{out['range']['lever_a5_m'][0]:g}-{out['range']['lever_a5_m'][1]:g} m from A5: {len(p['points'])} points "
+          f"({p['loaded_points']} loaded), DuTs covered {p['covered']}/{p['duts']}, accepted by load_points and "
+          f"check_points_support (auto): {p['points_checked']} points")
+    print(f"{'campaign':<34} {'points':>6} {'loops':>5} {'loops min':>9} {'warm-up min':>11} {'robot min':>9} "
+          f"{'goal':>6}")
+    warm_lo, warm_hi = (t["warmup_initial_min_s"] + t["rewarm_s"]) / 60, (t["warmup_initial_s"] + t["rewarm_s"]) / 60
+    verdict = "<=120" if t["robot_s"] / 60 <= GOAL_MIN else "OVER"
+    print(f"{'planned, predicted':<34} {len(p['points']):>6} {t['loops']:>5} {t['loops_s'] / 60:>9.1f} "
+          f"{warm_lo:>5.0f}-{warm_hi:<5.0f} {t['robot_min_s'] / 60:>4.0f}-{t['robot_s'] / 60:<4.0f} {verdict:>6}")
+    if "run" in out:
+        r = out["run"]
+        total = r["loops_robot_min"] + r["warmup_robot_min"]
+        print(f"{'planned, run (sim x' + format(r['scale'], 'g') + ', seed ' + str(r['seed']) + ')':<34} "
+              f"{r['points']:>6} {r['loops']:>5} "
+              f"{r['loops_robot_min']:>9.1f} {r['warmup_robot_min']:>11.1f} {total:>9.1f} "
+              f"{'<=120' if total <= GOAL_MIN else 'OVER':>6}")
+        print(f"  warm-ups run: {r['warmups']} ({r['warmup_runs']} runs of the warm-up move); the simulated operator "
+              f"mounts at once, so the motors have little time to cool between points")
+    print(f"{'demo campaign (robot_time.py x50)':<34} {16:>6} {DEMO_CAMPAIGN_LOOPS:>5} "
+          f"{DEMO_CAMPAIGN_LOOPS_MIN:>9.1f} {'-':>11} {'-':>9} {'':>6}")
+    print(f"{'paper (Table 1, §2.4.4)':<34} {pl.PAPER_CAMPAIGN_POINTS:>6} {'-':>5} {'-':>9} {'-':>11} "
+          f"{pl.PAPER_CAMPAIGN_MIN:>9.0f} {'':>6}")
+    lo, hi = p["predicted_U_kg"]
+    print(f"predicted U (k = 2) inside the range: {lo:.2f}-{hi:.2f} kg")
+    if "run" in out:
+        r = out["run"]
+        print(f"wing box with the planned calibration: {r['dut_mass_kg']:.2f} kg, U {r['dut_U_kg']:.2f} kg, true "
+              f"{r['dut_true_kg']:.2f} kg ({'within' if r['dut_within_U'] else 'OUTSIDE'} U)"
+              + (f"; warnings: {'; '.join(r['dut_warnings'])}" if r["dut_warnings"] else ""))
+
+
+if __name__ == "__main__":
+    main()
