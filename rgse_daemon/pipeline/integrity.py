@@ -1,0 +1,166 @@
+"""Loop integrity (issue 33): which loops of a point or a DuT measurement are fit to be averaged (eq. 16).
+
+A loop is set aside, with its reason, when
+
+* **samples are missing**: fewer than :data:`MIN_VALID_FRACTION` of its samples after the settle cut are valid (a
+  sample is missing in a loop when any of its torque channels lacks it: DIAdem's no-value marker or NaN/inf, read as
+  NaN by :mod:`rgse_daemon.trace.diadem`); a loop with a smaller gap is used with what remains;
+* **it holds a step or a ramp**: the median of its second half differs from the median of its first half by more
+  than :data:`STEP_Z` standard errors, after the trend every loop shares (the release transient, the warming within a
+  trace) is taken out as the median of that difference over the loops. The standard error comes from the robust
+  scatter of the sample-to-sample differences (MAD), which neither a step nor a slow trend inflates. A step means the
+  load moved during the measurement (a knock, a settling fixture): the loops after it are in another state, so they
+  are set aside too ("after the step in loop ...");
+* **it disagrees with the others** (three or more loops): its value lies more than :data:`LOOP_Z` scales from the
+  median of the loops, the scale being its own and the median's standard error and what the thermal model allows for
+  its temperature (``allowance``). Only a minority is set aside this way: when half the loops or more disagree, the
+  loops drift or scatter as a whole, nothing marks one as disturbed, and the loop spread widens U instead (with the
+  "loops disagree" warning).
+
+Median and MAD throughout: one disturbed loop moves neither. The false-alarm rate of the two thresholds on undisturbed
+simulated measurements is in docs/accuracy.md (bench/accuracy.py's undisturbed rows count every set-aside).
+If fewer than the configured minimum of loops remain (:data:`MIN_LOOPS`, :data:`MIN_LOOPS_PER_POINT`), the
+caller refuses with the reasons, or (the daemon) may measure replacement loops: :attr:`Screening.enough` is that
+decision. The raw files of a set-aside loop stay archived as they are; only the average leaves it out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from rgse_daemon.errors import DataError
+
+#: A loop keeps at least this fraction of its samples (after the settle cut), else it is set aside.
+MIN_VALID_FRACTION = 0.5
+#: ... and at least this many valid samples.
+MIN_VALID_SAMPLES = 20
+#: Fewest loops a DuT measurement's mass rests on (the loop-to-loop check and the loop spread need two); fewer left
+#: after setting loops aside refuses the measurement. The stop-when-U-is-reached rule must not stop below it.
+MIN_LOOPS = 2
+#: Fewest loops a calibration point keeps (the thermal drift's fit needs two per point).
+MIN_LOOPS_PER_POINT = 2
+#: Step statistic beyond which a loop holds a step (standard errors of the half-median difference).
+STEP_Z = 6.0
+#: Loop-to-loop statistic beyond which a loop disagrees with the others (scales from the median).
+LOOP_Z = 6.0
+#: Consistency factors: MAD → σ for a normal distribution, and σ of a median of n → 1.2533·σ/√n.
+MAD_TO_SIGMA = 1.4826
+MEDIAN_SE_FACTOR = 1.2533
+
+
+class TooFewLoops(DataError):
+    """Fewer loops than the configured minimum remain after setting the disturbed ones aside: refused."""
+
+
+@dataclass(frozen=True)
+class SetAside:
+    """A loop left out of the average, and why."""
+
+    loop: str
+    reason: str
+
+    def to_dict(self) -> dict[str, str]:
+        return {"loop": self.loop, "reason": self.reason}
+
+
+@dataclass(frozen=True)
+class Screening:
+    """The loops kept (indices into the input, in order) and those set aside with their reasons."""
+
+    used: list[int]
+    set_aside: list[SetAside] = field(default_factory=list)
+    minimum: int = MIN_LOOPS
+
+    @property
+    def enough(self) -> bool:
+        """At least ``minimum`` loops remain, or every loop measured (fewer were asked for and none set aside);
+        otherwise refuse, or (the daemon) measure replacement loops."""
+        return len(self.used) >= self.minimum or (bool(self.used) and not self.set_aside)
+
+    def reasons(self) -> str:
+        return "; ".join(f"loop {s.loop}: {s.reason}" for s in self.set_aside)
+
+
+def valid_mask(*channels: np.ndarray) -> np.ndarray:
+    """Samples valid in every channel of a loop (a sample missing in one torque channel is missing in all)."""
+    return np.logical_and.reduce([np.isfinite(np.asarray(c, float)) for c in channels])
+
+
+def gap_reason(valid: np.ndarray, skip: int) -> str | None:
+    """Why a loop with these valid samples (after ``skip`` settle samples) cannot be used; None if it can."""
+    v = np.asarray(valid, bool)[skip:]
+    n, k = v.size, int(v.sum())
+    if n - k == 0:
+        return None
+    if k < max(MIN_VALID_FRACTION * n, MIN_VALID_SAMPLES):
+        return (f"{n - k} of {n} samples missing (no value, NaN or inf in the trace): fewer than "
+                f"{MIN_VALID_FRACTION:.0%} left")
+    return None
+
+
+def robust_sigma(x: np.ndarray) -> float:
+    """σ of white noise from the MAD of the first differences (immune to a step and to a slow trend)."""
+    d = np.diff(np.asarray(x, float))
+    if d.size < 2:
+        return float("nan")
+    return float(MAD_TO_SIGMA * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+
+
+def half_step(x: np.ndarray) -> tuple[float, float]:
+    """Median of the second half minus median of the first half of a loop's valid samples, and its standard error."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    h = x.size // 2
+    if h < 3:
+        return float("nan"), float("nan")
+    se = MEDIAN_SE_FACTOR * robust_sigma(x) * np.sqrt(2.0 / h)
+    return float(np.median(x[h:]) - np.median(x[:h])), float(se)
+
+
+def screen(names: Sequence[str], series: Sequence[np.ndarray], values: np.ndarray, value_se: np.ndarray,
+           allowance: np.ndarray | None = None, minimum: int = MIN_LOOPS, unit: str = "kg",
+           already: Sequence[SetAside] = ()) -> Screening:
+    """Screen loops for a step (``series``: each loop's valid samples after the settle cut, in the unit the decision
+    matters in) and for loop-to-loop disagreement (``values``: the per-loop results, ``value_se`` their standard
+    errors, ``allowance`` the standard deviation the thermal model leaves per loop). ``already``: loops set aside
+    before (missing samples), not among ``names``."""
+    n = len(names)
+    aside = list(already)
+    keep = np.ones(n, bool)
+    steps = np.array([half_step(s) for s in series]).reshape(n, 2)
+    if n:
+        d, se = steps[:, 0], steps[:, 1]
+        ref = float(np.median(d)) if n >= 3 else 0.0
+        z = np.abs(d - ref) / np.maximum(se, 1e-12)
+        bad = np.flatnonzero(np.isfinite(z) & (z > STEP_Z))
+        if bad.size:
+            first = int(bad[0])
+            aside.append(SetAside(names[first], f"a step of {d[first] - ref:+.3g} {unit} inside the loop "
+                                                f"({z[first]:.1f} standard errors, limit {STEP_Z:g}): the load moved "
+                                                f"during the measurement"))
+            for j in range(first + 1, n):
+                aside.append(SetAside(names[j], f"measured after the step in loop {names[first]} (the load may "
+                                                f"no longer sit as before)"))
+            keep[first:] = False
+    idx = np.flatnonzero(keep)
+    se_ok = np.all(np.isfinite(value_se)) and np.all(np.asarray(value_se, float) > 0)  # noiseless: nothing to judge
+    if idx.size >= 3 and se_ok:
+        v = np.asarray(values, float)[idx]
+        s = np.asarray(value_se, float)[idx]
+        extra = np.zeros(idx.size) if allowance is None else np.asarray(allowance, float)[idx]
+        med = float(np.median(v))
+        s_med = MEDIAN_SE_FACTOR * float(np.sqrt(np.mean(s**2 + extra**2)) / np.sqrt(idx.size))
+        scale = np.sqrt(s**2 + extra**2 + s_med**2)
+        z = np.abs(v - med) / np.maximum(scale, 1e-12)
+        out = np.flatnonzero(np.isfinite(z) & (z > LOOP_Z))
+        if 2 * out.size >= idx.size:  # not a few outliers but loops spread or drifting: no majority to keep
+            out = out[:0]
+        for j in out:
+            keep[idx[j]] = False
+            aside.append(SetAside(names[idx[j]], f"disagrees with the other loops by {v[j] - med:+.3g} {unit} "
+                                                 f"({z[j]:.1f} times what the loop scatter and the thermal model "
+                                                 f"explain, limit {LOOP_Z:g})"))
+    return Screening([int(i) for i in np.flatnonzero(keep)], aside, minimum)
