@@ -5,20 +5,20 @@ A loop is set aside, with its reason, when
 * **samples are missing**: fewer than :data:`MIN_VALID_FRACTION` of its samples after the settle cut are valid (a
   sample is missing in a loop when any of its torque channels lacks it: DIAdem's no-value marker or NaN/inf, read as
   NaN by :mod:`rgse_daemon.trace.diadem`); a loop with a smaller gap is used with what remains;
-* **it holds a step or a ramp**: the median of its second half differs from the median of its first half by more
-  than :data:`STEP_Z` standard errors, after the trend every loop shares (the release transient, the warming within a
-  trace) is taken out as the median of that difference over the loops. The standard error comes from the robust
-  scatter of the sample-to-sample differences (MAD), which neither a step nor a slow trend inflates. A step means the
-  load moved during the measurement (a knock, a settling fixture): the loops after it are in another state, so they
-  are set aside too ("after the step in loop ...");
+* **it holds a step or a ramp**: at some split its later part differs from its earlier part by more than
+  :data:`STEP_Z` standard errors (:func:`step_profile`: batch medians, so a spike moves nothing), after the trend
+  every loop shares (the release transient, the warming within a trace) is taken out as the median of that
+  difference over the loops (at least :data:`MIN_LOOPS_TO_SCREEN`). A step means the load moved during the
+  measurement (a knock, a settling fixture): the loops after it are in another state, so they are set aside too
+  ("after the step in loop ...");
 * **it disagrees with the others** (three or more loops): its value lies more than :data:`LOOP_Z` scales from the
   median of the loops, the scale being its own and the median's standard error and what the thermal model allows for
   its temperature (``allowance``). Only a minority is set aside this way: when half the loops or more disagree, the
   loops drift or scatter as a whole, nothing marks one as disturbed, and the loop spread widens U instead (with the
   "loops disagree" warning).
 
-Median and MAD throughout: one disturbed loop moves neither. The false-alarm rate of the two thresholds on undisturbed
-simulated measurements is in docs/accuracy.md (bench/accuracy.py's undisturbed rows count every set-aside).
+Medians throughout: one disturbed loop or one spike moves none of them. The false-alarm rate of the two thresholds
+on undisturbed simulated measurements is in docs/accuracy.md (bench/accuracy.py counts every set-aside).
 If fewer than the configured minimum of loops remain (:data:`MIN_LOOPS`, :data:`MIN_LOOPS_PER_POINT`), the
 caller refuses with the reasons, or (the daemon) may measure replacement loops: :attr:`Screening.enough` is that
 decision. The raw files of a set-aside loop stay archived as they are; only the average leaves it out.
@@ -42,12 +42,19 @@ MIN_VALID_SAMPLES = 20
 MIN_LOOPS = 2
 #: Fewest loops a calibration point keeps (the thermal drift's fit needs two per point).
 MIN_LOOPS_PER_POINT = 2
-#: Step statistic beyond which a loop holds a step (standard errors of the half-median difference).
+#: Fewest loops the step and loop-to-loop checks need: the trend every loop shares (release transient, warming) and
+#: the loops' centre are their median, which two loops do not give. With fewer, only missing samples set a loop
+#: aside, and the loop spread (with its "loops disagree" warning) is all that guards the mean.
+MIN_LOOPS_TO_SCREEN = 3
+#: Batches a loop is cut into for the step statistic (:func:`step_profile`).
+N_BATCHES = 10
+#: Step statistic beyond which a loop holds a step (standard errors of the difference across the split where it is
+#: largest; for independent batches each split's is a Student t with 8 degrees of freedom, 3·10⁻⁴ beyond 6 two-sided,
+#: and the largest of the 7 correlated splits at most 7 times that per loop and axis).
 STEP_Z = 6.0
 #: Loop-to-loop statistic beyond which a loop disagrees with the others (scales from the median).
 LOOP_Z = 6.0
-#: Consistency factors: MAD → σ for a normal distribution, and σ of a median of n → 1.2533·σ/√n.
-MAD_TO_SIGMA = 1.4826
+#: σ of a median of n normal values is 1.2533·σ/√n.
 MEDIAN_SE_FACTOR = 1.2533
 
 
@@ -101,23 +108,26 @@ def gap_reason(valid: np.ndarray, skip: int) -> str | None:
     return None
 
 
-def robust_sigma(x: np.ndarray) -> float:
-    """σ of white noise from the MAD of the first differences (immune to a step and to a slow trend)."""
-    d = np.diff(np.asarray(x, float))
-    if d.size < 2:
-        return float("nan")
-    return float(MAD_TO_SIGMA * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
-
-
-def half_step(x: np.ndarray) -> tuple[float, float]:
-    """Median of the second half minus median of the first half of a loop's valid samples, and its standard error."""
+def step_profile(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The step of a loop at every split: its valid samples cut into :data:`N_BATCHES` batches, for each split k
+    (2 ≤ k ≤ N_BATCHES − 2 batches before it) the mean of the batch medians after it minus those before it, and its
+    standard error from the batch medians' scatter within the two parts (Student t with N_BATCHES − 2 degrees of
+    freedom for independent batches). A spike moves no batch median; a smooth trend within the parts widens the
+    error instead of firing. NaN when the loop has too few samples."""
     x = np.asarray(x, float)
     x = x[np.isfinite(x)]
-    h = x.size // 2
-    if h < 3:
-        return float("nan"), float("nan")
-    se = MEDIAN_SE_FACTOR * robust_sigma(x) * np.sqrt(2.0 / h)
-    return float(np.median(x[h:]) - np.median(x[:h])), float(se)
+    splits = np.arange(2, N_BATCHES - 1)
+    size = x.size // N_BATCHES
+    if size < 3:
+        return np.full(splits.size, np.nan), np.full(splits.size, np.nan)
+    b = np.median(x[: size * N_BATCHES].reshape(N_BATCHES, size), axis=1)
+    d, se = [], []
+    for k in splits:
+        before, after = b[:k], b[k:]
+        pooled = (before.var(ddof=1) * (k - 1) + after.var(ddof=1) * (N_BATCHES - k - 1)) / (N_BATCHES - 2)
+        d.append(after.mean() - before.mean())
+        se.append(np.sqrt(pooled * (1.0 / k + 1.0 / (N_BATCHES - k))))
+    return np.array(d), np.array(se)
 
 
 def screen(names: Sequence[str], series: Sequence[np.ndarray], values: np.ndarray, value_se: np.ndarray,
@@ -130,24 +140,30 @@ def screen(names: Sequence[str], series: Sequence[np.ndarray], values: np.ndarra
     n = len(names)
     aside = list(already)
     keep = np.ones(n, bool)
-    steps = np.array([half_step(s) for s in series]).reshape(n, 2)
-    if n:
-        d, se = steps[:, 0], steps[:, 1]
-        ref = float(np.median(d)) if n >= 3 else 0.0
-        z = np.abs(d - ref) / np.maximum(se, 1e-12)
-        bad = np.flatnonzero(np.isfinite(z) & (z > STEP_Z))
+    if n >= MIN_LOOPS_TO_SCREEN:
+        prof = [step_profile(x) for x in series]
+        d = np.array([p[0] for p in prof])  # loops × splits
+        se = np.array([p[1] for p in prof])
+        ref = np.median(d, axis=0)  # the trend every loop shares, per split
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z_all = np.abs(d - ref) / np.maximum(se, 1e-12)
+        z_all = np.where(np.isfinite(z_all), z_all, 0.0)
+        at = z_all.argmax(axis=1)
+        z = z_all[np.arange(n), at]
+        bad = np.flatnonzero(z > STEP_Z)
         if bad.size:
             first = int(bad[0])
-            aside.append(SetAside(names[first], f"a step of {d[first] - ref:+.3g} {unit} inside the loop "
-                                                f"({z[first]:.1f} standard errors, limit {STEP_Z:g}): the load moved "
-                                                f"during the measurement"))
+            step = d[first, at[first]] - ref[at[first]]
+            aside.append(SetAside(names[first], f"a step of {step:+.3g} {unit} inside the loop, "
+                                                f"{(at[first] + 2) / N_BATCHES:.0%} into it ({z[first]:.1f} standard "
+                                                f"errors, limit {STEP_Z:g}): the load moved during the measurement"))
             for j in range(first + 1, n):
                 aside.append(SetAside(names[j], f"measured after the step in loop {names[first]} (the load may "
                                                 f"no longer sit as before)"))
             keep[first:] = False
     idx = np.flatnonzero(keep)
     se_ok = np.all(np.isfinite(value_se)) and np.all(np.asarray(value_se, float) > 0)  # noiseless: nothing to judge
-    if idx.size >= 3 and se_ok:
+    if idx.size >= MIN_LOOPS_TO_SCREEN and se_ok:
         v = np.asarray(values, float)[idx]
         s = np.asarray(value_se, float)[idx]
         extra = np.zeros(idx.size) if allowance is None else np.asarray(allowance, float)[idx]

@@ -111,10 +111,10 @@ def simulate_campaign(seed: int, n_loops: int = 3, n_samples: int = 250, period_
                       ) -> tuple[SimCampaign, ph.RobotModel]:
     """A Table-1-like campaign: MPA, MPA + 1..10 bodies, the torque rows (``(n_cb, cb_lever_a5_m)`` on the test
     adapter; default Table 1's three, 10 bodies at :data:`TORQUE_ROW_LEVERS_A5_M`); every point a new mounting.
-    ``warm_s``: the loop's cycle runs that long before the campaign (a warm-up); ``change_s``: brakes applied while the bodies are
-    changed; ``loop_s``: one loop's duration. A warm campaign whose bodies are changed as fast as a loop's pause
-    (``warm_s=3600, change_s=5, loop_s=26``) is thermally steady: its loops hardly differ in temperature within a
-    point, so the drift coefficient rests on a small span."""
+    ``warm_s``: the loop's cycle runs that long before the campaign (a warm-up); ``change_s``: brakes applied
+    while the bodies are changed; ``loop_s``: one loop's duration. A warmed-up campaign whose bodies are changed
+    quickly (``warm_s=3600, change_s=5, loop_s=40``) is thermally steady: its loops differ by 0.2 K within a point,
+    so the drift coefficient rests on a small span."""
     model = ph.RobotModel(scenario, seed=seed)
     rng = np.random.default_rng(10_000 + seed)
     true_cb = ph.CB_MASS_KG + rng.normal(0.0, body_mass_u_kg, ph.N_CB_MAX)
