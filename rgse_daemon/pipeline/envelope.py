@@ -83,8 +83,11 @@ class Envelope:
         if not self.points_nm:
             return 0.0
         p = np.asarray(self.points_nm, float)
+        x = np.array([float(torque_a3_nm), float(torque_a5_nm)])
+        if self.sign is None:  # loads of both signs: magnitudes, as the box
+            p, x = np.abs(p), np.abs(x)
         scale = np.maximum(np.abs(p).max(axis=0), 1e-9)
-        d = (p - np.array([float(torque_a3_nm), float(torque_a5_nm)])) / scale
+        d = (p - x) / scale
         return float(np.sqrt((d**2).sum(axis=1)).min())
 
     @classmethod
