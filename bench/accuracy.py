@@ -24,6 +24,12 @@ counts the DuTs `auto` refused plus those whose reading its fitted curve never r
 
 Goals: mean |err| ≤ 0.3 % without per-mount scatter; ≤ 1.2 × the noise floor with it; coverage 90-99 %.
 
+Issue 33's rows (``--issue33 [NAME]``, :data:`ISSUE33`; docs/accuracy.md): a knock during the DuT's loops,
+missing samples (DIAdem's no value) in each channel of the campaign and of the DuT through real trace files,
+thermal drift (β = 0 and the simulator's) on campaigns spanning 0.2-4.6 K with and without the correction, and DuTs
+in the gap between the mass stack and the torque rows; each row counts the refusals and the loops set aside by
+reason.
+
 Run: ``.venv/bin/python bench/accuracy.py [--seeds N] [--first-seed S] [--workers 1|2] [--json]`` (120 seeds from
 0 by default, 11 min on 2 cores: at 40 the |err|/floor ratio wanders by about ±0.1; coverage with its Clopper-Pearson
 95 % interval; ``--first-seed`` checks a figure on seeds the table did not use).
@@ -207,6 +213,8 @@ ISSUE33 = {
     **{f"novalue-cal-{ch}": {"gap": ("cal", ch)} for ch in ("A3", "A5", "T")},
     **{f"thermal-{span}{tag}": {"campaign": kw, "beta0": beta0, "dut_warm_s": 300.0}
        for span, kw in SPANS.items() for tag, beta0 in (("", False), ("-beta0", True))},
+    **{f"thermal-{span}-near{tag}": {"campaign": SPANS[span], "beta0": beta0, "dut_warm_s": 45.0}
+       for span in ("3K", "4.6K") for tag, beta0 in (("", False), ("-beta0", True))},
     "stack-row-gap": {"dut_kg": (150.0, 200.0), "cog": (0.6, 0.8)},
 }
 
