@@ -252,27 +252,28 @@ def _drift_applied(thermal: ThermalDrift | None, temps: np.ndarray | None, warni
         if why is not None and abs(offset) > THERMAL_NOTE_K:
             warnings.append(f"thermal drift of {ax} not corrected: β = {100 * thermal.coeff_per_k[ax]:+.3f} ± "
                             f"{100 * thermal.u_coeff_per_k[ax]:.3f} %/K is not resolved for this DuT ({why}); U "
-                            f"carries a drift of up to {100 * drift_prior_per_k:g} %/K over the {offset:+.1f} K "
-                            f"offset. Measure the DuT at the campaign's motor temperature "
+                            f"carries a drift of up to {100 * thermal.drift_bound_per_k(ax, drift_prior_per_k):.3g} "
+                            f"%/K over the {offset:+.1f} K offset. Measure the DuT at the campaign's motor temperature "
                             f"({thermal.reference_k[ax]:.1f} K), or calibrate over a temperature span that covers it")
     return out
 
 
 def _u_thermal_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: np.ndarray, applied: bool,
                   drift_prior_per_k: float) -> float:
-    """The thermal term (Nm): β's uncertainty over the correction where applied, else the prior's bound on the
-    uncorrected drift (rectangular, ±``drift_prior_per_k``: standard uncertainty bound/√3)."""
+    """The thermal term (Nm): β's uncertainty over the correction where applied, else the bound on the uncorrected
+    drift (:meth:`ThermalDrift.drift_bound_per_k`, rectangular: standard uncertainty bound/√3)."""
     if applied:
         return thermal.u_correction_nm(axis, raw_nm, temp_k)
     lever = np.mean(np.asarray(raw_nm, float) * (np.asarray(temp_k, float) - thermal.reference_k[axis]))
-    return float(abs(lever) * drift_prior_per_k / np.sqrt(3.0))
+    return float(abs(lever) * thermal.drift_bound_per_k(axis, drift_prior_per_k) / np.sqrt(3.0))
 
 
 def _loop_allowance_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: np.ndarray, applied: bool,
                        drift_prior_per_k: float) -> np.ndarray:
     """Per loop, the standard deviation the thermal model leaves about the loops' mean temperature (Nm)."""
     dt = np.asarray(temp_k, float) - np.mean(temp_k)
-    beta_u = thermal.u_coeff_per_k[axis] if applied else drift_prior_per_k / np.sqrt(3.0)
+    bound = thermal.drift_bound_per_k(axis, drift_prior_per_k)
+    beta_u = thermal.u_coeff_per_k[axis] if applied else bound / np.sqrt(3.0)
     return np.abs(np.asarray(raw_nm, float) * dt) * beta_u
 
 

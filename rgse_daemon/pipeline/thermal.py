@@ -31,8 +31,9 @@ MIN_SPAN_K = 1.0
 #: ... and with the DuT's temperature offset from the reference at most this multiple of that span.
 MAX_EXTRAPOLATION = 3.0
 #: Where β is not applied, U carries the drift a coefficient up to this bound (1/K, rectangular prior) could cause
-#: over the DuT's temperature offset. 0.3 %/K bounds the simulated KR C4's 0.08 (A3) and 0.17 %/K (A5) and the
-#: thermal_coeff_per_k a drive's torque estimate plausibly has after warm-up; ``rgse mass --drift-prior`` sets it.
+#: over the DuT's temperature offset (or up to |β| + 2 u(β) where the campaign's span resolves β as insignificant).
+#: 0.3 %/K bounds the simulated KR C4's 0.08 (A3) and 0.17 %/K (A5) and the thermal_coeff_per_k a drive's torque
+#: estimate plausibly has after warm-up; ``rgse mass --drift-prior`` sets it.
 DRIFT_PRIOR_PER_K = 0.003
 
 
@@ -74,6 +75,14 @@ class ThermalDrift:
             why = (f"the DuT is {offset_k:+.1f} K from the campaign's temperature, beyond {MAX_EXTRAPOLATION:g} × the "
                    f"{self.span_k[axis]:.2g} K span β was fitted on")
         return why
+
+    def drift_bound_per_k(self, axis: str, prior_per_k: float) -> float:
+        """The bound on |β| of ``axis`` that U carries where β is not applied: what the campaign shows,
+        |β| + 2 u(β), where its span resolves the drift and it came out insignificant; else the prior."""
+        beta, u = abs(self.coeff_per_k[axis]), self.u_coeff_per_k[axis]
+        if self.span_k[axis] >= MIN_SPAN_K and beta < MIN_SIGNIFICANCE * u:
+            return min(prior_per_k, beta + 2.0 * u)
+        return prior_per_k
 
     def describe(self, axis: str) -> str:
         """β with its uncertainty and span, for ``rgse calibrate``."""

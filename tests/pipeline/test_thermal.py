@@ -150,3 +150,21 @@ def test_excess_counts_only_what_the_reproducibility_does_not_hold():
     full = 0.001 * 3000.0 / (G * DR)
     at_points = np.sqrt(np.mean([(0.001 * 1000.0 / (G * DR)) ** 2, (0.001 * 2000.0 / (G * DR)) ** 2]))
     assert r.uncertainty.u_model_kg == pytest.approx(np.sqrt(full**2 - at_points**2))
+
+
+def test_what_is_applied_and_what_u_carries_follows_what_the_campaign_resolves():
+    """Issue 33: β is applied only on a span ≥ 1 K, 3 u(β) from 0, the DuT within 3 × the span; where not, U carries
+    |β| + 2 u(β) if the span resolved β as insignificant, else the prior."""
+    def drift(beta, u, span):
+        return T.ThermalDrift({"A3": beta, "A5": beta}, {"A3": u, "A5": u}, {"A3": 300.0, "A5": 300.0}, 42,
+                              {"A3": span, "A5": span})
+    assert drift(0.002, 1e-4, 3.0).not_applicable("A5", 8.9) is None
+    assert "beyond 3 × the 3 K span" in drift(0.002, 1e-4, 3.0).not_applicable("A5", 9.1)
+    assert "spanned 0.2 K, less than 1 K" in drift(0.002, 1e-4, 0.2).not_applicable("A5", 0.1)
+    assert "it is 1.6 standard uncertainties from 0, less than 3" in drift(-0.0008, 0.0005, 3.0).not_applicable(
+        "A5", 1.0)
+    assert drift(1e-5, 1e-4, 3.0).drift_bound_per_k("A5", 0.003) == pytest.approx(2.1e-4)
+    assert drift(1e-5, 1e-4, 0.2).drift_bound_per_k("A5", 0.003) == 0.003  # the span resolves nothing: the prior
+    assert drift(0.002, 1e-4, 3.0).drift_bound_per_k("A5", 0.003) == 0.003  # resolved, not applied (extrapolation)
+    assert "not resolved (its loops spanned 0.2 K" in drift(0.002, 1e-4, 0.2).describe("A5")
+    assert "resolved: applied to a DuT within 9 K" in drift(0.002, 1e-4, 3.0).describe("A5")
