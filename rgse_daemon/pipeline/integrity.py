@@ -112,8 +112,9 @@ def step_profile(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The step of a loop at every split: its valid samples cut into :data:`N_BATCHES` batches, for each split k
     (2 ≤ k ≤ N_BATCHES − 2 batches before it) the mean of the batch medians after it minus those before it, and its
     standard error from the batch medians' scatter within the two parts (Student t with N_BATCHES − 2 degrees of
-    freedom for independent batches). A spike moves no batch median; a smooth trend within the parts widens the
-    error instead of firing. NaN when the loop has too few samples."""
+    freedom for independent batches), never below what white noise of the loop's own sample scatter gives. A spike
+    moves no batch median; a smooth trend within the parts widens the error instead of firing. NaN when the loop has
+    too few samples."""
     x = np.asarray(x, float)
     x = x[np.isfinite(x)]
     splits = np.arange(2, N_BATCHES - 1)
@@ -121,12 +122,17 @@ def step_profile(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if size < 3:
         return np.full(splits.size, np.nan), np.full(splits.size, np.nan)
     b = np.median(x[: size * N_BATCHES].reshape(N_BATCHES, size), axis=1)
+    # floor: the scatter a batch median of white noise has (σ from the MAD of the sample-to-sample differences,
+    # which neither a step nor a trend inflates): a few batches that agree by chance do not make a step
+    diffs = np.diff(x)
+    sigma = 1.4826 * float(np.median(np.abs(diffs - np.median(diffs)))) / np.sqrt(2.0)
+    floor = MEDIAN_SE_FACTOR * sigma / np.sqrt(size)
     d, se = [], []
     for k in splits:
         before, after = b[:k], b[k:]
         pooled = (before.var(ddof=1) * (k - 1) + after.var(ddof=1) * (N_BATCHES - k - 1)) / (N_BATCHES - 2)
         d.append(after.mean() - before.mean())
-        se.append(np.sqrt(pooled * (1.0 / k + 1.0 / (N_BATCHES - k))))
+        se.append(np.sqrt(max(pooled, floor**2) * (1.0 / k + 1.0 / (N_BATCHES - k))))
     return np.array(d), np.array(se)
 
 
