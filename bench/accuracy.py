@@ -24,6 +24,12 @@ counts the DuTs `auto` refused plus those whose reading its fitted curve never r
 
 Goals: mean |err| ≤ 0.3 % without per-mount scatter; ≤ 1.2 × the noise floor with it; coverage 90-99 %.
 
+Issue 33's rows (``--issue33 [NAME]``, :data:`ISSUE33`; docs/accuracy.md): a knock during the DuT's loops,
+missing samples (DIAdem's no value) in each channel of the campaign and of the DuT through real trace files,
+thermal drift (β = 0 and the simulator's) on campaigns spanning 0.2-4.6 K with and without the correction, and DuTs
+in the gap between the mass stack and the torque rows; each row counts the refusals and the loops set aside by
+reason.
+
 Run: ``.venv/bin/python bench/accuracy.py [--seeds N] [--first-seed S] [--workers 1|2] [--json]`` (120 seeds from
 0 by default, 11 min on 2 cores: at 40 the |err|/floor ratio wanders by about ±0.1; coverage with its Clopper-Pearson
 95 % interval; ``--first-seed`` checks a figure on seeds the table did not use).
@@ -192,6 +198,192 @@ def repetition(name: str, seed: int) -> dict:
     return out
 
 
+# ------------------------------------------------------------------------------------------------------------
+# issue 33: every result right within its U, or flagged, set aside or refused
+# ------------------------------------------------------------------------------------------------------------
+#: The thermal rows' campaigns (simulate_campaign keywords) by the temperature span β rests on: a warmed-up campaign
+#: with quick body changes (0.2 K, 0.7 K within a point), the default (3 K), long body changes and loops (4.6 K).
+SPANS = {"0.2K": {"warm_s": 3600.0, "change_s": 5.0, "loop_s": 40.0},
+         "0.7K": {"warm_s": 3600.0, "change_s": 20.0, "loop_s": 40.0},
+         "3K": {}, "4.6K": {"change_s": 900.0, "loop_s": 60.0}}
+ISSUE33 = {
+    "clean": {"n_loops": 5},
+    "bump": {"knock": True, "n_loops": 5},
+    **{f"novalue-dut-{ch}": {"gap": ("dut", ch)} for ch in ("A3", "A5", "T")},
+    **{f"novalue-cal-{ch}": {"gap": ("cal", ch)} for ch in ("A3", "A5", "T")},
+    **{f"thermal-{span}{tag}": {"campaign": kw, "beta0": beta0, "dut_warm_s": 300.0}
+       for span, kw in SPANS.items() for tag, beta0 in (("", False), ("-beta0", True))},
+    **{f"thermal-{span}-near{tag}": {"campaign": SPANS[span], "beta0": beta0, "dut_warm_s": 45.0}
+       for span in ("3K", "4.6K") for tag, beta0 in (("", False), ("-beta0", True))},
+    "stack-row-gap": {"dut_kg": (150.0, 200.0), "cog": (0.6, 0.8)},
+}
+
+
+def _beta0(sc):
+    """The scenario with torques that do not depend on motor temperature at all (β = 0 on every axis)."""
+    return sc.model_copy(update={"axes": {k: a.model_copy(update={"thermal_coeff_per_k": 0.0})
+                                          for k, a in sc.axes.items()}})
+
+
+def _through_files(camp, meas, gap, rng, root: Path):
+    """Write the campaign and the DuT as KUKA trace files with a gap of missing samples (DIAdem's no value) in one
+    loop's channel ``gap = (where, channel)`` (A3/A5 torque or both motor temperatures), read them back."""
+    from rgse_daemon.analysis.calibration import load_campaign
+    from rgse_daemon.manifest import load_manifest, read_loops
+    from tests.support.simcampaign import with_gap, write_dirs
+
+    where, channel = gap
+    pool = [lp for point in camp.loops for lp in point] if where == "cal" else meas.loops
+    victim = pool[int(rng.integers(len(pool)))]
+    start, length = float(rng.uniform(0.0, 0.4)), float(rng.uniform(0.05, 0.6))
+    n = victim.torque_a3_nm.size
+    tgaps = {}
+    if channel == "T":
+        tgaps[victim.trace] = slice(int(start * n), int(start * n) + max(int(length * n), 1))
+    else:
+        gapped = with_gap(victim, channel, start, length)
+        loops = [[gapped if lp is victim else lp for lp in point] for point in camp.loops]
+        camp = type(camp)(camp.manifest, loops, camp.body_masses_kg)
+        meas = type(meas)([gapped if lp is victim else lp for lp in meas.loops], meas.true_dut_mass_kg,
+                          meas.fixture_mass_kg)
+    write_dirs(camp, meas, root / "cal", root / "dut", tgaps)
+    data = load_campaign(root / "cal")
+    man = load_manifest(root / "dut")
+    return data, read_loops(root / "dut", man.measurement_traces), f"{victim.trace} {channel} {length:.0%}"
+
+
+def repetition33(name: str, seed: int) -> dict:
+    """One story of an issue-33 row: the campaign (screened like ``rgse calibrate``), ``auto``, one DuT; the result,
+    or the refusal's reason, and the loops set aside."""
+    import tempfile
+
+    from rgse_daemon.analysis.calibration import screen_campaign
+    from rgse_daemon.errors import DataError
+    from tests.support.simcampaign import Knock
+
+    spec = ISSUE33[name]
+    sc = default_scenario()
+    if spec.get("beta0"):
+        sc = _beta0(sc)
+    camp, model = simulate_campaign(seed, scenario=sc, **spec.get("campaign", {}))
+    rng = np.random.default_rng(3300 + seed)
+    dut_kg, cog = float(rng.uniform(*spec.get("dut_kg", (20.0, 230.0)))), float(rng.uniform(*spec.get("cog",
+                                                                                                       (0.05, 0.35))))
+    knock = None
+    if spec.get("knock"):
+        knock = Knock(int(rng.integers(spec["n_loops"])), float(rng.uniform(0.2, 0.8)),
+                      float(rng.choice([-1, 1]) * rng.uniform(10.0, 40.0)),
+                      float(rng.choice([-1, 1]) * rng.uniform(10.0, 40.0)))
+    meas = simulate_measurement(model, dut_kg, cog, n_loops=spec.get("n_loops", 3), knock=knock,
+                                warm_s=spec.get("dut_warm_s", 0.0))
+    out: dict = {"dut_kg": dut_kg}
+    if "gap" in spec:
+        with tempfile.TemporaryDirectory() as tmp:
+            data, dut_loops, out["gap"] = _through_files(camp, meas, spec["gap"], rng, Path(tmp))
+    else:
+        data = CampaignData(camp.manifest, [[(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point]
+                                            for point in camp.loops], [],
+                            loop_temps_k=[[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in point]
+                                          for point in camp.loops])
+        dut_loops = meas.loops
+    try:
+        data = screen_campaign(data, pp.PAPER)
+    except DataError as exc:
+        return {**out, "auto": None, "auto refused": f"campaign: {exc}"}
+    out["cal set aside"] = [f"point {p} loop {a.loop}: {a.reason}" for p, a in data.set_aside]
+    dr = camp.manifest.setup.lever_difference_m
+    points, bias3, bias5 = campaign_points(data, pp.PAPER)
+    evaluations = selection.evaluate_all(points, G, dr)
+    chosen = selection.choose_auto(points, evaluations)
+    by = {e.method: e for e in [*evaluations, chosen]}
+    limit = unc.PLAUSIBLE_LOO_FACTOR * chosen.loo_mean_abs_err_pct
+    alts = [e.method for e in evaluations if e.method != chosen.method and e.admissible
+            and e.loo_mean_abs_err_pct <= limit]
+    fits = {m: (cal_mod.fit(points, m, G, dr), unc.calibration_uncertainty(points, m, G, dr,
+                                                                           by[m].heldout_residual_nm))
+            for m in [chosen.method, *alts]}
+    drift = campaign_thermal(data, pp.PAPER)
+    env = Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm)
+    loops = [(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in dut_loops]
+    temps = [(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in dut_loops]
+    if drift is not None and temps[0][0] is not None:
+        out["dut_offset_k"] = float(np.mean([t[1] for t in temps]) - drift.reference_k["A5"])
+        out["beta_a5"] = (drift.coeff_per_k["A5"], drift.u_coeff_per_k["A5"], drift.span_k["A5"])
+    rows = [("auto", drift)] + ([("auto, no β", None)] if name.startswith("thermal") else [])
+    for row, thermal in rows:
+        try:
+            r = inline.in_line_mass(loops, *[fits[chosen.method][0]], bias3, bias5, pp.PAPER, meas.fixture_mass_kg,
+                                    alternatives=[fits[a][0] for a in alts], uncertainty=fits[chosen.method][1],
+                                    alternative_uncertainty=[fits[a][1] for a in alts], envelope=env,
+                                    thermal=thermal, loop_temps_k=temps)
+        except DataError as exc:
+            out[row], out[f"{row} refused"] = None, str(exc)
+            continue
+        out[row] = {"err_kg": r.mass_kg - dut_kg, "U_kg": r.uncertainty.expanded_kg,
+                    "u_loops_kg": r.uncertainty.u_loops_kg, "set_aside": [f"{a.loop}: {a.reason}"
+                                                                          for a in r.loops_set_aside],
+                    "outside": r.operating_point == "outside", "thermal_applied": r.thermal_applied}
+    return out
+
+
+def _run33(job: tuple[str, int]) -> dict:
+    return repetition33(*job)
+
+
+def _reason(text: str) -> str:
+    """The kind of a refusal or set-aside, for the table."""
+    for key in ("samples missing", "a step of", "after the step", "disagrees", "far outside", "below zero"):
+        if key in text:
+            return key
+    return text[:40]
+
+
+def summarise33(runs: list[dict], row: str) -> dict:
+    s = summarise(runs, row, 0.0)
+    refusals = [_reason(r[f"{row} refused"]) for r in runs if r.get(row) is None and f"{row} refused" in r]
+    aside = [_reason(a) for r in runs if r.get(row) is not None for a in r[row]["set_aside"]]
+    aside += [_reason(a) for r in runs for a in r.get("cal set aside", [])]
+    ok = [r[row] for r in runs if r.get(row) is not None]
+    s.update({"refusals": {k: refusals.count(k) for k in sorted(set(refusals))},
+              "set_aside": {k: aside.count(k) for k in sorted(set(aside))},
+              "outside": int(sum(o["outside"] for o in ok)),
+              "thermal_applied": int(sum(any(o["thermal_applied"].values()) for o in ok)),
+              "dut_offset_k": float(np.mean([r["dut_offset_k"] for r in runs if "dut_offset_k" in r] or [np.nan])),
+              "beta_a5_z": float(np.median([abs(r["beta_a5"][0]) / r["beta_a5"][1] for r in runs if "beta_a5" in r]
+                                           or [np.nan]))})
+    return s
+
+
+def main33(seeds: int, first: int, workers: int, names: list[str], as_json: bool) -> int:
+    t0 = time.monotonic()
+    jobs = [(name, seed) for name in names for seed in range(first, first + seeds)]
+    with ProcessPoolExecutor(workers) as pool:
+        done = list(pool.map(_run33, jobs, chunksize=2))
+    table = {}
+    for name in names:
+        runs = [r for (n, _), r in zip(jobs, done, strict=True) if n == name]
+        table[name] = {row: summarise33(runs, row) for row in ("auto", "auto, no β") if row in runs[0]}
+    if as_json:
+        print(json.dumps({"bench": "accuracy-issue33", "seeds": seeds, "first_seed": first, "table": table,
+                          "seconds": round(time.monotonic() - t0, 1)}))
+        return 0
+    print("| scenario | row | n | mean \\|err\\| % | mean err ± s.e. kg | max \\|err\\| kg | coverage ±U (95 % CI) "
+          "| mean U kg | refused (why) | loops set aside (why) | outside | β applied | DuT ΔT K | \\|β_A5\\|/u |")
+    print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- | --- | ---: | ---: | ---: | ---: |")
+    for name, rows in table.items():
+        for row, s in rows.items():
+            lo, hi = s["coverage_ci95"]
+            why = ", ".join(f"{k} {v}" for k, v in s["refusals"].items())
+            aside = ", ".join(f"{k} {v}" for k, v in s["set_aside"].items())
+            print(f"| {name} | {row} | {s['n']} | {s['mean_abs_err_pct']:.2f} | {s['mean_err_kg']:+.2f} ± "
+                  f"{s['sem_err_kg']:.2f} | {s['max_abs_err_kg']:.2f} | {100 * s['coverage']:.0f} % "
+                  f"({100 * lo:.0f}–{100 * hi:.0f}) | {s['mean_U_kg']:.2f} | {s['refused']}{f' ({why})' if why else ''}"
+                  f" | {aside or '0'} | {s['outside']} | {s['thermal_applied']} | {s['dut_offset_k']:+.1f} | "
+                  f"{s['beta_a5_z']:.1f} |")
+    print(f"{seeds} seeds per scenario (from {first}), {time.monotonic() - t0:.0f} s")
+    return 0
+
+
 def coverage_interval(k: int, n: int) -> tuple[float, float]:
     """Clopper-Pearson 95 % interval of a coverage of k in n (``scipy.stats.binomtest``)."""
     if n == 0:
@@ -230,8 +422,13 @@ def main(argv: list[str] | None = None) -> int:
                     help="seed of the first repetition (fresh seeds check a figure without re-using the table's)")
     ap.add_argument("--workers", type=int, default=2, choices=(1, 2), help="processes (at most 2 on this machine)")
     ap.add_argument("--scenario", action="append", choices=sorted(SCENARIOS))
+    ap.add_argument("--issue33", action="append", nargs="?", const="all", choices=["all", *ISSUE33],
+                    help="the rows of issue 33 (bump, missing samples, thermal spans, the stack/row gap) instead")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
+    if args.issue33:
+        names = list(ISSUE33) if "all" in args.issue33 else args.issue33
+        return main33(args.seeds, args.first_seed, args.workers, names, args.json)
     t0 = time.monotonic()
     table = {}
     names = args.scenario or list(SCENARIOS)

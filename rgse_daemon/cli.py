@@ -186,6 +186,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--envelope-limit", type=finite, default=0.5, metavar="FRACTION",
                    help="refuse a DuT further outside the calibrated loads than this fraction of their span "
                         "(default 0.5)")
+    p.add_argument("--drift-prior", type=finite, default=0.003, metavar="PER_K",
+                   help="bound on the thermal drift coefficient |β| (1/K) that U carries where the campaign does not "
+                        "resolve β (default 0.003, i.e. 0.3 %%/K)")
     _add_json(p)
 
     p = sub.add_parser("cog", help="offline centre of gravity from a properties run directory")

@@ -25,8 +25,8 @@ from rgse_daemon.manifest import (
     thermal_state_k,
 )
 from rgse_daemon.pipeline import calibration as cal_mod
+from rgse_daemon.pipeline import integrity, selection
 from rgse_daemon.pipeline import preprocess as pp
-from rgse_daemon.pipeline import selection
 from rgse_daemon.pipeline import thermal as thermal_mod
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import CalibrationPoints
@@ -50,6 +50,8 @@ class CampaignData:
     """Per point, per loop: the A3 and A5 motor temperature (K); None when a trace did not record it."""
     period: list[tuple[str, float]] = dataclasses.field(default_factory=list)
     """The campaign's one sample period, as ``(trace 'name', s)`` of its first loop (:func:`check_one_period`)."""
+    set_aside: list[tuple[int, integrity.SetAside]] = dataclasses.field(default_factory=list)
+    """Loops left out by :func:`screen_campaign`: (1-based point, loop and reason); their files stay as they are."""
 
 
 def load_campaign(directory: Path) -> CampaignData:
@@ -71,6 +73,56 @@ def load_campaign(directory: Path) -> CampaignData:
     state = thermal_state_k(every_loop)
     return CampaignData(man, loops, files, state, temps if state is not None else None,
                         loop_periods(every_loop[:1]))
+
+
+def screen_campaign(data: CampaignData, cfg: pp.Preprocessing,
+                    minimum: int = integrity.MIN_LOOPS_PER_POINT) -> CampaignData:
+    """Set aside the loops of each point that miss too many samples, hold a step, or disagree with the point's
+    other loops (:mod:`rgse_daemon.pipeline.integrity`, per axis in Nm; the thermal allowance is the prior bound on
+    β over each loop's temperature difference, since β is fitted from these very loops); a sample missing in one
+    torque channel is missing in both. DataError naming the point if it keeps fewer than ``minimum`` loops (or, when
+    it had fewer, not all of them): one bad loop never fails the campaign while its point keeps enough."""
+    loops, temps, aside = [], [], []
+    names = [spec.traces for spec in data.manifest.points]
+    for i, point_loops in enumerate(data.loops):
+        point_temps = None if data.loop_temps_k is None else data.loop_temps_k[i]
+        gapped, clean, kept = [], [], []
+        for j, (a3, a5, dt) in enumerate(point_loops):
+            ok = integrity.valid_mask(a3, a5)
+            reason = integrity.gap_reason(ok, round(cfg.settle_s / dt))
+            if reason is not None:
+                gapped.append(integrity.SetAside(names[i][j], reason))
+                continue
+            kept.append(j)
+            clean.append((np.where(ok, a3, np.nan), np.where(ok, a5, np.nan), dt))
+        used = list(range(len(clean)))
+        found = list(gapped)
+        for ax in (0, 1):
+            if len(used) < 1:
+                break
+            series = [clean[k][ax][round(cfg.settle_s / clean[k][2]):] for k in used]
+            values = np.array([pp.process_loop(clean[k][ax], clean[k][2], cfg).torque_nm for k in used])
+            se = np.array([unc.batch_means_se(pp.kept_samples(clean[k][ax], clean[k][2], cfg)) for k in used])
+            allowance = None
+            if point_temps is not None:
+                t = np.array([point_temps[kept[k]][ax] for k in used], float)
+                allowance = np.abs(values * (t - t.mean())) * thermal_mod.DRIFT_PRIOR_PER_K / np.sqrt(3.0)
+            sc = integrity.screen([names[i][kept[k]] for k in used], series, values, se, allowance, minimum,
+                                  f"Nm ({'A3' if ax == 0 else 'A5'})")
+            found += sc.set_aside
+            used = [used[k] for k in sc.used]
+        need = min(minimum, len(point_loops))
+        if len(used) < need:
+            reasons = "; ".join(f"loop {a.loop}: {a.reason}" for a in found)
+            raise DataError(f"{data.manifest.path}: calibration point {i + 1} keeps {len(used)} of "
+                            f"{len(point_loops)} loops, fewer than the {need} it needs, after setting aside {reasons}; "
+                            f"measure the point again")
+        aside += [(i + 1, a) for a in found]
+        loops.append([clean[k] for k in used])
+        if point_temps is not None:
+            temps.append([point_temps[kept[k]] for k in used])
+    return dataclasses.replace(data, loops=loops, loop_temps_k=temps if data.loop_temps_k is not None else None,
+                               set_aside=aside)
 
 
 def campaign_period_s(data: CampaignData) -> float | None:
@@ -215,7 +267,8 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
               sources: dict[str, str], where: Path,
               thermal: dict[str, float] | None = None, nested: bool = True,
               drift: ThermalDrift | None = None,
-              sample_period_s: float | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+              sample_period_s: float | None = None,
+              set_aside: list[tuple[int, integrity.SetAside]] = ()) -> tuple[dict[str, Any], dict[str, Any]]:
     """Fit and describe a calibration: (CAL.json document, the ``--json`` summary). One code path for the CLI and
     the daemon's campaign, so a stored calibration is always reproducible from its campaign directory.
     ``nested``: also the nested held-out figure of ``auto`` (selection repeated inside every fold; seconds).
@@ -239,7 +292,8 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
                                    "envelope": Envelope.from_torques(points.torque_a3_nm,
                                                                      points.torque_a5_nm).to_dict(),
                                    "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr),
-                                   **({} if drift is None else {"thermal": drift.to_dict()})},
+                                   **({} if drift is None else {"thermal": drift.to_dict()}),
+                                   "set_aside": [{"point": p, **a.to_dict()} for p, a in set_aside]},
                         g_u_m_s2=g_u, thermal_state_k=thermal, sample_period_s=sample_period_s)
     summary = {
         "calibration_id": doc["calibration_id"],
@@ -252,6 +306,11 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
         "u_reproducibility_kg": cu.reproducibility.u_kg(g, dr),
         "points": len(points),
         "r2": cal.r2,
+        "set_aside": [{"point": p, **a.to_dict()} for p, a in set_aside],
+        "thermal": None if drift is None else {
+            ax: {"beta_per_k": drift.coeff_per_k[ax], "u_beta_per_k": drift.u_coeff_per_k[ax],
+                 "span_k": drift.span_k[ax], "resolved": drift.unresolved(ax) is None,
+                 "description": drift.describe(ax)} for ax in thermal_mod.AXES},
         "models": [{"method": e.method, "in_sample_mean_abs_err_pct": e.in_sample_mean_abs_err_pct,
                     "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg,
                     "lever_group_mean_abs_err_pct": (e.lever_mean_abs_err_pct
@@ -299,13 +358,14 @@ def parse_preprocessing(spec: str | None) -> pp.Preprocessing:
 def fit_campaign(directory: Path, method: str,
                  pre: pp.Preprocessing = pp.PAPER) -> tuple[dict[str, Any], dict[str, Any]]:
     """``rgse calibrate --campaign DIR [--preprocessing SPEC]`` without writing: (CAL.json document, summary)."""
-    data = load_campaign(directory)
+    data = screen_campaign(load_campaign(directory), pre)
     points, bias3, bias5 = campaign_points(data, pre)
     setup = data.manifest.setup
     doc, summary = calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot,
                              pre=pre, bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2,
                              sources=source_sha256(data.files), where=directory, thermal=data.thermal_state_k,
-                             drift=campaign_thermal(data, pre), sample_period_s=campaign_period_s(data))
+                             drift=campaign_thermal(data, pre), sample_period_s=campaign_period_s(data),
+                             set_aside=data.set_aside)
     if data.manifest.torsional_points:
         # the CoG calibration (issue #14): bias per pose and K for A3..A6 from the torsional points
         doc["torsional"] = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre,

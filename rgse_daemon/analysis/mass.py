@@ -42,6 +42,12 @@ class MassResult:
     u_components_kg: dict[str, float] = field(default_factory=dict)
     motor_temp_k: dict[str, float] | None = None
     operating_point: str = "inside"
+    loops_used: list[str] = field(default_factory=list)
+    """The loops the mass rests on (trace names)."""
+    loops_set_aside: list[dict[str, str]] = field(default_factory=list)
+    """The loops left out, each ``{"loop", "reason"}`` (pipeline.integrity); their raw files stay archived."""
+    thermal_applied: dict[str, bool] = field(default_factory=dict)
+    """Per axis, whether the campaign's thermal drift β was applied (empty: no β or no temperatures)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"mass_kg": self.mass_kg, "u_kg": self.u_kg, "U_kg": self.U_kg, "k": int(unc.COVERAGE_K),
@@ -50,14 +56,17 @@ class MassResult:
                 "calibration_id": self.calibration_id, "method": self.method, "cog_m": None,
                 "warnings": self.warnings, "u_components_kg": self.u_components_kg,
                 "motor_temp_k": self.motor_temp_k, "operating_point": self.operating_point,
-                "status": status_of({"warnings": self.warnings})}
+                "loops_used": self.loops_used, "loops_set_aside": self.loops_set_aside,
+                "thermal_applied": self.thermal_applied, "status": status_of({"warnings": self.warnings})}
 
 
 def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: pp.Preprocessing,
             fixture_mass_kg: float, g_measurement_m_s2: float | None = None,
             g_u_measurement_m_s2: float = 0.0, alternatives: list[Calibration] = (),
-            envelope_limit: float = inline.env_mod.DEFAULT_LIMIT) -> MassResult:
-    """Pre-process every loop, average (eq. 16), normalise with the calibration's M_0, apply eq. 21, budget U."""
+            envelope_limit: float = inline.env_mod.DEFAULT_LIMIT,
+            drift_prior_per_k: float = inline.DRIFT_PRIOR_PER_K) -> MassResult:
+    """Pre-process every loop, set the disturbed ones aside, average (eq. 16), normalise with the calibration's M_0,
+    apply eq. 21, budget U."""
     fit = cal_doc["fit"]
     r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in loops], cal,
                             float(cal_doc["bias_nm"]["A3"]), float(cal_doc["bias_nm"]["A5"]), pre, fixture_mass_kg,
@@ -65,10 +74,13 @@ def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: p
                             g_measurement_m_s2, g_u_measurement_m_s2, alternatives,
                             **calfile.uncertainty_inputs("CAL.json", cal_doc, cal, alternatives),
                             envelope_limit=envelope_limit,
-                            loop_temps_k=[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in loops])
+                            loop_temps_k=[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in loops],
+                            drift_prior_per_k=drift_prior_per_k)
     return MassResult(r.mass_kg, r.uncertainty.u_kg, r.uncertainty.expanded_kg, r.gross_mass_kg, fixture_mass_kg,
-                      len(loops), r.samples_used, r.samples_total, str(cal_doc["calibration_id"]), r.method,
-                      r.warnings, r.uncertainty.components(), operating_point=r.operating_point)
+                      len(r.loops_used), r.samples_used, r.samples_total, str(cal_doc["calibration_id"]), r.method,
+                      r.warnings, r.uncertainty.components(), operating_point=r.operating_point,
+                      loops_used=r.loops_used, loops_set_aside=[a.to_dict() for a in r.loops_set_aside],
+                      thermal_applied=r.thermal_applied)
 
 
 #: How far the measurement's Δr (m) and g (m/s²) may differ from the calibration's: a calibration holds for its own
@@ -88,7 +100,8 @@ def check_pose(where: Path, lever_difference_m: float, g_m_s2: float, cal: Calib
 
 
 def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None,
-            envelope_limit: float = inline.env_mod.DEFAULT_LIMIT):
+            envelope_limit: float = inline.env_mod.DEFAULT_LIMIT,
+            drift_prior_per_k: float = inline.DRIFT_PRIOR_PER_K):
     """The in-line mass of a measurement directory (interfaces §2) with a calibration file: what ``rgse mass`` prints,
     and what the daemon stores — one code path, so a stored result is always reproducible from its raw files."""
     man = load_manifest(directory)
@@ -102,7 +115,7 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
         raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")
     loops = read_loops(directory, man.measurement_traces)
     result = measure(loops, cal, doc, pre or pp.PAPER, fixture, man.setup.g_m_s2, man.setup.g_u_m_s2 or 0.0,
-                     calfile.alternatives(calibration_path, doc, cal), envelope_limit)
+                     calfile.alternatives(calibration_path, doc, cal), envelope_limit, drift_prior_per_k)
     rate = period_mismatch(loops[0].period_s, calfile.sample_period_s(calibration_path, doc), pre or pp.PAPER)
     if rate is not None:
         result.warnings.append(rate)
@@ -110,7 +123,7 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
         result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
     result.motor_temp_k = thermal_state_k(loops)
     mismatch = thermal_mismatch(result.motor_temp_k, doc.get("thermal_state_k"),
-                                corrected="thermal" in result.u_components_kg)
+                                corrected=any(result.thermal_applied.values()))
     if mismatch is not None:
         result.warnings.append(mismatch)
     return result

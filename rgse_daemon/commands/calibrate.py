@@ -72,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
             print(f"R² of the K fits: {r2} (CAL.json fit.r2)")
         print(f"held-out per-axis scatter A3 {rms['A3']:.1f} Nm, A5 {rms['A5']:.1f} Nm: reproducibility "
               f"u = {summary['u_reproducibility_kg']:.3f} kg")
+        for ax in (summary.get("thermal") or {}).values():  # β, its span and whether it will be applied
+            print(f"thermal drift {ax['description']}")
+        for a in summary.get("set_aside", []):  # loops left out of the points (their files stay as they are)
+            print(f"set aside: point {a['point']} loop {a['loop']}: {a['reason']}")
         period_s = doc["fit"].get("sample_period_s")
         if period_s is not None:  # a measurement at another period gets a warning (CAL.json fit.sample_period_s)
             print(f"trace sample period {period_s * 1e3:g} ms: measure the DuT at the same period")

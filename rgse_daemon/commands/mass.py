@@ -7,16 +7,20 @@ import json
 from pathlib import Path
 
 from rgse_daemon.analysis.mass import compute
-from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS
+from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS, DataError
 from rgse_daemon.pipeline.envelope import DEFAULT_LIMIT
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.verdict import OK
 
 
 def run(args: argparse.Namespace) -> int:
     """Exit 0 for a result without warnings, 4 (EXIT_WARNINGS) for one with warnings; a refusal raises (exit 2, and
     with ``--json`` the refusal's JSON object, see :func:`rgse_daemon.cli.main`)."""
+    prior = getattr(args, "drift_prior", DRIFT_PRIOR_PER_K)
+    if not 0.0 <= prior <= 0.1:
+        raise DataError(f"--drift-prior {prior}: a bound on |β| must lie within 0..0.1 per K")
     result = compute(Path(args.traces), Path(args.calibration), args.fixture_mass,
-                     getattr(args, "envelope_limit", DEFAULT_LIMIT))
+                     getattr(args, "envelope_limit", DEFAULT_LIMIT), prior)
     doc = result.to_json()
     if args.json:
         print(json.dumps(doc))
@@ -27,6 +31,9 @@ def run(args: argparse.Namespace) -> int:
               f"fixture {result.fixture_mass_kg:.3f} kg, {result.loops} loops, "
               f"{result.samples_used}/{result.samples_total} samples, calibration {result.calibration_id} "
               f"({result.method})")
+        print(f"loops used: {', '.join(result.loops_used)}")
+        for a in result.loops_set_aside:
+            print(f"set aside: loop {a['loop']}: {a['reason']}")
         for w in result.warnings:
             print(f"warning: {w}")
     return EXIT_OK if doc["status"] == OK else EXIT_WARNINGS

@@ -12,13 +12,16 @@ import numpy as np
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import envelope as env_mod
+from rgse_daemon.pipeline import integrity
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import Calibration
-from rgse_daemon.pipeline.thermal import ThermalDrift
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K, ThermalDrift
 
 #: Fewer valid samples per loop than this draws a warning.
 MIN_SAMPLES_PER_LOOP = 100
+#: An uncorrected thermal offset of the DuT beyond this (K) draws a warning.
+THERMAL_NOTE_K = 1.0
 
 #: One loop: (A3 torque samples Nm, A5 torque samples Nm, sample period s, name for messages).
 LoopSamples = tuple[np.ndarray, np.ndarray, float, str]
@@ -39,6 +42,12 @@ class InlineMass:
     """The model the mass comes from (another admissible one if the calibration's own is unusable at this DuT)."""
     operating_point: str = "inside"
     """``inside`` or ``outside`` the calibrated envelope (far outside is refused)."""
+    loops_used: list[str] = field(default_factory=list)
+    """The loops the mass rests on, by name."""
+    loops_set_aside: list[integrity.SetAside] = field(default_factory=list)
+    """The loops left out, each with its reason (:mod:`rgse_daemon.pipeline.integrity`)."""
+    thermal_applied: dict[str, bool] = field(default_factory=dict)
+    """Per axis, whether the campaign's thermal drift β was applied (empty: no temperatures or no β)."""
 
 
 def slope_kg_per_nm(cal: Calibration, torque_a3_nm: float, torque_a5_nm: float, h_nm: float = 1.0
@@ -57,7 +66,8 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
                  alternative_uncertainty: Sequence[unc.CalibrationUncertainty | None] = (),
                  envelope: env_mod.Envelope | None = None,
                  envelope_limit: float = env_mod.DEFAULT_LIMIT, thermal: ThermalDrift | None = None,
-                 loop_temps_k: Sequence[tuple[float | None, float | None]] | None = None) -> InlineMass:
+                 loop_temps_k: Sequence[tuple[float | None, float | None]] | None = None,
+                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> InlineMass:
     """Mass of the DuT and its uncertainty from its loops (interfaces §1 ``rgse mass``).
 
     ``alternatives``: the other admissible calibration models (same points), for the model-form spread, with their
@@ -70,33 +80,51 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
     term. An ``uncertainty`` (or an alternative's) from a file written before ``refit_basis`` whose model has a
     ``sat`` term draws a warning (:func:`stale_refits_warning`): its refits are in another basis.
     """
-    t3, t5, se3, se5, used, total = [], [], [], [], 0, 0
     warnings: list[str] = []
     temps = None
     if thermal is not None and loop_temps_k is not None and len(loop_temps_k) == len(loops) and all(
-            t is not None for pair in loop_temps_k for t in pair):
+            t is not None and np.isfinite(t) for pair in loop_temps_k for t in pair):
         temps = np.asarray(loop_temps_k, float)
-    raw3, raw5 = [], []
+    # missing samples: a sample lacking in either torque channel is missing in both; too big a gap sets the loop aside
+    gapped: list[integrity.SetAside] = []
+    kept: list[int] = []
+    clean: list[tuple[np.ndarray, np.ndarray, float, str]] = []
     for j, (a3, a5, period_s, name) in enumerate(loops):
-        r3 = pp.process_loop(a3, period_s, pre)
-        r5 = pp.process_loop(a5, period_s, pre)
-        raw3.append(r3.torque_nm)
-        raw5.append(r5.torque_nm)
-        if temps is None:
-            t3.append(r3.torque_nm)
-            t5.append(r5.torque_nm)
-        else:
-            t3.append(thermal.correct_nm("A3", r3.torque_nm, temps[j, 0]))
-            t5.append(thermal.correct_nm("A5", r5.torque_nm, temps[j, 1]))
-        se3.append(unc.batch_means_se(pp.kept_samples(a3, period_s, pre)))
-        se5.append(unc.batch_means_se(pp.kept_samples(a5, period_s, pre)))
-        n_used = min(r3.n_used, r5.n_used)
-        used += n_used
-        total += r3.n_total
-        if n_used < MIN_SAMPLES_PER_LOOP:
-            warnings.append(f"loop {name}: only {n_used} valid samples")
-    n3, n5 = pp.normalise(np.array(t3), bias_a3_nm), pp.normalise(np.array(t5), bias_a5_nm)
-    m3, m5 = pp.double_average_nm(n3), pp.double_average_nm(n5)  # eq. 16 over loops
+        a3, a5 = np.asarray(a3, float), np.asarray(a5, float)
+        ok = integrity.valid_mask(a3, a5)
+        reason = integrity.gap_reason(ok, round(pre.settle_s / period_s))
+        if reason is not None:
+            gapped.append(integrity.SetAside(name, reason))
+            continue
+        kept.append(j)
+        clean.append((np.where(ok, a3, np.nan), np.where(ok, a5, np.nan), period_s, name))
+    loop_temps = None if temps is None else temps[kept]
+    if not clean or (gapped and len(clean) < integrity.MIN_LOOPS):
+        raise integrity.TooFewLoops(_too_few(len(clean), gapped))
+    drift_used = _drift_applied(thermal, loop_temps, warnings, drift_prior_per_k)
+    first = _loop_readings(clean, pre, thermal, loop_temps, drift_used, bias_a3_nm, bias_a5_nm)
+    s3, s5 = slope_kg_per_nm(cal, first.m3, first.m5)
+    allowance = None if loop_temps is None else np.hypot(
+        s3 * _loop_allowance_nm(thermal, "A3", first.raw3, loop_temps[:, 0], drift_used["A3"], drift_prior_per_k),
+        s5 * _loop_allowance_nm(thermal, "A5", first.raw5, loop_temps[:, 1], drift_used["A5"], drift_prior_per_k))
+    skip = [round(pre.settle_s / p) for _, _, p, _ in clean]
+    series = [(s3 * a3 + s5 * a5)[k:] for (a3, a5, _, _), k in zip(clean, skip, strict=True)]
+    loop_mass0 = np.asarray(cal.mass_kg(first.n3, first.n5), float)
+    se0 = np.hypot(s3 * first.se3, s5 * first.se5)
+    screening = integrity.screen([c[3] for c in clean], series, loop_mass0, se0, allowance, integrity.MIN_LOOPS,
+                                 "kg", gapped)
+    if not screening.enough:
+        raise integrity.TooFewLoops(_too_few(len(screening.used), screening.set_aside))
+    clean = [clean[i] for i in screening.used]
+    if loop_temps is not None:
+        loop_temps = loop_temps[screening.used]
+    for s in screening.set_aside:
+        warnings.append(f"loop {s.loop} set aside: {s.reason}")
+    r = _loop_readings(clean, pre, thermal, loop_temps, drift_used, bias_a3_nm, bias_a5_nm)
+    warnings += r.warnings
+    n3, n5, m3, m5, se3, se5, raw3, raw5, used, total = (r.n3, r.n5, r.m3, r.m5, r.se3, r.se5, r.raw3, r.raw5,
+                                                          r.used, r.total)
+    temps = loop_temps
     where = "inside"
     if envelope is not None:
         check = env_mod.check(envelope, m3, m5, envelope_limit)
@@ -129,8 +157,8 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
     u_loops = unc.loop_spread_kg(loop_mass, loop_se)
     u_g = unc.g_kg(gross, cal.g_m_s2, g_u_calibration_m_s2, g_meas, g_u_measurement_m_s2)
     u_thermal = None if temps is None else float(np.hypot(  # β3 and β5 estimated independently
-        s3 * thermal.u_correction_nm("A3", np.array(raw3), temps[:, 0]),
-        s5 * thermal.u_correction_nm("A5", np.array(raw5), temps[:, 1])))
+        s3 * _u_thermal_nm(thermal, "A3", raw3, temps[:, 0], drift_used["A3"], drift_prior_per_k),
+        s5 * _u_thermal_nm(thermal, "A5", raw5, temps[:, 1], drift_used["A5"], drift_prior_per_k)))
     if uncertainty is None:  # a calibration file without held-out residuals: the former budget
         u = unc.MassUncertainty(
             u_loops_kg=u_loops,
@@ -161,7 +189,98 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
                         f"zero: the gross load ({gross:.3f} kg) is less than the fixture's {fixture_mass_kg:.3f} kg "
                         f"(is the DuT mounted, the fixture mass right, each torque channel's sign as calibrated?)")
     return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings, cal.method,
-                      where)
+                      where, [c[3] for c in clean], list(screening.set_aside),
+                      {} if temps is None else {ax: bool(v) for ax, v in drift_used.items()})
+
+
+@dataclass(frozen=True)
+class _Readings:
+    raw3: np.ndarray
+    raw5: np.ndarray
+    n3: np.ndarray
+    n5: np.ndarray
+    m3: float
+    m5: float
+    se3: np.ndarray
+    se5: np.ndarray
+    used: int
+    total: int
+    warnings: list[str]
+
+
+def _loop_readings(clean: Sequence[tuple[np.ndarray, np.ndarray, float, str]], pre: pp.Preprocessing,
+                   thermal: ThermalDrift | None, temps: np.ndarray | None, drift_used: dict[str, bool],
+                   bias_a3_nm: float, bias_a5_nm: float) -> _Readings:
+    """Pre-process the loops (missing samples left out), bring each to the campaign's temperature where β is
+    applied, normalise with M_0 and average (eq. 16)."""
+    raw3, raw5, t3, t5, se3, se5, used, total, warnings = [], [], [], [], [], [], 0, 0, []
+    for j, (a3, a5, period_s, name) in enumerate(clean):
+        r3, r5 = pp.process_loop(a3, period_s, pre), pp.process_loop(a5, period_s, pre)
+        raw3.append(r3.torque_nm)
+        raw5.append(r5.torque_nm)
+        t3.append(thermal.correct_nm("A3", r3.torque_nm, temps[j, 0]) if temps is not None and drift_used["A3"]
+                  else r3.torque_nm)
+        t5.append(thermal.correct_nm("A5", r5.torque_nm, temps[j, 1]) if temps is not None and drift_used["A5"]
+                  else r5.torque_nm)
+        se3.append(unc.batch_means_se(pp.kept_samples(a3, period_s, pre)))
+        se5.append(unc.batch_means_se(pp.kept_samples(a5, period_s, pre)))
+        n_used = min(r3.n_used, r5.n_used)
+        used += n_used
+        total += r3.n_total
+        if n_used < MIN_SAMPLES_PER_LOOP:
+            warnings.append(f"loop {name}: only {n_used} valid samples")
+        missing = int(np.sum(~np.isfinite(a3)))
+        if missing:
+            warnings.append(f"loop {name}: {missing} of {a3.size} samples missing (no value, NaN or inf), the rest "
+                            f"used")
+    n3, n5 = pp.normalise(np.array(t3), bias_a3_nm), pp.normalise(np.array(t5), bias_a5_nm)
+    return _Readings(np.array(raw3), np.array(raw5), n3, n5, pp.double_average_nm(n3), pp.double_average_nm(n5),
+                     np.array(se3), np.array(se5), used, total, warnings)
+
+
+def _drift_applied(thermal: ThermalDrift | None, temps: np.ndarray | None, warnings: list[str],
+                   drift_prior_per_k: float) -> dict[str, bool]:
+    """Per axis, whether the campaign's β is applied to these loops (:meth:`ThermalDrift.not_applicable`); a
+    warning for an axis left uncorrected over more than :data:`THERMAL_NOTE_K`."""
+    if thermal is None or temps is None:
+        return {"A3": False, "A5": False}
+    out = {}
+    for i, ax in enumerate(("A3", "A5")):
+        offset = float(np.mean(temps[:, i]) - thermal.reference_k[ax])
+        why = thermal.not_applicable(ax, offset)
+        out[ax] = why is None
+        if why is not None and abs(offset) > THERMAL_NOTE_K:
+            warnings.append(f"thermal drift of {ax} not corrected: β = {100 * thermal.coeff_per_k[ax]:+.3f} ± "
+                            f"{100 * thermal.u_coeff_per_k[ax]:.3f} %/K is not resolved for this DuT ({why}); U "
+                            f"carries a drift of up to {100 * thermal.drift_bound_per_k(ax, drift_prior_per_k):.3g} "
+                            f"%/K over the {offset:+.1f} K offset. Measure the DuT at the campaign's motor temperature "
+                            f"({thermal.reference_k[ax]:.1f} K), or calibrate over a temperature span that covers it")
+    return out
+
+
+def _u_thermal_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: np.ndarray, applied: bool,
+                  drift_prior_per_k: float) -> float:
+    """The thermal term (Nm): β's uncertainty over the correction where applied, else the bound on the uncorrected
+    drift (:meth:`ThermalDrift.drift_bound_per_k`, rectangular: standard uncertainty bound/√3)."""
+    if applied:
+        return thermal.u_correction_nm(axis, raw_nm, temp_k)
+    lever = np.mean(np.asarray(raw_nm, float) * (np.asarray(temp_k, float) - thermal.reference_k[axis]))
+    return float(abs(lever) * thermal.drift_bound_per_k(axis, drift_prior_per_k) / np.sqrt(3.0))
+
+
+def _loop_allowance_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: np.ndarray, applied: bool,
+                       drift_prior_per_k: float) -> np.ndarray:
+    """Per loop, the standard deviation the thermal model leaves about the loops' mean temperature (Nm)."""
+    dt = np.asarray(temp_k, float) - np.mean(temp_k)
+    bound = thermal.drift_bound_per_k(axis, drift_prior_per_k)
+    beta_u = thermal.u_coeff_per_k[axis] if applied else bound / np.sqrt(3.0)
+    return np.abs(np.asarray(raw_nm, float) * dt) * beta_u
+
+
+def _too_few(n_left: int, aside: Sequence[integrity.SetAside]) -> str:
+    text = "; ".join(f"loop {s.loop}: {s.reason}" for s in aside)
+    return (f"measurement refused: {n_left} loop(s) left, fewer than the {integrity.MIN_LOOPS} a mass needs, after "
+            f"setting aside {text}; re-mount the DuT and measure again")
 
 
 def stale_refits_warning(methods: Sequence[str]) -> str:

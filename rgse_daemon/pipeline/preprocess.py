@@ -223,6 +223,12 @@ class LoopTorque:
     n_total: int
 
 
+def valid_samples(x: np.ndarray) -> np.ndarray:
+    """The loop's samples without the missing ones (NaN: DIAdem's no-value marker or a non-finite value, issue 33),
+    in time order. Whether enough remain is :mod:`rgse_daemon.pipeline.integrity`'s decision."""
+    return x[np.isfinite(x)]
+
+
 def filtered_rows(values: np.ndarray, period_s: float, cfg: Preprocessing, windows: np.ndarray) -> np.ndarray:
     """Settle cut, crop and filter (in ``cfg.order``) of one loop for several windows; NaN marks cropped samples.
 
@@ -231,12 +237,10 @@ def filtered_rows(values: np.ndarray, period_s: float, cfg: Preprocessing, windo
     x = np.asarray(values, float)
     if x.ndim != 1:
         raise PreprocessError(f"pre-processing: a loop must be 1-D, got shape {x.shape}")
-    if not np.all(np.isfinite(x)):
-        raise PreprocessError("pre-processing: torque samples contain NaN or infinite values")
     if period_s <= 0:
         raise PreprocessError(f"pre-processing: sample period must be > 0, got {period_s}")
     skip = round(cfg.settle_s / period_s)
-    x = x[skip:]
+    x = valid_samples(x[skip:])
     if x.size < 3:
         raise PreprocessError(f"pre-processing: only {x.size} samples left after the {cfg.settle_s} s settle cut")
     windows = np.atleast_1d(np.asarray(windows, int))
@@ -270,7 +274,7 @@ def kept_samples(values: np.ndarray, period_s: float, cfg: Preprocessing = PAPER
     """The raw samples the pre-processing keeps (after the settle cut and the crop), unfiltered, in time order:
     what the within-loop standard error is estimated from (a centred smoothing filter hardly moves the mean but
     correlates neighbours)."""
-    x = np.asarray(values, float)[round(cfg.settle_s / period_s):]
+    x = valid_samples(np.asarray(values, float)[round(cfg.settle_s / period_s):])
     if cfg.order == "backward":
         return x[np.isfinite(crop_outliers(x, cfg.crop_sigma)[0])]
     return x[np.isfinite(filtered_rows(values, period_s, cfg, np.array([cfg.window]))[0])]

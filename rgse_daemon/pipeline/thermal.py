@@ -24,6 +24,17 @@ import numpy as np
 from rgse_daemon.errors import DataError
 
 AXES = ("A3", "A5")
+#: β is applied only where the data resolve it (issue 33): at least this many standard uncertainties from 0 ...
+MIN_SIGNIFICANCE = 3.0
+#: ... fitted on loops whose temperatures spanned at least this much within a point (K) ...
+MIN_SPAN_K = 1.0
+#: ... and with the DuT's temperature offset from the reference at most this multiple of that span.
+MAX_EXTRAPOLATION = 3.0
+#: Where β is not applied, U carries the drift a coefficient up to this bound (1/K, rectangular prior) could cause
+#: over the DuT's temperature offset (or up to |β| + 2 u(β) where the campaign's span resolves β as insignificant).
+#: 0.3 %/K bounds the simulated KR C4's 0.08 (A3) and 0.17 %/K (A5) and the thermal_coeff_per_k a drive's torque
+#: estimate plausibly has after warm-up; ``rgse mass --drift-prior`` sets it.
+DRIFT_PRIOR_PER_K = 0.003
 
 
 @dataclass(frozen=True)
@@ -45,6 +56,41 @@ class ThermalDrift:
         """Standard uncertainty of the correction of the mean over the loops (β's error is common to all loops)."""
         lever = np.mean(np.asarray(reading_nm, float) * (np.asarray(temp_k, float) - self.reference_k[axis]))
         return float(abs(lever) * self.u_coeff_per_k[axis])
+
+    def unresolved(self, axis: str) -> str | None:
+        """Why the campaign does not resolve β of ``axis`` (too small a temperature span, not significant); None if
+        it does."""
+        beta, u, span = self.coeff_per_k[axis], self.u_coeff_per_k[axis], self.span_k[axis]
+        if span < MIN_SPAN_K:
+            return f"its loops spanned {span:.2g} K, less than {MIN_SPAN_K:g} K"
+        if not abs(beta) >= MIN_SIGNIFICANCE * u:
+            return f"it is {abs(beta) / u if u > 0 else 0.0:.1f} standard uncertainties from 0, less than " \
+                   f"{MIN_SIGNIFICANCE:g}"
+        return None
+
+    def not_applicable(self, axis: str, offset_k: float) -> str | None:
+        """Why β of ``axis`` is not applied to a DuT ``offset_k`` from the reference temperature; None if it is."""
+        why = self.unresolved(axis)
+        if why is None and abs(offset_k) > MAX_EXTRAPOLATION * self.span_k[axis]:
+            why = (f"the DuT is {offset_k:+.1f} K from the campaign's temperature, beyond {MAX_EXTRAPOLATION:g} × the "
+                   f"{self.span_k[axis]:.2g} K span β was fitted on")
+        return why
+
+    def drift_bound_per_k(self, axis: str, prior_per_k: float) -> float:
+        """The bound on |β| of ``axis`` that U carries where β is not applied: what the campaign shows,
+        |β| + 2 u(β), where its span resolves the drift and it came out insignificant; else the prior."""
+        beta, u = abs(self.coeff_per_k[axis]), self.u_coeff_per_k[axis]
+        if self.span_k[axis] >= MIN_SPAN_K and beta < MIN_SIGNIFICANCE * u:
+            return min(prior_per_k, beta + 2.0 * u)
+        return prior_per_k
+
+    def describe(self, axis: str) -> str:
+        """β with its uncertainty and span, for ``rgse calibrate``."""
+        why = self.unresolved(axis)
+        state = "resolved: applied to a DuT within " + f"{MAX_EXTRAPOLATION * self.span_k[axis]:.2g} K of " + \
+            f"{self.reference_k[axis]:.2f} K" if why is None else f"not resolved ({why}): not applied"
+        return (f"{axis} β = {100 * self.coeff_per_k[axis]:+.3f} ± {100 * self.u_coeff_per_k[axis]:.3f} %/K over a "
+                f"{self.span_k[axis]:.2g} K span, {state}")
 
     def to_dict(self) -> dict[str, Any]:
         return {"coeff_per_k": dict(self.coeff_per_k), "u_coeff_per_k": dict(self.u_coeff_per_k),

@@ -38,6 +38,7 @@ from rgse_daemon.analysis import reference as ref
 from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.manifest import TORSIONAL_KIND, Loop, read_loop
 from rgse_daemon.pipeline import calibration as cal_mod
+from rgse_daemon.pipeline import integrity
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline.calibration import Calibration, CalibrationPoints
 from rgse_daemon.store import (
@@ -211,6 +212,8 @@ def axis_processing(values: np.ndarray, period_s: float, cfg: pp.Preprocessing) 
     t = np.arange(x.size) * period_s
     skip = round(cfg.settle_s / period_s)
     xs, ts = x[skip:], t[skip:]
+    present = np.isfinite(xs)  # missing samples (no value) are left out, as the pipeline does
+    xs, ts = xs[present], ts[present]
     rows = pp.filtered_rows(x, period_s, cfg, np.array([cfg.window]))
     if cfg.order == "backward":
         kept = pp.crop_outliers(xs, cfg.crop_sigma)[0]
@@ -364,27 +367,34 @@ def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> Measureme
     temps = [(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in raw]
     if thermal is None or not all(t is not None for pair in temps for t in pair):
         thermal = None
+    # β per axis only where the result applied it, and only the loops it used (issue 33; older results: all, β on)
+    applied = res.get("thermal_applied") if isinstance(res.get("thermal_applied"), dict) else None
+    in_use = set(res["loops_used"]) if isinstance(res.get("loops_used"), list) else None
     views, t3, t5, used, total = [], [], [], 0, 0
     for j, (lp, loop) in enumerate(zip(loops, raw, strict=True)):
-        a3 = axis_processing(loop.torque_a3_nm, loop.period_s, cfg)
-        a5 = axis_processing(loop.torque_a5_nm, loop.period_s, cfg)
-        if thermal is None:
-            t3.append(a3.loop_mean_nm)
-            t5.append(a5.loop_mean_nm)
-        else:
-            t3.append(float(thermal.correct_nm("A3", a3.loop_mean_nm, float(temps[j][0]))))
-            t5.append(float(thermal.correct_nm("A5", a5.loop_mean_nm, float(temps[j][1]))))
+        ok = integrity.valid_mask(loop.torque_a3_nm, loop.torque_a5_nm)  # missing in one channel: in both
+        a3 = axis_processing(np.where(ok, loop.torque_a3_nm, np.nan), loop.period_s, cfg)
+        a5 = axis_processing(np.where(ok, loop.torque_a5_nm, np.nan), loop.period_s, cfg)
+        m3, m5 = a3.loop_mean_nm, a5.loop_mean_nm
+        if thermal is not None and (applied is None or applied.get("A3")):
+            m3 = float(thermal.correct_nm("A3", m3, float(temps[j][0])))
+        if thermal is not None and (applied is None or applied.get("A5")):
+            m5 = float(thermal.correct_nm("A5", m5, float(temps[j][1])))
+        gross = float(cal.mass_kg(pp.normalise(m3, bias3), pp.normalise(m5, bias5)))
+        views.append(LoopView(lp.index, lp, loop.period_s, a3, a5, gross))
+        if in_use is not None and loop.trace not in in_use:
+            continue
+        t3.append(m3)
+        t5.append(m5)
         used += min(a3.n_used, a5.n_used)
         total += a3.n_total
-        gross = float(cal.mass_kg(pp.normalise(t3[-1], bias3), pp.normalise(t5[-1], bias5)))
-        views.append(LoopView(lp.index, lp, loop.period_s, a3, a5, gross))
     # eq. 16 over the loops of the normalised loop means, then eq. 21: exactly as the pipeline computes the mass
     w3 = pp.double_average_nm(pp.normalise(np.array(t3), bias3))
     w5 = pp.double_average_nm(pp.normalise(np.array(t5), bias5))
     gross = float(cal.mass_kg(w3, w5))
     # The uncertainty budget (u, U) depends on inputs beyond the raw files (g of the site, alternative models):
     # it is shown as stored, not recomputed. Everything that follows from raw files and calibration is checked.
-    again = {"gross_mass_kg": gross, "mass_kg": gross - fixture, "loops": len(loops), "samples_used": used,
+    again = {"gross_mass_kg": gross, "mass_kg": gross - fixture, "loops": len(t3), "samples_used": used,
              "samples_total": total, "calibration_id": cal_id, "method": cal.method}
     for key, value in again.items():
         if key in res:

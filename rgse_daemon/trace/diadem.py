@@ -16,6 +16,11 @@ and one block per channel of ``code,value`` lines; the codes this reader interpr
 Every other code is kept, as text, in ``Channel.header`` / ``TraceFile.global_header``. Physical values are
 ``raw * factor + offset``. Channels are found by module and name, never by position.
 
+Missing samples: the global header's code 111 declares DIAdem's "no value" marker (KUKA writes ``9.9e34``). A raw
+value equal to it, and a raw NaN or infinity, is a missing sample and reads as NaN, in every channel alike
+(``Channel.n_missing`` counts them); what to do with a loop that has a gap is the pipeline's decision. A finite raw
+value that the channel's factor/offset carry out of the float range is a corrupt header and refused.
+
 Public API::
 
     tf = read_trace_file(Path("run1_NextGenDrive#3.dat"))      # -> TraceFile
@@ -83,6 +88,8 @@ class Channel:
     module: str = ""
     header: Mapping[int, str] = field(default_factory=dict)
     """Every ``code -> value`` line of this channel's header block, as text (unknown codes included)."""
+    n_missing: int = 0
+    """Samples missing in the file (the global header's no-value marker, code 111, or a raw NaN/inf): NaN here."""
 
 
 @dataclass(frozen=True)
@@ -374,11 +381,48 @@ def _all_finite(values: np.ndarray) -> bool:
     return bool(np.isfinite(total)) or bool(np.isfinite(values).all())
 
 
-def _physical(raw: np.ndarray, spec: _Spec, path: Path, raw_finite: bool) -> np.ndarray:
-    """``raw * factor + offset``, read-only, checked finite (no copy for the identity calibration).
+#: Relative tolerance of a raw value against the declared no-value marker (code 111 is written as decimal text).
+_NOVALUE_RTOL = 1e-9
 
-    ``raw_finite``: the whole data block is known finite, so an identity-scaled channel needs no check.
+
+def no_value(global_header: Mapping[int, str], source: str) -> float | None:
+    """DIAdem's "no value" marker declared by the global header's code 111 (e.g. ``9.9e34``); None if absent."""
+    if 111 not in global_header:
+        return None
+    return _float(global_header, 111, source, "global header (no-value marker)")
+
+
+def _missing(raw: np.ndarray, novalue: float | None) -> np.ndarray | None:
+    """Mask of the missing raw samples (the no-value marker, NaN, inf); None when there is none."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        mask = ~np.isfinite(raw)
+        if novalue is not None:
+            mask |= np.abs(raw - novalue) <= _NOVALUE_RTOL * abs(novalue)
+    return mask if mask.any() else None
+
+
+def _physical(raw: np.ndarray, spec: _Spec, path: Path, raw_finite: bool,
+              novalue: float | None = None) -> tuple[np.ndarray, int]:
+    """``raw * factor + offset``, read-only, with missing samples (:func:`_missing`) as NaN, and their count; a value
+    that scaling carries out of the float range is refused (no copy for the identity calibration).
+
+    ``raw_finite``: the whole data block is known finite, so an identity-scaled channel needs no finiteness check.
     """
+    mask = None if raw_finite and novalue is None else _missing(raw, novalue)
+    if mask is not None:
+        with np.errstate(over="ignore", invalid="ignore"):
+            values = np.where(mask, np.nan, raw * spec.factor + spec.offset)
+        if not np.isfinite(values[~mask]).all():
+            bad = int(np.flatnonzero(~mask & ~np.isfinite(values))[0])
+            raise DataError(f"{path}: channel {spec.name!r} has a non-finite value (NaN or inf) at sample {bad} "
+                            f"after scaling (codes 240/241)")
+        values.flags.writeable = False
+        return values, int(mask.sum())
+    return _scaled(raw, spec, path, raw_finite), 0
+
+
+def _scaled(raw: np.ndarray, spec: _Spec, path: Path, raw_finite: bool) -> np.ndarray:
+    """``raw * factor + offset`` of a channel without missing samples, read-only, checked finite."""
     if spec.factor == 1.0 and spec.offset == 0.0:
         values = raw
         if raw_finite:
@@ -511,12 +555,16 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
             )
     channels: dict[str, Channel] = {}
     period_s = 0.0
+    novalue = no_value(global_header, source)
     for s in specs:
+        missing = 0
         if s.implicit:
             values = _implicit_values(s, source)
         else:
             column, block_finite = raw_by_name[s.name]
-            values = _physical(column, s, dat_path.with_name(s.data_file), block_finite)
+            values, missing = _physical(column, s, dat_path.with_name(s.data_file), block_finite, novalue)
+        if s is time_spec and missing:
+            raise DataError(f"{source}: time channel {s.name!r} has {missing} missing samples (no value, NaN or inf)")
         if s is time_spec:
             period_s = _time_period_s(s, values, source)
         channels[s.name] = Channel(
@@ -526,6 +574,7 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
             comment=s.header.get(201, ""),
             module=module,
             header=dict(s.header),
+            n_missing=missing,
         )
     return TraceFile(
         module=module,

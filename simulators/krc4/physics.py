@@ -517,6 +517,11 @@ class RobotModel:
         self.mount_offset_nm = self._mount_rng.normal(0.0, 1.0, 6) * sigma
         self.mount_cog_shift_m = float(self._mount_rng.normal(0.0, self.scenario.mounting.cog_shift_m))
 
+    def knock(self, offset_nm: Sequence[float]) -> None:
+        """The mounted load is knocked or its fixture settles: the reading offsets of this mounting shift by
+        ``offset_nm`` (per axis A1..A6, Nm) from now until the next mounting (a load that no longer sits as it did)."""
+        self.mount_offset_nm = self.mount_offset_nm + np.asarray(offset_nm, dtype=float)
+
     # --- statics -------------------------------------------------------------------------------------------------
     def arm_torques_nm(self, q_deg: Sequence[float]) -> np.ndarray:
         """Gravity holding torques of the robot's own links (Nm)."""

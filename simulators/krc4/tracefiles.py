@@ -30,6 +30,8 @@ from rgse_daemon.durable import fsync_dir, write_atomic
 
 __all__ = ["write_trace_set"]
 
+#: DIAdem's "no value" marker as KUKA Trace declares it in the global header (code 111): a sample not delivered.
+NO_VALUE = 9.9e34
 _ZEIT = "Zeit"  # kept literal: the simulator must not borrow names from the reader it is testing
 _FORBIDDEN_IN_NAMES = set(',\r\n\\/:*?"<>|')
 
@@ -73,7 +75,7 @@ def _header(
         "103,KR C4",  # author
         f"104,{now:%m-%d-%Y}",
         f"105,{now:%H:%M:%S}",
-        "111,9.900000e+034",  # the DIAdem "no value" marker
+        "111,9.900000e+034",  # the DIAdem "no value" marker (NO_VALUE)
         "112,High -> Low",
         "#ENDGLOBALHEADER",
         "",
@@ -109,8 +111,8 @@ def _header(
             f"221,{column if storage == 'BLOCK' else pointer}",
             f"240,{_fmt(offset)}",
             f"241,{_fmt(factor)}",
-            f"250,{_fmt(values.min()) if n_samples else '0.0'}",
-            f"251,{_fmt(values.max()) if n_samples else '0.0'}",
+            f"250,{_fmt(np.nanmin(values)) if np.isfinite(values).any() else '0.0'}",
+            f"251,{_fmt(np.nanmax(values)) if np.isfinite(values).any() else '0.0'}",
             "253,not monotone",
             "260,Numeric",
             "#ENDCHANNELHEADER",
@@ -177,8 +179,9 @@ def write_trace_set(
             array = np.asarray(values, dtype=np.float64)
             if array.ndim != 1:
                 raise ValueError(f"module {module!r} channel {channel!r}: values must be one-dimensional")
-            if not np.isfinite(array).all():
-                raise ValueError(f"module {module!r} channel {channel!r}: values must be finite")
+            if np.isinf(array).any():
+                raise ValueError(f"module {module!r} channel {channel!r}: values must be finite or NaN (a sample "
+                                 f"the drive did not deliver, written as DIAdem's no-value marker)")
             columns.append((channel, unit, array))
         lengths = {c[2].size for c in columns}
         if len(lengths) != 1:
@@ -195,7 +198,8 @@ def write_trace_set(
         stem = f"{name}_{module}"
         data_file = f"{stem}.r64"
         n_samples = columns[0][2].size
-        raws = [(c[2] - offset) / factor for c in columns]
+        # a missing sample (NaN) is written as the no-value marker the global header declares (code 111)
+        raws = [np.where(np.isfinite(c[2]), (c[2] - offset) / factor, NO_VALUE) for c in columns]
         if storage == "BLOCK":
             table = np.column_stack(raws) if n_samples else np.empty((0, len(raws)))
         else:

@@ -159,14 +159,17 @@ def test_truncated_r64(tmp_path, capsys, dirs):
     expect_error(capsys, ["mass", "--traces", str(d), "--calibration", str(dirs / "CAL.json")], "dut_l01")
 
 
-def test_nan_in_trace(tmp_path, capsys, dirs):
+def test_nan_in_trace_is_a_missing_sample_the_loop_is_used_without_it(tmp_path, capsys, dirs):
+    """A NaN in the file is a missing sample (issue 33): left out, the loop used, the result says so."""
     d = tmp_path / "dut"
     shutil.copytree(dirs / "dut", d)
     f = d / "dut_l03_NextGenDrive#3.r64"
     raw = np.fromfile(f, "<f8")
     raw[raw.size // 2] = np.nan
     raw.tofile(f)
-    expect_error(capsys, ["mass", "--traces", str(d), "--calibration", str(dirs / "CAL.json")], "dut_l03")
+    res = run_json(capsys, ["mass", "--traces", str(d), "--calibration", str(dirs / "CAL.json"), "--json"])
+    assert "dut_l03" in res["loops_used"] and res["loops_set_aside"] == []
+    assert any("loop dut_l03: 1 of" in w and "samples missing" in w for w in res["warnings"]), res["warnings"]
 
 
 def test_manifest_names_absent_trace(tmp_path, capsys, dirs):

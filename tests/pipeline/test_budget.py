@@ -6,6 +6,8 @@ single changed operator (``make mutation``) fails one of them."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -153,11 +155,18 @@ def test_envelope_check():
     assert E.Envelope.from_dict(env.to_dict()) == env
     with pytest.raises(DataError):
         E.Envelope.from_dict({"torque_a3_nm": [1, 0], "torque_a5_nm": [0, 1], "ratio_a5_a3": [0, 1]})
-    built = E.Envelope.from_torques(np.array([0.0, 100.0, -2000.0]), np.array([0.0, 30.0, -400.0]))
+    with_points = E.Envelope.from_torques(np.array([0.0, 100.0, -2000.0]), np.array([0.0, 30.0, -400.0]))
+    assert with_points.points_nm == ((0.0, 0.0), (100.0, 30.0), (-2000.0, -400.0))
+    built = dataclasses.replace(with_points, points_nm=None)  # the box alone (files written before points_nm)
     assert built == E.Envelope((0.0, 2000.0), (0.0, 400.0), (0.2, 0.3))  # both signs: magnitudes only
     assert E.check(built, 1500.0, 300.0).status == E.check(built, -1500.0, -300.0).status == "inside"
+    # with the points: 1500/300 Nm lies in the box but 35 % of the range from the nearest point (2000/400 Nm)
+    far = E.check(with_points, -1500.0, -300.0)
+    assert far.status == "outside" and "from the nearest calibrated configuration" in far.detail
+    assert E.check(with_points, 1900.0, 390.0).status == "inside"  # magnitudes: near the (−2000, −400) point
     signed = E.Envelope.from_torques(np.array([0.0, -100.0, -2000.0]), np.array([0.0, -30.0, -400.0]))
     assert signed.sign == (-1.0, -1.0) and E.Envelope.from_dict(signed.to_dict()) == signed
+    signed = dataclasses.replace(signed, points_nm=None)
     assert E.check(signed, -1500.0, -300.0).status == "inside"
     flipped = E.check(signed, 1500.0, 300.0)  # a sign-flipped channel lies below the zero-load point
     assert flipped.status == "refused" and "A3 torque -1500 is 75 % of the span outside 0..2000" in flipped.detail

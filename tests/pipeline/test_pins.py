@@ -388,8 +388,9 @@ def test_smooth_edges_and_windows():
 def test_loop_messages_spread_and_kept_samples():
     with pytest.raises(pp.PreprocessError, match=r"^pre-processing: a loop must be 1-D, got shape \(2, 2\)$"):
         pp.process_loop(np.ones((2, 2)), 0.01, RAW)
-    with pytest.raises(pp.PreprocessError, match=r"^pre-processing: torque samples contain NaN or infinite values$"):
-        pp.process_loop(np.array([1.0, np.nan, 2.0]), 0.01, RAW)
+    # a missing sample (NaN) is left out, the rest is used (issue 33)
+    gap = pp.process_loop(np.array([1.0, np.nan, 2.0, 3.0]), 0.01, RAW)
+    assert gap.torque_nm == 2.0 and gap.n_used == 3 and gap.n_total == 4
     with pytest.raises(pp.PreprocessError, match=r"^pre-processing: a point needs at least one loop$"):
         pp.double_average_nm(np.array([]))
     r = pp.process_loop(np.array([1.0, 2.0, 3.0, 4.0]), 0.01, RAW)

@@ -92,7 +92,7 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
     bias3, bias5 = -1320.0, -316.0
     ref3, ref5 = drift.reference_k["A3"], drift.reference_k["A5"]
     true3, true5 = -1500.0, -400.0  # the DuT's normalised torques at the campaign's temperature
-    temps = [(ref3 + d, ref5 + d) for d in (35.0, 22.0, 15.0)]  # held 15 min: warm, cooling loop by loop
+    temps = [(ref3 + d, ref5 + d) for d in (7.0, 5.5, 4.5)]  # warmer, within 3 × the campaign's 2.7 K span
 
     def at(static, beta, temp, ref):  # the reading the warm drive gives, relative to the campaign's temperature
         return static * (1 + beta * (temp - AMBIENT_K)) / (1 + beta * (ref - AMBIENT_K))
@@ -102,7 +102,7 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
     want = float(cal.mass_kg(true3, true5))
     plain = inline.in_line_mass(loops, cal, bias3, bias5, RAW)
     fixed = inline.in_line_mass(loops, cal, bias3, bias5, RAW, thermal=drift, loop_temps_k=temps)
-    assert abs(plain.mass_kg - want) > 1.0  # uncorrected: kilograms off
+    assert abs(plain.mass_kg - want) > 0.5  # uncorrected: most of a kilogram off
     assert abs(fixed.mass_kg - want) < 0.1 * abs(plain.mass_kg - want)
     c = fixed.uncertainty.components()
     assert "thermal" not in plain.uncertainty.components()
@@ -113,6 +113,15 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
     u5 = drift.u_correction_nm("A5", raw5, np.array(temps)[:, 1])
     assert c["thermal"] == pytest.approx(np.hypot(s3 * u3, s5 * u5)) and c["thermal"] > 0
     assert abs(fixed.mass_kg - want) < 2 * c["thermal"] + 0.05
+    assert fixed.thermal_applied == {"A3": True, "A5": True}
+    # far beyond the span β was fitted on (issue 33): not extrapolated; U carries the prior's bound, a warning says so
+    far = [(ref3 + d, ref5 + d) for d in (35.0, 22.0, 15.0)]
+    hot = [(np.full(50, at(true3 + bias3, BETA["A3"], t3, ref3)), np.full(50, at(true5 + bias5, BETA["A5"], t5, ref5)),
+            0.012, f"l{k}") for k, (t3, t5) in enumerate(far)]
+    out = inline.in_line_mass(hot, cal, bias3, bias5, RAW, thermal=drift, loop_temps_k=far)
+    assert out.thermal_applied == {"A3": False, "A5": False}
+    assert any("thermal drift of A5 not corrected" in w and "beyond 3 × the" in w for w in out.warnings), out.warnings
+    assert abs(out.mass_kg - want) < out.uncertainty.expanded_kg
     # loops without a temperature: no correction, no thermal term
     none = inline.in_line_mass(loops, cal, bias3, bias5, RAW, thermal=drift, loop_temps_k=[(None, None)] * 3)
     assert none.mass_kg == pytest.approx(plain.mass_kg) and "thermal" not in none.uncertainty.components()
@@ -141,3 +150,21 @@ def test_excess_counts_only_what_the_reproducibility_does_not_hold():
     full = 0.001 * 3000.0 / (G * DR)
     at_points = np.sqrt(np.mean([(0.001 * 1000.0 / (G * DR)) ** 2, (0.001 * 2000.0 / (G * DR)) ** 2]))
     assert r.uncertainty.u_model_kg == pytest.approx(np.sqrt(full**2 - at_points**2))
+
+
+def test_what_is_applied_and_what_u_carries_follows_what_the_campaign_resolves():
+    """Issue 33: β is applied only on a span ≥ 1 K, 3 u(β) from 0, the DuT within 3 × the span; where not, U carries
+    |β| + 2 u(β) if the span resolved β as insignificant, else the prior."""
+    def drift(beta, u, span):
+        return T.ThermalDrift({"A3": beta, "A5": beta}, {"A3": u, "A5": u}, {"A3": 300.0, "A5": 300.0}, 42,
+                              {"A3": span, "A5": span})
+    assert drift(0.002, 1e-4, 3.0).not_applicable("A5", 8.9) is None
+    assert "beyond 3 × the 3 K span" in drift(0.002, 1e-4, 3.0).not_applicable("A5", 9.1)
+    assert "spanned 0.2 K, less than 1 K" in drift(0.002, 1e-4, 0.2).not_applicable("A5", 0.1)
+    assert "it is 1.6 standard uncertainties from 0, less than 3" in drift(-0.0008, 0.0005, 3.0).not_applicable(
+        "A5", 1.0)
+    assert drift(1e-5, 1e-4, 3.0).drift_bound_per_k("A5", 0.003) == pytest.approx(2.1e-4)
+    assert drift(1e-5, 1e-4, 0.2).drift_bound_per_k("A5", 0.003) == 0.003  # the span resolves nothing: the prior
+    assert drift(0.002, 1e-4, 3.0).drift_bound_per_k("A5", 0.003) == 0.003  # resolved, not applied (extrapolation)
+    assert "not resolved (its loops spanned 0.2 K" in drift(0.002, 1e-4, 0.2).describe("A5")
+    assert "resolved: applied to a DuT within 9 K" in drift(0.002, 1e-4, 3.0).describe("A5")

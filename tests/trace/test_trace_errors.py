@@ -69,8 +69,6 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     ),
     "counts differ in block": (lambda d: edit_channel(d / DAT, "Iststrom", 220, "39"), R64, "different counts"),
     "time count differs": (lambda d: edit_channel(d / DAT, "Zeit", 220, "41"), DAT, "time channel 'Zeit' has 41"),
-    "nan": (lambda d: _poke(d / R64, 17, float("nan")), R64, "non-finite value"),
-    "inf": (lambda d: _poke(d / R64, 3 * WIDTH + 5, float("-inf")), R64, r"'Istmoment' has a non-finite value .* 3"),
     "overflow by factor": (
         lambda d: (_poke(d / R64, 0, 1e308), edit_channel(d / DAT, "Sollposition", 241, "10.0")),
         R64,
@@ -149,6 +147,34 @@ def test_bad_input_gives_data_error_naming_file(tmp_path: Path, case: str) -> No
     with pytest.raises(DataError):
         read_trace_set(tmp_path, "run1", modules=["NextGenDrive#3"])
     assert {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in tmp_path.iterdir()} == before
+
+
+@pytest.mark.parametrize("marker", [9.9e34, float("nan"), float("-inf")], ids=["novalue", "nan", "inf"])
+def test_missing_samples_read_as_nan_in_every_channel_alike(tmp_path: Path, marker: float) -> None:
+    """DIAdem's no-value marker (global header code 111, 9.9e34 as KUKA writes it) and a raw NaN/inf are missing
+    samples: NaN in whichever channel they sit, counted, never a refusal of the file (issue 33)."""
+    write_small_set(tmp_path)
+    clean = read_trace_file(tmp_path / DAT)
+    names = [n for n in clean.channels if n != clean.time_channel]
+    assert len(names) == WIDTH and "111" not in "".join(names)
+    for column, name in enumerate(names):
+        d = tmp_path / name
+        write_small_set(d)
+        pointer = int(clean.channels[name].header[221])
+        _poke(d / R64, 5 * WIDTH + pointer - 1, marker)
+        tf = read_trace_file(d / DAT)
+        values = tf.channel(name).values
+        assert np.isnan(values[5]) and tf.channel(name).n_missing == 1, (column, name)
+        np.testing.assert_array_equal(np.delete(values, 5), np.delete(clean.channel(name).values, 5))
+        assert all(tf.channel(other).n_missing == 0 for other in names if other != name)
+
+
+def test_a_marker_other_than_the_declared_one_is_a_value(tmp_path: Path) -> None:
+    write_small_set(tmp_path)
+    _replace_header_text(tmp_path / DAT, "111,9.900000e+034", "111,-1.0e+30")
+    _poke(tmp_path / R64, 3, 9.9e34)
+    assert read_trace_file(tmp_path / DAT).channel("Istmoment").n_missing + sum(
+        c.n_missing for c in read_trace_file(tmp_path / DAT).channels.values()) == 0
 
 
 def test_channel_storage_counts_must_tile_the_file(tmp_path: Path) -> None:

@@ -237,8 +237,8 @@ def test_writer_refuses_bad_arguments(tmp_path: Path) -> None:
     ok = {"NextGenDrive#1": {"Istmoment": (np.zeros(3), "Nm")}}
     with pytest.raises(ValueError, match="different lengths"):
         write_trace_set(tmp_path, "t", 0.004, {"M": {"a": (np.zeros(3), "Nm"), "b": (np.zeros(4), "Nm")}})
-    with pytest.raises(ValueError, match="finite"):
-        write_trace_set(tmp_path, "t", 0.004, {"M": {"a": (np.array([1.0, np.nan]), "Nm")}})
+    with pytest.raises(ValueError, match="finite or NaN"):  # NaN is a missing sample (the no-value marker), inf not
+        write_trace_set(tmp_path, "t", 0.004, {"M": {"a": (np.array([1.0, np.inf]), "Nm")}})
     with pytest.raises(ValueError, match="period_s"):
         write_trace_set(tmp_path, "t", 0.0, ok)
     with pytest.raises(ValueError, match="storage"):
@@ -299,3 +299,12 @@ def test_failed_write_leaves_no_temporary_file(tmp_path: Path, monkeypatch: pyte
     with pytest.raises(OSError, match="disk full"):
         write_small_set(tmp_path)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_missing_sample_is_written_as_the_declared_no_value_and_read_back_as_nan(tmp_path):
+    """The simulator's writer puts DIAdem's no-value marker (global header code 111) where a sample is missing."""
+    values = np.array([1.0, np.nan, 3.0, 4.0])
+    write_trace_set(tmp_path, "t", 0.004, {"M": {"a": (values, "Nm")}})
+    assert np.fromfile(tmp_path / "t_M.r64", "<f8")[1] == 9.9e34
+    ch = read_trace_file(tmp_path / "t_M.dat").channel("a")
+    assert ch.n_missing == 1 and np.isnan(ch.values[1]) and ch.values[3] == 4.0
