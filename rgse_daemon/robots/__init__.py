@@ -8,10 +8,10 @@ configuration (``rgse demo --robot`` and the tests choose it the same way). The 
 
 from __future__ import annotations
 
-from rgse_daemon.robots import kr500r2830
+from rgse_daemon.robots import kr10r1440, kr500r2830
 from rgse_daemon.robots.model import CalibrationLoads, DhRow, RobotModel
 
-ROBOTS: dict[str, RobotModel] = {r.key: r for r in (kr500r2830.ROBOT,)}
+ROBOTS: dict[str, RobotModel] = {r.key: r for r in (kr500r2830.ROBOT, kr10r1440.ROBOT)}
 DEFAULT_KEY = kr500r2830.ROBOT.key
 
 _active: RobotModel = ROBOTS[DEFAULT_KEY]

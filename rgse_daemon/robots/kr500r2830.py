@@ -70,6 +70,7 @@ ROBOT = RobotModel(
         adapter_rail_section_m=0.120,  # assumed (the rail's inertia only)
         adapter_rail_length_m=1.000,
         torque_levers_a5_m=(0.761, 1.011, 1.261),  # [P] Table 1 torque rows
+        torque_body_count=10,  # [P] Table 1
         # project choice (issue #14): payload torques of A3..A6 spanning a 100–130 kg DuT in every CoG pose
         torsional_points=(
             (2, (0.10, 0.0, 0.30)), (2, (0.0, -0.10, 0.30)), (4, (-0.10, 0.05, 0.40)), (4, (0.05, 0.10, 0.40)),

@@ -58,6 +58,8 @@ class CalibrationLoads:
     adapter_rail_length_m: float
     torque_levers_a5_m: tuple[float, ...]
     """Where the bodies' common CoG sits on the test adapter's rail at the torque points."""
+    torque_body_count: int
+    """Bodies on the test adapter at each torque point (Table 1: 10)."""
     torsional_points: tuple[tuple[int, tuple[float, float, float]], ...]
     """(bodies, their common CoG in the flange frame, m) of the torsional points (issue #14)."""
     fixture_mass_kg: float
