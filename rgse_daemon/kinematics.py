@@ -38,7 +38,6 @@ controller reports them (``$TORQUE_AXIS_ACT[3] = -1320.46``, docs/controller.md 
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -73,6 +72,8 @@ class RobotArrays:
     max_axis_speed_deg_s: tuple[float, ...]
     home_deg: np.ndarray
     candle_deg: np.ndarray
+    d6_m: float
+    """Flange distance from the wrist centre (m)."""
 
 
 def robot_arrays(robot: RobotModel | None = None) -> RobotArrays:
@@ -80,8 +81,20 @@ def robot_arrays(robot: RobotModel | None = None) -> RobotArrays:
     return _arrays_of(robots.active() if robot is None else robot)
 
 
-@functools.cache
+_ARRAYS: dict[int, tuple[RobotModel, RobotArrays]] = {}
+
+
 def _arrays_of(r: RobotModel) -> RobotArrays:
+    # keyed by identity (hashing a model's nested tuples on every call of the inner loops would cost more)
+    hit = _ARRAYS.get(id(r))
+    if hit is not None and hit[0] is r:
+        return hit[1]
+    arrays = _build_arrays(r)
+    _ARRAYS[id(r)] = (r, arrays)
+    return arrays
+
+
+def _build_arrays(r: RobotModel) -> RobotArrays:
     return RobotArrays(
         mdh=np.array([[np.deg2rad(row.alpha_deg), row.a_m, row.d_m] for row in r.dh]),
         axis_sign=np.array(r.axis_sign, dtype=float),
@@ -90,6 +103,7 @@ def _arrays_of(r: RobotModel) -> RobotArrays:
         max_axis_speed_deg_s=tuple(float(v) for v in r.max_axis_speed_deg_s),
         home_deg=np.array(r.home_deg, dtype=float),
         candle_deg=np.array(r.candle_deg, dtype=float),
+        d6_m=r.dh[5].d_m,
     )
 
 

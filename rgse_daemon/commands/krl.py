@@ -24,9 +24,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from rgse_daemon import robots
 from rgse_daemon.config import Config, LimitsConfig, load_config
 from rgse_daemon.errors import ConfigError, DataError
-from rgse_daemon.kinematics import D6_M, G_PAPER_M_S2, measurement_pose
+from rgse_daemon.kinematics import G_PAPER_M_S2, measurement_pose
 from rgse_daemon.krl.render import (
     GLOBALS_DAT,
     TEMPLATES,
@@ -56,7 +57,7 @@ def default_payload(limits: LimitsConfig) -> tuple[float, tuple[float, float, fl
     """Mass (kg) and CoG (flange frame, m) of the conservative default payload (see the module docstring)."""
     mass_kg = limits.max_payload_kg
     lever_m = A5_TORQUE_MARGIN * limits.max_a5_torque_nm / (mass_kg * G_PAPER_M_S2)
-    return mass_kg, (0.0, 0.0, max(0.0, lever_m - D6_M))
+    return mass_kg, (0.0, 0.0, max(0.0, lever_m - robots.active().dh[5].d_m))
 
 
 def default_context(cfg: Config) -> CheckContext:

@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from rgse_daemon.config import Config
 
 
@@ -31,8 +32,8 @@ class RunSettings:
     warmup_steady_window_s: float = 300.0
     warmup_max_s: float = 2400.0
     g_m_s2: float = kin.G_PAPER_M_S2
-    lever_difference_m: float = kin.D4_M
-    meas_pose_deg: tuple[float, ...] = tuple(float(v) for v in kin.measurement_pose())
+    lever_difference_m: float = field(default_factory=lambda: robots.active().lever_difference_m)
+    meas_pose_deg: tuple[float, ...] = field(default_factory=lambda: tuple(float(v) for v in kin.measurement_pose()))
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> RunSettings:
@@ -55,6 +56,8 @@ class RunSettings:
             warmup_steady_k=ms.warmup_steady_k,
             warmup_steady_window_s=ms.warmup_steady_window_s,
             warmup_max_s=ms.warmup_max_s,
+            lever_difference_m=cfg.robot_model.lever_difference_m,
+            meas_pose_deg=tuple(float(v) for v in kin.measurement_pose(robot=cfg.robot_model)),
         )
         return replace(base, **overrides)
 

@@ -82,6 +82,7 @@ ROBOT = RobotModel(
         adapter_torque_a5_nm=0.60 * 9.81 * 0.20,  # its CoG 0.20 m in front of A5, at g = 9.81
         adapter_rail_section_m=0.030,
         adapter_rail_length_m=0.300,
+        adapter_rail_a5_m=(0.12, 0.30),
         # 8 bodies (6.16 kg) on the adapter: 6.16 × 9.81 × 0.22 + 1.18 = 14.5 Nm ≤ 19.6 Nm; MPA + TA + 8 = 8.3 kg
         torque_levers_a5_m=(0.14, 0.18, 0.22),
         torque_body_count=8,
@@ -89,6 +90,8 @@ ROBOT = RobotModel(
             (2, (0.04, 0.0, 0.10)), (2, (0.0, -0.04, 0.10)), (4, (-0.04, 0.02, 0.13)), (4, (0.02, 0.04, 0.13)),
             (6, (0.04, -0.02, 0.15)), (6, (-0.02, -0.04, 0.16)),
         ),
+        torsional_bracket_m=(0.06, 0.05, 0.20),
+        torsional_body_count_max=6,
         fixture_mass_kg=0.50,
         fixture_thickness_m=0.010,
         fixture_side_m=0.150,

@@ -69,6 +69,7 @@ ROBOT = RobotModel(
         adapter_torque_a5_nm=217.95,  # [P] Table A1, at g = 9.81
         adapter_rail_section_m=0.120,  # assumed (the rail's inertia only)
         adapter_rail_length_m=1.000,
+        adapter_rail_a5_m=(0.60, 1.50),  # [P] Table A1's 0.673..1.475 m with margin
         torque_levers_a5_m=(0.761, 1.011, 1.261),  # [P] Table 1 torque rows
         torque_body_count=10,  # [P] Table 1
         # project choice (issue #14): payload torques of A3..A6 spanning a 100–130 kg DuT in every CoG pose
@@ -76,6 +77,8 @@ ROBOT = RobotModel(
             (2, (0.10, 0.0, 0.30)), (2, (0.0, -0.10, 0.30)), (4, (-0.10, 0.05, 0.40)), (4, (0.05, 0.10, 0.40)),
             (6, (0.10, -0.05, 0.45)), (6, (-0.05, -0.10, 0.50)),
         ),
+        torsional_bracket_m=(0.20, 0.10, 0.60),  # project choice: the rail of Fig. 18 turned across the MPA
+        torsional_body_count_max=6,
         fixture_mass_kg=10.288,  # [P] §2.4.7, the ReFEx fixture
         fixture_thickness_m=0.040,
         fixture_side_m=0.400,  # assumed footprint (its inertia only)

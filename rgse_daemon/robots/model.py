@@ -56,12 +56,18 @@ class CalibrationLoads:
     """The test adapter's own A5 torque in the measurement pose at g = 9.81 m/s² (Table A1)."""
     adapter_rail_section_m: float
     adapter_rail_length_m: float
+    adapter_rail_a5_m: tuple[float, float]
+    """The A5 levers (m) the bodies can be placed at on the test adapter's rail (Table A1: 0.673..1.475 m)."""
     torque_levers_a5_m: tuple[float, ...]
     """Where the bodies' common CoG sits on the test adapter's rail at the torque points."""
     torque_body_count: int
     """Bodies on the test adapter at each torque point (Table 1: 10)."""
     torsional_points: tuple[tuple[int, tuple[float, float, float]], ...]
     """(bodies, their common CoG in the flange frame, m) of the torsional points (issue #14)."""
+    torsional_bracket_m: tuple[float, float, float]
+    """The torsional bracket's reach: (off the flange axis at most, along it from, to), m."""
+    torsional_body_count_max: int
+    """Bodies the torsional bracket carries at most."""
     fixture_mass_kg: float
     """m_f: the DuT fixture between MPA and DuT."""
     fixture_thickness_m: float

@@ -87,6 +87,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from simulators.krc4.motion import MotionSamples
 from simulators.krc4.physics import AsymmetricDut, Payload, RobotModel, TraceTruth
 from simulators.krc4.scenario import Scenario, default_scenario
@@ -156,7 +157,7 @@ def default_friction(scenario: Scenario, scale: float = 1.0) -> tuple[AxisFricti
     for i in range(6):
         ax = scenario.axis(i + 1)
         fc = scale * ax.hysteresis_nm / KAPPA_LOCKED
-        w_max = np.deg2rad(kin.MAX_AXIS_SPEED_DEG_S[i])
+        w_max = np.deg2rad(robots.active().max_axis_speed_deg_s[i])
         out.append(
             AxisFriction(
                 coulomb_nm=fc,
@@ -311,13 +312,13 @@ def _rnea(q_deg: np.ndarray, qd_deg_s: np.ndarray, qdd_deg_s2: np.ndarray, links
           g_m_s2: float) -> np.ndarray:
     """Recursive Newton–Euler (Craig, modified DH), batched over n states; torques (n, 6) in KUKA directions."""
     n = len(q_deg)
-    sign = kin.AXIS_SIGN
-    theta = sign * np.deg2rad(q_deg) + kin.THETA_OFFSET_RAD
+    sign = kin.robot_arrays().axis_sign
+    theta = sign * np.deg2rad(q_deg) + kin.robot_arrays().theta_offset_rad
     th_d = sign * np.deg2rad(qd_deg_s)
     th_dd = sign * np.deg2rad(qdd_deg_s2)
     rots, offsets = [], []
     for i in range(6):
-        alpha, a, d = kin.MDH[i]
+        alpha, a, d = kin.robot_arrays().mdh[i]
         ca, sa = np.cos(alpha), np.sin(alpha)
         ct, st = np.cos(theta[:, i]), np.sin(theta[:, i])
         r = np.zeros((n, 3, 3))  # rotation of frame i in frame i−1

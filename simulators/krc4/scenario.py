@@ -13,8 +13,9 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from rgse_daemon import robots
 from rgse_daemon.errors import ConfigError
 
 DEFAULT_SCENARIO_PATH = Path(__file__).with_name("scenarios") / "default.toml"
@@ -148,6 +149,13 @@ class Scenario(_Model):
     server: ServerBehaviour = ServerBehaviour()
     g_m_s2: float = Field(9.81, ge=9.7, le=9.9)
     """Gravity of the simulated world (the paper uses 9.81; Bremen is 9.8134)."""
+    robot: str = robots.DEFAULT_KEY
+    """The simulated arm (``rgse_daemon/robots/``): its kinematics, ranges, speeds and calibration load set."""
+
+    @field_validator("robot")
+    @classmethod
+    def _known_robot(cls, value: str) -> str:
+        return robots.get(value).key
 
     @model_validator(mode="after")
     def _all_axes(self) -> Scenario:
@@ -195,5 +203,17 @@ def load_scenario(path: Path | str) -> Scenario:
 
 
 def default_scenario() -> Scenario:
-    """The paper-like default (``scenarios/default.toml``)."""
+    """The paper-like default (``scenarios/default.toml``): the KR 500 R2830."""
     return load_scenario(DEFAULT_SCENARIO_PATH)
+
+
+def scenario_for(robot: str) -> Scenario:
+    """The default scenario of the arm ``robot`` (a robot key): ``scenarios/<key>.toml``, or ``default.toml`` for the
+    default robot."""
+    key = robots.get(robot).key
+    if key == robots.DEFAULT_KEY:
+        return default_scenario()
+    scenario = load_scenario(DEFAULT_SCENARIO_PATH.with_name(f"{key}.toml"))
+    if scenario.robot != key:
+        raise ConfigError(f"scenarios/{key}.toml simulates {scenario.robot}, not {key}")
+    return scenario
