@@ -318,10 +318,6 @@ class MotionSamples:
     t_since_stop_s: np.ndarray  # (n,) time since the last motion came to rest; NaN if none did before
     approach: np.ndarray  # (n, 6) sign of each axis' travel in the last motion that moved it; 0 if none
 
-    @property
-    def any_motion(self) -> bool:
-        return bool(self.moving.any() or np.any(np.isfinite(self.t_since_stop_s)))
-
 
 class MotionHistory:
     """The motions the robot made, as planned, in the simulator's clock: the axes, speeds and accelerations at any
