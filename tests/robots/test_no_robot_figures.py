@@ -5,7 +5,8 @@ support is compared with the figures of every robot file (DH lengths, axis range
 load diagram, the calibration load set); docstrings are prose and not scanned. A figure too common to be a robot's
 (0.1 m, 0.5 kg ...) is left out by name below, so that a new robot's distinctive numbers are caught without editing
 this test; whole numbers (angles, speeds) are too common alone and are caught as tables: any six-number literal equal
-to a robot's pose or speed table, and any six pairs equal to its axis ranges.
+to a robot's pose or speed table, any six pairs equal to its axis ranges, and its nested tables (torsional points,
+torque levers, CoG poses).
 """
 
 from __future__ import annotations
@@ -56,6 +57,21 @@ def six_tuples() -> set[tuple[float, ...]]:
     return out
 
 
+def nested_tables() -> list[object]:
+    """Tables of several levels (the torsional points, the torque levers, the CoG poses) as Python values."""
+    out: list[object] = []
+    for r in robots.ROBOTS.values():
+        c = r.calibration
+        out += [c.torsional_points, c.torque_levers_a5_m, r.calibration_poses_deg, r.axis_range_deg]
+    return out
+
+
+def _same(a: object, b: object) -> bool:
+    if isinstance(a, tuple | list) and isinstance(b, tuple | list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    return isinstance(a, int | float) and isinstance(b, int | float) and float(a) == float(b)
+
+
 def _docstrings(tree: ast.AST) -> set[int]:
     out = set()
     for node in ast.walk(tree):
@@ -95,6 +111,14 @@ def scan(directories: list[Path], figures: set[float], tuples: set[tuple[float, 
                     v = _literal(node)
                     if v is not None and round(abs(v), 9) in figures:
                         found.append(f"{where}:{node.lineno}: {node.value!r}")
+                if isinstance(node, ast.Tuple | ast.List) and len(node.elts) >= 3:
+                    try:
+                        value = ast.literal_eval(node)
+                    except ValueError:
+                        value = None
+                    if value is not None and any(_same(value, t) for t in nested_tables()):
+                        found.append(f"{where}:{node.lineno}: the table literal {value}")
+                        continue
                 if isinstance(node, ast.Tuple | ast.List) and len(node.elts) == 6:
                     elts = node.elts
                     if all(isinstance(e, ast.Tuple | ast.List) and len(e.elts) == 2 for e in elts):
@@ -114,7 +138,9 @@ def test_the_scan_finds_a_planted_figure(tmp_path: Path) -> None:
     # the check itself: the KR 500's d1, its A5 torque limit and its home pose planted in a module; prose is not code
     (tmp_path / "pkg").mkdir()
     (tmp_path / "pkg" / "planted.py").write_text(
-        '"""Docstring: d4 = 1.025 m is prose."""\nD1 = 1.045\nCAP = -3330\nHOME = (0, -90, 90, 0, 0, 0)\n',
+        '"""Docstring: d4 = 1.025 m is prose."""\nD1 = 1.045\nCAP = -3330\nHOME = (0, -90, 90, 0, 0, 0)\n'
+        "LEVERS = (0.761, 1.011, 1.261)\n",
         encoding="utf-8")
     found = sorted(line.split(": ", 1)[1] for line in scan([tmp_path / "pkg"], robot_figures(), six_tuples()))
-    assert found == ["1.045", "3330", "the table literal (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)"]
+    assert found == sorted(["1.045", "3330", "the table literal (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)",
+                            "0.761", "1.011", "1.261", "the table literal (0.761, 1.011, 1.261)"])
