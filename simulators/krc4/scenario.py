@@ -72,6 +72,17 @@ class ArmModel(_Model):
             (6, 8.0, (0.0, 0.0, -0.02)),
         ]
     )
+    link_inertia_kgm2: dict[int, tuple[float, float, float]] = Field(default_factory=lambda: {
+        1: (80.0, 100.0, 90.0), 2: (8.0, 60.0, 60.0), 3: (15.0, 17.0, 15.0), 4: (10.7, 10.7, 1.4),
+        5: (1.2, 1.2, 1.0), 6: (0.046, 0.046, 0.09)})
+    """Inertia of each link about its CoG in its DH frame (kg·m², principal moments along the frame's axes; the
+    dynamics only). Default the KR 500's: link 2 the 1.3 m upper arm along its x, link 4 the wrist tube along z."""
+    column_mass_kg: float = Field(900.0, ge=0.0, le=5000.0)
+    """The rotating column (link 1): mass (kg), on the A1 axis' side, no gravity torque (the dynamics only)."""
+    column_cog_m: tuple[float, float, float] = (0.15, 0.0, -0.35)
+    motor_inertia_kgm2: tuple[float, float, float, float, float, float] = (0.006, 0.006, 0.004, 0.0006, 0.0006,
+                                                                           0.0004)
+    """Rotor (plus first gear stage) inertia of each axis' motor, motor side (kg·m²); reflected as J · N²."""
     bias_measurement_pose_nm: dict[str, float] = Field(default_factory=dict)
     """Reading (Nm, noise-free, cold) of the bare arm in the measurement pose, per axis key. For the keys given, a
     constant residual (bearings, gears, the controller's own model: eq. 17–18's M0) is added so that the reading

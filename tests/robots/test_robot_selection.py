@@ -82,3 +82,24 @@ def test_the_simulated_controller_is_the_scenario_s_robot(tmp_path: Path, robot:
     else:
         with pytest.raises(MotionError, match="A3 target 150"):
             check_limits(q)
+
+
+def test_the_simulated_dynamics_are_the_robot_s_and_reduce_to_its_statics_at_rest(robot: RobotModel) -> None:
+    from simulators.krc4.dynamics import RobotDynamics
+    from simulators.krc4.physics import RobotModel as SimArm
+    from simulators.krc4.physics import mass_calibration_payload
+    from simulators.krc4.scenario import scenario_for
+
+    robots.activate(robot)
+    scenario = scenario_for(robot.key)
+    dyn, arm = RobotDynamics(scenario), SimArm(scenario)
+    payload = mass_calibration_payload(3)
+    q = kin.measurement_pose()
+    at_rest = dyn.torques_nm(q, [0.0] * 6, [0.0] * 6, payload, armature=False)
+    statics = arm.arm_torques_nm(q) + kin.gravity_torques_nm(q, [(payload.mass_kg, payload.cog_flange_m)],
+                                                             scenario.g_m_s2)
+    assert at_rest == pytest.approx(statics, abs=1e-6 * max(1.0, float(abs(statics).max())))
+    # accelerating A1 at 100 deg/s² takes a torque of the arm's size: the KR 10's is 50-200 times smaller
+    inertial = dyn.torques_nm(q, [0.0] * 6, [100.0, 0, 0, 0, 0, 0], None, gravity=False)[0]
+    expected = {"kr500r2830": (1000.0, 10000.0), "kr10r1440": (5.0, 100.0)}[robot.key]
+    assert expected[0] < abs(inertial) < expected[1], inertial
