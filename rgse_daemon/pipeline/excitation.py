@@ -40,6 +40,12 @@ from rgse_daemon.pipeline import inertia as inr
 #: Time (s) to reach full axis speed at 100 % $ACC_AXIS (planning assumption, see the module docstring).
 NOMINAL_RAMP_TIME_S = 0.5
 NOMINAL_MAX_ACCEL_DEG_S2 = tuple(v / NOMINAL_RAMP_TIME_S for v in kin.MAX_AXIS_SPEED_DEG_S)
+
+
+def nominal_max_accel_deg_s2() -> tuple[float, ...]:
+    """The active robot's axis accelerations at 100 % (deg/s²); ``NOMINAL_MAX_ACCEL_DEG_S2`` is the default
+    robot's (an alias)."""
+    return tuple(v / NOMINAL_RAMP_TIME_S for v in kin.robot_arrays().max_axis_speed_deg_s)
 #: Fraction of the T1 limit the swings aim for (the interlock's bound is conservative already; rounding margin).
 SPEED_HEADROOM = 0.95
 #: Wrist orientations per program and swings of each axis per orientation.
@@ -100,7 +106,7 @@ def _plan(q0: np.ndarray, q1: np.ndarray, vel_pct: Sequence[float], acc_pct: Seq
     if dist == 0:
         return q0[None, :], np.zeros((1, 6)), np.zeros((1, 6)), 0.0
     vmax = np.array(vel_pct) / 100.0 * np.array(kin.robot_arrays().max_axis_speed_deg_s)
-    amax = np.array(acc_pct) / 100.0 * np.array(NOMINAL_MAX_ACCEL_DEG_S2)
+    amax = np.array(acc_pct) / 100.0 * np.array(nominal_max_accel_deg_s2())
     moving = np.abs(dq) > 0
     v = float(np.min(vmax[moving] / np.abs(dq[moving])))  # path parameter s in 0..1
     a = float(np.min(amax[moving] / np.abs(dq[moving])))
@@ -173,8 +179,9 @@ def _swing(centre: np.ndarray, ax: int, payload: Payload, limit_mm_s: float, acc
     w_deg_s = math.degrees(SPEED_HEADROOM * limit_mm_s / 1000.0 / lever)
     pct = _round_down(min(100.0, 100.0 * w_deg_s / kin.robot_arrays().max_axis_speed_deg_s[j]))
     v = pct / 100.0 * kin.robot_arrays().max_axis_speed_deg_s[j]
-    acc_pct = _round_down(min(acc_cap_pct, 100.0 * v / (MIN_RAMP_S * NOMINAL_MAX_ACCEL_DEG_S2[j])))
-    a = acc_pct / 100.0 * NOMINAL_MAX_ACCEL_DEG_S2[j]
+    a_max = nominal_max_accel_deg_s2()[j]
+    acc_pct = _round_down(min(acc_cap_pct, 100.0 * v / (MIN_RAMP_S * a_max)))
+    a = acc_pct / 100.0 * a_max
     amp = max(2.0, min(MAX_AMPLITUDE_DEG, 0.5 * (v * v / a + v * PLATEAU_S), centre[j] - lo, hi - centre[j]))
     amp = math.ceil(amp * 100.0) / 100.0  # targets with two decimals: what the program says is what is checked
     up, down = centre.copy(), centre.copy()
