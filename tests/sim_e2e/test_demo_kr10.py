@@ -11,8 +11,9 @@ import sys
 
 import pytest
 
-#: About six minutes on a loaded 2-core machine (the campaign's 16 points with the torsional ones); a hang guard.
-DEMO_TIMEOUT_S = 720
+#: About six minutes on a 2-core machine (the campaign's 16 points with the torsional ones), 11.4 min measured while
+#: seven other test runs shared it; a hang guard, not a timing check.
+DEMO_TIMEOUT_S = 900
 
 
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 20)
