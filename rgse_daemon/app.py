@@ -41,7 +41,7 @@ import logging
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from rgse_daemon import __version__
+from rgse_daemon import __version__, robots
 from rgse_daemon import kinematics as kin
 from rgse_daemon.config import Config
 from rgse_daemon.controller import Controller
@@ -54,7 +54,7 @@ from rgse_daemon.io.commands import (
     MeasureCommand,
     PropertiesCommand,
 )
-from rgse_daemon.procedures.calibration import CB_MASS_KG, TA_MASS_KG, TA_TORQUE_A5_NM, CampaignPoint, run_calibration
+from rgse_daemon.procedures.calibration import CampaignPoint, run_calibration
 from rgse_daemon.procedures.documents import Document, Result
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
@@ -95,16 +95,18 @@ def campaign_point(p: CalibrationPoint, g_m_s2: float = kin.G_PAPER_M_S2) -> Cam
         if p.mass_kg != 0.0:
             raise RgseError(f"zero point with mass {p.mass_kg:g} kg: the zero point is the empty MPA (0 kg)")
         return CampaignPoint("zero", 0.0, p.lever_a3_m, p.lever_a5_m, 0)
-    bodies_kg = p.mass_kg - (TA_MASS_KG if p.kind == "torque" else 0.0)
-    n_cb = round(bodies_kg / CB_MASS_KG)
-    if n_cb < 1 or abs(n_cb * CB_MASS_KG - bodies_kg) > BODY_MASS_TOLERANCE_KG:
+    loads = robots.active().calibration  # the configured robot's load set
+    cb_kg, ta_kg = loads.body_mass_kg, loads.adapter_mass_kg
+    bodies_kg = p.mass_kg - (ta_kg if p.kind == "torque" else 0.0)
+    n_cb = round(bodies_kg / cb_kg)
+    if n_cb < 1 or abs(n_cb * cb_kg - bodies_kg) > BODY_MASS_TOLERANCE_KG:
         what = "test adapter + " if p.kind == "torque" else ""
         raise RgseError(f"{p.kind} point with mass {p.mass_kg:g} kg: not {what}a whole number of calibration bodies "
-                        f"({CB_MASS_KG:g} kg each)")
+                        f"({cb_kg:g} kg each)")
     if p.kind == "mass":
         return CampaignPoint("mass", p.mass_kg, p.lever_a3_m, p.lever_a5_m, n_cb)
-    ta_lever_a5_m = TA_TORQUE_A5_NM / (g_m_s2 * TA_MASS_KG)
-    cb_lever_a5_m = (p.mass_kg * p.lever_a5_m - TA_MASS_KG * ta_lever_a5_m) / (CB_MASS_KG * n_cb)
+    ta_lever_a5_m = loads.adapter_torque_a5_nm / (g_m_s2 * ta_kg)
+    cb_lever_a5_m = (p.mass_kg * p.lever_a5_m - ta_kg * ta_lever_a5_m) / (cb_kg * n_cb)
     return CampaignPoint("torque", p.mass_kg, p.lever_a3_m, p.lever_a5_m, n_cb, cb_lever_a5_m)
 
 
@@ -125,6 +127,8 @@ class Daemon:
     ) -> None:
         self.cfg = cfg
         self.robot = cfg.robot.name
+        # the configured arm is the one the kinematics, the renderer and the interlock use from here on
+        robots.activate(cfg.robot_model)
         self.notifier = notifier or Notifier()
         self._on_event = on_event
         self.store: Store | None = None

@@ -95,6 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the properties run also measures the inertia tensor (DuT and tare excitation)")
     p.add_argument("--seed", type=int, default=2024, metavar="N",
                    help="the simulated robot's seed (gains, offsets, noise; default 2024)")
+    p.add_argument("--robot", default="kr500r2830", metavar="MODEL",
+                   help="the simulated arm: kr500r2830 (default, the paper's) or kr10r1440 (its subscale bench)")
 
     p = sub.add_parser("sim", help="run the simulated KR C4 as a server until SIGINT/SIGTERM")
     p.add_argument("--host", default="127.0.0.1")

@@ -30,7 +30,9 @@ from pydantic import (
 from pydantic.fields import FieldInfo
 from pydantic_settings import BaseSettings, PydanticBaseSettingsSource, SettingsConfigDict, SettingsError
 
+from rgse_daemon import robots
 from rgse_daemon.errors import ConfigError
+from rgse_daemon.robots import RobotModel
 
 #: ISO 10218-1 reduced speed that the controller itself enforces in T1 (docs/controller.md §2).
 T1_CONTROLLER_LIMIT_MM_S = 250.0
@@ -182,9 +184,21 @@ class Protocol(StrEnum):
     KVP = "kvp"
 
 
+def _default_robot() -> RobotModel:
+    return robots.get(robots.DEFAULT_KEY)
+
+
 class RobotConfig(_Section):
     name: str = Field("KR500R2830", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.\-]+$")
     """Robot identity: copied into results, names the MQTT topics, binds calibrations to this robot."""
+    model: str = Field(robots.DEFAULT_KEY, min_length=1, max_length=64)
+    """Which arm it is (``rgse_daemon/robots/``): its kinematics, axis ranges and speeds, poses, load diagram and
+    calibration load set. The limits' defaults and upper bounds are this robot's."""
+
+    @field_validator("model")
+    @classmethod
+    def _known_model(cls, value: str) -> str:
+        return robots.get(value).key
 
 
 class ControllerConfig(_Section):
@@ -232,10 +246,12 @@ class PathsConfig(_Section):
 class LimitsConfig(_Section):
     t1_speed_mm_s: float = Field(200.0, gt=0.0, le=T1_CONTROLLER_LIMIT_MM_S)
     """Worst-case Cartesian speed of any point of the kinematic chain (paper §2.2: 200 mm/s)."""
-    a1_range_deg: float = Field(45.0, gt=0.0, le=185.0)
-    """Software envelope around A1 (paper §2.2: ±45°)."""
-    max_payload_kg: float = Field(611.0, gt=0.0, le=611.0)
-    max_a5_torque_nm: float = Field(3330.0, gt=0.0, le=3330.0)
+    a1_range_deg: float = Field(default_factory=lambda: _default_robot().a1_envelope_deg, gt=0.0)
+    """Software envelope around A1 (paper §2.2: ±45°); default the robot's, at most its A1 range."""
+    max_payload_kg: float = Field(default_factory=lambda: _default_robot().max_payload_kg, gt=0.0)
+    """Default and upper bound: the robot's load diagram (KR 500: 611 kg)."""
+    max_a5_torque_nm: float = Field(default_factory=lambda: _default_robot().max_a5_torque_nm, gt=0.0)
+    """Default and upper bound: the robot's load diagram (KR 500: 3330 Nm)."""
     brake_release_max_deg: float = Field(45.0, gt=0.0, le=90.0)
     snapshot_stale_s: float = Field(0.1, ge=0.05, le=1.0)
     """The runtime monitor polls at 20 Hz; a snapshot older than this (link lost or slow) trips the interlock."""
@@ -293,9 +309,9 @@ class MeasurementConfig(_Section):
     """Warm-up motion time over which the temperatures must stay within ``warmup_steady_k``."""
     warmup_max_s: float = Field(2400.0, gt=0.0, le=14_400.0)
     """Give up waiting for a steady state after this much warm-up motion; the run goes on with a warning."""
-    fixture_mass_kg: float = Field(0.0, ge=0.0, le=611.0)
+    fixture_mass_kg: float = Field(0.0, ge=0.0)
     """m_f: mass of the DuT fixture, subtracted from the gross mass (eq. 21)."""
-    payload_lever_max_m: float = Field(1.5, gt=0.0, le=3.0)
+    payload_lever_max_m: float = Field(default_factory=lambda: _default_robot().payload_lever_max_m, gt=0.0, le=3.0)
     """Farthest point of fixture + DuT from the flange: sets the worst-case Cartesian speed."""
     program_timeout_s: Seconds = 600.0
     trace_timeout_s: Seconds = 120.0
@@ -469,6 +485,54 @@ class Config(BaseSettings):
     """The Modbus TCP safety I/O module; absent: no area-cleared input, so AUT is never allowed."""
     scale: ScaleConfig | None = None
     """The reference crane scale on a serial line; absent: `rgse reference` is unavailable."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _robot_defaults(cls, data: Any) -> Any:
+        # the limits' defaults are the configured robot's (a KR 10 must not inherit the KR 500's 611 kg)
+        if not isinstance(data, dict):
+            return data
+        robot_section = data.get("robot")
+        key = robot_section.get("model") if isinstance(robot_section, dict) else None
+        if not isinstance(key, str):
+            return data
+        try:
+            robot = robots.get(key)
+        except ValueError:
+            return data  # RobotConfig names the unknown model
+        data = dict(data)
+        for section, defaults in (
+            ("limits", {"a1_range_deg": robot.a1_envelope_deg, "max_payload_kg": robot.max_payload_kg,
+                        "max_a5_torque_nm": robot.max_a5_torque_nm}),
+            ("measurement", {"payload_lever_max_m": robot.payload_lever_max_m}),
+        ):
+            given = data.get(section, {})
+            if isinstance(given, dict):
+                data[section] = {**defaults, **given}
+        return data
+
+    @property
+    def robot_model(self) -> RobotModel:
+        """The configured arm (``[robot] model``)."""
+        return robots.get(self.robot.model)
+
+    @model_validator(mode="after")
+    def _limits_within_the_robot(self) -> Config:
+        r, lim = self.robot_model, self.limits
+        problems = []
+        a1_max = min(-r.axis_range_deg[0][0], r.axis_range_deg[0][1])
+        if lim.a1_range_deg > a1_max:
+            problems.append(f"limits.a1_range_deg = {lim.a1_range_deg:g} exceeds the {r.title}'s A1 range "
+                            f"±{a1_max:g} deg")
+        if lim.max_payload_kg > r.max_payload_kg:
+            problems.append(f"limits.max_payload_kg = {lim.max_payload_kg:g} exceeds the {r.title}'s load diagram "
+                            f"({r.max_payload_kg:g} kg)")
+        if lim.max_a5_torque_nm > r.max_a5_torque_nm:
+            problems.append(f"limits.max_a5_torque_nm = {lim.max_a5_torque_nm:g} exceeds the {r.title}'s load "
+                            f"diagram ({r.max_a5_torque_nm:g} Nm)")
+        if problems:
+            raise ValueError("; ".join(problems))
+        return self
 
     @model_validator(mode="after")
     def _properties_fixture(self) -> Config:
@@ -676,7 +740,16 @@ def config_from_mapping(data: dict[str, Any], source: str = "<config>") -> Confi
 
 
 def load_config(path: Path | str | None) -> Config:
-    """Read and validate a TOML config file; ``None`` gives the defaults (plus environment overrides)."""
+    """Read and validate a TOML config file; ``None`` gives the defaults (plus environment overrides).
+
+    The process's configuration: its ``[robot] model`` becomes the active robot (:func:`rgse_daemon.robots.activate`),
+    the one the kinematics, the renderer and the interlock use by default."""
+    cfg = _load_config(path)
+    robots.activate(cfg.robot_model)
+    return cfg
+
+
+def _load_config(path: Path | str | None) -> Config:
     if path is None:
         return config_from_mapping({}, "<defaults>")
     p = Path(path)

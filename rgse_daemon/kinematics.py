@@ -1,4 +1,7 @@
-"""Kinematics and static gravity torques of the KUKA KR 500 R2830 (pure numpy).
+"""Kinematics and static gravity torques of a KUKA six-axis arm (pure numpy), by default the active robot.
+
+The robot's figures live in :mod:`rgse_daemon.robots`; every function takes ``robot=`` (default: the active one,
+:func:`rgse_daemon.robots.active`). The docstring's figures below are those of the KR 500 R2830.
 
 Used by the interlock (worst-case Cartesian speed of any point of the chain during a PTP motion), by the simulated
 KR C4 (pose, gravity torques) and by the CoG estimator (gravity regressor).
@@ -40,43 +43,86 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# --- geometry (docs/controller.md §1) -------------------------------------------------------------------------------
-D1_M = 1.045
-A1_M = 0.500
-A2_M = 1.300
-A3_M = 0.055
-D4_M = 1.025
-D6_M = 0.290
+from rgse_daemon import robots
+from rgse_daemon.robots import RobotModel
 
-#: Modified DH rows: (alpha_{i-1} rad, a_{i-1} m, d_i m).
-MDH = np.array(
-    [
-        [0.0, 0.0, D1_M],
-        [-np.pi / 2, A1_M, 0.0],
-        [0.0, A2_M, 0.0],
-        [np.pi / 2, A3_M, D4_M],
-        [-np.pi / 2, 0.0, 0.0],
-        [np.pi / 2, 0.0, D6_M],
-    ]
-)
-#: theta_i = AXIS_SIGN[i] * A_i + THETA_OFFSET_RAD[i]
-AXIS_SIGN = np.array([-1.0, 1.0, 1.0, -1.0, 1.0, -1.0])
-THETA_OFFSET_RAD = np.array([0.0, 0.0, np.pi / 2, 0.0, 0.0, 0.0])
+# --- the default robot's figures as module names (aliases: the figures live in rgse_daemon/robots/) ---------------
+# Kept for the modules that still import them; they are the *default* robot's (KR 500 R2830), not the active one's.
+# Code that must work for any robot passes ``robot=`` or uses robot_arrays(); these go once nothing imports them.
+_DEFAULT = robots.get(robots.DEFAULT_KEY)
+D1_M = _DEFAULT.dh[0].d_m
+A1_M = _DEFAULT.dh[1].a_m
+A2_M = _DEFAULT.dh[2].a_m
+A3_M = _DEFAULT.dh[3].a_m
+D4_M = _DEFAULT.dh[3].d_m
+D6_M = _DEFAULT.dh[5].d_m
 
-#: Software axis ranges (deg), docs/controller.md §1 (approximate, secondary source).
-JOINT_LIMITS_DEG = np.array(
-    [[-185.0, 185.0], [-130.0, 20.0], [-100.0, 144.0], [-350.0, 350.0], [-120.0, 120.0], [-350.0, 350.0]]
-)
 
-#: Maximum axis speeds of the KR 500 R2830 (deg/s), A1..A6, approximately as in KUKA's data sheet: the interlock's
-#: worst-case speed bound and the simulator's motion planner both use this one table.
-MAX_AXIS_SPEED_DEG_S: tuple[float, ...] = (80.0, 75.0, 70.0, 90.0, 80.0, 122.0)
+@dataclass(frozen=True, eq=False)
+class RobotArrays:
+    """A robot's figures as the numpy arrays the arithmetic below uses."""
 
-#: The paper's g (eq. 4, 14, 17, 18); local g in Bremen is 9.8134 m/s² (docs/controller.md §7).
+    mdh: np.ndarray
+    """Modified DH rows: (alpha_{i-1} rad, a_{i-1} m, d_i m)."""
+    axis_sign: np.ndarray
+    """theta_i = axis_sign[i] * A_i + theta_offset_rad[i]"""
+    theta_offset_rad: np.ndarray
+    joint_limits_deg: np.ndarray
+    """Software axis ranges (deg), shape (6, 2)."""
+    max_axis_speed_deg_s: tuple[float, ...]
+    home_deg: np.ndarray
+    candle_deg: np.ndarray
+    d6_m: float
+    """Flange distance from the wrist centre (m)."""
+
+
+def robot_arrays(robot: RobotModel | None = None) -> RobotArrays:
+    """The arrays of ``robot`` (default: the active robot, :func:`rgse_daemon.robots.active`)."""
+    return _arrays_of(robots.active() if robot is None else robot)
+
+
+_ARRAYS: dict[int, tuple[RobotModel, RobotArrays]] = {}
+
+
+def _arrays_of(r: RobotModel) -> RobotArrays:
+    # keyed by identity (hashing a model's nested tuples on every call of the inner loops would cost more)
+    hit = _ARRAYS.get(id(r))
+    if hit is not None and hit[0] is r:
+        return hit[1]
+    arrays = _build_arrays(r)
+    _ARRAYS[id(r)] = (r, arrays)
+    return arrays
+
+
+def _build_arrays(r: RobotModel) -> RobotArrays:
+    return RobotArrays(
+        mdh=np.array([[np.deg2rad(row.alpha_deg), row.a_m, row.d_m] for row in r.dh]),
+        axis_sign=np.array(r.axis_sign, dtype=float),
+        theta_offset_rad=np.deg2rad(np.array(r.theta_offset_deg, dtype=float)),
+        joint_limits_deg=np.array(r.axis_range_deg, dtype=float),
+        max_axis_speed_deg_s=tuple(float(v) for v in r.max_axis_speed_deg_s),
+        home_deg=np.array(r.home_deg, dtype=float),
+        candle_deg=np.array(r.candle_deg, dtype=float),
+        d6_m=r.dh[5].d_m,
+    )
+
+
+def _arr(robot: RobotModel | None) -> RobotArrays:
+    return _arrays_of(robots.active() if robot is None else robot)
+
+
+_DEFAULT_ARRAYS = robot_arrays(_DEFAULT)
+MDH = _DEFAULT_ARRAYS.mdh
+AXIS_SIGN = _DEFAULT_ARRAYS.axis_sign
+THETA_OFFSET_RAD = _DEFAULT_ARRAYS.theta_offset_rad
+JOINT_LIMITS_DEG = _DEFAULT_ARRAYS.joint_limits_deg
+MAX_AXIS_SPEED_DEG_S: tuple[float, ...] = _DEFAULT_ARRAYS.max_axis_speed_deg_s
+HOME_DEG = _DEFAULT_ARRAYS.home_deg
+CANDLE_DEG = _DEFAULT_ARRAYS.candle_deg
+
+#: The paper's g (eq. 4, 14, 17, 18); local g in Bremen is 9.8134 m/s² (docs/controller.md §7). A site's figure,
+#: not a robot's.
 G_PAPER_M_S2 = 9.81
-
-HOME_DEG = np.array([0.0, -90.0, 90.0, 0.0, 0.0, 0.0])
-CANDLE_DEG = np.array([0.0, -90.0, 0.0, 0.0, 0.0, 0.0])
 
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -102,39 +148,44 @@ def _mdh(alpha: float, a: float, theta: float, d: float) -> np.ndarray:
     )
 
 
-def joint_frames(q_deg: Sequence[float] | np.ndarray) -> np.ndarray:
+def joint_frames(q_deg: Sequence[float] | np.ndarray, robot: RobotModel | None = None) -> np.ndarray:
     """Homogeneous transforms base → frame i for i = 1..6, shape (6, 4, 4), translations in m.
 
     Frame i's origin lies on axis Ai (frames 4 and 5 at the wrist centre, frame 6 at the flange) and its z axis is
     ``AXIS_SIGN[i]`` times the KUKA-positive direction of Ai.
     """
     q = _as_q(q_deg)
-    theta = AXIS_SIGN * np.deg2rad(q) + THETA_OFFSET_RAD
+    arr = _arr(robot)
+    theta = arr.axis_sign * np.deg2rad(q) + arr.theta_offset_rad
     frames = np.empty((6, 4, 4))
     t = np.eye(4)
     for i in range(6):
-        alpha, a, d = MDH[i]
+        alpha, a, d = arr.mdh[i]
         t = t @ _mdh(alpha, a, theta[i], d)
         frames[i] = t
     return frames
 
 
-def flange_frame(q_deg: Sequence[float] | np.ndarray) -> np.ndarray:
+def flange_frame(q_deg: Sequence[float] | np.ndarray, robot: RobotModel | None = None) -> np.ndarray:
     """Base → $FLANGE transform (4×4, m)."""
-    return joint_frames(q_deg)[5]
+    return joint_frames(q_deg, robot)[5]
 
 
-def axis_lines(q_deg: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def axis_lines(
+    q_deg: Sequence[float] | np.ndarray, robot: RobotModel | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Points on and KUKA-positive unit directions of the six axes in the base frame: (origins_m (6,3), dirs (6,3))."""
-    frames = joint_frames(q_deg)
-    return frames[:, :3, 3].copy(), frames[:, :3, 2] * AXIS_SIGN[:, None]
+    frames = joint_frames(q_deg, robot)
+    return frames[:, :3, 3].copy(), frames[:, :3, 2] * _arr(robot).axis_sign[:, None]
 
 
 def flange_point_m(
-    q_deg: Sequence[float] | np.ndarray, point_flange_m: Sequence[float] = (0.0, 0.0, 0.0)
+    q_deg: Sequence[float] | np.ndarray,
+    point_flange_m: Sequence[float] = (0.0, 0.0, 0.0),
+    robot: RobotModel | None = None,
 ) -> np.ndarray:
     """Base-frame position (m) of a point given in the flange frame (m)."""
-    f = flange_frame(q_deg)
+    f = flange_frame(q_deg, robot)
     return f[:3, :3] @ np.asarray(point_flange_m, dtype=float) + f[:3, 3]
 
 
@@ -151,41 +202,53 @@ def kuka_abc_deg(rotation: np.ndarray) -> np.ndarray:
     return np.rad2deg(np.array([a, b, c]))
 
 
-def flange_pose_xyzabc(q_deg: Sequence[float] | np.ndarray) -> np.ndarray:
+def flange_pose_xyzabc(q_deg: Sequence[float] | np.ndarray, robot: RobotModel | None = None) -> np.ndarray:
     """$POS_ACT-style flange pose: X, Y, Z in mm and A, B, C in deg (no tool, $ROBROOT base)."""
-    f = flange_frame(q_deg)
+    f = flange_frame(q_deg, robot)
     return np.concatenate([f[:3, 3] * 1000.0, kuka_abc_deg(f[:3, :3])])
 
 
-def within_limits(q_deg: Sequence[float] | np.ndarray, limits_deg: np.ndarray = JOINT_LIMITS_DEG) -> bool:
-    """True if every axis angle lies inside its software range."""
+def within_limits(
+    q_deg: Sequence[float] | np.ndarray, limits_deg: np.ndarray | None = None, robot: RobotModel | None = None
+) -> bool:
+    """True if every axis angle lies inside its software range (``limits_deg`` default: the robot's)."""
     q = _as_q(q_deg)
+    if limits_deg is None:
+        limits_deg = _arr(robot).joint_limits_deg
     return bool(np.all(q >= limits_deg[:, 0]) and np.all(q <= limits_deg[:, 1]))
 
 
-def measurement_pose(a2_deg: float = -90.0, a1_deg: float = 0.0) -> np.ndarray:
+def measurement_pose(
+    a2_deg: float | None = None, a1_deg: float = 0.0, robot: RobotModel | None = None
+) -> np.ndarray:
     """The paper's mass measurement pose (Fig. 19/21), A1..A6 in deg.
 
     Forearm horizontal (A3 = −A2), A4 = 0 so that the A5 axis is parallel to A3, flange horizontal (A5 = 0) so that a
     stack of plates grows horizontally. The A3 → A5 vector is then (d4, 0, −a3): the horizontal lever of *any* flange
-    load to A3 exceeds its lever to A5 by exactly d4 = 1.025 m, hence M_A3 − M_A5 = g·m·d4 (eq. 3–4) whatever the CoG.
+    load to A3 exceeds its lever to A5 by exactly d4 (1.025 m on the KR 500), hence M_A3 − M_A5 = g·m·d4 (eq. 3–4)
+    whatever the CoG. ``a2_deg`` default: the robot's ``measurement_a2_deg``.
     """
+    r = robots.active() if robot is None else robot
+    if a2_deg is None:
+        a2_deg = r.measurement_a2_deg
     q = np.array([a1_deg, a2_deg, -a2_deg, 0.0, 0.0, 0.0])
-    if not within_limits(q):
+    if not within_limits(q, robot=r):
         raise ValueError(f"measurement pose {q.tolist()} is outside the axis ranges")
     return q
 
 
 # --- speeds ----------------------------------------------------------------------------------------------------------
 def point_jacobian(
-    q_deg: Sequence[float] | np.ndarray, point_flange_m: Sequence[float] = (0.0, 0.0, 0.0)
+    q_deg: Sequence[float] | np.ndarray,
+    point_flange_m: Sequence[float] = (0.0, 0.0, 0.0),
+    robot: RobotModel | None = None,
 ) -> np.ndarray:
     """Linear velocity Jacobian (3×6) of a point rigidly attached to the flange: v [m/s] = J · q̇ [rad/s].
 
     Column i is u_i × (p − o_i) with u_i the KUKA-positive axis direction and o_i a point on axis Ai.
     """
-    origins, dirs = axis_lines(q_deg)
-    p = flange_point_m(q_deg, point_flange_m)
+    origins, dirs = axis_lines(q_deg, robot)
+    p = flange_point_m(q_deg, point_flange_m, robot)
     return np.cross(dirs, p - origins).T
 
 
@@ -193,19 +256,22 @@ def point_velocity_mm_s(
     q_deg: Sequence[float] | np.ndarray,
     qdot_deg_s: Sequence[float] | np.ndarray,
     point_flange_m: Sequence[float] = (0.0, 0.0, 0.0),
+    robot: RobotModel | None = None,
 ) -> np.ndarray:
     """Cartesian velocity (mm/s, base frame) of a flange-fixed point for joint speeds ``qdot_deg_s`` (deg/s)."""
     qdot = np.deg2rad(np.asarray(qdot_deg_s, dtype=float))
-    return point_jacobian(q_deg, point_flange_m) @ qdot * 1000.0
+    return point_jacobian(q_deg, point_flange_m, robot) @ qdot * 1000.0
 
 
-def _chain_points_base(q_deg: np.ndarray, points_flange_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _chain_points_base(
+    q_deg: np.ndarray, points_flange_m: np.ndarray, robot: RobotModel | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Base positions of the tracked points and, per point, the index of the last axis that moves it.
 
     Tracked: the A3 axis point (elbow, moved by A1, A2), the wrist centre (moved by A1..A3), the flange origin and
     every given flange-fixed point (moved by A1..A6).
     """
-    frames = joint_frames(q_deg)
+    frames = joint_frames(q_deg, robot)
     pts = [frames[2, :3, 3], frames[4, :3, 3], frames[5, :3, 3]]
     last = [2, 3, 6]
     for p in points_flange_m:
@@ -234,6 +300,7 @@ def path_speeds(
     q_path_deg: np.ndarray,
     qdot_path_deg_s: np.ndarray,
     points_flange_m: Iterable[Sequence[float]] = (),
+    robot: RobotModel | None = None,
 ) -> PathSpeed:
     """Worst-case Cartesian speed along a sampled joint path.
 
@@ -255,8 +322,8 @@ def path_speeds(
     radius_sums = []
     r_max = 0.0
     for q, wk in zip(q_path, w, strict=True):
-        origins, dirs = axis_lines(q)
-        pts, last = _chain_points_base(q, pts_f)
+        origins, dirs = axis_lines(q, robot)
+        pts, last = _chain_points_base(q, pts_f, robot)
         rel = pts[:, None, :] - origins[None, :, :]  # (P, 6, 3)
         moving = np.arange(6)[None, :] < last[:, None]  # axis i moves point p only if i is proximal to it
         vel = np.einsum("pi,pij->pj", wk[None, :] * moving, np.cross(dirs[None, :, :], rel))
@@ -301,6 +368,7 @@ def max_point_speed_mm_s(
     points_flange_m: Iterable[Sequence[float]] = (),
     max_step_deg: float = 0.25,
     synchronous: bool = True,
+    robot: RobotModel | None = None,
 ) -> PathSpeed:
     """Worst-case Cartesian speed (mm/s) of the chain during a PTP motion from ``q_start_deg`` to ``q_end_deg``.
 
@@ -315,19 +383,21 @@ def max_point_speed_mm_s(
         qdot = np.broadcast_to(np.asarray(axis_speed_max_deg_s, dtype=float), (6,)) * np.sign(q1 - q0)
     n = max(2, int(np.ceil(np.abs(q1 - q0).max() / max_step_deg)) + 1)
     path = q0[None, :] + np.linspace(0.0, 1.0, n)[:, None] * (q1 - q0)[None, :]
-    return path_speeds(path, qdot, points_flange_m)
+    return path_speeds(path, qdot, points_flange_m, robot)
 
 
 # --- statics ---------------------------------------------------------------------------------------------------------
-def gravity_regressor(q_deg: Sequence[float] | np.ndarray, g_m_s2: float = G_PAPER_M_S2) -> np.ndarray:
+def gravity_regressor(
+    q_deg: Sequence[float] | np.ndarray, g_m_s2: float = G_PAPER_M_S2, robot: RobotModel | None = None
+) -> np.ndarray:
     """Static holding torque regressor Y (6×4): τ [Nm] = Y · [m, m·cx, m·cy, m·cz] for a flange-mounted rigid body.
 
     m in kg, (cx, cy, cz) its CoG in the flange frame in m. Row i: τ_i = u_i · ((p − o_i) × m·g·ẑ) with p the CoG,
     split into the flange-origin part (∝ m) and the CoG-offset part (∝ m·c). Linear in the parameters, so several
     static poses give mass and CoG by least squares (docs/controller.md §7).
     """
-    origins, dirs = axis_lines(q_deg)
-    f = flange_frame(q_deg)
+    origins, dirs = axis_lines(q_deg, robot)
+    f = flange_frame(q_deg, robot)
     rot, o6 = f[:3, :3], f[:3, 3]
     y = np.empty((6, 4))
     y[:, 0] = np.einsum("ij,ij->i", dirs, np.cross(o6[None, :] - origins, _Z[None, :]))
@@ -340,26 +410,28 @@ def gravity_torques_nm(
     q_deg: Sequence[float] | np.ndarray,
     bodies: Iterable[tuple[float, Sequence[float]]],
     g_m_s2: float = G_PAPER_M_S2,
+    robot: RobotModel | None = None,
 ) -> np.ndarray:
     """Static holding torques (Nm, A1..A6) of flange-mounted bodies given as (mass_kg, cog_flange_m)."""
     theta = np.zeros(4)
     for mass_kg, cog in bodies:
         c = np.asarray(cog, dtype=float)
         theta += mass_kg * np.array([1.0, *c])
-    return gravity_regressor(q_deg, g_m_s2) @ theta
+    return gravity_regressor(q_deg, g_m_s2, robot) @ theta
 
 
 def link_gravity_torques_nm(
     q_deg: Sequence[float] | np.ndarray,
     links: Iterable[tuple[int, float, Sequence[float]]],
     g_m_s2: float = G_PAPER_M_S2,
+    robot: RobotModel | None = None,
 ) -> np.ndarray:
     """Static holding torques (Nm, A1..A6) of masses fixed to the robot's own links.
 
     ``links``: (link index 1..6, mass_kg, CoG in that link's DH frame in m). A mass on link j loads axes A1..Aj only.
     """
-    frames = joint_frames(q_deg)
-    origins, dirs = frames[:, :3, 3], frames[:, :3, 2] * AXIS_SIGN[:, None]
+    frames = joint_frames(q_deg, robot)
+    origins, dirs = frames[:, :3, 3], frames[:, :3, 2] * _arr(robot).axis_sign[:, None]
     tau = np.zeros(6)
     for link, mass_kg, cog in links:
         if not 1 <= link <= 6:
@@ -371,11 +443,13 @@ def link_gravity_torques_nm(
     return tau
 
 
-def horizontal_lever_m(q_deg: Sequence[float] | np.ndarray, axis: int, cog_flange_m: Sequence[float]) -> float:
+def horizontal_lever_m(
+    q_deg: Sequence[float] | np.ndarray, axis: int, cog_flange_m: Sequence[float], robot: RobotModel | None = None
+) -> float:
     """Lever (m) of a flange-fixed point about axis ``axis`` (1..6): −τ/(m·g), positive for a load in front.
 
     In :func:`measurement_pose` this is the paper's x_CoG to A3 or A5 (eq. 17–18).
     """
     if not 1 <= axis <= 6:
         raise ValueError("axis must be 1..6")
-    return float(-gravity_torques_nm(q_deg, [(1.0, cog_flange_m)], 1.0)[axis - 1])
+    return float(-gravity_torques_nm(q_deg, [(1.0, cog_flange_m)], 1.0, robot)[axis - 1])

@@ -7,9 +7,10 @@ import json
 import sys
 from pathlib import Path
 
-from rgse_daemon import calfile
+from rgse_daemon import calfile, robots
 from rgse_daemon.analysis.calibration import POINTS_ROBOT, calibrate, fit_campaign, parse_preprocessing
 from rgse_daemon.errors import DataError
+from rgse_daemon.kinematics import G_PAPER_M_S2
 from rgse_daemon.manifest import load_points_csv, source_sha256
 
 
@@ -38,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     if args.points is not None:
         if getattr(args, "preprocessing", None) is not None:
             raise DataError("--preprocessing applies to --campaign (the points of a CSV are already averaged)")
-        doc, summary = calibrate(load_points_csv(args.points), args.method, g=9.81, dr=1.025, robot=POINTS_ROBOT,
+        doc, summary = calibrate(load_points_csv(args.points), args.method, g=G_PAPER_M_S2,
+                                 dr=robots.active().lever_difference_m, robot=POINTS_ROBOT,
                                  pre=None, bias3=0.0, bias5=0.0, g_u=0.0, sources=source_sha256([args.points]),
                                  where=args.points)
     else:

@@ -1,9 +1,10 @@
 """``rgse demo``: the whole story on the built-in simulated KR C4, through the daemon's real code paths.
 
-A simulated KR 500 R2830 (C3 Bridge server on a loopback port, KRL interpreter, physics with the paper's error
-sources, KUKA Trace) runs in scaled time. The daemon (:class:`rgse_daemon.app.Daemon`: network link, KRL rendering and
-the interlock's static check, program push/select/start, runtime monitor, trace start and pull over the link's file
-operations, archive, pipeline, store, outbox) then
+A simulated KR 500 R2830, or with ``--robot kr10r1440`` the paper's subscale KR 10 R1440-2 (C3 Bridge server on a
+loopback port, KRL interpreter, physics with the paper's error sources, KUKA Trace) runs in scaled time. The daemon
+(:class:`rgse_daemon.app.Daemon`: network link, KRL rendering and the interlock's static check, program
+push/select/start, runtime monitor, trace start and pull over the link's file operations, archive, pipeline, store,
+outbox) then
 
 1. runs a calibration campaign (the zero point, stacks of calibration bodies, torque points with the test adapter);
    the simulated operator mounts each load when the daemon asks for it and confirms;
@@ -32,6 +33,8 @@ import logging
 import sys
 import tempfile
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import timedelta
 from pathlib import Path
 from types import TracebackType
@@ -39,17 +42,19 @@ from typing import TYPE_CHECKING, Any, Protocol
 from urllib.parse import urlsplit
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from rgse_daemon.app import Daemon
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.pipeline.cog import cog_poses
-from rgse_daemon.procedures.calibration import table1_points, torsional_points
+from rgse_daemon.procedures.calibration import CampaignPoint, table1_points, torsional_points
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.inertia import TARE_PROMPT
 from rgse_daemon.procedures.properties import PropertiesSettings
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.progress import new_progress, running, terminal_console
+from rgse_daemon.robots import RobotModel
 from simulators.krc4 import physics as ph
 from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.process import SimProcess
@@ -60,26 +65,68 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-ROBOT = "KR500R2830-SIM"
 SEED = 2024
 #: Simulated seconds per wall second: a ~20 simulated minutes campaign + run in well under two minutes.
 TIME_SCALE = 200.0
-#: The paper's in-line run (Table 2): ReFEx wing-box segment on its fixture.
-DUT = ph.refex_wing_box()
-DUT_MASS_KG = DUT.mass_kg
-FIXTURE_MASS_KG = ph.FIXTURE_MASS_KG
 #: The CoG poses of the demo's properties run (and of its torsional calibration points).
 COG_SCHEME = "paper"
-#: Loads on the torsional bracket (bodies, their CoG in the flange frame, m): two to six bodies at both signs of x
-#: and y, so that the A3..A6 payload torques span the wing box's in both poses.
-TORSIONAL_LOADS = ((2, (0.10, 0.0, 0.30)), (4, (-0.10, 0.05, 0.40)), (4, (0.05, 0.10, 0.40)),
-                   (6, (0.10, -0.05, 0.45)))
-#: A shortened Table 1 campaign: zero, seven stacks, the three torque-based points; then the bare MPA and four loads
-#: on the torsional bracket in every CoG pose. Every point is a new mounting with its own offsets (Table 1's
-#: scatter): more points, fewer loops each, give the calibration's reproducibility and curve more to rest on than
-#: more loops of the same mounting.
-CAMPAIGN = [*table1_points(n_bodies=(0, 1, 2, 3, 5, 7, 8, 10), torque_levers_a5_m=(0.761, 1.011, 1.261)),
-            *torsional_points(COG_SCHEME, TORSIONAL_LOADS)]
+#: The stacks of the shortened Table 1 campaign, and which of the robot's torsional points it measures (two to six
+#: bodies at both signs of x and y, so that the A3..A6 payload torques span the DuT's in both poses).
+CAMPAIGN_BODIES = (0, 1, 2, 3, 5, 7, 8, 10)
+TORSIONAL_INDICES = (0, 2, 3, 4)
+#: The demo's DuT on each robot (a DuT sized for the arm) and the farthest point of fixture + DuT from the flange.
+DEMO_DUTS: dict[str, tuple[Callable[[], ph.AsymmetricDut], float]] = {
+    "kr500r2830": (ph.refex_wing_box, 1.0),  # the paper's in-line run (Table 2): ReFEx wing box on its fixture
+    "kr10r1440": (ph.subscale_box, 0.35),
+}
+
+
+@dataclass(frozen=True)
+class DemoSetup:
+    """What the demo runs on one robot: the robot, the name it is stored under, the DuT, and the campaign."""
+
+    robot: RobotModel
+    name: str
+    dut: ph.AsymmetricDut
+    fixture_mass_kg: float
+    payload_lever_max_m: float
+    campaign: list[CampaignPoint]
+
+    @property
+    def dut_mass_kg(self) -> float:
+        return self.dut.mass_kg
+
+
+def demo_setup(robot_key: str = robots.DEFAULT_KEY) -> DemoSetup:
+    """The demo on ``robot_key`` (made the active robot while building it: the load set is the robot's).
+
+    The campaign: a shortened Table 1 (zero, seven stacks, the robot's torque-based points), then the bare MPA and
+    four loads on the torsional bracket in every CoG pose. Every point is a new mounting with its own offsets (Table
+    1's scatter): more points, fewer loops each, give the calibration's reproducibility and curve more to rest on than
+    more loops of the same mounting."""
+    robot = robots.get(robot_key)
+    if robot.key not in DEMO_DUTS:
+        raise ConfigError(f"--robot {robot_key}: the demo has no DuT for {robot.title}")
+    previous = robots.activate(robot)
+    try:
+        make_dut, lever_m = DEMO_DUTS[robot.key]
+        loads = robot.calibration
+        torsional = tuple(loads.torsional_points[i] for i in TORSIONAL_INDICES)
+        campaign = [*table1_points(n_bodies=CAMPAIGN_BODIES, torque_levers_a5_m=loads.torque_levers_a5_m),
+                    *torsional_points(COG_SCHEME, torsional)]
+        return DemoSetup(robot, f"{robot.title.replace(' ', '')}-SIM", make_dut(), loads.fixture_mass_kg, lever_m,
+                         campaign)
+    finally:
+        robots.activate(previous)
+
+
+#: The KR 500 demo's figures under their former names (bench/soak.py imports them).
+_KR500_DEMO = demo_setup()
+ROBOT = _KR500_DEMO.name
+DUT = _KR500_DEMO.dut
+DUT_MASS_KG = DUT.mass_kg
+FIXTURE_MASS_KG = _KR500_DEMO.fixture_mass_kg
+CAMPAIGN = _KR500_DEMO.campaign
 CAMPAIGN_LOOPS = 2
 SETTLE_S = 4.0
 MEASUREMENT_LOOPS = 10
@@ -92,9 +139,11 @@ INERTIA_FILE_RATE_BYTES_S = 100e3 * TIME_SCALE
 
 
 def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_port: int | None = None,
-                time_scale: float = TIME_SCALE, file_rate_bytes_s: float | None = None) -> Config:
+                time_scale: float = TIME_SCALE, file_rate_bytes_s: float | None = None,
+                setup: DemoSetup = _KR500_DEMO) -> Config:
     """The demo's daemon configuration; ``time_scale`` the simulator's, ``file_rate_bytes_s`` the controller file
-    rate the daemon sizes its file deadlines by (None: the default; bench/robot_time.py scales both)."""
+    rate the daemon sizes its file deadlines by (None: the default; bench/robot_time.py scales both); ``setup`` the
+    robot's demo (its DuT, fixture and payload reach)."""
     mqtt: dict[str, Any] = {"enabled": False}
     if mqtt_url is not None:
         u = urlsplit(mqtt_url)
@@ -104,7 +153,7 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
         mqtt = {"enabled": True, "host": u.hostname, "port": u.port or 1883, "command_auth": "open_lab_bench"}
     return config_from_mapping(
         {
-            "robot": {"name": ROBOT},
+            "robot": {"name": setup.name, "model": setup.robot.key},
             "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge",
                            "share_dir": str(sim.share_dir),
                            **({} if file_rate_bytes_s is None else {"file_rate_bytes_s": file_rate_bytes_s})},
@@ -116,8 +165,8 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
             # the daemon waits in wall time; the simulated controller's clock runs TIME_SCALE times faster, so the
             # paper's 2 x 2 s of settling after each brake-release move is 4 s / TIME_SCALE here
             "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S / time_scale, "trace_period_s": 0.012,
-                            "trace_samples": 1000, "warmup_cycles": 2, "fixture_mass_kg": FIXTURE_MASS_KG,
-                            "payload_lever_max_m": 1.0, "warmup_until_steady": True,
+                            "trace_samples": 1000, "warmup_cycles": 2, "fixture_mass_kg": setup.fixture_mass_kg,
+                            "payload_lever_max_m": setup.payload_lever_max_m, "warmup_until_steady": True,
                             "warmup_steady_window_s": 300.0 / time_scale, "warmup_max_s": 2400.0 / time_scale},
             "mqtt": mqtt,
             "console": {"enabled": console_port is not None, "port": 8080 if console_port is None else console_port},
@@ -213,18 +262,18 @@ class BarsView:
                                  refresh=True)
 
 
-def demo_view(*, quiet: bool, bars: bool) -> View:
+def demo_view(*, quiet: bool, bars: bool, setup: DemoSetup = _KR500_DEMO) -> View:
     """Bars if ``bars`` and stderr is an interactive terminal; else plain lines, or nothing if ``quiet``."""
     console = terminal_console() if bars else None
     if console is not None:
-        return BarsView(console, campaign_loops(), MEASUREMENT_LOOPS)
+        return BarsView(console, campaign_loops(setup), MEASUREMENT_LOOPS)
     return SilentView() if quiet else PlainView()
 
 
-def campaign_loops() -> int:
+def campaign_loops(setup: DemoSetup = _KR500_DEMO) -> int:
     """The campaign's loops: ``CAMPAIGN_LOOPS`` per point, in every CoG pose for a torsional point."""
-    poses = len(cog_poses(kin.measurement_pose(), COG_SCHEME))
-    return sum(CAMPAIGN_LOOPS * (poses if p.kind == "torsional" else 1) for p in CAMPAIGN)
+    poses = len(cog_poses(kin.measurement_pose(robot=setup.robot), COG_SCHEME))
+    return sum(CAMPAIGN_LOOPS * (poses if p.kind == "torsional" else 1) for p in setup.campaign)
 
 
 class Operator:
@@ -267,19 +316,34 @@ async def _wait(task: asyncio.Task[Any], what: str) -> Any:
 
 
 async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None, bars: bool = False,
-                   console_port: int | None = None, inertia: bool = False, seed: int = SEED) -> dict[str, Any]:
+                   console_port: int | None = None, inertia: bool = False, seed: int = SEED,
+                   robot: str = robots.DEFAULT_KEY) -> dict[str, Any]:
     """The demo; progress on stderr: bars on a terminal if ``bars``, else plain lines unless ``quiet``. ``seed``
-    draws the simulated robot (its gains, offsets, noise; bench/demo_repeat.py repeats the demo over seeds)."""
+    draws the simulated robot (its gains, offsets, noise; bench/demo_repeat.py repeats the demo over seeds);
+    ``robot``: which arm (``rgse_daemon/robots/``), simulated with its own scenario, load set and DuT."""
+    setup = demo_setup(robot)
+    previous = robots.activate(setup.robot)  # the daemon activates it too; the operator's loads are its
+    try:
+        return await _run_demo(setup, quiet=quiet, report_dir=report_dir, mqtt_url=mqtt_url, bars=bars,
+                               console_port=console_port, inertia=inertia, seed=seed)
+    finally:
+        robots.activate(previous)
+
+
+async def _run_demo(setup: DemoSetup, *, quiet: bool, report_dir: Path | None, mqtt_url: str | None, bars: bool,
+                    console_port: int | None, inertia: bool, seed: int) -> dict[str, Any]:
     t_start = time.monotonic()
-    with demo_view(quiet=quiet, bars=bars) as view, tempfile.TemporaryDirectory(prefix="rgse-demo-") as tmp:
+    dut = setup.dut
+    with demo_view(quiet=quiet, bars=bars, setup=setup) as view, \
+            tempfile.TemporaryDirectory(prefix="rgse-demo-") as tmp:
         root = Path(tmp)
         # the simulated controller in its own process, as a real KR C4 is its own machine: its CPU work must not
         # stall the daemon's event loop and its 20 Hz interlock monitor
         sim = SimProcess(root / "share", seed=seed, time_scale=TIME_SCALE, globals_dat=globals_dat_text(),
-                         file_rate_bytes_s=INERTIA_FILE_RATE_BYTES_S if inertia else None)
+                         file_rate_bytes_s=INERTIA_FILE_RATE_BYTES_S if inertia else None, robot=setup.robot.key)
         await asyncio.to_thread(sim.start)
         try:
-            cfg = demo_config(sim, root / "data", mqtt_url, console_port)
+            cfg = demo_config(sim, root / "data", mqtt_url, console_port, setup)
             ref: list[Daemon] = []
             operator = Operator(sim, ref, view)
             daemon = Daemon(cfg, on_event=operator)
@@ -291,26 +355,27 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
                     await daemon.connected.wait()
                 view.note(f"console: {daemon.console.url}" if daemon.console is not None else
                           "console: off (rgse demo --console PORT, or make demo CONSOLE=PORT, serves it)")
-                view.note(f"calibration campaign: {len(CAMPAIGN)} points x {CAMPAIGN_LOOPS} loops")
+                view.note(f"{setup.robot.title}: calibration campaign: {len(setup.campaign)} points x "
+                          f"{CAMPAIGN_LOOPS} loops")
                 t0 = time.monotonic()
                 cal_settings = RunSettings.from_config(cfg, loops=CAMPAIGN_LOOPS, warmup_cycles=1)
                 calibration = await _wait(
-                    await daemon.start_calibration(points=CAMPAIGN, method="auto", settings=cal_settings),
+                    await daemon.start_calibration(points=setup.campaign, method="auto", settings=cal_settings),
                     "the calibration campaign",
                 )
                 t_cal = time.monotonic() - t0
-                await sim.mount(DUT.payload())
+                await sim.mount(dut.payload())
                 view.note(f"in-line mass properties: {MEASUREMENT_LOOPS} mass loops, then the CoG poses "
                           f"({COG_SCHEME}) x {PROPERTIES_LOOPS_PER_POSE} loops")
                 t0 = time.monotonic()
                 result = await _wait(await daemon.start_properties(
                     props=PropertiesSettings(COG_SCHEME, PROPERTIES_LOOPS_PER_POSE, ph.fixture_cog_flange_m(),
-                                             DUT.dut_origin_flange_m, DUT.dut_abc_deg, inertia)),
+                                             dut.dut_origin_flange_m, dut.dut_abc_deg, inertia)),
                     "the properties run")
                 t_meas = time.monotonic() - t0
                 # the DuT as mounted for the run: with --inertia its truth from before the tare took it off
                 true_cog_m = _true_dut_cog_m(operator.dut_truth if operator.dut_truth is not None
-                                             else await sim.truth())
+                                             else await sim.truth(), setup)
                 report_path = None
                 if report_dir is not None:
                     report_path = await _write_report(cfg, result["run_id"], report_dir)
@@ -323,13 +388,15 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
     timing = result["timing"]
     robot_wall_s = float(timing["robot_time_s"])
     overhead_s = float(timing["overhead_s"])
-    return {**_inertia_summary(result), **{
+    true_mass_kg = setup.dut_mass_kg
+    return {**_inertia_summary(result, dut), **{
+        "robot": setup.robot.key,
         "seed": seed,
         "mass_kg": result["mass_kg"],
-        "true_mass_kg": DUT_MASS_KG,
-        "error_kg": result["mass_kg"] - DUT_MASS_KG,
+        "true_mass_kg": true_mass_kg,
+        "error_kg": result["mass_kg"] - true_mass_kg,
         "U_kg": result["U_kg"],
-        "within_U": abs(result["mass_kg"] - DUT_MASS_KG) <= result["U_kg"],
+        "within_U": abs(result["mass_kg"] - true_mass_kg) <= result["U_kg"],
         "loops": result["loops"],
         "robot_time_s": robot_wall_s * TIME_SCALE,
         "overhead_s": overhead_s,
@@ -373,13 +440,13 @@ async def run_demo(*, quiet: bool, report_dir: Path | None, mqtt_url: str | None
     }}
 
 
-def _inertia_summary(result: dict[str, Any]) -> dict[str, Any]:
+def _inertia_summary(result: dict[str, Any], dut: ph.AsymmetricDut) -> dict[str, Any]:
     """The inertia of the run (if it measured it) beside the simulator's truth: principal moments ascending with U
     (k = 2), and the robot time of the two excitations (real-time equivalent)."""
     if "principal_moments_kgm2" not in result:
         return {}
     moments, u = result["principal_moments_kgm2"], result["U_principal_moments_kgm2"]
-    truth = [float(v) for v in DUT.principal_moments_kgm2]
+    truth = [float(v) for v in dut.principal_moments_kgm2]
     return {
         "principal_moments_kgm2": moments,
         "U_principal_moments_kgm2": u,
@@ -392,7 +459,7 @@ def _inertia_summary(result: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _true_dut_cog_m(truth: Any) -> list[float]:
+def _true_dut_cog_m(truth: Any, setup: DemoSetup) -> list[float]:
     """The DuT's CoG as the simulator mounted it (its mounting's shift included), flange frame (m): everything on
     the flange minus MPA and fixture."""
     if truth is None:
@@ -400,7 +467,7 @@ def _true_dut_cog_m(truth: Any) -> list[float]:
     total = [truth.payload_mass_kg * c for c in truth.payload_cog_flange_m]
     mpa = ph.mpa()
     fixture_cog = ph.fixture_cog_flange_m()
-    return [(t - mpa.mass_kg * m - FIXTURE_MASS_KG * f) / DUT_MASS_KG
+    return [(t - mpa.mass_kg * m - setup.fixture_mass_kg * f) / setup.dut_mass_kg
             for t, m, f in zip(total, mpa.cog_flange_m, fixture_cog, strict=True)]
 
 
@@ -414,13 +481,15 @@ def run(args: argparse.Namespace) -> int:
     summary = asyncio.run(run_demo(quiet=args.json, report_dir=args.report, mqtt_url=args.mqtt, bars=True,
                                    console_port=getattr(args, "console", None),
                                    inertia=bool(getattr(args, "inertia", False)),
-                                   seed=int(getattr(args, "seed", SEED))))
+                                   seed=int(getattr(args, "seed", SEED)),
+                                   robot=str(getattr(args, "robot", robots.DEFAULT_KEY))))
     if args.json:
         print(json.dumps(summary))
         return 0
     c = summary["calibration"]
     print(f"calibration {c['calibration_id']} ({c['method']}, {c['points']} points): "
           f"in-sample {c['in_sample_mean_abs_err_pct']:.3f} %, leave-one-out {c['loo_mean_abs_err_pct']:.3f} %")
+    print(f"robot          {summary['robot']}")
     print(f"true mass      {summary['true_mass_kg']:9.3f} kg")
     print(f"measured mass  {summary['mass_kg']:9.3f} kg ± {summary['U_kg']:.3f} kg (U, k = 2)   "
           f"error {summary['error_kg']:+.3f} kg  {'within' if summary['within_U'] else 'OUTSIDE'} U")

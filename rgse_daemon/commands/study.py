@@ -12,7 +12,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from rgse_daemon import robots
 from rgse_daemon.analysis.calibration import load_campaign, points_from_raw
+from rgse_daemon.kinematics import G_PAPER_M_S2
 from rgse_daemon.manifest import load_points_csv
 from rgse_daemon.pipeline.study import StudyGrid, rank_models, run_study
 from rgse_daemon.progress import stage_progress
@@ -24,7 +26,8 @@ def run(args: argparse.Namespace) -> int:
     if args.points is not None:
         points = load_points_csv(args.points)
         with stage_progress() as progress:
-            evs = rank_models(points, 9.81, 1.025, progress)
+            # the paper's g (site figure) and the active robot's Δr (its measurement pose)
+            evs = rank_models(points, G_PAPER_M_S2, robots.active().lever_difference_m, progress)
         rows = [{"method": e.method, "n_params": e.n_params, "in_sample_mean_abs_err_pct": e.in_sample_mean_abs_err_pct,
                  "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct, "loo_max_abs_err_kg": e.loo_max_abs_err_kg}
                 for e in evs]

@@ -1,6 +1,6 @@
 """Schemas of the commands that arrive over MQTT on ``<prefix>/cmd/<verb>`` (interfaces §4).
 
-Why a schema: a command moves a 500 kg robot, so anything that is not exactly one of these shapes is refused
+Why a schema: a command moves a robot arm, so anything that is not exactly one of these shapes is refused
 before it reaches the daemon — unknown fields are an error (a misspelt ``dry_run`` must not silently become a
 real run), types are strict (``"3"`` is not a loop count, ``"yes"`` is not a boolean) and every number is
 bounded. :func:`parse_command` turns a verb and raw payload bytes into one of the models below, or raises
@@ -32,6 +32,7 @@ from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError
 
+from rgse_daemon import robots
 from rgse_daemon.errors import RgseError
 from rgse_daemon.logs import escape_controls
 from rgse_daemon.trace.names import name_problem
@@ -85,6 +86,19 @@ class _Command(BaseModel):
     token: Token = None
 
 
+def _within_the_load_diagram(mass_kg: float) -> float:
+    limit = robots.active().max_payload_kg
+    if mass_kg > limit:
+        raise ValueError(f"{mass_kg:g} kg exceeds the {robots.active().title}'s load diagram ({limit:g} kg)")
+    return mass_kg
+
+
+#: A mass on the flange: at most the active robot's largest load (its load diagram).
+Mass_kg = Annotated[float, Field(ge=0.0), AfterValidator(_within_the_load_diagram)]
+Coordinate = Annotated[float, Field(ge=-3.0, le=3.0)]
+Angle = Annotated[float, Field(ge=-360.0, le=360.0)]
+
+
 #: One line of an identity (a name, a serial number): at most 200 characters, control characters escaped.
 Line = Annotated[str, Field(min_length=1, max_length=200), AfterValidator(escape_controls)]
 
@@ -117,7 +131,7 @@ class MeasureCommand(_Command):
     VERB: ClassVar[str] = "measure"
     loops: int | None = Field(None, ge=1, le=100)
     """Measurement loops; ``None``: the configured default."""
-    fixture_mass_kg: float | None = Field(None, ge=0.0, le=500.0)
+    fixture_mass_kg: Mass_kg | None = None
     """Mass of the fixture (MPA, adapters) subtracted from the gross mass; ``None``: the configured value."""
     dry_run: bool = False
     """Check the plan and the interlock, render and check the KRL, but move nothing."""
@@ -125,8 +139,6 @@ class MeasureCommand(_Command):
     """The DuT's name, serial and part number, project, operator and a note (:class:`Identity`)."""
 
 
-Coordinate = Annotated[float, Field(ge=-3.0, le=3.0)]
-Angle = Annotated[float, Field(ge=-360.0, le=360.0)]
 
 
 class FixtureFrameSpec(BaseModel):
@@ -152,7 +164,7 @@ class PropertiesCommand(_Command):
     """Loops in each CoG pose; ``None``: ``properties.loops_per_pose``."""
     scheme: Literal["paper", "full"] | None = None
     """The CoG poses; ``None``: ``properties.scheme``."""
-    fixture_mass_kg: float | None = Field(None, ge=0.0, le=500.0)
+    fixture_mass_kg: Mass_kg | None = None
     fixture: FixtureFrameSpec | None = None
     """``None``: ``properties.fixture`` of the config."""
     inertia: bool | None = None
@@ -168,7 +180,7 @@ class CalibrationPoint(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
     kind: Literal["zero", "mass", "torque"]
-    mass_kg: float = Field(ge=0.0, le=500.0)
+    mass_kg: Mass_kg
     lever_a3_m: float = Field(ge=-5.0, le=5.0)
     lever_a5_m: float = Field(ge=-5.0, le=5.0)
 

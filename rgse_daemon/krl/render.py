@@ -6,7 +6,7 @@ that every placeholder of the template is supplied and every supplied value is u
 and parses the result (a syntax error there is a bug in a template, never the user's fault) before returning it.
 
 Speeds: the axis speed (``$VEL_AXIS`` in % of the data-sheet maximum, the *same* table the simulator uses:
-:data:`rgse_daemon.kinematics.MAX_AXIS_SPEED_DEG_S`) is chosen by :func:`safe_axis_velocity_pct` so that the
+the active robot's ``max_axis_speed_deg_s``) is chosen by :func:`safe_axis_velocity_pct` so that the
 worst-case Cartesian speed of every tracked point (elbow, wrist, flange and the payload points) stays below the T1
 limit on every motion the program can make, at 100 % program override. The interlock's static check
 (:mod:`rgse_daemon.safety.static`) re-verifies the rendered text independently before anything is pushed.
@@ -30,8 +30,9 @@ from typing import Annotated, Any, ClassVar
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from rgse_daemon import robots
 from rgse_daemon.errors import ConfigError, KrlSyntaxError
-from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, max_point_speed_mm_s, measurement_pose
+from rgse_daemon.kinematics import max_point_speed_mm_s, measurement_pose
 from rgse_daemon.krl.parser import parse_dat, parse_src
 
 #: The templates: ``<name>.src`` (and an optional ``<name>.dat``) in the repository's top-level ``krl/`` directory.
@@ -41,23 +42,30 @@ GLOBALS_DAT = "rgse_globals.dat"
 
 PLACEHOLDER = re.compile(r"\{\{\s*([A-Za-z_][A-Za-z0-9_]*)\s*\}\}")
 
-#: A1 software envelope the parameter models accept (paper §2.2: ±45°); a narrower configured envelope is enforced by
-#: the static check.
-A1_ENVELOPE_DEG = 45.0
+#: A1 software envelope the parameter models accept: the active robot's ``a1_envelope_deg`` (paper §2.2: ±45°); a
+#: narrower configured envelope is enforced by the static check. This name is the default robot's (an alias).
+A1_ENVELOPE_DEG = robots.get(robots.DEFAULT_KEY).a1_envelope_deg
 #: Fraction of the T1 limit that :func:`safe_axis_velocity_pct` aims for: headroom for rounding and sampling.
 SPEED_HEADROOM = 0.95
 #: Smallest axis speed worth rendering (%): below it a motion would take hours; refuse instead.
 MIN_VEL_AXIS_PCT = 0.01
 
-#: Operational (integration) pose: flange horizontal at about 1.1 m height, 2.25 m in front of A1.
-OPER_POSE_DEG: tuple[float, ...] = (0.0, -45.0, 100.0, 0.0, -55.0, 0.0)
-#: Calibration poses for the CoG: the measurement pose, A5 tilted, A4 and A5 turned, A6 a quarter turn.
-CAL_POSES_DEG: tuple[tuple[float, ...], ...] = (
-    (0.0, -90.0, 90.0, 0.0, 0.0, 0.0),
-    (0.0, -90.0, 90.0, 0.0, 30.0, 0.0),
-    (0.0, -90.0, 90.0, 45.0, 30.0, 0.0),
-    (0.0, -90.0, 90.0, 0.0, 0.0, 90.0),
-)
+#: Operational (integration) pose and the CoG calibration poses of the default robot (aliases; the templates'
+#: defaults are the active robot's ``operator_pose_deg`` and ``calibration_poses_deg``).
+OPER_POSE_DEG: tuple[float, ...] = robots.get(robots.DEFAULT_KEY).operator_pose_deg
+CAL_POSES_DEG: tuple[tuple[float, ...], ...] = robots.get(robots.DEFAULT_KEY).calibration_poses_deg
+
+
+def _meas() -> tuple[float, ...]:
+    return tuple(float(v) for v in measurement_pose())
+
+
+def _oper() -> tuple[float, ...]:
+    return robots.active().operator_pose_deg
+
+
+def _cal_poses() -> tuple[tuple[float, ...], ...]:
+    return robots.active().calibration_poses_deg
 
 
 # --- KRL literals -----------------------------------------------------------------------------------------------------
@@ -88,19 +96,17 @@ def format_axes(q_deg: Sequence[float]) -> str:
 def _check_pose(q: tuple[float, ...]) -> tuple[float, ...]:
     if len(q) != 6 or not all(math.isfinite(v) for v in q):
         raise ValueError("a pose is six finite axis angles A1..A6 in deg")
-    for i, (v, (lo, hi)) in enumerate(zip(q, JOINT_LIMITS_DEG, strict=True), 1):
+    robot = robots.active()
+    for i, (v, (lo, hi)) in enumerate(zip(q, robot.axis_range_deg, strict=True), 1):
         if not lo <= v <= hi:
             raise ValueError(f"A{i} = {v:g} deg is outside the axis range {lo:g}..{hi:g} deg")
-    if abs(q[0]) > A1_ENVELOPE_DEG:
-        raise ValueError(f"A1 = {q[0]:g} deg is outside the ±{A1_ENVELOPE_DEG:g} deg envelope (paper §2.2)")
+    if abs(q[0]) > robot.a1_envelope_deg:
+        raise ValueError(f"A1 = {q[0]:g} deg is outside the ±{robot.a1_envelope_deg:g} deg envelope (paper §2.2)")
     return tuple(float(v) for v in q)
 
 
 PoseDeg = Annotated[tuple[float, float, float, float, float, float], AfterValidator(_check_pose)]
 """Six axis angles A1..A6 (deg) within the axis ranges and the A1 envelope."""
-
-_MEAS = tuple(float(v) for v in measurement_pose())
-
 
 def _shift(q: Sequence[float], d3_deg: float, d5_deg: float) -> tuple[float, ...]:
     return (q[0], q[1], q[2] + d3_deg, q[3], q[4] + d5_deg, q[5])
@@ -115,7 +121,7 @@ class TemplateParams(BaseModel):
     template: ClassVar[str]
 
     vel_axis_pct: float = Field(gt=0.0, le=100.0)
-    """$VEL_AXIS[1..6] (% of MAX_AXIS_SPEED_DEG_S): choose with :func:`safe_axis_velocity_pct`."""
+    """$VEL_AXIS[1..6] (% of the robot's max_axis_speed_deg_s): choose with :func:`safe_axis_velocity_pct`."""
     acc_axis_pct: float = Field(20.0, gt=0.0, le=100.0)
     """$ACC_AXIS[1..6] (%): gentle ramps; the speed bound does not depend on it."""
 
@@ -130,7 +136,7 @@ class TemplateParams(BaseModel):
 
 class MeasPoseParams(TemplateParams):
     template: ClassVar[str] = "rgse_meas_pose"
-    meas_pose: PoseDeg = _MEAS
+    meas_pose: PoseDeg = Field(default_factory=_meas)
 
     def placeholders(self) -> dict[str, str]:
         return {**super().placeholders(), "meas_pose": format_axes(self.meas_pose)}
@@ -141,7 +147,7 @@ class MeasPoseParams(TemplateParams):
 
 class OperPoseParams(TemplateParams):
     template: ClassVar[str] = "rgse_oper_pose"
-    oper_pose: PoseDeg = OPER_POSE_DEG
+    oper_pose: PoseDeg = Field(default_factory=_oper)
 
     def placeholders(self) -> dict[str, str]:
         return {**super().placeholders(), "oper_pose": format_axes(self.oper_pose)}
@@ -152,7 +158,7 @@ class OperPoseParams(TemplateParams):
 
 class CalPoseParams(TemplateParams):
     template: ClassVar[str] = "rgse_cal_pose"
-    cal_pose: PoseDeg = _MEAS
+    cal_pose: PoseDeg = Field(default_factory=_meas)
 
     def placeholders(self) -> dict[str, str]:
         return {**super().placeholders(), "cal_pose": format_axes(self.cal_pose)}
@@ -165,7 +171,7 @@ class WarmupParams(TemplateParams):
     """Warm-up move (paper §2.4.4 A): A3 and A5 swing together by ±``amplitude_deg`` around the measurement pose."""
 
     template: ClassVar[str] = "rgse_warmup"
-    meas_pose: PoseDeg = _MEAS
+    meas_pose: PoseDeg = Field(default_factory=_meas)
     amplitude_deg: float = Field(20.0, gt=0.0, le=45.0)
     cycles: int = Field(3, ge=0, le=100)
 
@@ -202,7 +208,7 @@ class BrakeReleaseParams(TemplateParams):
     """Brake-release move (paper §2.4.4): A3 and A5 both rotate by φ' and return to the measurement pose."""
 
     template: ClassVar[str] = "rgse_brake_release"
-    meas_pose: PoseDeg = _MEAS
+    meas_pose: PoseDeg = Field(default_factory=_meas)
     angle_deg: float = Field(35.0, ge=-90.0, le=90.0)
 
     @model_validator(mode="after")
@@ -231,9 +237,9 @@ class ResidentParams(TemplateParams):
     """The resident program: every move above, requested one at a time through RGSE_CMD."""
 
     template: ClassVar[str] = "rgse_resident"
-    meas_pose: PoseDeg = _MEAS
-    oper_pose: PoseDeg = OPER_POSE_DEG
-    cal_poses: tuple[PoseDeg, PoseDeg, PoseDeg, PoseDeg] = CAL_POSES_DEG  # type: ignore[assignment]
+    meas_pose: PoseDeg = Field(default_factory=_meas)
+    oper_pose: PoseDeg = Field(default_factory=_oper)
+    cal_poses: tuple[PoseDeg, PoseDeg, PoseDeg, PoseDeg] = Field(default_factory=_cal_poses)  # type: ignore[assignment]
     warmup_amplitude_deg: float = Field(20.0, gt=0.0, le=45.0)
     warmup_cycles: int = Field(3, ge=0, le=100)
     brake_angle_deg: float = Field(35.0, ge=-90.0, le=90.0)
@@ -317,7 +323,7 @@ class InertiaParams(TemplateParams):
     ``vel_axis_pct``/``acc_axis_pct`` hold for the move to ``start_pose``, each of ``moves`` sets its own."""
 
     template: ClassVar[str] = "rgse_inertia"
-    start_pose: PoseDeg = _MEAS
+    start_pose: PoseDeg = Field(default_factory=_meas)
     moves: tuple[InertiaMove, ...] = Field(min_length=1, max_length=2000)
     rest_s: float = Field(0.0, ge=0.0, le=5.0)
     """``WAIT SEC`` after each move (0: none): the robot stands between the strokes, so that a trace splits into
@@ -371,7 +377,8 @@ def path_bound_at_full_speed_mm_s(
     """Worst-case point speed (mm/s) of a PTP ``q_start_deg`` → ``q_end_deg`` at 100 % axis speed and override."""
     if np.allclose(q_start_deg, q_end_deg, atol=1e-9, rtol=0.0):
         return 0.0
-    return max_point_speed_mm_s(q_start_deg, q_end_deg, MAX_AXIS_SPEED_DEG_S, points_flange_m).bound_mm_s
+    return max_point_speed_mm_s(q_start_deg, q_end_deg, robots.active().max_axis_speed_deg_s,
+                                points_flange_m).bound_mm_s
 
 
 def safe_axis_velocity_pct(
@@ -520,13 +527,13 @@ class TemplateDefaults:
 
     limit_mm_s: float = 200.0
     payload_points_flange_m: Sequence[Sequence[float]] = ()
-    start_deg: tuple[float, ...] = _MEAS
+    start_deg: tuple[float, ...] = field(default_factory=_meas)
     override_pct: float = 100.0
     acc_axis_pct: float = 20.0
-    meas_pose: tuple[float, ...] = _MEAS
-    oper_pose: tuple[float, ...] = OPER_POSE_DEG
-    cal_pose: tuple[float, ...] = _MEAS
-    cal_poses: tuple[tuple[float, ...], ...] = CAL_POSES_DEG
+    meas_pose: tuple[float, ...] = field(default_factory=_meas)
+    oper_pose: tuple[float, ...] = field(default_factory=_oper)
+    cal_pose: tuple[float, ...] = field(default_factory=_meas)
+    cal_poses: tuple[tuple[float, ...], ...] = field(default_factory=_cal_poses)
     warmup_amplitude_deg: float = 20.0
     warmup_cycles: int = 3
     brake_angle_deg: float = 35.0

@@ -45,7 +45,6 @@ STRUCT_FIELDS: dict[str, tuple[str, ...]] = {
 }
 #: Structure fields of type INT (status and turn); every other predefined field is REAL.
 INT_FIELDS = frozenset({"S", "T"})
-SCALAR_TYPES = frozenset({"INT", "REAL", "BOOL", "CHAR"})
 
 
 class EvalError(Exception):

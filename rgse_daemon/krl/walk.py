@@ -15,22 +15,18 @@ from rgse_daemon.krl.ast import (
     Assign,
     Binary,
     Call,
-    CallStmt,
     DataList,
     Decl,
     Expr,
     For,
     If,
     Index,
-    InterruptCtl,
-    InterruptDecl,
     Loop,
     Member,
     Module,
     Motion,
     Name,
     Repeat,
-    Return,
     Routine,
     Stmt,
     Unary,
@@ -144,31 +140,3 @@ def iter_exprs(expr: Expr) -> Iterator[Expr]:
     elif isinstance(expr, Aggregate):
         for item in expr.items:
             yield from iter_exprs(item.value)
-
-
-def stmt_exprs(stmt: Stmt) -> list[Expr]:
-    """The expressions a statement holds directly (not those of nested statements)."""
-    match stmt:
-        case Assign(target=t, value=v):
-            return [t, v]
-        case Motion(target=t):
-            return [t]
-        case WaitSec(seconds=s):
-            return [s]
-        case WaitFor(condition=c):
-            return [c]
-        case For(start=a, stop=b, step=s):
-            return [a, b] + ([s] if s is not None else [])
-        case If(condition=c) | While(condition=c) | Repeat(condition=c):
-            return [c]
-        case Return(value=v):
-            return [v] if v is not None else []
-        case CallStmt(args=args):
-            return list(args)
-        case Decl(init=init):
-            return [init] if init is not None else []
-        case InterruptDecl(prio=p, condition=c, args=args):
-            return [p, c, *args]
-        case InterruptCtl(prio=p):
-            return [p] if p is not None else []
-    return []

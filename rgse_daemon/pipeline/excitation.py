@@ -40,6 +40,12 @@ from rgse_daemon.pipeline import inertia as inr
 #: Time (s) to reach full axis speed at 100 % $ACC_AXIS (planning assumption, see the module docstring).
 NOMINAL_RAMP_TIME_S = 0.5
 NOMINAL_MAX_ACCEL_DEG_S2 = tuple(v / NOMINAL_RAMP_TIME_S for v in kin.MAX_AXIS_SPEED_DEG_S)
+
+
+def nominal_max_accel_deg_s2() -> tuple[float, ...]:
+    """The active robot's axis accelerations at 100 % (deg/s²); ``NOMINAL_MAX_ACCEL_DEG_S2`` is the default
+    robot's (an alias)."""
+    return tuple(v / NOMINAL_RAMP_TIME_S for v in kin.robot_arrays().max_axis_speed_deg_s)
 #: Fraction of the T1 limit the swings aim for (the interlock's bound is conservative already; rounding margin).
 SPEED_HEADROOM = 0.95
 #: Wrist orientations per program and swings of each axis per orientation.
@@ -99,8 +105,8 @@ def _plan(q0: np.ndarray, q1: np.ndarray, vel_pct: Sequence[float], acc_pct: Seq
     dist = float(np.abs(dq).max())
     if dist == 0:
         return q0[None, :], np.zeros((1, 6)), np.zeros((1, 6)), 0.0
-    vmax = np.array(vel_pct) / 100.0 * np.array(kin.MAX_AXIS_SPEED_DEG_S)
-    amax = np.array(acc_pct) / 100.0 * np.array(NOMINAL_MAX_ACCEL_DEG_S2)
+    vmax = np.array(vel_pct) / 100.0 * np.array(kin.robot_arrays().max_axis_speed_deg_s)
+    amax = np.array(acc_pct) / 100.0 * np.array(nominal_max_accel_deg_s2())
     moving = np.abs(dq) > 0
     v = float(np.min(vmax[moving] / np.abs(dq[moving])))  # path parameter s in 0..1
     a = float(np.min(amax[moving] / np.abs(dq[moving])))
@@ -133,7 +139,7 @@ def safe_single_axis_pct(q0: np.ndarray, q1: np.ndarray, points: Sequence[Sequen
                          vel_pct_other: float = 100.0) -> float:
     """Largest $VEL_AXIS % for a PTP q0 → q1 keeping every tracked point under ``limit_mm_s`` (the interlock's
     bound scales linearly with the axis speeds)."""
-    bound = kin.max_point_speed_mm_s(q0, q1, kin.MAX_AXIS_SPEED_DEG_S, points).bound_mm_s
+    bound = kin.max_point_speed_mm_s(q0, q1, kin.robot_arrays().max_axis_speed_deg_s, points).bound_mm_s
     if bound == 0.0:
         return vel_pct_other
     return _round_down(min(100.0, 100.0 * SPEED_HEADROOM * limit_mm_s / bound))
@@ -167,13 +173,15 @@ def _swing(centre: np.ndarray, ax: int, payload: Payload, limit_mm_s: float, acc
     ``exact``: the speed from the interlock's bound over the swing (else from the lever alone, for the optimiser)."""
     j = ax - 1
     pts = list(payload.points_flange_m)
-    lo, hi = kin.JOINT_LIMITS_DEG[j][0] + LIMIT_MARGIN_DEG, kin.JOINT_LIMITS_DEG[j][1] - LIMIT_MARGIN_DEG
+    limits = kin.robot_arrays().joint_limits_deg
+    lo, hi = limits[j][0] + LIMIT_MARGIN_DEG, limits[j][1] - LIMIT_MARGIN_DEG
     lever = max(_lever_m(centre, ax, pts), 1e-3)
     w_deg_s = math.degrees(SPEED_HEADROOM * limit_mm_s / 1000.0 / lever)
-    pct = _round_down(min(100.0, 100.0 * w_deg_s / kin.MAX_AXIS_SPEED_DEG_S[j]))
-    v = pct / 100.0 * kin.MAX_AXIS_SPEED_DEG_S[j]
-    acc_pct = _round_down(min(acc_cap_pct, 100.0 * v / (MIN_RAMP_S * NOMINAL_MAX_ACCEL_DEG_S2[j])))
-    a = acc_pct / 100.0 * NOMINAL_MAX_ACCEL_DEG_S2[j]
+    pct = _round_down(min(100.0, 100.0 * w_deg_s / kin.robot_arrays().max_axis_speed_deg_s[j]))
+    v = pct / 100.0 * kin.robot_arrays().max_axis_speed_deg_s[j]
+    a_max = nominal_max_accel_deg_s2()[j]
+    acc_pct = _round_down(min(acc_cap_pct, 100.0 * v / (MIN_RAMP_S * a_max)))
+    a = acc_pct / 100.0 * a_max
     amp = max(2.0, min(MAX_AMPLITUDE_DEG, 0.5 * (v * v / a + v * PLATEAU_S), centre[j] - lo, hi - centre[j]))
     amp = math.ceil(amp * 100.0) / 100.0  # targets with two decimals: what the program says is what is checked
     up, down = centre.copy(), centre.copy()
@@ -204,7 +212,8 @@ def _block(base: np.ndarray, q5: float, q6: float, payload: Payload, limit_mm_s:
 
 
 def _reposition(q0: np.ndarray, q1: np.ndarray, payload: Payload, limit_mm_s: float, acc_pct: float) -> Move:
-    bound = kin.max_point_speed_mm_s(q0, q1, kin.MAX_AXIS_SPEED_DEG_S, payload.points_flange_m).bound_mm_s
+    vmax = kin.robot_arrays().max_axis_speed_deg_s
+    bound = kin.max_point_speed_mm_s(q0, q1, vmax, payload.points_flange_m).bound_mm_s
     pct = 100.0 if bound == 0 else _round_down(min(100.0, 100.0 * SPEED_HEADROOM * limit_mm_s / bound))
     return Move(tuple(q1.tolist()), (pct * REPOSITION_FRACTION,) * 6, (acc_pct,) * 6, None)
 
@@ -295,7 +304,8 @@ def design(payload: Payload, *, base_deg: Sequence[float] | None = None, start_d
     """
     base = np.asarray(kin.measurement_pose() if base_deg is None else base_deg, float)
     start = base if start_deg is None else np.asarray(start_deg, float)
-    lever_m = float(np.linalg.norm(np.asarray(payload.cog_flange_m) + np.array([0.0, 0.0, kin.D6_M])))
+    d6_m = kin.robot_arrays().d6_m
+    lever_m = float(np.linalg.norm(np.asarray(payload.cog_flange_m) + np.array([0.0, 0.0, d6_m])))
     if payload.mass_kg * kin.G_PAPER_M_S2 * lever_m > payload.max_wrist_torque_nm:
         raise ValueError("inertia excitation: the payload's static wrist torque exceeds the load diagram")
     acc = acceleration_pct(base, payload, limit_mm_s)
@@ -328,7 +338,7 @@ def design(payload: Payload, *, base_deg: Sequence[float] | None = None, start_d
     here = start
     worst = 0.0
     for m in moves:
-        vmax = np.array(m.vel_axis_pct) / 100.0 * np.array(kin.MAX_AXIS_SPEED_DEG_S)
+        vmax = np.array(m.vel_axis_pct) / 100.0 * np.array(kin.robot_arrays().max_axis_speed_deg_s)
         if not np.allclose(here, m.target_deg):
             worst = max(worst, kin.max_point_speed_mm_s(here, m.target_deg, vmax, payload.points_flange_m).bound_mm_s)
         here = np.asarray(m.target_deg, float)

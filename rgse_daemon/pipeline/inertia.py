@@ -90,12 +90,12 @@ _GRAVITY_DIR = np.array([0.0, 0.0, 1.0])  # τ holds against g: the N–E "accel
 def _frames(q_deg: np.ndarray) -> np.ndarray:
     """Base → frame i transforms for N poses, shape (N, 6, 4, 4) (same MDH chain as ``kinematics.joint_frames``;
     batched here because the identification needs it for thousands of samples)."""
-    theta = kin.AXIS_SIGN * np.deg2rad(q_deg) + kin.THETA_OFFSET_RAD  # (N, 6)
+    theta = kin.robot_arrays().axis_sign * np.deg2rad(q_deg) + kin.robot_arrays().theta_offset_rad  # (N, 6)
     n = len(theta)
     out = np.empty((n, 6, 4, 4))
     t = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
     for i in range(6):
-        alpha, a, d = kin.MDH[i]
+        alpha, a, d = kin.robot_arrays().mdh[i]
         ca, sa = math.cos(alpha), math.sin(alpha)
         ct, st = np.cos(theta[:, i]), np.sin(theta[:, i])
         m = np.zeros((n, 4, 4))
@@ -136,7 +136,7 @@ def payload_regressor(
     fr = _frames(q)
     n = len(q)
     origins = fr[:, :, :3, 3]  # (N, 6, 3)
-    dirs = fr[:, :, :3, 2] * kin.AXIS_SIGN[None, :, None]  # KUKA-positive directions
+    dirs = fr[:, :, :3, 2] * kin.robot_arrays().axis_sign[None, :, None]  # KUKA-positive directions
     # forward recursion (base frame): angular velocity/acceleration of link k, linear acceleration of its origin
     w = np.zeros((n, 3))
     dw = np.zeros((n, 3))

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from rgse_daemon import robots
+from rgse_daemon.kinematics import G_PAPER_M_S2
 from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import selection
@@ -132,12 +134,15 @@ def point_torques(points_loops: Sequence[Sequence[LoopData]], grid: StudyGrid, p
 
 def run_study(points_loops: Sequence[Sequence[LoopData]],
               to_points: Callable[[np.ndarray, np.ndarray], cal_mod.CalibrationPoints],
-              grid: StudyGrid = StudyGrid(), method: str = "paper", g_m_s2: float = 9.81,
-              lever_difference_m: float = 1.025, progress: ProgressFn | None = None) -> list[StudyRow]:
+              grid: StudyGrid = StudyGrid(), method: str = "paper", g_m_s2: float = G_PAPER_M_S2,
+              lever_difference_m: float | None = None, progress: ProgressFn | None = None) -> list[StudyRow]:
     """Every grid combination, ranked by the in-sample mean absolute mass error of ``method`` (as Table A2).
 
     ``to_points(raw_a3, raw_a5)`` turns eq. 16 point torques into bias-normalised calibration points.
+    ``lever_difference_m``: Δr of eq. 3–4; ``None``: the active robot's measurement pose's.
     """
+    if lever_difference_m is None:
+        lever_difference_m = robots.active().lever_difference_m
     rows = []
     done = 0
     for (crop, filt, order, loc), (raw3, raw5) in point_torques(points_loops, grid, progress).items():
@@ -158,9 +163,13 @@ def run_study(points_loops: Sequence[Sequence[LoopData]],
     return rows
 
 
-def rank_models(points: cal_mod.CalibrationPoints, g_m_s2: float = 9.81, lever_difference_m: float = 1.025,
+def rank_models(points: cal_mod.CalibrationPoints, g_m_s2: float = G_PAPER_M_S2,
+                lever_difference_m: float | None = None,
                 progress: ProgressFn | None = None) -> list[selection.Evaluation]:
-    """:func:`selection.evaluate_all`, ranked by the leave-one-out mean absolute mass error."""
+    """:func:`selection.evaluate_all`, ranked by the leave-one-out mean absolute mass error (``lever_difference_m``
+    ``None``: the active robot's Δr)."""
+    if lever_difference_m is None:
+        lever_difference_m = robots.active().lever_difference_m
     report = None if progress is None else (lambda done, total: progress(STAGE_MODELS, done, total))
     evaluations = selection.evaluate_all(points, g_m_s2, lever_difference_m, report)
     return sorted(evaluations, key=lambda e: e.loo_mean_abs_err_pct)

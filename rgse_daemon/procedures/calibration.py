@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from rgse_daemon import calfile
+from rgse_daemon import calfile, robots
 from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import calibration as campaign_analysis
 from rgse_daemon.config import Config
@@ -56,25 +56,27 @@ from rgse_daemon.procedures.recorder import StoreRecorder
 from rgse_daemon.procedures.retrieval import TRACE_DIR
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import motor_temps_k, prepare, warm_up
+from rgse_daemon.robots import CalibrationLoads
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import LoopState, PointState, RunKind, Store
 from rgse_daemon.verdict import with_status
 
 CALIBRATION_FILE = "CAL.json"
 
-# Paper constants of the calibration equipment (§2.4.2–2.4.3, Table 1, Table A1).
-CB_MASS_KG = 20.93
-"""One calibration body."""
-ZERO_LEVER_A5_M = 0.265
-"""Effective lever of the empty MPA's CoG to A5 in the measurement pose (Table 1 '0 (MPA)' row)."""
-STACK_LEVER_A5_M = 0.275
-STACK_STEP_M = 0.0075
-"""Effective A5 lever of n stacked bodies: 0.275 + 0.0075·n m (Table 1's printed levers − 0.020 m)."""
-TA_MASS_KG = 19.20
-TA_TORQUE_A5_NM = 217.95
-"""The test adapter: Table 1's 228.51 kg − 10 bodies, its A5 torque in the measurement pose from Table A1."""
-TORQUE_LEVERS_A5_M = (0.761, 1.011, 1.261)
-"""Where the bodies' common CoG sits on the test adapter's rail for the three torque-based points."""
+# The calibration equipment is the robot's (rgse_daemon/robots/: ``calibration``, paper §2.4.2–2.4.3, Table 1): the
+# functions below take the active robot's. These names are the default robot's (KR 500) figures, kept as aliases.
+_KR500_LOADS = robots.get(robots.DEFAULT_KEY).calibration
+CB_MASS_KG = _KR500_LOADS.body_mass_kg
+ZERO_LEVER_A5_M = _KR500_LOADS.zero_lever_a5_m
+STACK_LEVER_A5_M = _KR500_LOADS.stack_lever_a5_m
+STACK_STEP_M = _KR500_LOADS.stack_step_m
+TA_MASS_KG = _KR500_LOADS.adapter_mass_kg
+TA_TORQUE_A5_NM = _KR500_LOADS.adapter_torque_a5_nm
+TORQUE_LEVERS_A5_M = _KR500_LOADS.torque_levers_a5_m
+
+
+def _loads() -> CalibrationLoads:
+    return robots.active().calibration
 
 
 @dataclass(frozen=True)
@@ -126,30 +128,34 @@ class CampaignPoint:
         return cls(**spec)
 
 
-def mass_point(n_cb: int, dr_m: float = kin.D4_M) -> CampaignPoint:
-    """MPA + ``n_cb`` stacked bodies (n = 0: the zero point)."""
+def mass_point(n_cb: int, dr_m: float | None = None) -> CampaignPoint:
+    """MPA + ``n_cb`` stacked bodies (n = 0: the zero point) of the active robot's load set; ``dr_m`` default its
+    Δr."""
+    c = _loads()
+    dr_m = robots.active().lever_difference_m if dr_m is None else dr_m
     if n_cb == 0:
-        return CampaignPoint("zero", 0.0, ZERO_LEVER_A5_M + dr_m, ZERO_LEVER_A5_M, 0)
-    lever_a5 = STACK_LEVER_A5_M + STACK_STEP_M * n_cb
-    return CampaignPoint("mass", CB_MASS_KG * n_cb, lever_a5 + dr_m, lever_a5, n_cb)
+        return CampaignPoint("zero", 0.0, c.zero_lever_a5_m + dr_m, c.zero_lever_a5_m, 0)
+    lever_a5 = c.stack_lever_a5_m + c.stack_step_m * n_cb
+    return CampaignPoint("mass", c.body_mass_kg * n_cb, lever_a5 + dr_m, lever_a5, n_cb)
 
 
-def torque_point(cb_lever_a5_m: float, n_cb: int = 10, g_m_s2: float = kin.G_PAPER_M_S2,
-                 dr_m: float = kin.D4_M) -> CampaignPoint:
-    """Test adapter + ``n_cb`` bodies at ``cb_lever_a5_m``: mass and effective lever of the combined load."""
-    ta_lever_a5 = TA_TORQUE_A5_NM / (g_m_s2 * TA_MASS_KG)
-    mass = TA_MASS_KG + CB_MASS_KG * n_cb
-    lever_a5 = (TA_MASS_KG * ta_lever_a5 + CB_MASS_KG * n_cb * cb_lever_a5_m) / mass
+def torque_point(cb_lever_a5_m: float, n_cb: int | None = None, g_m_s2: float = kin.G_PAPER_M_S2,
+                 dr_m: float | None = None) -> CampaignPoint:
+    """Test adapter + ``n_cb`` bodies (default: the robot's ``torque_body_count``) at ``cb_lever_a5_m``: mass and
+    effective lever of the combined load."""
+    c = _loads()
+    dr_m = robots.active().lever_difference_m if dr_m is None else dr_m
+    n_cb = c.torque_body_count if n_cb is None else n_cb
+    ta_lever_a5 = c.adapter_torque_a5_nm / (g_m_s2 * c.adapter_mass_kg)
+    mass = c.adapter_mass_kg + c.body_mass_kg * n_cb
+    lever_a5 = (c.adapter_mass_kg * ta_lever_a5 + c.body_mass_kg * n_cb * cb_lever_a5_m) / mass
     return CampaignPoint("torque", mass, lever_a5 + dr_m, lever_a5, n_cb, cb_lever_a5_m)
 
 
 #: The torsional points (issue #14): bodies on a bracket on the MPA whose common CoG sits off the flange axis at a
-#: known point (flange frame, m): two, four and six bodies, both signs of x and y, 0.30..0.50 m out, so that the
-#: payload torques of A3..A6 span those of a 100-130 kg DuT in every CoG pose (interfaces §2).
-TORSIONAL_POINTS: tuple[tuple[int, tuple[float, float, float]], ...] = (
-    (2, (0.10, 0.0, 0.30)), (2, (0.0, -0.10, 0.30)), (4, (-0.10, 0.05, 0.40)), (4, (0.05, 0.10, 0.40)),
-    (6, (0.10, -0.05, 0.45)), (6, (-0.05, -0.10, 0.50)),
-)
+#: known point (flange frame, m), so that the payload torques of A3..A6 span a DuT's in every CoG pose (interfaces
+#: §2). The robot's ``calibration.torsional_points``; this name is the default robot's (an alias).
+TORSIONAL_POINTS: tuple[tuple[int, tuple[float, float, float]], ...] = _KR500_LOADS.torsional_points
 
 
 def torsional_point(n_cb: int, cb_cog_flange_m: Sequence[float], scheme: str = "full") -> CampaignPoint:
@@ -159,18 +165,25 @@ def torsional_point(n_cb: int, cb_cog_flange_m: Sequence[float], scheme: str = "
     if len(c) != 3:
         raise ValueError("cb_cog_flange_m needs three coordinates (m)")
     cog_poses(kin.measurement_pose(), scheme)  # an unknown scheme is refused here, not at the robot
-    return CampaignPoint(TORSIONAL_KIND, CB_MASS_KG * n_cb, 0.0, 0.0, n_cb, None, c, scheme)  # type: ignore[arg-type]
+    mass_kg = _loads().body_mass_kg * n_cb
+    return CampaignPoint(TORSIONAL_KIND, mass_kg, 0.0, 0.0, n_cb, None, c, scheme)  # type: ignore[arg-type]
 
 
 def torsional_points(scheme: str = "full",
-                     loads: Sequence[tuple[int, Sequence[float]]] = TORSIONAL_POINTS) -> list[CampaignPoint]:
-    """The bare MPA and the loaded torsional points, for the CoG calibration in ``scheme``'s poses."""
+                     loads: Sequence[tuple[int, Sequence[float]]] | None = None) -> list[CampaignPoint]:
+    """The bare MPA and the loaded torsional points (default: the robot's), for the CoG calibration in ``scheme``'s
+    poses."""
+    loads = _loads().torsional_points if loads is None else loads
     return [torsional_point(0, (0.0, 0.0, 0.0), scheme), *(torsional_point(n, c, scheme) for n, c in loads)]
 
 
-def table1_points(n_bodies: Sequence[int] = range(0, 11),
-                  torque_levers_a5_m: Sequence[float] = TORQUE_LEVERS_A5_M) -> list[CampaignPoint]:
-    """The paper's campaign (Table 1): zero, 1…10 bodies, three torque points; pass subsets for short campaigns."""
+def table1_points(n_bodies: Sequence[int] | None = None,
+                  torque_levers_a5_m: Sequence[float] | None = None) -> list[CampaignPoint]:
+    """The paper's campaign (Table 1) with the active robot's load set: zero, 1…10 bodies, three torque points; pass
+    subsets for short campaigns."""
+    c = _loads()
+    n_bodies = range(0, c.body_count_max + 1) if n_bodies is None else n_bodies
+    torque_levers_a5_m = c.torque_levers_a5_m if torque_levers_a5_m is None else torque_levers_a5_m
     pts = [mass_point(n) for n in n_bodies]
     if not any(p.kind == "zero" for p in pts):
         pts.insert(0, mass_point(0))

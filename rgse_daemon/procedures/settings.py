@@ -6,6 +6,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from rgse_daemon.config import Config
 from rgse_daemon.pipeline.stopping import MIN_LOOPS, StopRule
 
@@ -36,8 +37,8 @@ class RunSettings:
     """0 (with no ``stop_target_U_kg``): always ``loops`` loops; the config's default is 0.2."""
     stop_target_U_kg: float | None = None
     g_m_s2: float = kin.G_PAPER_M_S2
-    lever_difference_m: float = kin.D4_M
-    meas_pose_deg: tuple[float, ...] = tuple(float(v) for v in kin.measurement_pose())
+    lever_difference_m: float = field(default_factory=lambda: robots.active().lever_difference_m)
+    meas_pose_deg: tuple[float, ...] = field(default_factory=lambda: tuple(float(v) for v in kin.measurement_pose()))
     identity: dict[str, str] | None = field(default=None, hash=False)
     """Who and what is measured (interfaces §4.3 ``identity``), published with the result; None: not given."""
 
@@ -68,6 +69,8 @@ class RunSettings:
             min_loops=ms.min_loops,
             stop_loop_share=ms.stop_loop_share,
             stop_target_U_kg=ms.stop_target_U_kg,
+            lever_difference_m=cfg.robot_model.lever_difference_m,
+            meas_pose_deg=tuple(float(v) for v in kin.measurement_pose(robot=cfg.robot_model)),
         )
         return replace(base, **overrides)
 

@@ -10,7 +10,7 @@ Rules (``Violation.rule``):
 ``MODE``          mode must be T1; AUT only with the hazard area cleared *and* the key switch confirmed; T2/EX never.
 ``SPEED``         worst-case Cartesian speed of the elbow, wrist centre, flange and every payload point over the whole
                   joint path of every PTP (``kinematics.max_point_speed_mm_s(...).bound_mm_s``, axis speeds from the
-                  ``kinematics.MAX_AXIS_SPEED_DEG_S`` × $VEL_AXIS % × override) ≤ ``limits.t1_speed_mm_s``.
+                  robot's ``max_axis_speed_deg_s`` × $VEL_AXIS % × override) ≤ ``limits.t1_speed_mm_s``.
                   The override is the larger of what the program assigns and ``ctx.override_max_pct`` (the operator
                   can raise it on the smartPAD at any time).
 ``JOINT_LIMIT``   every target within the axis ranges; ``A1_ENVELOPE``: |A1| ≤ ``limits.a1_range_deg``.
@@ -64,13 +64,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from rgse_daemon import robots
 from rgse_daemon.config import CellConfig, Config, LimitsConfig
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
 from rgse_daemon.kinematics import (
-    D6_M,
     G_PAPER_M_S2,
-    JOINT_LIMITS_DEG,
-    MAX_AXIS_SPEED_DEG_S,
     gravity_torques_nm,
     joint_frames,
     max_point_speed_mm_s,
@@ -92,6 +90,7 @@ from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.render import MIN_VEL_AXIS_PCT
 from rgse_daemon.krl.values import UNKNOWN, Value, describe, is_number
 from rgse_daemon.krl.walk import iter_exprs, root_name
+from rgse_daemon.robots import RobotModel
 from rgse_daemon.safety.allowlist import WATCHDOG_CONDITION, WATCHDOG_INTERRUPT, WRITABLE_PREFIX, WRITABLE_VARIABLES
 
 #: Statement keywords the check refuses outright (the parser does not accept them either).
@@ -145,7 +144,8 @@ class CheckContext:
     ``payload_cog_flange_m`` (flange frame, m): for the load diagram. ``payload_points_flange_m``: flange-frame points
     whose speed matters (CoG and extreme corners of fixture and DuT). ``start_axes_deg``: A1..A6 read from the robot
     before the push (``None``: unknown, every first motion is refused). ``override_max_pct``: the largest program
-    override that can be in force during the run (100 unless the daemon knows it is locked lower).
+    override that can be in force during the run (100 unless the daemon knows it is locked lower). ``robot``: the
+    arm (axis ranges, axis speeds, geometry); default the active robot, the configured one.
     """
 
     limits: LimitsConfig = field(default_factory=LimitsConfig)
@@ -166,6 +166,7 @@ class CheckContext:
     cell: CellConfig = field(default_factory=CellConfig)
     #: Well below the 60 s the daemon's push waits for the check (procedures/engine.py): the check always ends first.
     time_budget_s: float = 20.0
+    robot: RobotModel = field(default_factory=robots.active)
 
     def link_writable(self, name: str) -> bool:
         """Whether the allow-list admits writing ``name`` (what the daemon itself may write over the link)."""
@@ -182,6 +183,8 @@ class _Checker(AbstractInterpreter):
             self.deadline = deadline  # the budget counts from the check's first byte (check_program)
         self.ctx = ctx
         self.limits = ctx.limits
+        #: the configured limit, never above the robot's load diagram
+        self.max_a5_torque_nm_limit = min(ctx.limits.max_a5_torque_nm, ctx.robot.max_a5_torque_nm)
         self.found: dict[tuple[str, int, int], Violation] = {}
         self.motion_checks = 0
         self._speed_cache: dict[tuple[Pose, Pose, tuple[float, ...]], float] = {}
@@ -296,7 +299,7 @@ class _Checker(AbstractInterpreter):
 
     def check_target(self, q: Pose, pos: k.Pos) -> bool:
         ok = True
-        for i, (v, (lo, hi)) in enumerate(zip(q, JOINT_LIMITS_DEG, strict=True), 1):
+        for i, (v, (lo, hi)) in enumerate(zip(q, self.ctx.robot.axis_range_deg, strict=True), 1):
             if not lo <= v <= hi:
                 self.report("JOINT_LIMIT", pos, f"A{i} target {v:g} deg outside the axis range {lo:g}..{hi:g} deg")
                 ok = False
@@ -321,24 +324,24 @@ class _Checker(AbstractInterpreter):
         if torque is None:
             torque = self.max_a5_torque_nm(start, target)
             self._torque_cache[(start, target)] = torque
-        if not torque <= self.limits.max_a5_torque_nm:
+        if not torque <= self.max_a5_torque_nm_limit:
             self.report(
                 "A5_TORQUE",
                 pos,
-                f"static A5 torque of the payload reaches {torque:.0f} Nm on this motion, "
-                f"above the load diagram's {self.limits.max_a5_torque_nm:g} Nm",
+                f"static A5 torque of the payload reaches {torque:.1f} Nm on this motion, "
+                f"above the load diagram's {self.max_a5_torque_nm_limit:g} Nm",
             )
 
     def check_speed(self, start: Pose, target: Pose, st: State, pos: k.Pos) -> None:
         override = max(st.override_pct, self.ctx.override_max_pct)
         vmax = tuple(
             round(p / 100.0 * m * override / 100.0, 9)
-            for p, m in zip(st.vel_axis_pct, MAX_AXIS_SPEED_DEG_S, strict=True)
+            for p, m in zip(st.vel_axis_pct, self.ctx.robot.max_axis_speed_deg_s, strict=True)
         )
         key = (start, target, vmax)
         speed = self._speed_cache.get(key)
         if speed is None:
-            speed = max_point_speed_mm_s(start, target, vmax, self.points).bound_mm_s
+            speed = max_point_speed_mm_s(start, target, vmax, self.points, robot=self.ctx.robot).bound_mm_s
             self._speed_cache[key] = speed
         if not speed <= self.limits.t1_speed_mm_s:
             self.report(
@@ -353,9 +356,10 @@ class _Checker(AbstractInterpreter):
             return 0.0
         # The CoG is rigidly |c + d6·z| from the wrist centre, a point on the A5 axis, in every pose: if that lever
         # is short enough, no pose can exceed the limit and the path need not be sampled.
-        cog_from_wrist_m = float(np.linalg.norm(np.asarray(self.ctx.payload_cog_flange_m) + np.array([0, 0, D6_M])))
+        d6_m = self.ctx.robot.dh[5].d_m
+        cog_from_wrist_m = float(np.linalg.norm(np.asarray(self.ctx.payload_cog_flange_m) + np.array([0, 0, d6_m])))
         bound = self.ctx.payload_mass_kg * G_PAPER_M_S2 * cog_from_wrist_m
-        if bound <= self.limits.max_a5_torque_nm:
+        if bound <= self.max_a5_torque_nm_limit:
             return bound
         q0, q1 = np.array(start), np.array(target)
         l1_deg = float(np.abs(q1 - q0).sum())
@@ -363,10 +367,10 @@ class _Checker(AbstractInterpreter):
         body = [(self.ctx.payload_mass_kg, self.ctx.payload_cog_flange_m)]
         worst = 0.0
         for s in np.linspace(0.0, 1.0, n):
-            worst = max(worst, abs(float(gravity_torques_nm(q0 + s * (q1 - q0), body)[4])))
+            worst = max(worst, abs(float(gravity_torques_nm(q0 + s * (q1 - q0), body, robot=self.ctx.robot)[4])))
         # Between samples the links beyond A5 turn by at most the L1 joint step, which turns both the A5 axis and the
         # lever of the CoG: the torque changes by at most 2·m·g·|lever|·step. That margin covers the unsampled path.
-        lever_m = D6_M + float(np.linalg.norm(self.ctx.payload_cog_flange_m))
+        lever_m = d6_m + float(np.linalg.norm(self.ctx.payload_cog_flange_m))
         step_rad = math.radians(l1_deg / (n - 1))
         return worst + 2.0 * self.ctx.payload_mass_kg * G_PAPER_M_S2 * lever_m * step_rad
 
@@ -385,8 +389,9 @@ class _Checker(AbstractInterpreter):
             d = abs(q1 - q0)
             if d == 0.0:
                 continue
-            v = MAX_AXIS_SPEED_DEG_S[i] * max(st.vel_axis_min_pct[i], floor) / 100.0 * ov
-            a = MAX_AXIS_SPEED_DEG_S[i] / self.limits.axis_ramp_max_s * max(st.acc_axis_min_pct[i], floor) / 100.0
+            vmax = self.ctx.robot.max_axis_speed_deg_s[i]
+            v = vmax * max(st.vel_axis_min_pct[i], floor) / 100.0 * ov
+            a = vmax / self.limits.axis_ramp_max_s * max(st.acc_axis_min_pct[i], floor) / 100.0
             a *= ov * ov
             worst = max(worst, d / v + v / a if d >= v * v / a else 2.0 * math.sqrt(d / a))
         return worst
@@ -448,7 +453,7 @@ class _Checker(AbstractInterpreter):
         r_max = 0.0
         for s in np.linspace(0.0, 1.0, n):
             q = q0 + s * (q1 - q0)
-            frames = joint_frames(q)
+            frames = joint_frames(q, robot=self.ctx.robot)
             origins = frames[:, :3, 3]  # frame i's origin lies on axis Ai (kinematics.joint_frames)
             rot, o6 = frames[5, :3, :3], frames[5, :3, 3]
             pts = np.vstack([corners @ rot.T + o6, o6, frames[4, :3, 3], frames[2, :3, 3]])
@@ -565,7 +570,7 @@ def mounted_payload(cfg: Config, dut_mass_kg: float | None = None,
     cog = dut_cog_flange_m if dut_cog_flange_m is not None else cfg.cell.dut_cog_flange_m
     if cog is None:
         lever_m = A5_TORQUE_MARGIN * cfg.limits.max_a5_torque_nm / (total * G_PAPER_M_S2)
-        return total, (0.0, 0.0, max(0.0, lever_m - D6_M))
+        return total, (0.0, 0.0, max(0.0, lever_m - cfg.robot_model.dh[5].d_m))
     both = (fixture_kg * fixture_cog + dut_kg * np.array(cog, dtype=float)) / total
     return total, (float(both[0]), float(both[1]), float(both[2]))
 
@@ -672,14 +677,16 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
                                               f"not read within {ctx.time_budget_s:g} s: too complex to verify")])
     violations += forbidden
     main = module.main
-    if not 0.0 <= ctx.payload_mass_kg <= ctx.limits.max_payload_kg:
+    # the configured limit, and never more than the robot's own load diagram (a limit set for another arm)
+    max_payload_kg = min(ctx.limits.max_payload_kg, ctx.robot.max_payload_kg)
+    if not 0.0 <= ctx.payload_mass_kg <= max_payload_kg:
         violations.append(
             Violation(
                 main.pos.line,
                 main.pos.column,
                 "PAYLOAD",
-                f"payload {ctx.payload_mass_kg:g} kg outside 0..{ctx.limits.max_payload_kg:g} kg "
-                "(load diagram, paper Fig. 16)",
+                f"payload {ctx.payload_mass_kg:g} kg outside 0..{max_payload_kg:g} kg "
+                f"(load diagram of the {ctx.robot.title}, paper Fig. 16)",
             )
         )
     wd_found, wd_routines = watchdog_violations(module, ctx)
@@ -842,7 +849,7 @@ def _start_pose(
         violations.append(Violation(0, 0, "START_UNKNOWN", "start pose is not six finite axis angles"))
         return {}
     checker.check_target(q, k.Pos(0, 0))  # nothing was reported before: these are the start's
-    if all(lo <= v <= hi for v, (lo, hi) in zip(q, JOINT_LIMITS_DEG, strict=True)):
+    if all(lo <= v <= hi for v, (lo, hi) in zip(q, ctx.robot.axis_range_deg, strict=True)):
         checker.start_poses = frozenset({q})  # (outside the axis ranges: no path from there is checked)
     found = {key: replace(v, message="start pose: " + v.message) for key, v in checker.found.items()}
     checker.found.clear()

@@ -36,10 +36,11 @@ about the KUKA-positive axis direction (the sign of ``kinematics``), q in deg, q
 
 Assumptions (not KUKA data; plausible for the robot's size, said so here):
 
-* Link inertias about their CoGs (``LINK_INERTIA_KGM2``, kg·m², in each link's DH frame): boxes and tubes of the
-  links' masses and sizes (upper arm 1.3 m long, wrist tube ≈1 m, hand and flange compact), plus the rotating
-  column of link 1 (900 kg on the A1 axis; it carries no gravity torque, so the static model is unchanged).
-* Rotor and first-stage inertia of each motor ``MOTOR_INERTIA_KGM2`` (kg·m², motor side), reflected to the axis as
+* Link inertias about their CoGs (the scenario's ``link_inertia_kgm2``, kg·m², in each link's DH frame): boxes and
+  tubes of the links' masses and sizes (KR 500: upper arm 1.3 m long, wrist tube ≈1 m, hand and flange compact),
+  plus the rotating column of link 1 (900 kg on the A1 axis; it carries no gravity torque, so the static model is
+  unchanged). ``scenarios/kr10r1440.toml`` scales them to the KR 10.
+* Rotor and first-stage inertia of each motor ``motor_inertia_kgm2`` (kg·m², motor side), reflected to the axis as
   J_m · N² with the scenario's gear ratio N: A1–A3 motors of the 6–10 kW class (4–6·10⁻³ kg·m²), A4–A6 of the
   1–2 kW class (4–6·10⁻⁴ kg·m²). The rotors' gyroscopic coupling is neglected.
 
@@ -87,27 +88,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from simulators.krc4.motion import MotionSamples
 from simulators.krc4.physics import AsymmetricDut, Payload, RobotModel, TraceTruth
 from simulators.krc4.scenario import Scenario, default_scenario
 
 _Z = np.array([0.0, 0.0, 1.0])
 
-#: Inertia of each link about its CoG in its DH frame (kg·m², principal moments along the frame's axes); see the
-#: module docstring. Link 2: the 1.3 m upper arm along its x; link 4: the wrist tube along its z (the A4 axis).
-LINK_INERTIA_KGM2: dict[int, tuple[float, float, float]] = {
-    1: (80.0, 100.0, 90.0),
-    2: (8.0, 60.0, 60.0),
-    3: (15.0, 17.0, 15.0),
-    4: (10.7, 10.7, 1.4),
-    5: (1.2, 1.2, 1.0),
-    6: (0.046, 0.046, 0.09),
-}
-#: The rotating column (link 1): mass (kg) and CoG in frame 1 (m); on the A1 axis' side, no gravity torque.
-COLUMN_MASS_KG = 900.0
-COLUMN_COG_M = (0.15, 0.0, -0.35)
-#: Rotor (plus first gear stage) inertia of each axis' motor, motor side (kg·m²); reflected as J · N².
-MOTOR_INERTIA_KGM2: tuple[float, ...] = (0.006, 0.006, 0.004, 0.0006, 0.0006, 0.0004)
+#: The link inertias, the column and the motor inertias are the scenario's arm (``[arm]``: ``link_inertia_kgm2``,
+#: ``column_mass_kg``, ``column_cog_m``, ``motor_inertia_kgm2``; default the KR 500's).
 
 #: Friction relative to the static model's hysteresis: Fc = hysteresis_nm / KAPPA_LOCKED.
 KAPPA_LOCKED = 0.10
@@ -156,7 +145,7 @@ def default_friction(scenario: Scenario, scale: float = 1.0) -> tuple[AxisFricti
     for i in range(6):
         ax = scenario.axis(i + 1)
         fc = scale * ax.hysteresis_nm / KAPPA_LOCKED
-        w_max = np.deg2rad(kin.MAX_AXIS_SPEED_DEG_S[i])
+        w_max = np.deg2rad(robots.active().max_axis_speed_deg_s[i])
         out.append(
             AxisFriction(
                 coulomb_nm=fc,
@@ -203,7 +192,7 @@ def _rows(x: np.ndarray) -> np.ndarray:
 
 
 class RobotDynamics:
-    """Inverse dynamics of the KR 500 R2830 with a payload (module docstring), for one scenario's arm model.
+    """Inverse dynamics of the scenario's arm (default the KR 500 R2830) with a payload (module docstring).
 
     ``friction_scale`` multiplies the friction levels (1: the documented sizes). A simulator with other friction:
     ``sim.dynamics = RobotDynamics(sim.model.scenario, friction_scale=3.0)``."""
@@ -214,16 +203,16 @@ class RobotDynamics:
         self.scenario = sc
         self.g_m_s2 = sc.g_m_s2 if g_m_s2 is None else float(g_m_s2)
         per_link: dict[int, list[tuple[float, np.ndarray, np.ndarray]]] = {j: [] for j in range(1, 7)}
-        per_link[1].append((COLUMN_MASS_KG, np.array(COLUMN_COG_M), np.zeros((3, 3))))
+        per_link[1].append((sc.arm.column_mass_kg, np.array(sc.arm.column_cog_m), np.zeros((3, 3))))
         for link, mass, cog in sc.arm.links:
             per_link[link].append((float(mass), np.asarray(cog, dtype=float), np.zeros((3, 3))))
         self.links: list[_Link] = []
         for j in range(1, 7):
             combined = _combine(per_link[j])
             self.links.append(_Link(combined.mass_kg, combined.cog_m, combined.inertia_kgm2
-                                    + np.diag(LINK_INERTIA_KGM2[j])))
+                                    + np.diag(sc.arm.link_inertia_kgm2[j])))
         ratios = np.array([sc.axis(i).gear_ratio for i in range(1, 7)])
-        self.armature_kgm2 = np.asarray(MOTOR_INERTIA_KGM2) * ratios**2
+        self.armature_kgm2 = np.asarray(sc.arm.motor_inertia_kgm2) * ratios**2
         """Reflected rotor inertia per axis (kg·m², axis side)."""
         self.friction = default_friction(sc, friction_scale)
 
@@ -311,13 +300,13 @@ def _rnea(q_deg: np.ndarray, qd_deg_s: np.ndarray, qdd_deg_s2: np.ndarray, links
           g_m_s2: float) -> np.ndarray:
     """Recursive Newton–Euler (Craig, modified DH), batched over n states; torques (n, 6) in KUKA directions."""
     n = len(q_deg)
-    sign = kin.AXIS_SIGN
-    theta = sign * np.deg2rad(q_deg) + kin.THETA_OFFSET_RAD
+    sign = kin.robot_arrays().axis_sign
+    theta = sign * np.deg2rad(q_deg) + kin.robot_arrays().theta_offset_rad
     th_d = sign * np.deg2rad(qd_deg_s)
     th_dd = sign * np.deg2rad(qdd_deg_s2)
     rots, offsets = [], []
     for i in range(6):
-        alpha, a, d = kin.MDH[i]
+        alpha, a, d = kin.robot_arrays().mdh[i]
         ca, sa = np.cos(alpha), np.sin(alpha)
         ct, st = np.cos(theta[:, i]), np.sin(theta[:, i])
         r = np.zeros((n, 3, 3))  # rotation of frame i in frame i−1

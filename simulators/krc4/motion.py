@@ -30,13 +30,20 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from rgse_daemon.errors import RgseError
-from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, point_velocity_mm_s
+from rgse_daemon.kinematics import MAX_AXIS_SPEED_DEG_S, point_velocity_mm_s
 
 #: Time (s) an axis needs to reach its maximum speed at 100 % $ACC_AXIS and 100 % override: an assumption of the
-#: simulator (KUKA publishes no accelerations); it sets MAX_AXIS_ACCEL_DEG_S2.
+#: simulator (KUKA publishes no accelerations); it sets the axis accelerations (:func:`max_axis_accel_deg_s2`).
 RAMP_TIME_AT_100_PCT_S = 0.5
+#: The default robot's (an alias); the motion uses the active robot's.
 MAX_AXIS_ACCEL_DEG_S2: tuple[float, ...] = tuple(v / RAMP_TIME_AT_100_PCT_S for v in MAX_AXIS_SPEED_DEG_S)
+
+
+def max_axis_accel_deg_s2() -> tuple[float, ...]:
+    """The simulated robot's (the active robot's) axis accelerations at 100 % $ACC_AXIS and override (deg/s²)."""
+    return tuple(v / RAMP_TIME_AT_100_PCT_S for v in robots.active().max_axis_speed_deg_s)
 #: Cartesian speed the controller enforces in T1 (mm/s).
 T1_LIMIT_MM_S = 250.0
 #: Path sampling for the Cartesian speed limits: at most this many degrees between samples on the largest axis.
@@ -202,7 +209,7 @@ class JointMove:
 def check_limits(q_deg: Sequence[float]) -> None:
     """Refuse a target outside the axis software limits (docs/controller.md §1), as the controller does before
     moving."""
-    for i, (q, (lo, hi)) in enumerate(zip(q_deg, JOINT_LIMITS_DEG, strict=True), 1):
+    for i, (q, (lo, hi)) in enumerate(zip(q_deg, robots.active().axis_range_deg, strict=True), 1):
         if not lo <= q <= hi:
             raise MotionError(f"A{i} target {q:.3f} deg is outside the software limits {lo:g}..{hi:g} deg")
 
@@ -213,12 +220,12 @@ def axis_lines_batched(q_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     (the T1 planner and a moving trace need hundreds to thousands of poses; one at a time that took ~75 ms per
     motion, during which the simulated robot stood still)."""
     q = np.atleast_2d(np.asarray(q_deg, dtype=float))
-    theta = kin.AXIS_SIGN * np.deg2rad(q) + kin.THETA_OFFSET_RAD
+    theta = kin.robot_arrays().axis_sign * np.deg2rad(q) + kin.robot_arrays().theta_offset_rad
     n = len(q)
     t = np.tile(np.eye(4), (n, 1, 1))
     origins, dirs = np.empty((n, 6, 3)), np.empty((n, 6, 3))
     for i in range(6):
-        alpha, a, d = kin.MDH[i]
+        alpha, a, d = kin.robot_arrays().mdh[i]
         ca, sa = np.cos(alpha), np.sin(alpha)
         ct, st = np.cos(theta[:, i]), np.sin(theta[:, i])
         step = np.zeros((n, 4, 4))
@@ -227,7 +234,7 @@ def axis_lines_batched(q_deg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         step[:, 2, 0], step[:, 2, 1], step[:, 2, 2], step[:, 2, 3] = st * sa, ct * sa, ca, ca * d
         step[:, 3, 3] = 1.0
         t = t @ step
-        origins[:, i], dirs[:, i] = t[:, :3, 3], t[:, :3, 2] * kin.AXIS_SIGN[i]
+        origins[:, i], dirs[:, i] = t[:, :3, 3], t[:, :3, 2] * kin.robot_arrays().axis_sign[i]
     return origins, dirs
 
 
@@ -278,8 +285,8 @@ def plan_joint_move(
     if not moving.any():
         return JointMove(kind, tuple(q0), tuple(q1), Profile((Segment(0.0, 0.0, 0.0, 0.0, 0.0),), 1.0))
     ov = settings.override_pct / 100.0
-    v_axis = np.array(settings.vel_axis_pct) / 100.0 * np.array(MAX_AXIS_SPEED_DEG_S) * ov
-    a_axis = np.array(settings.acc_axis_pct) / 100.0 * np.array(MAX_AXIS_ACCEL_DEG_S2) * ov * ov
+    v_axis = np.array(settings.vel_axis_pct) / 100.0 * np.array(robots.active().max_axis_speed_deg_s) * ov
+    a_axis = np.array(settings.acc_axis_pct) / 100.0 * np.array(max_axis_accel_deg_s2()) * ov * ov
     if np.any(v_axis[moving] <= 0.0) or np.any(a_axis[moving] <= 0.0):
         raise MotionError("axis speed, acceleration and override must be above 0 % for the axes that move")
     v_path = float(np.min(v_axis[moving] / np.abs(delta[moving])))
@@ -310,10 +317,6 @@ class MotionSamples:
     moving: np.ndarray  # (n,) bool: a motion is under way
     t_since_stop_s: np.ndarray  # (n,) time since the last motion came to rest; NaN if none did before
     approach: np.ndarray  # (n, 6) sign of each axis' travel in the last motion that moved it; 0 if none
-
-    @property
-    def any_motion(self) -> bool:
-        return bool(self.moving.any() or np.any(np.isfinite(self.t_since_stop_s)))
 
 
 class MotionHistory:

@@ -62,6 +62,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
+from rgse_daemon.robots import CalibrationLoads
 from simulators.krc4.scenario import AXIS_KEYS, Scenario, default_scenario
 
 CHANNELS = (
@@ -84,23 +86,43 @@ CHANNEL_UNITS = {
 }
 
 # --- payload chain (paper §2.2, §2.4.2–2.4.3, Table 1, Table A1) -------------------------------------------------
-CHAIN_ORIGIN_Z_M = -0.035
-"""Flange-frame z of the MPA's back face, chosen so that the chain reproduces the paper's effective levers."""
-MPA_THICKNESS_M = 0.020
-MPA_SIDE_M = 0.440
-MPA_CUTOUT_DIAMETER_M = 0.120
+# The load set's figures are the robot's (rgse_daemon/robots/: ``calibration``); the functions below take the active
+# robot's. These module names are the default robot's (KR 500), kept as aliases.
 STAINLESS_DENSITY_KG_M3 = 7900.0
-MPA_MASS_KG = (MPA_SIDE_M**2 - np.pi * (MPA_CUTOUT_DIAMETER_M / 2) ** 2) * MPA_THICKNESS_M * STAINLESS_DENSITY_KG_M3
-CB_MASS_KG = 20.93
-CB_THICKNESS_M = 0.015
-N_CB_MAX = 10
-TA_MASS_KG = 19.20
-TA_TORQUE_A5_NM = 217.95  # Table A1, at g = 9.81
-FIXTURE_MASS_KG = 10.288  # paper §2.4.7, the ReFEx fixture
-FIXTURE_THICKNESS_M = 0.040
-FIXTURE_SIDE_M = 0.400  # assumed footprint of the fixture block (its inertia only)
-TA_RAIL_SECTION_M = 0.120  # assumed cross-section and length of the test adapter's guide rail (its inertia only)
-TA_RAIL_LENGTH_M = 1.000
+_KR500 = robots.get(robots.DEFAULT_KEY).calibration
+CHAIN_ORIGIN_Z_M = _KR500.chain_origin_z_m
+"""Flange-frame z of the MPA's back face, chosen so that the chain reproduces the paper's effective levers."""
+MPA_THICKNESS_M = _KR500.mpa_thickness_m
+MPA_SIDE_M = _KR500.mpa_side_m
+MPA_CUTOUT_DIAMETER_M = _KR500.mpa_cutout_diameter_m
+CB_MASS_KG = _KR500.body_mass_kg
+CB_THICKNESS_M = _KR500.body_thickness_m
+N_CB_MAX = _KR500.body_count_max
+TA_MASS_KG = _KR500.adapter_mass_kg
+TA_TORQUE_A5_NM = _KR500.adapter_torque_a5_nm
+FIXTURE_MASS_KG = _KR500.fixture_mass_kg
+FIXTURE_THICKNESS_M = _KR500.fixture_thickness_m
+FIXTURE_SIDE_M = _KR500.fixture_side_m
+TA_RAIL_SECTION_M = _KR500.adapter_rail_section_m
+TA_RAIL_LENGTH_M = _KR500.adapter_rail_length_m
+
+
+def _loads() -> CalibrationLoads:
+    return robots.active().calibration
+
+
+def mpa_mass_kg(loads: CalibrationLoads | None = None) -> float:
+    """The MPA's mass: a stainless plate with a central cut-out."""
+    c = _loads() if loads is None else loads
+    return (c.mpa_side_m**2 - np.pi * (c.mpa_cutout_diameter_m / 2) ** 2) * c.mpa_thickness_m * STAINLESS_DENSITY_KG_M3
+
+
+MPA_MASS_KG = mpa_mass_kg(_KR500)
+
+
+def fixture_mass_kg() -> float:
+    """m_f of the active robot's fixture."""
+    return _loads().fixture_mass_kg
 
 
 InertiaLike = Sequence[float] | Sequence[Sequence[float]] | np.ndarray
@@ -214,28 +236,34 @@ class Payload:
 
 
 def mpa() -> RigidBody:
-    """The multi-payload adapter: 440 × 440 × 20 mm stainless plate with a Ø120 mm cut-out (§2.2)."""
-    return RigidBody("MPA", MPA_MASS_KG, (0.0, 0.0, CHAIN_ORIGIN_Z_M + MPA_THICKNESS_M / 2),
-                     plate_with_hole_inertia_kgm2(MPA_MASS_KG, MPA_SIDE_M, MPA_THICKNESS_M, MPA_CUTOUT_DIAMETER_M))
+    """The multi-payload adapter (§2.2; KR 500: 440 × 440 × 20 mm stainless plate with a Ø120 mm cut-out)."""
+    c = _loads()
+    m = mpa_mass_kg(c)
+    return RigidBody("MPA", m, (0.0, 0.0, c.chain_origin_z_m + c.mpa_thickness_m / 2),
+                     plate_with_hole_inertia_kgm2(m, c.mpa_side_m, c.mpa_thickness_m, c.mpa_cutout_diameter_m))
 
 
 def cb_inertia_kgm2() -> tuple[float, float, float]:
-    """A calibration body's principal moments about its CoG (kg·m², z its normal): a 440 × 440 × 15 mm plate with
-    the Ø120 mm cut-out, 20.93 kg."""
-    return plate_with_hole_inertia_kgm2(CB_MASS_KG, MPA_SIDE_M, CB_THICKNESS_M, MPA_CUTOUT_DIAMETER_M)
+    """A calibration body's principal moments about its CoG (kg·m², z its normal): a plate of the MPA's outline
+    (KR 500: 440 × 440 × 15 mm with the Ø120 mm cut-out, 20.93 kg)."""
+    c = _loads()
+    return plate_with_hole_inertia_kgm2(c.body_mass_kg, c.mpa_side_m, c.body_thickness_m, c.mpa_cutout_diameter_m)
 
 
 def mpa_front_z_m() -> float:
-    return CHAIN_ORIGIN_Z_M + MPA_THICKNESS_M
+    c = _loads()
+    return c.chain_origin_z_m + c.mpa_thickness_m
 
 
 def calibration_stack(n_cb: int, base_z_m: float | None = None) -> tuple[RigidBody, ...]:
-    """``n_cb`` calibration bodies (20.93 kg, 15 mm) stacked outward from ``base_z_m`` (default: the MPA's face)."""
-    if not 0 <= n_cb <= N_CB_MAX:
-        raise ValueError(f"n_cb must be 0..{N_CB_MAX}, got {n_cb}")
+    """``n_cb`` calibration bodies (KR 500: 20.93 kg, 15 mm) stacked outward from ``base_z_m`` (default: the MPA's
+    face)."""
+    c = _loads()
+    if not 0 <= n_cb <= c.body_count_max:
+        raise ValueError(f"n_cb must be 0..{c.body_count_max}, got {n_cb}")
     z0 = mpa_front_z_m() if base_z_m is None else base_z_m
     return tuple(
-        RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z0 + CB_THICKNESS_M * (k - 0.5)), cb_inertia_kgm2())
+        RigidBody(f"CB{k}", c.body_mass_kg, (0.0, 0.0, z0 + c.body_thickness_m * (k - 0.5)), cb_inertia_kgm2())
         for k in range(1, n_cb + 1)
     )
 
@@ -248,25 +276,30 @@ def mass_calibration_payload(n_cb: int) -> Payload:
 def paper_levers_m(n_cb: int) -> tuple[float, float]:
     """Effective levers (m) of the calibration load to A3 and A5 in the measurement pose, as Table 1's expected
     torques use them: printed lever − 0.020 m. n = 0 is the MPA alone (Table 1's "0 (MPA)" row)."""
-    lever_a5 = 0.265 if n_cb == 0 else 0.275 + 0.0075 * n_cb
-    return lever_a5 + kin.D4_M, lever_a5
+    c = _loads()
+    lever_a5 = c.zero_lever_a5_m if n_cb == 0 else c.stack_lever_a5_m + c.stack_step_m * n_cb
+    return lever_a5 + robots.active().lever_difference_m, lever_a5
 
 
 def test_adapter(g_m_s2: float = kin.G_PAPER_M_S2) -> RigidBody:
     """The guide-rail test adapter (Fig. 18) on the MPA; its A5 torque in the measurement pose is Table A1's."""
-    lever_a5 = TA_TORQUE_A5_NM / (kin.G_PAPER_M_S2 * TA_MASS_KG)
-    # a guide rail along the flange axis: a 120 × 120 mm box of 1.0 m (its inertia is an assumption of the size)
-    return RigidBody("TA", TA_MASS_KG, (0.0, 0.0, lever_a5 - kin.D6_M),
-                     box_inertia_kgm2(TA_MASS_KG, TA_RAIL_SECTION_M, TA_RAIL_SECTION_M, TA_RAIL_LENGTH_M))
+    c = _loads()
+    lever_a5 = c.adapter_torque_a5_nm / (kin.G_PAPER_M_S2 * c.adapter_mass_kg)
+    # a guide rail along the flange axis (KR 500: a 120 × 120 mm box of 1.0 m; its inertia is an assumption)
+    return RigidBody("TA", c.adapter_mass_kg, (0.0, 0.0, lever_a5 - robots.active().dh[5].d_m),
+                     box_inertia_kgm2(c.adapter_mass_kg, c.adapter_rail_section_m, c.adapter_rail_section_m,
+                                      c.adapter_rail_length_m))
 
 
 def torque_calibration_payload(n_cb: int, cb_lever_a5_m: float) -> Payload:
     """Torque-based calibration (§2.4.3): MPA, test adapter, ``n_cb`` bodies whose common CoG is ``cb_lever_a5_m``
     from the A5 axis in the measurement pose (Table A1: 0.673..1.475 m)."""
-    if not 0.60 <= cb_lever_a5_m <= 1.50:
-        raise ValueError(f"cb_lever_a5_m {cb_lever_a5_m} m is outside the guide rail (0.60..1.50 m)")
-    z = cb_lever_a5_m - kin.D6_M
-    bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (0.0, 0.0, z), cb_inertia_kgm2()) for k in range(1, n_cb + 1))
+    c = _loads()
+    lo, hi = c.adapter_rail_a5_m
+    if not lo <= cb_lever_a5_m <= hi:
+        raise ValueError(f"cb_lever_a5_m {cb_lever_a5_m} m is outside the guide rail ({lo:g}..{hi:g} m)")
+    z = cb_lever_a5_m - robots.active().dh[5].d_m
+    bodies = tuple(RigidBody(f"CB{k}", c.body_mass_kg, (0.0, 0.0, z), cb_inertia_kgm2()) for k in range(1, n_cb + 1))
     return Payload((mpa(), test_adapter(), *bodies))
 
 
@@ -285,20 +318,23 @@ def dut_payload(
     dut_mass_kg: float,
     dut_cog_m: Sequence[float],
     dut_inertia_kgm2: InertiaLike = (0.0, 0.0, 0.0),
-    fixture_mass_kg: float = FIXTURE_MASS_KG,
+    fixture_mass_kg: float | None = None,
     with_mpa: bool = True,
 ) -> Payload:
     """A device under test on its fixture on the MPA (Fig. 14, 29).
 
     ``dut_cog_m`` is the DuT's CoG in the flange frame (m); ``dut_inertia_kgm2`` its inertia about that CoG in the
     flange frame (three moments along the flange axes or a 3×3 tensor, kg·m²). The fixture is a 400 × 400 × 40 mm
-    block centred on the MPA's face.
+    block centred on the MPA's face (KR 500: 400 × 400 × 40 mm); ``fixture_mass_kg`` default the robot's m_f.
     """
+    c = _loads()
+    fixture_mass_kg = c.fixture_mass_kg if fixture_mass_kg is None else fixture_mass_kg
     bodies: list[RigidBody] = [mpa()] if with_mpa else []
     if fixture_mass_kg > 0:
         base = mpa_front_z_m() if with_mpa else 0.0
-        bodies.append(RigidBody("fixture", fixture_mass_kg, (0.0, 0.0, base + FIXTURE_THICKNESS_M / 2),
-                                box_inertia_kgm2(fixture_mass_kg, FIXTURE_SIDE_M, FIXTURE_SIDE_M, FIXTURE_THICKNESS_M)))
+        bodies.append(RigidBody("fixture", fixture_mass_kg, (0.0, 0.0, base + c.fixture_thickness_m / 2),
+                                box_inertia_kgm2(fixture_mass_kg, c.fixture_side_m, c.fixture_side_m,
+                                                 c.fixture_thickness_m)))
     bodies.append(RigidBody("DuT", dut_mass_kg, tuple(float(c) for c in dut_cog_m), dut_inertia_kgm2))
     return Payload(tuple(bodies))
 
@@ -307,12 +343,12 @@ def dut_payload(
 def fixture_cog_flange_m(with_mpa: bool = True) -> tuple[float, float, float]:
     """CoG of the fixture block of :func:`dut_payload` in the flange frame (m)."""
     base = mpa_front_z_m() if with_mpa else 0.0
-    return (0.0, 0.0, base + FIXTURE_THICKNESS_M / 2)
+    return (0.0, 0.0, base + _loads().fixture_thickness_m / 2)
 
 
 def fixture_front_z_m(with_mpa: bool = True) -> float:
     """Flange-frame z of the fixture's front face, where a DuT's interface sits (m)."""
-    return (mpa_front_z_m() if with_mpa else 0.0) + FIXTURE_THICKNESS_M
+    return (mpa_front_z_m() if with_mpa else 0.0) + _loads().fixture_thickness_m
 
 
 @dataclass(frozen=True)
@@ -377,7 +413,7 @@ class AsymmetricDut:
     def cog_flange_m(self) -> np.ndarray:
         return self.rotation @ np.asarray(self.cog_dut_m) + np.asarray(self.dut_origin_flange_m)
 
-    def payload(self, fixture_mass_kg: float = FIXTURE_MASS_KG, with_mpa: bool = True) -> Payload:
+    def payload(self, fixture_mass_kg: float | None = None, with_mpa: bool = True) -> Payload:
         """MPA, fixture and this DuT, as mounted for a mass and a properties run."""
         return dut_payload(self.mass_kg, self.cog_flange_m, self.inertia_flange_kgm2, fixture_mass_kg, with_mpa)
 
@@ -407,6 +443,22 @@ def refex_wing_box() -> AsymmetricDut:
                          (1.6, 0.6, 0.3))
 
 
+#: The subscale DuT's principal moments about its CoG (kg·m²) and the turn of its principal axes (KUKA A, B, C, deg):
+#: a 0.30 × 0.12 × 0.10 m box of 4.6 kg homogeneous would have (0.0094, 0.0383, 0.0400); +25 % as for the wing box.
+SUBSCALE_BOX_PRINCIPAL_KGM2 = (0.0117, 0.048, 0.050)
+SUBSCALE_BOX_AXES_ABC_DEG = (6.0, -3.0, 4.0)
+
+
+def subscale_box() -> AsymmetricDut:
+    """A DuT for the KR 10's subscale bench: a 4.6 kg instrument box on the fixture (MPA 1.54 + fixture 0.5 + 4.6 =
+    6.6 kg of the arm's 10 kg), its frame at the centre of the fixture's front face turned 90° about the flange axis,
+    its CoG 80 mm out from the interface and 10/14 mm off the flange axis; 0.30 × 0.12 × 0.10 m. Invented numbers of
+    the right size."""
+    return AsymmetricDut("subscale instrument box", 4.6, (-0.010, 0.014, 0.080), (0.0, 0.0, fixture_front_z_m()),
+                         (90.0, 0.0, 0.0), _rotated_tensor(SUBSCALE_BOX_PRINCIPAL_KGM2, SUBSCALE_BOX_AXES_ABC_DEG),
+                         (0.30, 0.12, 0.10))
+
+
 def compact_cube() -> AsymmetricDut:
     """A compact DuT: a 0.5 m cube of 60 kg (a homogeneous one would have 2.5 kg·m² about every axis), its
     equipment not evenly spread: principal moments 2.2 / 2.5 / 2.9 kg·m², axes turned (12°, −5°, 7°) against the
@@ -429,11 +481,14 @@ def torsional_point_payload(n_cb: int, offset_x_m: float, offset_y_m: float,
                             z_m: float = TORSIONAL_BRACKET_Z_M) -> Payload:
     """A torsional calibration point: MPA plus ``n_cb`` bodies whose common CoG is at (x, y, z) in the flange frame
     (m); n_cb = 0 is the MPA alone (the bias of every pose)."""
-    if not 0 <= n_cb <= TORSIONAL_N_CB_MAX:
-        raise ValueError(f"n_cb {n_cb} must be 0..{TORSIONAL_N_CB_MAX} on the torsional bracket")
-    if n_cb and (max(abs(offset_x_m), abs(offset_y_m)) > 0.20 or not 0.10 <= z_m <= 0.60):
-        raise ValueError("the torsional bracket reaches 0.20 m off the flange axis and 0.10..0.60 m along it")
-    bodies = tuple(RigidBody(f"CB{k}", CB_MASS_KG, (offset_x_m, offset_y_m, z_m), cb_inertia_kgm2())
+    c = _loads()
+    if not 0 <= n_cb <= c.torsional_body_count_max:
+        raise ValueError(f"n_cb {n_cb} must be 0..{c.torsional_body_count_max} on the torsional bracket")
+    off_max, z_lo, z_hi = c.torsional_bracket_m
+    if n_cb and (max(abs(offset_x_m), abs(offset_y_m)) > off_max or not z_lo <= z_m <= z_hi):
+        raise ValueError(f"the torsional bracket reaches {off_max:g} m off the flange axis and {z_lo:g}..{z_hi:g} m "
+                         "along it")
+    bodies = tuple(RigidBody(f"CB{k}", c.body_mass_kg, (offset_x_m, offset_y_m, z_m), cb_inertia_kgm2())
                    for k in range(1, n_cb + 1))
     return Payload((mpa(), *bodies))
 

@@ -40,24 +40,25 @@ class SimProcessError(RgseError):
 
 
 def _child_main(conn: Connection, share_dir: str, seed: int | None, time_scale: float, latency_s: float,
-                globals_dat: str | None, file_rate_bytes_s: float | None = None) -> None:
+                globals_dat: str | None, file_rate_bytes_s: float | None = None, robot: str | None = None) -> None:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s sim: %(name)s: %(message)s")
     try:
-        asyncio.run(_child(conn, share_dir, seed, time_scale, latency_s, globals_dat, file_rate_bytes_s))
+        asyncio.run(_child(conn, share_dir, seed, time_scale, latency_s, globals_dat, file_rate_bytes_s, robot))
     except KeyboardInterrupt:  # the parent's Ctrl-C reaches the whole process group
         pass
 
 
 async def _child(conn: Connection, share_dir: str, seed: int | None, time_scale: float, latency_s: float,
-                 globals_dat: str | None, file_rate_bytes_s: float | None = None) -> None:
-    from simulators.krc4.scenario import ServerBehaviour, default_scenario  # the parent needs none of it
+                 globals_dat: str | None, file_rate_bytes_s: float | None = None, robot: str | None = None) -> None:
+    from rgse_daemon import robots
+    from simulators.krc4.scenario import ServerBehaviour, scenario_for  # the parent needs none of it
     from simulators.krc4.sim import SimulatedKrc4
 
     loop = asyncio.get_running_loop()
     try:
-        scenario = None
+        scenario = scenario_for(robots.DEFAULT_KEY if robot is None else robot)
         if file_rate_bytes_s is not None:
-            scenario = default_scenario().model_copy(
+            scenario = scenario.model_copy(
                 update={"server": ServerBehaviour(file_rate_bytes_s=file_rate_bytes_s)})
         sim = SimulatedKrc4(share_dir, scenario=scenario, seed=seed, time_scale=time_scale, latency_s=latency_s)
         await sim.start()
@@ -110,15 +111,17 @@ class SimProcess:
         latency_s: float = 0.002,
         globals_dat: str | None = None,
         file_rate_bytes_s: float | None = None,
+        robot: str | None = None,
     ) -> None:
         """``file_rate_bytes_s``: the controller's file work (``None``: the server's default, a real C3 Bridge's
-        ~100 kB/s); scaled up along with ``time_scale`` where large traces are pulled."""
+        ~100 kB/s); scaled up along with ``time_scale`` where large traces are pulled. ``robot``: the simulated arm
+        (a key of ``rgse_daemon.robots``; ``None``: the default KR 500 R2830) with its scenario."""
         self.share_dir = Path(share_dir)
         ctx = mp.get_context("spawn")  # no fork of a process that runs threads and an event loop
         self._conn, child_conn = ctx.Pipe()
         self._proc = ctx.Process(
             target=_child_main,
-            args=(child_conn, str(self.share_dir), seed, time_scale, latency_s, globals_dat, file_rate_bytes_s),
+            args=(child_conn, str(self.share_dir), seed, time_scale, latency_s, globals_dat, file_rate_bytes_s, robot),
             name="rgse-sim-krc4",
             daemon=True,
         )

@@ -13,8 +13,9 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from rgse_daemon import robots
 from rgse_daemon.errors import ConfigError
 
 DEFAULT_SCENARIO_PATH = Path(__file__).with_name("scenarios") / "default.toml"
@@ -71,6 +72,17 @@ class ArmModel(_Model):
             (6, 8.0, (0.0, 0.0, -0.02)),
         ]
     )
+    link_inertia_kgm2: dict[int, tuple[float, float, float]] = Field(default_factory=lambda: {
+        1: (80.0, 100.0, 90.0), 2: (8.0, 60.0, 60.0), 3: (15.0, 17.0, 15.0), 4: (10.7, 10.7, 1.4),
+        5: (1.2, 1.2, 1.0), 6: (0.046, 0.046, 0.09)})
+    """Inertia of each link about its CoG in its DH frame (kg·m², principal moments along the frame's axes; the
+    dynamics only). Default the KR 500's: link 2 the 1.3 m upper arm along its x, link 4 the wrist tube along z."""
+    column_mass_kg: float = Field(900.0, ge=0.0, le=5000.0)
+    """The rotating column (link 1): mass (kg), on the A1 axis' side, no gravity torque (the dynamics only)."""
+    column_cog_m: tuple[float, float, float] = (0.15, 0.0, -0.35)
+    motor_inertia_kgm2: tuple[float, float, float, float, float, float] = (0.006, 0.006, 0.004, 0.0006, 0.0006,
+                                                                           0.0004)
+    """Rotor (plus first gear stage) inertia of each axis' motor, motor side (kg·m²); reflected as J · N²."""
     bias_measurement_pose_nm: dict[str, float] = Field(default_factory=dict)
     """Reading (Nm, noise-free, cold) of the bare arm in the measurement pose, per axis key. For the keys given, a
     constant residual (bearings, gears, the controller's own model: eq. 17–18's M0) is added so that the reading
@@ -148,6 +160,13 @@ class Scenario(_Model):
     server: ServerBehaviour = ServerBehaviour()
     g_m_s2: float = Field(9.81, ge=9.7, le=9.9)
     """Gravity of the simulated world (the paper uses 9.81; Bremen is 9.8134)."""
+    robot: str = robots.DEFAULT_KEY
+    """The simulated arm (``rgse_daemon/robots/``): its kinematics, ranges, speeds and calibration load set."""
+
+    @field_validator("robot")
+    @classmethod
+    def _known_robot(cls, value: str) -> str:
+        return robots.get(value).key
 
     @model_validator(mode="after")
     def _all_axes(self) -> Scenario:
@@ -195,5 +214,17 @@ def load_scenario(path: Path | str) -> Scenario:
 
 
 def default_scenario() -> Scenario:
-    """The paper-like default (``scenarios/default.toml``)."""
+    """The paper-like default (``scenarios/default.toml``): the KR 500 R2830."""
     return load_scenario(DEFAULT_SCENARIO_PATH)
+
+
+def scenario_for(robot: str) -> Scenario:
+    """The default scenario of the arm ``robot`` (a robot key): ``scenarios/<key>.toml``, or ``default.toml`` for the
+    default robot."""
+    key = robots.get(robot).key
+    if key == robots.DEFAULT_KEY:
+        return default_scenario()
+    scenario = load_scenario(DEFAULT_SCENARIO_PATH.with_name(f"{key}.toml"))
+    if scenario.robot != key:
+        raise ConfigError(f"scenarios/{key}.toml simulates {scenario.robot}, not {key}")
+    return scenario

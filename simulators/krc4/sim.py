@@ -44,6 +44,7 @@ from typing import Any
 
 import numpy as np
 
+from rgse_daemon import robots
 from rgse_daemon.errors import ConfigError
 from rgse_daemon.krl.ast import Decl
 from rgse_daemon.krl.parser import parse_dat
@@ -51,7 +52,7 @@ from simulators.krc4.dynamics import SERVO_LAG_S, RobotDynamics, dynamic_reading
 from simulators.krc4.krl import KrlInterpreter, MotionEvent, ProgramLoader, share_loader
 from simulators.krc4.motion import MotionHistory, MotionSamples, axis_lines_batched
 from simulators.krc4.physics import CHANNEL_UNITS, CHANNELS, Payload, RobotModel, RobotState, TraceTruth
-from simulators.krc4.scenario import Scenario, load_scenario, scenario_from_mapping
+from simulators.krc4.scenario import Scenario, load_scenario, scenario_for, scenario_from_mapping
 from simulators.krc4.server import KrcServer, ServerConfig
 from simulators.krc4.trace import (
     DRIVE_MODULES,
@@ -123,7 +124,8 @@ def _scenario(scenario: Scenario | Path | str | Mapping[str, Any] | None) -> Sce
 
 
 class SimulatedKrc4:
-    """One simulated KR C4 with a KR 500 R2830 on a TCP port; see the module docstring.
+    """One simulated KR C4 with an arm of ``rgse_daemon/robots/`` (the scenario's ``robot``; default the KR 500 R2830)
+    on a TCP port; see the module docstring.
 
     Parameters
     ----------
@@ -156,7 +158,13 @@ class SimulatedKrc4:
     ) -> None:
         if not 0.0 < time_scale <= MAX_TIME_SCALE:
             raise ConfigError(f"time_scale {time_scale} must be > 0 and <= {MAX_TIME_SCALE:g}")
-        self.model = RobotModel(_scenario(scenario), seed=seed)
+        # the scenario names the simulated arm; without one, the active robot's default scenario. The arm is made
+        # the process's active robot: the kinematics, the motion limits and the load set are its from here on
+        resolved = _scenario(scenario)
+        if resolved is None:
+            resolved = scenario_for(robots.active().key)
+        robots.activate(resolved.robot)
+        self.model = RobotModel(resolved, seed=seed)
         self.dynamics = RobotDynamics(self.model.scenario)
         self.history = MotionHistory()
         """The planned motions in the simulator's clock (what the dynamics of a moving trace follow)."""

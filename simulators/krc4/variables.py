@@ -36,8 +36,10 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Protocol, runtime_checkable
 
+from rgse_daemon import robots
 from rgse_daemon.errors import ProtocolError, RgseError, VariableError
 from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, format_value, parse_value
+from rgse_daemon.robots import RobotModel
 
 # C3 Bridge error codes used by the store and the program host (docs/protocol.md §1).
 CODE_GENERAL = 0
@@ -164,9 +166,14 @@ def e6axis(a_deg: Iterable[float]) -> str:
     return format_value(KrlStruct("E6AXIS", tuple(fields)))
 
 
-#: Where the robot rests when the simulator starts (deg): the pose of the ``$AXIS_ACT`` example in
-#: docs/controller.md §4.
-HOME_AXES_DEG = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
+#: Where the robot rests when the simulator starts (deg): the simulated (active) robot's home; for the KR 500 the
+#: pose of the ``$AXIS_ACT`` example in docs/controller.md §4. This name is the default robot's (an alias).
+HOME_AXES_DEG = robots.get(robots.DEFAULT_KEY).home_deg
+
+
+def model_name_of(robot: RobotModel) -> str:
+    """``$MODEL_NAME[]`` of a KR C4 driving ``robot``: ``#KR500R2830 C4``."""
+    return f"#{robot.title.replace(' ', '')} C4"
 
 
 class VariableStore:
@@ -182,8 +189,10 @@ class VariableStore:
     """
 
     def __init__(
-        self, *, model_name: str = "#KR500R2830 C4", serial_no: int = 1234567, seed_system: bool = True
+        self, *, model_name: str | None = None, serial_no: int = 1234567, seed_system: bool = True
     ) -> None:
+        self.robot = robots.active()
+        model_name = model_name_of(self.robot) if model_name is None else model_name
         self._vars: dict[str, Variable] = {}
         if seed_system:
             self._seed(model_name, serial_no)
@@ -287,8 +296,8 @@ class VariableStore:
     def _seed(self, model_name: str, serial_no: int) -> None:
         ro = self.declare_system
         ro("$MODE_OP", Kind.ENUM, "#T1")
-        ro("$AXIS_ACT", Kind.STRUC, e6axis(HOME_AXES_DEG))
-        ro("$AXIS_ACT_MEAS", Kind.STRUC, e6axis(HOME_AXES_DEG))
+        ro("$AXIS_ACT", Kind.STRUC, e6axis(self.robot.home_deg))
+        ro("$AXIS_ACT_MEAS", Kind.STRUC, e6axis(self.robot.home_deg))
         ro(
             "$POS_ACT",
             Kind.STRUC,
@@ -321,7 +330,7 @@ class VariableStore:
         ro("$USER_SAF", Kind.BOOL, "TRUE")  # safety gate / operator safety closed
         ro("$STOPMESS", Kind.BOOL, "FALSE")
         ro("$MODEL_NAME[]", Kind.CHAR, f'"{model_name}"')
-        ro("$ROBNAME[]", Kind.CHAR, '"KR500R2830"')
+        ro("$ROBNAME[]", Kind.CHAR, f'"{self.robot.title.replace(" ", "")}"')
         ro("$KR_SERIALNO", Kind.INT, str(serial_no))
         ro("$ACCU_STATE", Kind.ENUM, "#CHARGE_OK")
         self.timers = SystemTimers(self)

@@ -11,10 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
+from rgse_daemon import robots
 from simulators.krc4.tracefiles import write_trace_set
 
 G = 9.81
-DR = 1.025
+_KR500 = robots.get(robots.DEFAULT_KEY)  # the paper's robot and load set
+DR = _KR500.lever_difference_m
 ROBOT = "KR500R2830-TEST"
 
 
@@ -54,8 +56,11 @@ def write_campaign(directory: Path, seed: int = 0, drive: Drive = Drive(), n_sam
     """A Table-1-like campaign: zero point, 10 stacked CB points, 3 torque points on a longer lever."""
     rng = np.random.default_rng(seed)
     directory.mkdir(parents=True, exist_ok=True)
-    specs = [("zero", 0.0, 1.29, 0.265)]
-    specs += [("mass", 20.93 * k, 1.29 + 0.0075 * k, 0.265 + 0.0075 * k) for k in range(1, 11)]
+    c = _KR500.calibration
+    l5_zero = c.zero_lever_a5_m
+    specs = [("zero", 0.0, l5_zero + DR, l5_zero)]
+    specs += [("mass", c.body_mass_kg * k, l5_zero + DR + c.stack_step_m * k, l5_zero + c.stack_step_m * k)
+              for k in range(1, 11)]
     specs += [("torque", 228.51, 1.80 + 0.25 * j, 0.775 + 0.25 * j) for j in range(3)]
     lines = ["[setup]", f'robot = "{robot}"', f"g = {G}", f"lever_difference_m = {DR}", ""]
     for i, (kind, m, l3, l5) in enumerate(specs):
@@ -71,7 +76,10 @@ def write_campaign(directory: Path, seed: int = 0, drive: Drive = Drive(), n_sam
     (directory / "manifest.toml").write_text("\n".join(lines), encoding="utf-8")
 
 
-def write_measurement(directory: Path, dut_mass_kg: float, fixture_mass_kg: float = 10.288, seed: int = 1,
+FIXTURE_MASS_KG = _KR500.calibration.fixture_mass_kg
+
+
+def write_measurement(directory: Path, dut_mass_kg: float, fixture_mass_kg: float = FIXTURE_MASS_KG, seed: int = 1,
                       drive: Drive = Drive(), n_samples: int = 1500, period_s: float = 0.004, n_loops: int = 5,
                       storage: str = "BLOCK", factor: float = 1.0, robot: str = ROBOT,
                       lever_a3_m: float = 1.40) -> None:

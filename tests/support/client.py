@@ -7,13 +7,15 @@ import dataclasses
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from rgse_daemon import robots
 from rgse_daemon.client import CampaignPoint, Prompt
 from rgse_daemon.procedures.calibration import table1_points
 from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.sim import SimulatedKrc4
 
 #: Zero, 2, 5 and 10 bodies and one torque point: the fewest that fit, quick on the simulator.
-SHORT_CAMPAIGN = table1_points(n_bodies=(0, 2, 5, 10), torque_levers_a5_m=(1.011,))
+SHORT_CAMPAIGN = table1_points(n_bodies=(0, 2, 5, 10),
+                               torque_levers_a5_m=robots.get(robots.DEFAULT_KEY).calibration.torque_levers_a5_m[1:2])
 
 
 def short_points() -> list[CampaignPoint]:

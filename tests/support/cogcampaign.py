@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from rgse_daemon.analysis.cog import FixtureFrame, PoseReading, properties_manifest_toml
 from rgse_daemon.pipeline import cog
 from simulators.krc4 import physics as ph
@@ -28,9 +29,7 @@ MOVE_S = 8.0
 #: at both signs of x and y, along the flange axis from 0.30 to 0.50 m, so that the payload torques of A3..A6 span
 #: those of a 100-130 kg DuT in every pose of the full scheme.
 TORSIONAL_POINTS: tuple[tuple[int, tuple[float, float, float]], ...] = (
-    (2, (0.10, 0.0, 0.30)), (2, (0.0, -0.10, 0.30)), (4, (-0.10, 0.05, 0.40)), (4, (0.05, 0.10, 0.40)),
-    (6, (0.10, -0.05, 0.45)), (6, (-0.05, -0.10, 0.50)),
-)
+    robots.get(robots.DEFAULT_KEY).calibration.torsional_points)  # the KR 500's (rgse_daemon/robots/)
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from typing import Any, Self
 
 import aiomqtt
 
+from rgse_daemon import robots
 from rgse_daemon.analysis.calibration import fit_campaign
 from rgse_daemon.app import STOP_TIMEOUT_S, Daemon
 from rgse_daemon.config import Config, MeasurementConfig, config_from_mapping
@@ -35,7 +36,7 @@ from tests.support.simcampaign import ROBOT, simulate_campaign, simulate_measure
 __all__ = ["ROBOT"]
 
 PREFIX = f"rgse/{ROBOT}"
-FIXTURE_KG = 10.288
+FIXTURE_KG = robots.get(robots.DEFAULT_KEY).calibration.fixture_mass_kg
 COMMAND_TOKEN = "daemon-test-token"  # commands that move the robot need one (secure by default)
 #: Deadline of waits on the daemon (a hang guard, not a timing check).
 WAIT_S = 60.0

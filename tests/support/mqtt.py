@@ -20,12 +20,15 @@ from typing import Any, Self
 import aiomqtt
 import pytest
 
+from rgse_daemon import robots
 from rgse_daemon.config import MqttConfig
 from rgse_daemon.io.commands import AbortCommand, CalibrateCommand, ConfirmCommand, MeasureCommand
 from rgse_daemon.store import ResultRecord, RunRecord, Store, archive_file_async, archive_root
 
 MOSQUITTO = "/usr/sbin/mosquitto"
 ROBOT = "KR500R2830-1234"
+
+_FIXTURE_KG = robots.get(robots.DEFAULT_KEY).calibration.fixture_mass_kg
 
 
 async def port_open(host: str, port: int, timeout_s: float = 2.0) -> bool:
@@ -432,7 +435,7 @@ async def stored_result(
     store: Store, data_dir: Path, tmp_path: Path, result_topic: Callable[[str], Any], mass_kg: float
 ) -> tuple[RunRecord, ResultRecord]:
     """A measurement run with one archived raw file and its result, recorded with an outbox message."""
-    run = await store.create_run("measurement", ROBOT, {"fixture_mass_kg": 10.288})
+    run = await store.create_run("measurement", ROBOT, {"fixture_mass_kg": _FIXTURE_KG})
     await store.set_run_state(run.id, "running")
     src = tmp_path / "share" / f"{run.id}_NextGenDrive#3.r64"
     src.parent.mkdir(exist_ok=True)

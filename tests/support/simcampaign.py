@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from rgse_daemon.manifest import Loop, Manifest, PointSpec, Setup
 from simulators.krc4 import physics as ph
 from simulators.krc4.scenario import Scenario
@@ -25,12 +26,12 @@ from simulators.krc4.tracefiles import write_trace_set
 
 ROBOT = "KR500R2830-SIM"
 G = 9.81
-DR = kin.D4_M
+DR = robots.get(robots.DEFAULT_KEY).lever_difference_m
 SETTLE_S = 4.0
 LOOP_S = 150.0
 CHANGE_BODIES_S = 600.0
 #: Torque rows: A5 lever of the 10 bodies on the test adapter (Table 1's three torque rows).
-TORQUE_ROW_LEVERS_A5_M = (0.761, 1.011, 1.261)
+TORQUE_ROW_LEVERS_A5_M = robots.get(robots.DEFAULT_KEY).calibration.torque_levers_a5_m
 
 
 @dataclass(frozen=True)
