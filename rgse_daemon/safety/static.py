@@ -243,8 +243,9 @@ class _Checker(AbstractInterpreter):
                 return replace(st, override_pct=100.0)
             if not (is_number(value) and MIN_OV_PRO_PCT <= value <= 100):  # type: ignore[operator]
                 # (an INT: 0.4 is stored as 0, and 0 stalls every motion, as $VEL_AXIS below its floor would)
+                low = is_number(value) and value < MIN_OV_PRO_PCT  # type: ignore[operator]
                 self.report("OV_PRO", pos, f"$OV_PRO must be a constant in {MIN_OV_PRO_PCT}..100 %, not {_show(value)}"
-                            " (below the smallest speed a motion is allowed: it would stall)")
+                            + (" (below the smallest speed a motion is allowed: it would stall)" if low else ""))
                 return replace(st, override_pct=100.0, override_min_pct=float(MIN_OV_PRO_PCT))
             return replace(st, override_pct=max(st.override_pct, float(value)),  # type: ignore[arg-type]
                            override_min_pct=float(value))  # type: ignore[arg-type]

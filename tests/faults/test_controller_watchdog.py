@@ -94,7 +94,9 @@ async def _fault_mid_warmup(sim: SimProcess, tmp_path: Path, calibration_doc: di
                         warmup_cycles=40)  # a warm-up of minutes: it cannot end by itself while observed
     # the default bound (tests/support/daemon.py raises it to 1 s for the other tests)
     cfg = cfg.model_copy(update={"controller": cfg.controller.model_copy(
-        update={"watchdog_bound_s": ControllerConfig().watchdog_bound_s})})
+        update={"watchdog_bound_s": ControllerConfig().watchdog_bound_s}),
+        # 40 cycles are bounded at about 30 min of motion: above the default limits.max_motion_s, as meant here
+        "limits": cfg.limits.model_copy(update={"max_motion_s": 3600.0})})
     await seed_calibration(cfg, calibration_doc)
     observer = Observer(sim.port)
     child = DaemonProcess(cfg, "measurement")

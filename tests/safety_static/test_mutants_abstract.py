@@ -10,12 +10,21 @@ from __future__ import annotations
 
 import pytest
 
+from rgse_daemon.config import BoxConfig, CellConfig, LimitsConfig
 from rgse_daemon.krl import ast as k
 from rgse_daemon.krl.abstract import MAX_FIXPOINT_ITERATIONS, MAX_POSES, MAX_STEPS, MAX_UNROLL, TooComplex
 from rgse_daemon.safety.static import CheckContext, Violation, _Checker, check_program
 
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
 CTX = CheckContext(start_axes_deg=MEAS)
+#: a cell with nothing in the way (no ceiling at 5 m, no floor or frame under the base): for the cases that pin joint
+#: ranges and poses, where the default cell's WORKSPACE rule would refuse A3 below ~46 deg (the payload box reaches
+#: the 5 m ceiling) and hide what is pinned
+ROOMY = CheckContext(start_axes_deg=MEAS, cell=CellConfig(
+    floor_z_m=-5.0, walls=BoxConfig(min_m=(-20.0, -20.0, -5.0), max_m=(20.0, 20.0, 20.0)), keep_out=()))
+#: the largest motion-time bound the configuration allows: for the many-pass FORs that pin the fixpoint, not the
+#: MOTION_TIME rule
+LONG = CheckContext(start_axes_deg=MEAS, limits=LimitsConfig(max_motion_s=3600.0))
 SLOW = "\n".join(f"  $VEL_AXIS[{i}] = 2\n  $ACC_AXIS[{i}] = 20" for i in range(1, 7))
 DECLS = "  DECL INT I, J, N\n  DECL REAL R\n  DECL BOOL B\n  DECL E6AXIS P\n  DECL INT A[3]\n  DECL E6AXIS Q[2]\n"
 BODY_LINE = 22  # first line of the body below DECLS and SLOW
@@ -62,7 +71,8 @@ def test_for_counter_values_reach_the_body() -> None:
 
 
 def test_for_refusals() -> None:
-    assert rules("  FOR I = 1 TO 3 STEP 0\n    PTP_REL {A3 1}\n  ENDFOR") == {"LOOP"}
+    # STEP 0 never ends: the motion inside it has no bound either (UNBOUNDED)
+    assert rules("  FOR I = 1 TO 3 STEP 0\n    PTP_REL {A3 1}\n  ENDFOR") == {"LOOP", "UNBOUNDED"}
     assert rules("  FOR I = 1 TO 3 STEP 0\n  ENDFOR") == {"LOOP"}
     # a REAL step is rounded; 0.5 is a tie (not documented which way): refused at the FOR
     v = found(program("  FOR I = 1 TO 3 STEP 0.5\n  ENDFOR"))
@@ -97,7 +107,9 @@ def test_for_unrolls_exactly_max_unroll_passes() -> None:
     # fixpoint, where a relative move repeated an unknown number of times never settles
     assert rules("  FOR I = 1 TO 1000\n    PTP_REL {A6 0.05}\n  ENDFOR") == set()
     assert rules("  FOR I = 1 TO 1001\n    PTP_REL {A6 0.05}\n  ENDFOR") == {"LOOP"}
-    assert rules("  FOR I = 1 TO 1001\n    PTP {A6 5}\n  ENDFOR") == set()  # absolute: settles
+    # absolute: settles (1001 passes of up to 2.25 s each at 2 %: above the default 600 s, within 3600 s)
+    assert rules("  FOR I = 1 TO 1001\n    PTP {A6 5}\n  ENDFOR", LONG) == set()
+    assert rules("  FOR I = 1 TO 1001\n    PTP {A6 5}\n  ENDFOR") == {"MOTION_TIME"}  # for its duration, no LOOP
 
 
 def test_exit_leaves_the_loop_with_its_state() -> None:
@@ -138,8 +150,9 @@ def test_return_ends_the_path() -> None:
     ("  WHILE FALSE\n    PTP {A3 145}\n  ENDWHILE", set()),
     ("  WHILE TRUE\n    PTP_REL {A3 18}\n    EXIT\n  ENDWHILE\n  PTP_REL {A3 36}", set()),
     ("  WHILE TRUE\n    PTP_REL {A3 18}\n    EXIT\n  ENDWHILE\n  PTP_REL {A3 37}", {"JOINT_LIMIT"}),
-    ("  WHILE RGSE_GO\n    PTP {A3 100}\n  ENDWHILE", set()),
-    ("  WHILE RGSE_GO\n    PTP_REL {A3 1}\n  ENDWHILE", {"LOOP"}),
+    # an unknown condition: the passes cannot be counted (UNBOUNDED); an absolute motion settles, a relative does not
+    ("  WHILE RGSE_GO\n    PTP {A3 100}\n  ENDWHILE", {"UNBOUNDED"}),
+    ("  WHILE RGSE_GO\n    PTP_REL {A3 1}\n  ENDWHILE", {"LOOP", "UNBOUNDED"}),
     ("  WHILE 1\n  ENDWHILE", {"RUNTIME"}),
     ("  I = 0\n  REPEAT\n    I = I + 1\n  UNTIL I", {"RUNTIME"}),
 ])
@@ -149,10 +162,10 @@ def test_conditional_loops(loop: str, verdict: set[str]) -> None:
 
 def test_while_is_followed_pass_by_pass_up_to_the_unroll_limit() -> None:
     # 999 passes of 0.05 deg are followed one by one; a loop still running at pass 1000 becomes a fixpoint, where the
-    # relative move never settles
+    # relative move never settles (and the check, no longer following the passes, cannot count them: UNBOUNDED)
     loop = "  I = 0\n  WHILE I < {n}\n    PTP_REL {{A6 0.05}}\n    I = I + 1\n  ENDWHILE"
     assert rules(loop.format(n=MAX_UNROLL - 1)) == set()
-    assert rules(loop.format(n=MAX_UNROLL + 5)) == {"LOOP"}
+    assert rules(loop.format(n=MAX_UNROLL + 5)) == {"LOOP", "UNBOUNDED"}
 
 
 # --- IF and the joins -------------------------------------------------------------------------------------------------
@@ -164,15 +177,16 @@ def test_if_with_a_known_condition_takes_its_branch() -> None:
 
 
 def test_a_join_keeps_every_pose() -> None:
-    # either branch may run: from 101 a further 44 is beyond 144, from 80 it is not
+    # either branch may run: from 101 a further 44 is beyond 144, from 80 it is not (in a cell with nothing in the
+    # way: in the default one A3 below ~46 deg lifts the payload box into the ceiling, WORKSPACE)
     two = "  IF RGSE_CMD == 1 THEN\n    PTP {A3 101}\n  ELSE\n    PTP {A3 80}\n  ENDIF\n"
-    assert rules(two + "  PTP_REL {A3 44}") == {"JOINT_LIMIT"}
-    assert rules(two.replace("101", "100") + "  PTP_REL {A3 44}") == set()
+    assert rules(two + "  PTP_REL {A3 44}", ROOMY) == {"JOINT_LIMIT"}
+    assert rules(two.replace("101", "100") + "  PTP_REL {A3 44}", ROOMY) == set()
     swapped = "  IF RGSE_CMD == 1 THEN\n    PTP {A3 80}\n  ELSE\n    PTP {A3 101}\n  ENDIF\n"
-    assert rules(swapped + "  PTP_REL {A3 44}") == {"JOINT_LIMIT"}
-    assert rules(swapped + "  PTP_REL {A3 -45}") == set()
-    assert rules(swapped.replace("A3 80", "A3 -55") + "  PTP_REL {A3 -45}") == set()
-    assert rules(swapped.replace("A3 80", "A3 -56") + "  PTP_REL {A3 -45}") == {"JOINT_LIMIT"}
+    assert rules(swapped + "  PTP_REL {A3 44}", ROOMY) == {"JOINT_LIMIT"}
+    assert rules(swapped + "  PTP_REL {A3 -45}", ROOMY) == set()
+    assert rules(swapped.replace("A3 80", "A3 -55") + "  PTP_REL {A3 -45}", ROOMY) == set()
+    assert rules(swapped.replace("A3 80", "A3 -56") + "  PTP_REL {A3 -45}", ROOMY) == {"JOINT_LIMIT"}
 
 
 def test_a_join_keeps_the_largest_speed_and_override() -> None:
@@ -213,23 +227,29 @@ def test_at_most_max_poses_are_followed(branches: int, verdict: set[str]) -> Non
 # --- LOOP and fixpoints -----------------------------------------------------------------------------------------------
 def test_fixpoint_settles_or_refuses() -> None:
     assert MAX_FIXPOINT_ITERATIONS == 12
+    # every loop here moves an uncounted number of passes without a host command pacing them: each is refused as
+    # UNBOUNDED as well (always at the loop, BODY_LINE); what the fixpoint leaves after the loop is pinned by the rest
     # after the loop the robot is at A3 100 (the only exit is after that motion): 44 more is 144
     exit_after = "  LOOP\n    PTP {A3 100}\n    IF RGSE_CMD == 9 THEN\n      EXIT\n    ENDIF\n  ENDLOOP\n"
-    assert rules(exit_after + "  PTP_REL {A3 44}") == set()
-    assert rules(exit_after + "  PTP_REL {A3 45}") == {"JOINT_LIMIT"}
+    assert rules(exit_after + "  PTP_REL {A3 44}") == {"UNBOUNDED"}
+    assert [(x.line, x.rule) for x in found(program(exit_after + "  PTP_REL {A3 44}"))] == [(BODY_LINE, "UNBOUNDED")]
+    assert rules(exit_after + "  PTP_REL {A3 45}") == {"UNBOUNDED", "JOINT_LIMIT"}
     # an endless LOOP without EXIT has no state after it: what follows is never reached
-    assert rules("  LOOP\n    PTP {A3 100}\n  ENDLOOP\n  PTP {A3 145}") == set()
+    assert rules("  LOOP\n    PTP {A3 100}\n  ENDLOOP\n  PTP {A3 145}") == {"UNBOUNDED"}
     # a WHILE with an unknown condition may also end before its first pass: the state before it continues
-    assert rules("  WHILE RGSE_GO\n    PTP {A3 100}\n  ENDWHILE\n  PTP_REL {A3 44}") == set()
-    assert rules("  WHILE RGSE_GO\n    PTP {A3 100}\n  ENDWHILE\n  PTP_REL {A3 45}") == {"JOINT_LIMIT"}
+    assert rules("  WHILE RGSE_GO\n    PTP {A3 100}\n  ENDWHILE\n  PTP_REL {A3 44}") == {"UNBOUNDED"}
+    assert rules("  WHILE RGSE_GO\n    PTP {A3 100}\n  ENDWHILE\n  PTP_REL {A3 45}") == {"UNBOUNDED", "JOINT_LIMIT"}
     # a loop that never settles leaves the pose unknown: the next motion is refused as unverifiable
-    assert rules("  WHILE RGSE_GO\n    PTP_REL {A3 1}\n  ENDWHILE\n  PTP {A3 100}") == {"LOOP", "START_UNKNOWN"}
+    assert rules("  WHILE RGSE_GO\n    PTP_REL {A3 1}\n  ENDWHILE\n  PTP {A3 100}") == {
+        "LOOP", "UNBOUNDED", "START_UNKNOWN"}
 
 
 def test_a_counter_in_a_fixpoint_is_unknown() -> None:
-    assert rules("  FOR I = 1 TO 2000\n    PTP {A3 100}\n  ENDFOR") == set()
-    assert rules("  FOR I = 1 TO 2000\n    J = I\n    PTP {A3 J}\n  ENDFOR") == {"TARGET"}
-    assert rules("  FOR I = 1 TO RGSE_N\n    PTP {A3 I}\n  ENDFOR") == {"TARGET"}
+    # 2000 passes of a 1 deg move (up to 0.91 s each at 2 %: 1829 s) fit the largest max_motion_s the configuration
+    # allows; only a target taken from the counter is refused
+    assert rules("  FOR I = 1 TO 2000\n    PTP {A3 91}\n  ENDFOR", LONG) == set()
+    assert rules("  FOR I = 1 TO 2000\n    J = I\n    PTP {A3 J}\n  ENDFOR", LONG) == {"TARGET"}
+    assert rules("  FOR I = 1 TO RGSE_N\n    PTP {A3 I}\n  ENDFOR", LONG) == {"TARGET"}
 
 
 # --- assignments ------------------------------------------------------------------------------------------------------
@@ -319,9 +339,11 @@ def test_an_unknown_start_pose() -> None:
 def test_a_refused_target_keeps_the_poses_before() -> None:
     # A3 146 is refused; checking goes on from A3 90: a further PTP_REL of 10 reaches 100 (from 146 it would be 156)
     assert [x.line for x in found(program("  PTP {A3 146}\n  PTP_REL {A3 10}"))] == [BODY_LINE]
-    # five moves of -45 from 90 reach -135, beyond -100 (from 146 they would end at -79)
+    # five moves of -45 from 90 reach -135, beyond -100 (from 146 they would end at -79); in a cell with nothing in
+    # the way (in the default one the payload box reaches the ceiling below A3 ~46 deg, WORKSPACE)
     five = "  PTP {A3 146}" + "\n  PTP_REL {A3 -45}" * 5
-    assert [x.line for x in found(program(five))] == [BODY_LINE, BODY_LINE + 5]
+    assert [(x.line, x.rule) for x in found(program(five), ROOMY)] == [(BODY_LINE, "JOINT_LIMIT"),
+                                                                       (BODY_LINE + 5, "JOINT_LIMIT")]
     # an unresolvable target leaves the pose unknown
     assert rules("  PTP RGSE_TARGET\n  PTP {A3 100}") == {"TARGET", "START_UNKNOWN"}
 

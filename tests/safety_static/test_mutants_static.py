@@ -1,7 +1,7 @@
 """The static check at its exact limits, each boundary from both sides (issue #31 item 6: survivors of mutmut).
 
 Every limit of ``safety/static.py`` is inclusive as documented in its rule table ("≤ t1_speed_mm_s", "within the axis
-ranges", "|A1| ≤ a1_range_deg", "payload ≤ max_payload_kg", "torque ≤ max_a5_torque_nm", "$OV_PRO 0..100",
+ranges", "|A1| ≤ a1_range_deg", "payload ≤ max_payload_kg", "torque ≤ max_a5_torque_nm", "$OV_PRO 1..100",
 "$VEL_AXIS [0.01, 100] %", "$VEL.CP (0, 2] m/s"): a value exactly at the limit is allowed, the next representable
 step beyond is refused. The programs named in the issue (``$VEL_AXIS[1, 2] = 2``, ``B = 1 AND TRUE``,
 ``B = TRUE == 1``) are refused as ``docs/krl-semantics.md`` says the controller treats them.
@@ -15,7 +15,7 @@ import struct
 
 import pytest
 
-from rgse_daemon.config import LimitsConfig
+from rgse_daemon.config import BoxConfig, CellConfig, LimitsConfig
 from rgse_daemon.errors import KrlSyntaxError
 from rgse_daemon.kinematics import JOINT_LIMITS_DEG, MAX_AXIS_SPEED_DEG_S, max_point_speed_mm_s
 from rgse_daemon.krl import ast as k
@@ -24,6 +24,11 @@ from rgse_daemon.safety.static import MAX_MOTION_CHECKS, CheckContext, Violation
 
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
 CTX = CheckContext(start_axes_deg=MEAS)
+#: a cell with nothing in the way (no floor or frame under the base, walls and ceiling far off): for the axis-range
+#: boundaries, which the default cell's WORKSPACE rule would hide (A2 20 with A3 90 takes the payload box below the
+#: floor)
+ROOMY_CELL = CellConfig(floor_z_m=-5.0, walls=BoxConfig(min_m=(-20.0, -20.0, -5.0), max_m=(20.0, 20.0, 20.0)),
+                        keep_out=())
 SLOW = "\n".join(f"  $VEL_AXIS[{i}] = 2\n  $ACC_AXIS[{i}] = 20" for i in range(1, 7))
 
 
@@ -97,7 +102,7 @@ def test_a_start_exactly_at_an_axis_limit_is_allowed_beyond_it_refused(axis: int
 def test_a_target_exactly_at_an_axis_limit_is_allowed_beyond_it_refused(axis: int, limit: float) -> None:
     start = list(MEAS)
     start[axis - 1] = limit - math.copysign(1.0, limit)
-    ctx = CheckContext(start_axes_deg=tuple(start))
+    ctx = CheckContext(start_axes_deg=tuple(start), cell=ROOMY_CELL)
     assert rules(program(f"  PTP {{A{axis} {limit:g}}}"), ctx) == set()
     beyond = f"{limit + math.copysign(0.001, limit):.3f}"
     assert rules(program(f"  PTP {{A{axis} {beyond}}}"), ctx) == {"JOINT_LIMIT"}
@@ -349,7 +354,7 @@ def test_extra_routines_are_refused_with_their_place() -> None:
 def test_the_payload_violation_sits_at_the_main_routine() -> None:
     v = found(program(""), CheckContext(start_axes_deg=MEAS, payload_mass_kg=700.0))
     assert [(x.line, x.column, x.rule) for x in v] == [(3, 1, "PAYLOAD")]
-    assert v[0].message == "payload 700 kg outside 0..611 kg (load diagram, paper Fig. 16)"
+    assert v[0].message == "payload 700 kg outside 0..611 kg (load diagram of the KR 500 R2830, paper Fig. 16)"
 
 
 def test_data_list_values() -> None:
@@ -371,9 +376,10 @@ def test_data_list_values() -> None:
 
 
 def test_parameters_of_the_main_routine_are_own_but_unknown() -> None:
-    src = f"&ACCESS RVP\n&REL 1\nDEF prop(T :IN)\n  DECL INT T\n{SLOW}\n  T = 5\n  PTP {{A3 T}}\nEND\n"
+    # (A3 100: a pose the default cell allows; A3 5 would lift the payload box into the ceiling, WORKSPACE)
+    src = f"&ACCESS RVP\n&REL 1\nDEF prop(T :IN)\n  DECL INT T\n{SLOW}\n  T = 100\n  PTP {{A3 T}}\nEND\n"
     assert found(src) == []  # its own variable: written without WRITE, and known after the write
-    unknown = src.replace("  T = 5\n", "")
+    unknown = src.replace("  T = 100\n", "")
     assert {v.rule for v in found(unknown)} == {"TARGET"}  # the caller's value is not known
 
 
@@ -474,8 +480,12 @@ def test_setting_messages() -> None:
         return v.message
 
     not_constant = "a value that is not a constant"
-    assert message("  $OV_PRO = RGSE_OV") == f"$OV_PRO must be a constant in 0..100 %, not {not_constant}"
-    assert message("  $OV_PRO = 101") == "$OV_PRO must be a constant in 0..100 %, not INT 101"
+    stall = " (below the smallest speed a motion is allowed: it would stall)"  # only below the floor
+    assert message("  $OV_PRO = RGSE_OV") == f"$OV_PRO must be a constant in 1..100 %, not {not_constant}"
+    assert message("  $OV_PRO = 101") == "$OV_PRO must be a constant in 1..100 %, not INT 101"
+    assert message("  $OV_PRO = 0") == f"$OV_PRO must be a constant in 1..100 %, not INT 0{stall}"
+    assert message("  $OV_PRO = 0.4") == f"$OV_PRO must be a constant in 1..100 %, not INT 0{stall}"  # stored as INT
+    assert found(program("  $OV_PRO = 1\n  PTP {A3 91}")) == []  # the floor itself is allowed
     f32 = struct.unpack("<f", struct.pack("<f", 0.0099))[0]
     assert message("  $VEL_AXIS[2] = 0.0099") == (
         f"$VEL_AXIS must be set to a constant in [0.01, 100] %, not REAL {f32!r}")

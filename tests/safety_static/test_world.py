@@ -23,6 +23,7 @@ from rgse_daemon.safety.static import (
     check_program,
     mounted_payload,
 )
+from tests.safety_static.test_watchdog_rule import ARM, ROUTINE
 
 MEAS = (0.0, -90.0, 90.0, 0.0, 0.0, 0.0)
 SLOW = "\n".join(f"  $VEL_AXIS[{i}] = 2\n  $ACC_AXIS[{i}] = 20" for i in range(1, 7))
@@ -33,6 +34,12 @@ FIRST = 16
 
 def program(body: str, decls: str = "") -> str:
     return f"&ACCESS RVP\n&REL 1\nDEF world( )\n{decls}{SLOW}\n{body}\nEND\n"
+
+
+def armed(src: str) -> str:
+    """``src`` with the controller-side watchdog armed after the settings (what the push and ``rgse krl check``
+    require by default, tests/safety_static/test_watchdog_rule.py)."""
+    return src.replace(SLOW + "\n", SLOW + "\n" + ARM, 1) + "\n" + ROUTINE
 
 
 def found(src: str, ctx: CheckContext = CTX) -> list[Violation]:
@@ -167,7 +174,7 @@ HEAVY_DUT = {"cell": {"dut_mass_kg": 450.0, "dut_cog_flange_m": [0.0, 0.0, 0.6]}
 def test_the_push_check_refuses_a_program_over_the_load_diagram_with_the_configured_dut() -> None:
     """Safe with an empty flange; with the configured DuT (450 kg, 0.6 m out: 450·9.81·0.89 = 3929 Nm in the
     measurement pose, above 3330 Nm) the push is refused."""
-    src = program("  PTP {A3 95, A5 5}\n  PTP {A3 90, A5 0}")
+    src = armed(program("  PTP {A3 95, A5 5}\n  PTP {A3 90, A5 0}"))  # the watchdog armed, as the push requires
     empty = Config()
     static_checker(empty.limits, empty.measurement.payload_lever_max_m)(_Program("world", src), _snapshot())
     cfg = config_from_mapping(HEAVY_DUT)
@@ -175,7 +182,7 @@ def test_the_push_check_refuses_a_program_over_the_load_diagram_with_the_configu
     assert mass_kg == 450.0 and cog == (0.0, 0.0, 0.6)
     check = static_checker(cfg.limits, cfg.measurement.payload_lever_max_m, payload=mounted_payload(cfg),
                            cell=cfg.cell)
-    with pytest.raises(InterlockError, match=r"world.src:16:3: A5_TORQUE"):
+    with pytest.raises(InterlockError, match=r"world.src:\d+:3: A5_TORQUE"):
         check(_Program("world", src), _snapshot())
 
 
@@ -185,7 +192,7 @@ def test_the_daemon_wires_the_configured_payload_into_its_push_check(tmp_path: P
     daemon = Daemon(config_from_mapping({**HEAVY_DUT, "paths": {"data_dir": str(tmp_path)}}))
     engine = daemon._make_engine(object())  # type: ignore[arg-type]
     with pytest.raises(InterlockError, match="A5_TORQUE"):
-        engine.checker(_Program("world", program("  PTP {A3 95, A5 5}")), _snapshot())
+        engine.checker(_Program("world", armed(program("  PTP {A3 95, A5 5}"))), _snapshot())
 
 
 def test_mounted_payload_adds_the_fixture_and_takes_the_worst_credible_dut() -> None:
@@ -200,11 +207,11 @@ def test_mounted_payload_adds_the_fixture_and_takes_the_worst_credible_dut() -> 
 
 def test_krl_check_takes_the_payload(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "world.src"
-    path.write_text(program("  PTP {A3 95, A5 5}"), encoding="latin-1")
+    path.write_text(armed(program("  PTP {A3 95, A5 5}")), encoding="latin-1")
     assert cli.main(["krl", "check", str(path)]) == 0, capsys.readouterr().out
     assert cli.main(["krl", "check", str(path), "--payload", "450", "--cog", "0", "0", "0.6"]) == 3
     out = capsys.readouterr().out
-    assert "world.src:16:3: A5_TORQUE" in out
+    assert "A5_TORQUE" in out and "WATCHDOG" not in out
     assert cli.main(["krl", "check", str(path), "--payload", "50", "--cog", "0", "0", "0.6"]) == 0
     cfg = tmp_path / "heavy.toml"
     cfg.write_text('[cell]\ndut_mass_kg = 450.0\ndut_cog_flange_m = [0.0, 0.0, 0.6]\n', encoding="utf-8")
