@@ -343,7 +343,7 @@ async def _run_demo(setup: DemoSetup, *, quiet: bool, report_dir: Path | None, m
                          file_rate_bytes_s=INERTIA_FILE_RATE_BYTES_S if inertia else None, robot=setup.robot.key)
         await asyncio.to_thread(sim.start)
         try:
-            cfg = demo_config(sim, root / "data", mqtt_url, console_port, setup)
+            cfg = demo_config(sim, root / "data", mqtt_url, console_port, setup=setup)
             ref: list[Daemon] = []
             operator = Operator(sim, ref, view)
             daemon = Daemon(cfg, on_event=operator)

@@ -26,7 +26,8 @@ def test_kr10_demo_agrees_with_truth_within_u() -> None:
     lines = proc.stdout.strip().splitlines()
     assert len(lines) == 1, proc.stdout
     out = json.loads(lines[0])
-    assert out["robot"] == "kr10r1440" and out["true_mass_kg"] == 4.6 and out["loops"] == 10
+    assert out["robot"] == "kr10r1440" and out["true_mass_kg"] == 4.6
+    assert 3 <= out["loops"] <= 10 and out["stop_reason"] in ("loop term below share", "target U met", "max loops")
     err = out["mass_kg"] - out["true_mass_kg"]
     assert abs(err) <= out["U_kg"], f"measured {out['mass_kg']:.4f} ± {out['U_kg']:.4f} kg, true 4.6 kg"
     assert out["within_U"] is True
