@@ -8,16 +8,27 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import logging
 import signal
 import sys
 
 from rgse_daemon.app import Daemon
 from rgse_daemon.config import Config, load_config
+from rgse_daemon.logs import JournalFormatter, JsonFormatter, syslog_priority
 from rgse_daemon.store import describe_store
 
 
 def _say(text: str) -> None:
-    print(f"rgse daemon: {text}", file=sys.stderr, flush=True)
+    """One start/stop line on stderr, in the format the log handler writes there: the journal reads an sd-daemon
+    priority prefix on every line (``<6>``, info) and a ``json`` log stream must stay one object per line."""
+    line = f"rgse daemon: {text}"
+    formatter = next((h.formatter for h in logging.getLogger().handlers
+                      if isinstance(h.formatter, JournalFormatter | JsonFormatter)), None)
+    if isinstance(formatter, JournalFormatter):
+        line = f"<{syslog_priority(logging.INFO)}>{line}"
+    elif isinstance(formatter, JsonFormatter):
+        line = formatter.format(logging.LogRecord(__name__, logging.INFO, __file__, 0, line, None, None))
+    print(line, file=sys.stderr, flush=True)
 
 
 def serving(cfg: Config) -> str:

@@ -31,8 +31,8 @@ from rgse_daemon.report.data import (
     load_measurement,
     meta,
 )
-from rgse_daemon.report.page import render_calibration, render_measurement
-from rgse_daemon.store import Repository
+from rgse_daemon.report.page import render_calibration, render_measurement, render_run_record
+from rgse_daemon.store import Repository, RunKind
 
 __all__ = [
     "CalibrationView",
@@ -54,7 +54,16 @@ def build_report(repo: Repository, data_dir: Path, out_dir: Path, *, run_id: str
         raise DataError("report: give either a run id or a calibration id")
     m = meta(repo)
     if run_id is not None:
-        text = render_measurement(load_measurement(repo, Path(data_dir), run_id), m)
+        run = repo.get_run(run_id)
+        made = [c for c in repo.calibrations(run.robot) if c.run_id == run_id] if run.kind == RunKind.CALIBRATION \
+            else []
+        if made:  # a campaign's run id: the report of the calibration it made
+            return build_report(repo, data_dir, out_dir, calibration_id=made[-1].id)
+        if not repo.results(run_id):  # failed, aborted, interrupted: what it recorded and why it ended
+            text = render_run_record(run, repo.loops(run_id), repo.trace_files(run_id),
+                                     repo.events(run_id=run_id), m)
+        else:
+            text = render_measurement(load_measurement(repo, Path(data_dir), run_id), m)
         name = f"report-{run_id}.html"
     else:
         assert calibration_id is not None

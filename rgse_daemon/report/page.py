@@ -27,7 +27,7 @@ from rgse_daemon.report.data import (
     MeasurementView,
     ReportMeta,
 )
-from rgse_daemon.store import TraceFileRecord
+from rgse_daemon.store import LoopRecord, RunRecord, TraceFileRecord
 from rgse_daemon.verdict import status_of
 
 _CSS = """
@@ -332,9 +332,9 @@ def _reference_section(view: MeasurementView) -> str:
 def _loops_table(view: MeasurementView) -> str:
     fixture = float(view.result.result.get("fixture_mass_kg", 0.0))
     rows = []
-    for lp in view.loops:
+    for number, lp in enumerate(view.loops, 1):  # numbered 1..n as in the loop plot, whatever the stored index
         r = lp.record
-        rows.append((num(lp.index + 1, "d", "loop.number"), code(r.trace_name, "loop.trace"), t(r.state.value),
+        rows.append((num(number, "d", "loop.number"), code(r.trace_name, "loop.trace"), t(r.state.value),
                      num(lp.a3.loop_mean_nm, ".3f", "loop.a3_mean_nm"),
                      num(lp.a5.loop_mean_nm, ".3f", "loop.a5_mean_nm"),
                      '<span class="t">' + num(lp.a3.n_used, "d", "loop.a3_used") + " / "
@@ -465,9 +465,9 @@ def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
         ": raw samples, "
         "the samples kept after the settle cut and the σ crop, the filtered series and the loop mean.</p>",
     ]
-    for lp in view.loops:
-        body.append(figure(plots.loop_traces(lp), f"torque traces of loop {lp.index + 1}, A3 and A5",
-                           f"loop_{lp.index + 1}"))
+    for number, lp in enumerate(view.loops, 1):
+        body.append(figure(plots.loop_traces(lp), f"torque traces of loop {number} ({lp.record.trace_name}), A3 and A5",
+                           f"loop_{number}"))
     body += ["<h2>Calibration used</h2>",
              calibration_section(view.calibration, (view.working_a3_nm, view.working_a5_nm))]
     prov = [
@@ -481,15 +481,46 @@ def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
     ]
     if run.detail:
         prov.append(("detail", t(run.detail)))
-    body += ["<h2>Provenance</h2>", kv(prov), "<h3>Archived raw files</h3>", _files_table(view.files, "file"),
+    body += ["<h2>Provenance</h2>", kv(prov),
              "<h3>Run configuration</h3>", f"<pre>{t(json.dumps(run.config, indent=2, sort_keys=True))}</pre>",
              _calibration_provenance(view.calibration)]
     if view.events:
         body += ["<h3>Events</h3>", table(("time", "level", "kind", "message"),
                                           [(when(e.time_utc), t(e.level.value), code(e.kind), t(e.message))
                                            for e in view.events])]
-    body += ["<h3>Consistency checks</h3>", _checks([*view.calibration.checks, *view.checks])]
+    body += ["<h3>Consistency checks</h3>", _checks([*view.calibration.checks, *view.checks]),
+             "<h2>Appendix: archived raw files</h2>",
+             "<p>Every file the result rests on, as archived (never rewritten), with its SHA-256.</p>",
+             _files_table(view.files, "file")]
     subtitle = (f"robot {code(run.robot)} · run {code(run.id)} · {t(run.state.value)} · "
                 f"{num(float(view.result.result['mass_kg']), '.3f', 'headline_mass_kg', 'kg')} ± "
                 f"{num(float(view.result.result['U_kg']), '.3f', 'headline_U_kg', 'kg')} (k = 2)")
     return page(f"In-line mass determination, run {run.id}", subtitle, "".join(body), meta)
+
+
+def render_run_record(run: RunRecord, loops: Sequence[LoopRecord], files: Sequence[TraceFileRecord],
+                      events: Sequence[Any], meta: ReportMeta) -> str:
+    """The report of a run that has no result (failed, aborted, interrupted): why it ended, what it recorded, and
+    its archived raw files; nothing is computed."""
+    reason = run.detail or "no reason recorded"
+    body = [status_head({"status": "refused", "reason": f"run {run.state.value}: {reason}", "warnings": []},
+                        (run.config.get("settings") or {}).get("identity")),
+            "<h2>Run</h2>",
+            kv([("run id", code(run.id, "run_id")), ("kind / state", t(f"{run.kind.value} / {run.state.value}")),
+                ("why it ended", t(reason)), ("robot", code(run.robot, "robot")), ("created", when(run.created_utc)),
+                ("started", when(run.started_utc)), ("ended", when(run.ended_utc)),
+                ("archive directory", code(run.directory))]),
+            "<h2>Loops recorded</h2>",
+            table(("loop", "trace", "state", "robot start", "recording end"),
+                  [(num(i, "d", "loop.number"), code(lp.trace_name, "loop.trace"), t(lp.state.value),
+                    when(lp.robot_start_utc), when(lp.record_end_utc)) for i, lp in enumerate(loops, 1)],
+                  right=(0,)) if loops else "<p>No loop was recorded.</p>"]
+    if events:
+        body += ["<h2>Events</h2>", table(("time", "level", "kind", "message"),
+                                          [(when(e.time_utc), t(e.level.value), code(e.kind), t(e.message))
+                                           for e in events])]
+    body += ["<h2>Run configuration</h2>", f"<pre>{t(json.dumps(run.config, indent=2, sort_keys=True))}</pre>",
+             "<h2>Appendix: archived raw files</h2>",
+             _files_table(files, "file") if files else "<p>No file was archived.</p>"]
+    subtitle = f"robot {code(run.robot)} · run {code(run.id)} · {t(run.state.value)} · no result"
+    return page(f"Run record, {run.kind.value} run {run.id}", subtitle, "".join(body), meta)

@@ -54,7 +54,8 @@ async def rgse_run(*args: str | Path, sim: SimulatedKrc4 | None = None, loads: l
                 err.append(line)
                 if "press Enter when done" in line and not close_stdin:
                     assert sim is not None and loads is not None
-                    index = int(line.split("point ", 1)[1].split(":", 1)[0])
+                    # "mount <label> (point i/n) and confirm": i counts from 1
+                    index = int(line.split("(point ", 1)[1].split("/", 1)[0]) - 1
                     sim.mount(campaign_point_payload(loads[index]))
                     proc.stdin.write(f"mounted point {index}\n".encode())
                     await proc.stdin.drain()
@@ -97,6 +98,7 @@ async def test_run_measure_prints_the_mass(sim: SimulatedKrc4, private_broker: M
     async with running_daemon(cfg) as rd:
         await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
         ran = await rgse_run("measure", "--config", config, "--loops", "2")
+    assert ran.out, ran.err  # a failed command prints nothing on stdout: show why
     warned = "status warning" in ran.out.splitlines()[0]
     assert ran.rc == (4 if warned else 0), ran.err  # interfaces §1.1: 4 for a result with warnings
     assert ran.out.startswith("run ") and " kg, U " in ran.out and "(k = 2" in ran.out, ran.out

@@ -1,6 +1,7 @@
 """The operator prompt is retained with QoS 1 (issue #16's leftover): a console or client that connects while a run
 waits for the operator finds the prompt it missed, answers it, and the retained prompt then says nothing is pending.
-The daemon on the simulated KR C4 and a private Mosquitto; a one-point campaign gives the prompt."""
+The daemon on the simulated KR C4 and a private Mosquitto; the short campaign gives the prompts (a campaign that
+cannot give a calibration, such as a zero and one mass point, is refused before its first prompt)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ import json
 from pathlib import Path
 
 from rgse_daemon.client import RgseClient, Run
-from rgse_daemon.procedures.calibration import mass_point
 from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.sim import SimulatedKrc4
+from tests.support.client import SHORT_CAMPAIGN
 from tests.support.daemon import PREFIX, Events, daemon_config, first_of, running_daemon
 from tests.support.mqtt import MosquittoProcess, retained
 from tests.support.polling import wait_until
@@ -24,7 +25,7 @@ async def test_a_client_that_connects_during_a_prompt_finds_it_retained_and_answ
     events = Events()
     async with running_daemon(cfg, on_event=events) as rd:
         await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
-        task = await rd.daemon.start_calibration(points=[mass_point(0), mass_point(2)])
+        task = await rd.daemon.start_calibration(points=list(SHORT_CAMPAIGN))
         asked = await events.wait_for(lambda e: e.kind == "confirm", "the first prompt")
         # a fresh subscriber (the console reloading, a script started late) gets the prompt, QoS 1, retained
         await wait_until(lambda: rd.daemon.mqtt.counters.published > 3, "the prompt published")

@@ -170,7 +170,9 @@ def test_report_command_and_module_entry(world: World, tmp_path: Path, capsys) -
     calib_as_run = subprocess.run([sys.executable, "-m", "rgse_daemon.commands.report", world.filled.calibration_run_id,
                                    "--config", str(cfg), "--out", str(tmp_path / "c")], cwd=REPO,
                                   capture_output=True, text=True, timeout=60, check=False)
-    assert calib_as_run.returncode == 2 and "--calibration" in calib_as_run.stderr
+    # a campaign's run id gives the report of the calibration it made (issue #34: it was refused)
+    assert calib_as_run.returncode == 0, calib_as_run.stderr
+    assert Path(calib_as_run.stdout.strip()).name == f"report-calibration-{world.filled.calibration_id}.html"
 
 
 def test_report_of_a_missing_run_names_the_store_and_creates_none(tmp_path: Path) -> None:

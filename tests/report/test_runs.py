@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -115,3 +116,26 @@ def test_certificate_is_one_page_with_identity_result_status_and_calibration(
     assert main(["certificate", ids["failed"], "--config", str(config), "--out", str(tmp_path / "x.pdf")]) == 2
     err = capsys.readouterr().err
     assert "has no result" in err and "interlock trip" in err and not (tmp_path / "x.pdf").exists()
+
+
+def test_report_of_a_campaign_run_and_of_a_failed_run(world: World, tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue #34: ``rgse report`` refused a calibration run's id and made no report for a failed run. A campaign's
+    run id now gives the report of the calibration it made; a run without a result gives its run record: why it
+    ended, what it recorded, its archived files in an appendix."""
+    config, ids = _history(world, tmp_path)
+    out = tmp_path / "reports"
+    assert main(["report", ids["cal"], "--config", str(config), "--out", str(out)]) == 0
+    path = Path(capsys.readouterr().out.strip())
+    assert path.name == f"report-calibration-{world.filled.calibration_id}.html"
+    assert main(["report", ids["failed"], "--config", str(config), "--out", str(out)]) == 0
+    text = Path(capsys.readouterr().out.strip()).read_text()
+    assert "Run record, measurement run meas-failed" in text and "no result" in text
+    assert "interlock trip [mode]: $MODE_OP changed to #AUT" in text and "No loop was recorded." in text
+    # a measurement's report: loops numbered 1..n in the table as in the plot, the files' hashes in the appendix
+    assert main(["report", ids["meas"], "--config", str(config), "--out", str(out)]) == 0
+    text = Path(capsys.readouterr().out.strip()).read_text()
+    assert text.index("Appendix: archived raw files") > text.index("Consistency checks")
+    assert text.index("<h2>Result</h2>") < text.index("SHA-256")
+    numbers = re.findall(r'data-field="loop.number" data-value="(\d+)"', text)
+    assert numbers == [str(i) for i in range(1, len(numbers) + 1)] and len(numbers) == 4
