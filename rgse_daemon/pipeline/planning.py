@@ -11,8 +11,10 @@ empty MPA), stacks of 1…10 calibration bodies on the MPA, and the test adapter
 0.60…1.50 m from A5 — each within the robot's load diagram. The planner starts from the zero point and adds, one at
 a time, the candidate that covers the most DuT operating points not yet covered, until every one is
 :func:`covered`: inside the calibration's envelope (:mod:`rgse_daemon.pipeline.envelope`, as the in-line mass checks
-it) *and* within ``max_distance`` of a calibrated point, the distance being the torque difference per axis over the
-DuT range's largest torque on that axis. Then it adds evenly spread body stacks until the campaign has
+it: in the box and near a calibrated point), with the envelope's nearest-point distance :data:`NODE_MARGIN` below
+its "inside" bound so that the DuTs between the planned-for ones are inside too, *and* within ``max_distance`` of a
+calibrated point, the distance being the torque difference per axis over the DuT range's largest torque on that
+axis. Then it adds evenly spread body stacks until the campaign has
 ``min_loaded`` loaded points (a model selection needs some points to hold out).
 
 The expected torques stand in for the measured ones (the drives read them through a gain K ≈ 0.86–1.13, Table 1,
@@ -39,16 +41,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import envelope as env_mod
 
-#: The robot's load diagram (KR 500 R2830: rated payload 611 kg; A5's permitted static torque 3330 Nm; the
-#: defaults and upper bounds of ``[limits] max_payload_kg``, ``max_a5_torque_nm``).
-MAX_PAYLOAD_KG = 611.0
-MAX_A5_TORQUE_NM = 3330.0
 #: The default covering distance: the nearest calibrated point within 15 % of the DuT range's largest torque per
 #: axis (for 50-250 kg at 0.40-0.90 m: 708 Nm on A3, the A3 torque of about 2.6 bodies on the MPA).
 DEFAULT_MAX_DISTANCE = 0.15
+#: The envelope's nearest-point distance (:meth:`Envelope.nearest`, "inside" up to ``envelope.POINT_INSIDE``) must
+#: hold between the DuTs planned for (the nodes of a :data:`GRID_N` grid) too, so at the nodes it is held this much
+#: below: between the nodes of 50-250 kg × 0.40-0.90 m it grew by up to 0.008 over the nodes' (41 × 41 grid).
+NODE_MARGIN = 0.01
 #: The fewest loaded points a plan has (the demo's campaign has 10; the rehearsal's 7 passes the auto method).
 DEFAULT_MIN_LOADED = 6
 #: The DuT grid per axis when a range is given (mass × lever). Between its nodes the distance to the nearest
@@ -78,11 +81,12 @@ class Equipment:
     rail_a5_m: tuple[float, float] = (0.60, 1.50)
     """Where the bodies' common CoG can sit on the adapter's rail (m from A5; the paper's reach is 1.48 m)."""
     rail_step_m: float = 0.05
-    lever_difference_m: float = kin.D4_M
+    lever_difference_m: float = field(default_factory=lambda: robots.active().lever_difference_m)
     g_m_s2: float = kin.G_PAPER_M_S2
-    max_payload_kg: float = MAX_PAYLOAD_KG
-    max_a5_torque_nm: float = MAX_A5_TORQUE_NM
-    """The load diagram the plan keeps to (a lab's ``[limits]`` may be tighter than the robot's)."""
+    max_payload_kg: float = field(default_factory=lambda: robots.active().max_payload_kg)
+    max_a5_torque_nm: float = field(default_factory=lambda: robots.active().max_a5_torque_nm)
+    """The load diagram the plan keeps to: by default the active robot's (:mod:`rgse_daemon.robots`; the KR 500
+    R2830's 611 kg, 3330 Nm on A5); a lab's ``[limits]`` may be tighter."""
 
 
 @dataclass(frozen=True)
@@ -194,10 +198,16 @@ class Coverage:
     excess: np.ndarray
     distance: np.ndarray
     max_distance: float
+    gap: np.ndarray
+    """The envelope's own distance to the nearest calibrated point (:meth:`Envelope.nearest`: per axis a fraction
+    of the campaign's largest torque), inf without a loaded point."""
+    max_gap: float = env_mod.POINT_INSIDE - NODE_MARGIN
+    """The bound on ``gap`` at the DuTs planned for (:data:`NODE_MARGIN` below the envelope's inside)."""
 
     @property
     def covered(self) -> np.ndarray:
-        return np.array([s == "inside" for s in self.status]) & (self.distance <= self.max_distance)
+        return (np.array([s == "inside" for s in self.status]) & (self.distance <= self.max_distance)
+                & (self.gap <= self.max_gap))
 
 
 @dataclass(frozen=True)
@@ -219,7 +229,8 @@ class Plan:
         c = self.coverage
         return [f"{c.mass_kg[i]:g} kg at {c.lever_a5_m[i]:.3g} m from A5: envelope {c.status[i]} "
                 f"(excess {100 * min(c.excess[i], 99.99):.0f} % of the span), nearest calibrated point "
-                f"{c.distance[i]:.2f} of the range away (bound {c.max_distance:g})"
+                f"{c.distance[i]:.2f} of the range away (bound {c.max_distance:g}), "
+                f"{min(c.gap[i], 99.99):.2f} of the calibration's torques (bound {c.max_gap:.2g})"
                 for i in np.flatnonzero(~c.covered)]
 
 
@@ -313,14 +324,18 @@ def covered(points: Sequence[PlannedPoint], mass_kg: np.ndarray, lever_a5_m: np.
         env = env_mod.Envelope.from_torques(cal[:, 0], cal[:, 1])
         checks = [env_mod.check(env, a3, a5) for a3, a5 in dut]
         status, excess = [c.status for c in checks], np.array([c.excess for c in checks])
+        gap = np.array([env.nearest(a3, a5) for a3, a5 in dut])
     else:
         status, excess = ["refused"] * len(dut), np.full(len(dut), np.inf)
-    return Coverage(np.asarray(mass_kg, float), np.asarray(lever_a5_m, float), status, excess, dist, max_distance)
+        gap = np.full(len(dut), np.inf)
+    return Coverage(np.asarray(mass_kg, float), np.asarray(lever_a5_m, float), status, excess, dist, max_distance,
+                    gap)
 
 
 def _score(cov: Coverage) -> tuple[int, float]:
     """More DuTs covered, then less total excess and distance beyond the bound."""
-    beyond = np.maximum(cov.distance - cov.max_distance, 0.0).sum() + np.minimum(cov.excess, 10.0).sum()
+    beyond = (np.maximum(cov.distance - cov.max_distance, 0.0).sum() + np.minimum(cov.excess, 10.0).sum()
+              + np.minimum(np.maximum(cov.gap - cov.max_gap, 0.0), 10.0).sum())
     return int(cov.covered.sum()), -float(beyond)
 
 

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from rgse_daemon import robots
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline import envelope as env_mod
 from rgse_daemon.pipeline import planning as pl
@@ -48,6 +49,10 @@ def test_every_dut_of_the_range_lies_inside_the_envelope_of_the_planned_points(p
     assert dist.max() <= 1.1 * pl.DEFAULT_MAX_DISTANCE
     assert plan_50_250.coverage.covered.all() and plan_50_250.uncovered == []
     assert plan_50_250.coverage.distance.max() <= pl.DEFAULT_MAX_DISTANCE
+    # the envelope's own nearest-point distance: at the planned-for nodes held NODE_MARGIN below its inside bound,
+    # on the finer grid between them still inside
+    assert plan_50_250.coverage.gap.max() <= env_mod.POINT_INSIDE - pl.NODE_MARGIN
+    assert max(env.nearest(x3, x5) for x3, x5 in zip(a3, a5, strict=True)) <= env_mod.POINT_INSIDE
 
 
 def test_the_points_are_loads_the_equipment_can_mount(plan_50_250):
@@ -64,7 +69,7 @@ def test_the_points_are_loads_the_equipment_can_mount(plan_50_250):
             assert 0.60 <= p.cb_lever_a5_m <= 1.50
             assert p.mass_kg == pytest.approx(19.20 + 20.93 * p.n_cb)
             assert G * p.mass_kg * p.lever_a5_m == pytest.approx(217.95 + G * 20.93 * p.n_cb * p.cb_lever_a5_m)
-            assert G * p.mass_kg * p.lever_a5_m <= pl.MAX_A5_TORQUE_NM
+            assert G * p.mass_kg * p.lever_a5_m <= EQ.max_a5_torque_nm == 3330.0
     # the paper's first torque point: 10 bodies at 0.761 m, as examples/rehearsal-points.toml has it
     tp = pl.adapter_point(EQ, 10, 0.761, 3)
     assert tp.mass_kg == pytest.approx(228.5, abs=0.01) and tp.lever_a5_m == pytest.approx(0.7943, abs=1e-3)
@@ -152,3 +157,19 @@ def test_a_tighter_configured_load_diagram_is_kept_to():
     m, lv = pl.grid((50.0, 180.0), (0.4, 0.8), eq)
     p = pl.plan(m, lv, eq)
     assert all(q.mass_kg <= 200.0 and G * q.mass_kg * q.lever_a5_m <= 2000.0 for q in p.points)
+
+
+def test_the_equipment_keeps_to_the_active_robot_s_load_diagram():
+    # the load diagram and lever difference are the RobotModel's (rgse_daemon.robots), not figures of the planner
+    kr500 = robots.active()
+    assert (EQ.max_payload_kg, EQ.max_a5_torque_nm, EQ.lever_difference_m) == (
+        kr500.max_payload_kg, kr500.max_a5_torque_nm, kr500.lever_difference_m)
+    kr10 = robots.get("kr10r1440")
+    previous = robots.activate(kr10)
+    try:
+        eq = pl.Equipment(20.93, 0.265, 0.275, 0.0075, 19.20, 217.95)
+        assert (eq.max_payload_kg, eq.max_a5_torque_nm) == (kr10.max_payload_kg, kr10.max_a5_torque_nm)
+        with pytest.raises(DataError, match="load diagram"):
+            pl.grid((5.0, 50.0), (0.05, 0.1), eq)
+    finally:
+        robots.activate(previous)

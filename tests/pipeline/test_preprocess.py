@@ -8,7 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline import integrity
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline.preprocess import PreprocessError
 
 
 def test_moving_average_matches_direct_centred_mean():
@@ -67,8 +69,24 @@ def test_double_average_and_bias():
 
 
 def test_bad_input_is_typed():
-    with pytest.raises(DataError, match="NaN"):
-        pp.process_loop(np.array([1.0, np.nan, 2.0, 3.0]), 0.004)
+    # NaN / inf (DIAdem's no-value marker reads as NaN) are missing samples (issue 33), not refused input: the loop
+    # is the samples that are there, and n_total still counts the raw ones
+    cfg = pp.Preprocessing(crop_sigma=None, window=1)
+    for gap in (np.nan, np.inf, -np.inf):
+        got = pp.process_loop(np.array([1.0, gap, 2.0, 6.0]), 0.004, cfg)
+        assert (got.torque_nm, got.n_used, got.n_total) == (pytest.approx(3.0), 3, 4)
+    # a loop with too few samples left is refused, naming what is left
+    with pytest.raises(PreprocessError, match="only 2 samples left"):
+        pp.process_loop(np.array([1.0, np.nan, np.nan, 3.0]), 0.004)
+    # whether a loop has enough samples is integrity's call: under half left (or under 20), it is set aside with
+    # its reason; a sample missing in one torque channel is missing in both
+    a3, a5 = np.full(1000, 5.0), np.full(1000, 7.0)
+    a3[100:400], a5[350:700] = np.nan, np.nan
+    assert integrity.gap_reason(integrity.valid_mask(a3, a5), 0) == (
+        "600 of 1000 samples missing (no value, NaN or inf in the trace): fewer than 50% left")
+    a5[350:700] = 7.0
+    assert integrity.gap_reason(integrity.valid_mask(a3, a5), 0) is None
+    assert "samples missing" in integrity.gap_reason(np.r_[np.ones(19, bool), np.zeros(1, bool)], 0)
     with pytest.raises(DataError):
         pp.Preprocessing(filter="kalman")
     with pytest.raises(DataError):
