@@ -21,6 +21,7 @@ store does not index — what a daemon killed between the archive and the index 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import logging
 import os
@@ -33,7 +34,7 @@ from rgse_daemon.controller import Controller, share_path
 from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.link.errors import CommandError
 from rgse_daemon.manifest import MODULE_A3, MODULE_A5
-from rgse_daemon.store.archive import ArchivedFile, archive_file_async, file_digest
+from rgse_daemon.store.archive import ArchivedFile, ArchiveError, archive_file_async, file_digest
 from rgse_daemon.trace.names import plain_name
 
 _log = logging.getLogger(__name__)
@@ -83,11 +84,18 @@ def _listed_size(info: str) -> int | None:
 
 
 def _write_staging(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
-        f.write(data)
-        f.flush()
-        os.fsync(f.fileno())
+    """The copy read from the controller into the archive's staging directory; a disk that cannot take it (full,
+    read-only) is an :class:`ArchiveError` naming the file, as every other archive write, and no partial copy stays."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            path.unlink(missing_ok=True)
+        raise ArchiveError(f"{path}: cannot stage the controller's copy: {exc.strerror or exc}") from exc
 
 
 async def pull_trace(

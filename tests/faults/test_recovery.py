@@ -26,7 +26,7 @@ import aiomqtt
 from rgse_daemon.store import LoopState, RunKind, RunState, Store, archive_root
 from simulators.krc4.process import SimProcess
 from tests.support.daemon import PREFIX, daemon_config, running_daemon, seed_calibration
-from tests.support.faults import DaemonProcess, stopped, swept, truth, until_truth
+from tests.support.faults import DaemonProcess, ours_active, stopped, swept, truth, until_truth
 from tests.support.mqtt import MosquittoProcess
 
 
@@ -98,7 +98,14 @@ async def test_killed_during_a_pull_the_archived_files_are_indexed_and_the_loop_
     runs = cfg.paths.data_dir / "archive" / "runs"
     try:
         await until_truth(sim_proc, lambda v: v["$TRACE.STATE"] == "#TRIGGERED", "loop 1 recording")
-        await sim_proc.fault("extra_latency_s", 0.25)  # a slow link: the pull takes seconds
+        # loop 1's files are pulled while loop 2 settles and records, once loop 2's move has ended (PullStart): the
+        # link is slowed only then, and only as far as the deadlines allow. The simulated controller answers one
+        # request at a time, all clients (the pull, the interlock's snapshots, the trace poll and the controller-side
+        # watchdog's heartbeat): at 0.25 s a request a snapshot or a beat waits > 1 s, which rightly stops the run
+        # (interlock "link", watchdog) before any file is pulled.
+        await until_truth(sim_proc, lambda v: ours_active(v, "RGSE_BRAKE_RELEASE"), "loop 2 moving")
+        await until_truth(sim_proc, lambda v: v["$PRO_STATE1"] != "#P_ACTIVE", "loop 2's move ended", period_s=0.005)
+        await sim_proc.fault("extra_latency_s", 0.1)  # a slow link: the pull takes seconds
         deadline = time.monotonic() + 90
         while not [p for p in runs.glob("*/dut_*") if not p.name.startswith(".")]:
             assert time.monotonic() < deadline, "no file of loop 1 archived"

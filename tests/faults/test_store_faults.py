@@ -56,12 +56,12 @@ def tmpfs(path: Path, size: str) -> Iterator[Path]:
 
 
 def _fill(path: Path) -> Path:
+    """Fill the disk of ``path`` up to the last byte. Unbuffered: a buffered file's close would flush what the full
+    disk did not take and raise ENOSPC (how much is left over depends on the sizes of the run's files)."""
     filler = path / "filler"
-    with open(filler, "wb") as f:
-        with contextlib.suppress(OSError):
-            while True:
-                f.write(b"\0" * 65536)
-                f.flush()
+    with open(filler, "wb", buffering=0) as f, contextlib.suppress(OSError):
+        while True:  # a write the disk takes only in part returns less; the next one raises ENOSPC
+            f.write(b"\0" * 65536)
     return filler
 
 

@@ -15,11 +15,11 @@ from rgse_daemon.manifest import MODULE_A3, MODULE_A5
 from rgse_daemon.procedures.calibration import run_calibration, table1_points
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
-from rgse_daemon.procedures.retrieval import pull_trace
+from rgse_daemon.procedures.retrieval import STAGING_DIRNAME, pull_trace
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import LoopState, RunState, Store, archive_root, verify_file
-from rgse_daemon.store.archive import ArchiveConflict
+from rgse_daemon.store.archive import ArchiveConflict, ArchiveError
 from simulators.krc4.physics import campaign_point_payload
 from simulators.krc4.sim import SimulatedKrc4
 
@@ -75,6 +75,22 @@ async def test_nothing_is_deleted_when_the_local_copy_is_not_archived(
         await pull_trace(krc, "t2", dest)
     assert sim.server.counters.by_type[DELETE] == deletes
     assert _on_controller(sim, "t2") == sorted(files)
+
+
+async def test_a_copy_that_cannot_be_staged_is_an_archive_error_and_nothing_is_deleted(
+    sim: SimulatedKrc4, krc: Controller, tmp_path: Path
+) -> None:
+    """A disk that cannot take the staged copy (here: the staging directory cannot be made) fails the pull with an
+    ArchiveError naming the file (a StoreError, so a run ends as failed with the cause), never a bare OSError."""
+    files = _trace_files(sim, "t5")
+    dest = tmp_path / "run"
+    dest.mkdir()
+    (dest / STAGING_DIRNAME).write_bytes(b"")  # a file where the staging directory must go
+    deletes = sim.server.counters.by_type[DELETE]
+    with pytest.raises(ArchiveError, match=r"\.incoming/t5_.*cannot stage the controller's copy"):
+        await pull_trace(krc, "t5", dest)
+    assert sim.server.counters.by_type[DELETE] == deletes
+    assert _on_controller(sim, "t5") == sorted(files)
 
 
 async def test_refused_delete_leaves_the_files_and_says_so(sim: SimulatedKrc4, krc: Controller, tmp_path: Path) -> None:

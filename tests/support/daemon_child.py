@@ -18,7 +18,10 @@ from rgse_daemon.procedures.calibration import table1_points
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.systemd import Notifier
 
-CAMPAIGN = table1_points(n_bodies=(0, 3), torque_levers_a5_m=())
+#: The smallest campaign the pre-check admits (``check_points_support``): two loaded points, fitted with "auto" (the
+#: paper's models need at least 4 loaded points; a campaign they cannot fit is refused before its first prompt).
+CAMPAIGN = table1_points(n_bodies=(0, 2, 4), torque_levers_a5_m=())
+METHOD = "auto"
 
 
 async def main() -> None:
@@ -41,7 +44,7 @@ async def main() -> None:
     elif kind == "idle":
         pass
     else:
-        await daemon.start_calibration(points=CAMPAIGN, method="paper")
+        await daemon.start_calibration(points=CAMPAIGN, method=METHOD)
     print(json.dumps({"kind": "started"}), flush=True)
     await task
 
