@@ -336,24 +336,54 @@ class BoxConfig(_Section):
         return self
 
 
+#: The default room around the robot's foot (m): walls at ±this in x and y, the ceiling this high above the base (a
+#: project choice, the same for every robot; a site sets its own ``[cell] walls``).
+CELL_WALLS_HALF_WIDTH_M = 4.5
+CELL_CEILING_M = 5.0
+
+
+def robot_cell_defaults(robot: RobotModel) -> dict[str, Any]:
+    """``[cell]``'s defaults for ``robot``: its ``cell`` (the frame it stands on, the payload's box) in the default
+    room."""
+    c = robot.cell
+    h, w, room = c.frame_height_m, c.frame_half_width_m, CELL_WALLS_HALF_WIDTH_M
+    return {
+        "floor_z_m": -h,
+        "walls": BoxConfig(min_m=(-room, -room, -h), max_m=(room, room, CELL_CEILING_M)),
+        "keep_out": (BoxConfig(min_m=(-w, -w, -h), max_m=(w, w, 0.0)),),
+        "payload_box_flange_m": BoxConfig(min_m=c.payload_box_min_m, max_m=c.payload_box_max_m),
+    }
+
+
+def _default_cell(name: str) -> Any:
+    return robot_cell_defaults(_default_robot())[name]
+
+
 class CellConfig(_Section):
     """The cell the robot moves in, for the static check's workspace rule: in the robot's base frame ($ROBROOT: on
     the A1 axis at the robot's foot, z up, x forward at A1 = 0), m. The flange, the wrist centre, the elbow and the
     box of DuT and fixture must stay inside the cell, above the floor and out of every keep-out box along every
-    motion. Defaults: the paper's cell, the robot on its 600 mm frame."""
+    motion. Defaults: the configured robot's (``rgse_daemon/robots/``: its ``cell``); the KR 500's are the paper's
+    cell, the robot on its 600 mm frame."""
 
-    floor_z_m: float = Field(-0.6, ge=-5.0, le=0.0)
+    floor_z_m: float = Field(default_factory=lambda: _default_cell("floor_z_m"), ge=-5.0, le=0.0)
     """Height of the floor in the base frame: minus the height of the robot's frame (paper: 600 mm)."""
-    walls: BoxConfig = BoxConfig(min_m=(-4.5, -4.5, -0.6), max_m=(4.5, 4.5, 5.0))
+    walls: BoxConfig = Field(default_factory=lambda: _default_cell("walls"))
     """The cell's walls and ceiling (its floor is ``floor_z_m``, whichever is higher counts)."""
-    keep_out: Array[tuple[BoxConfig, ...]] = (BoxConfig(min_m=(-0.7, -0.7, -0.6), max_m=(0.7, 0.7, 0.0)),)
-    """Boxes nothing may enter; default: the robot's 600 mm frame under its base."""
-    payload_box_flange_m: BoxConfig = BoxConfig(min_m=(-1.0, -1.0, 0.0), max_m=(1.0, 1.0, 1.5))
+    keep_out: Array[tuple[BoxConfig, ...]] = Field(default_factory=lambda: _default_cell("keep_out"))
+    """Boxes nothing may enter; default: the robot's frame under its base."""
+    payload_box_flange_m: BoxConfig = Field(default_factory=lambda: _default_cell("payload_box_flange_m"))
     """The box around DuT and fixture in the flange frame (m; z out of the flange, x down in the home pose). Keep it
     within ``measurement.payload_lever_max_m`` of the flange on every axis (the speed bound's cube)."""
-    dut_mass_kg: float | None = Field(None, ge=0.0, le=611.0)
+
+    @classmethod
+    def of_robot(cls, robot: RobotModel) -> CellConfig:
+        """The default cell of ``robot``."""
+        return cls(**robot_cell_defaults(robot))
+
+    dut_mass_kg: float | None = Field(None, ge=0.0)
     """The DuT's expected mass (kg) for the load diagram check of every push (with the fixture's mass and CoG);
-    ``None``: the heaviest the limits allow, less the fixture."""
+    ``None``: the heaviest the limits allow, less the fixture. At most ``limits.max_payload_kg``."""
     dut_cog_flange_m: Array[tuple[Coordinate_m, Coordinate_m, Coordinate_m]] | None = None
     """The DuT's expected CoG in the flange frame (m); ``None``: on the flange axis, as far out as the A5 torque
     limit allows the heaviest payload with 10 % margin in the measurement pose."""
@@ -489,7 +519,8 @@ class Config(BaseSettings):
     @model_validator(mode="before")
     @classmethod
     def _robot_defaults(cls, data: Any) -> Any:
-        # the limits' defaults are the configured robot's (a KR 10 must not inherit the KR 500's 611 kg)
+        # the limits' and the cell's defaults are the configured robot's (a KR 10 must not inherit the KR 500's
+        # 611 kg, nor its 1.5 m payload box)
         if not isinstance(data, dict):
             return data
         robot_section = data.get("robot")
@@ -505,6 +536,7 @@ class Config(BaseSettings):
             ("limits", {"a1_range_deg": robot.a1_envelope_deg, "max_payload_kg": robot.max_payload_kg,
                         "max_a5_torque_nm": robot.max_a5_torque_nm}),
             ("measurement", {"payload_lever_max_m": robot.payload_lever_max_m}),
+            ("cell", robot_cell_defaults(robot)),
         ):
             given = data.get(section, {})
             if isinstance(given, dict):
@@ -530,6 +562,9 @@ class Config(BaseSettings):
         if lim.max_a5_torque_nm > r.max_a5_torque_nm:
             problems.append(f"limits.max_a5_torque_nm = {lim.max_a5_torque_nm:g} exceeds the {r.title}'s load "
                             f"diagram ({r.max_a5_torque_nm:g} Nm)")
+        if self.cell.dut_mass_kg is not None and self.cell.dut_mass_kg > lim.max_payload_kg:
+            problems.append(f"cell.dut_mass_kg = {self.cell.dut_mass_kg:g} exceeds limits.max_payload_kg = "
+                            f"{lim.max_payload_kg:g}")
         if problems:
             raise ValueError("; ".join(problems))
         return self

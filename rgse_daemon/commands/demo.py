@@ -48,7 +48,7 @@ from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.pipeline.cog import cog_poses
-from rgse_daemon.procedures.calibration import CampaignPoint, table1_points, torsional_points
+from rgse_daemon.procedures.calibration import CampaignPoint, table1_points, torque_point, torsional_points
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.inertia import TARE_PROMPT
 from rgse_daemon.procedures.properties import PropertiesSettings
@@ -79,6 +79,12 @@ DEMO_DUTS: dict[str, tuple[Callable[[], ph.AsymmetricDut], float]] = {
     "kr500r2830": (ph.refex_wing_box, 1.0),  # the paper's in-line run (Table 2): ReFEx wing box on its fixture
     "kr10r1440": (ph.subscale_box, 0.35),
 }
+#: Bodies on the test adapter at each of the robot's torque levers (None: its ``torque_body_count``), where the
+#: demo's DuT needs a calibrated configuration near it (pipeline/envelope.py, ``POINT_INSIDE``). The KR 10's 4.6 kg box
+#: on its fixture (5.1 kg about 0.2 m in front of A5) lies between the mass stack and the 8-body torque rows, about
+#: 15 % of the torque range from either: its middle torque point carries 6 bodies (5.2 kg at 0.18 m), as a lab would
+#: plan a campaign around its DuT (``rgse plan``).
+DEMO_TORQUE_BODIES: dict[str, tuple[int | None, ...]] = {"kr10r1440": (None, 6, None)}
 
 
 @dataclass(frozen=True)
@@ -100,7 +106,8 @@ class DemoSetup:
 def demo_setup(robot_key: str = robots.DEFAULT_KEY) -> DemoSetup:
     """The demo on ``robot_key`` (made the active robot while building it: the load set is the robot's).
 
-    The campaign: a shortened Table 1 (zero, seven stacks, the robot's torque-based points), then the bare MPA and
+    The campaign: a shortened Table 1 (zero, seven stacks, the robot's torque-based points, with
+    :data:`DEMO_TORQUE_BODIES` where the DuT needs a point near it), then the bare MPA and
     four loads on the torsional bracket in every CoG pose. Every point is a new mounting with its own offsets (Table
     1's scatter): more points, fewer loops each, give the calibration's reproducibility and curve more to rest on than
     more loops of the same mounting."""
@@ -112,7 +119,9 @@ def demo_setup(robot_key: str = robots.DEFAULT_KEY) -> DemoSetup:
         make_dut, lever_m = DEMO_DUTS[robot.key]
         loads = robot.calibration
         torsional = tuple(loads.torsional_points[i] for i in TORSIONAL_INDICES)
-        campaign = [*table1_points(n_bodies=CAMPAIGN_BODIES, torque_levers_a5_m=loads.torque_levers_a5_m),
+        bodies = DEMO_TORQUE_BODIES.get(robot.key, (None,) * len(loads.torque_levers_a5_m))
+        torque = [torque_point(lever, n) for lever, n in zip(loads.torque_levers_a5_m, bodies, strict=True)]
+        campaign = [*table1_points(n_bodies=CAMPAIGN_BODIES, torque_levers_a5_m=()), *torque,
                     *torsional_points(COG_SCHEME, torsional)]
         return DemoSetup(robot, f"{robot.title.replace(' ', '')}-SIM", make_dut(), loads.fixture_mass_kg, lever_m,
                          campaign)

@@ -9,7 +9,7 @@ configuration (``rgse demo --robot`` and the tests choose it the same way). The 
 from __future__ import annotations
 
 from rgse_daemon.robots import kr10r1440, kr500r2830
-from rgse_daemon.robots.model import CalibrationLoads, DhRow, RobotModel
+from rgse_daemon.robots.model import CalibrationLoads, DefaultCell, DhRow, RobotModel
 
 ROBOTS: dict[str, RobotModel] = {r.key: r for r in (kr500r2830.ROBOT, kr10r1440.ROBOT)}
 DEFAULT_KEY = kr500r2830.ROBOT.key
@@ -38,4 +38,5 @@ def activate(robot: RobotModel | str) -> RobotModel:
     return previous
 
 
-__all__ = ["DEFAULT_KEY", "ROBOTS", "CalibrationLoads", "DhRow", "RobotModel", "activate", "active", "get"]
+__all__ = ["DEFAULT_KEY", "ROBOTS", "CalibrationLoads", "DefaultCell", "DhRow", "RobotModel", "activate", "active",
+           "get"]

@@ -17,11 +17,14 @@ Sources:
   whole calibration load set: the KR 500's (paper §2.4.2–2.4.3) scaled to the 10 kg class — a 160 × 160 × 8 mm
   stainless MPA (1.54 kg), ten 160 × 160 × 4 mm bodies of 0.77 kg (10 bodies + MPA = 9.2 kg ≤ 10 kg), a 0.6 kg test
   adapter, a 0.5 kg fixture; levers follow from the plates' thicknesses on this flange (d6 = 100 mm).
+  The default cell is *assumed* as well (no drawing of the bench consulted): the arm on a 0.6 m high pedestal with a
+  0.5 × 0.5 m footprint (KUKA's base of this arm is about 0.32 m square), and a payload box of ±0.5 m across and
+  0.5 m out of the flange (= payload_lever_max_m: MPA + adapter rail + DuT of this class).
 """
 
 from __future__ import annotations
 
-from rgse_daemon.robots.model import CalibrationLoads, DhRow, RobotModel
+from rgse_daemon.robots.model import CalibrationLoads, DefaultCell, DhRow, RobotModel
 
 _MPA_THICKNESS_M = 0.008
 _BODY_THICKNESS_M = 0.004
@@ -95,5 +98,11 @@ ROBOT = RobotModel(
         fixture_mass_kg=0.50,
         fixture_thickness_m=0.010,
         fixture_side_m=0.150,
+    ),
+    cell=DefaultCell(
+        frame_height_m=0.6,  # assumed (see the module docstring)
+        frame_half_width_m=0.25,  # assumed
+        payload_box_min_m=(-0.5, -0.5, 0.0),  # assumed: within payload_lever_max_m
+        payload_box_max_m=(0.5, 0.5, 0.5),
     ),
 )

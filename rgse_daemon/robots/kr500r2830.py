@@ -11,11 +11,13 @@ Sources (docs/controller.md §1 and its source list):
   kr600_r2830 joint origins agree with the lengths.
 - Project choices (named as such): the operator pose, the CoG calibration poses, the torsional points, the
   default payload lever and the geometry of the plates (chosen to reproduce Table 1's effective levers).
+- The default cell: the robot on the paper's 600 mm frame ([P]); the frame's 1.4 × 1.4 m footprint and the payload
+  box (±1 m across, 1.5 m out of the flange: MPA + TA rail + DuT) are project choices.
 """
 
 from __future__ import annotations
 
-from rgse_daemon.robots.model import CalibrationLoads, DhRow, RobotModel
+from rgse_daemon.robots.model import CalibrationLoads, DefaultCell, DhRow, RobotModel
 
 ROBOT = RobotModel(
     key="kr500r2830",
@@ -82,5 +84,11 @@ ROBOT = RobotModel(
         fixture_mass_kg=10.288,  # [P] §2.4.7, the ReFEx fixture
         fixture_thickness_m=0.040,
         fixture_side_m=0.400,  # assumed footprint (its inertia only)
+    ),
+    cell=DefaultCell(
+        frame_height_m=0.6,  # [P] the robot's 600 mm frame
+        frame_half_width_m=0.7,  # project choice: the frame's footprint
+        payload_box_min_m=(-1.0, -1.0, 0.0),  # project choice: within payload_lever_max_m
+        payload_box_max_m=(1.0, 1.0, 1.5),
     ),
 )

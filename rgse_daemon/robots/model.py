@@ -75,6 +75,21 @@ class CalibrationLoads:
 
 
 @dataclass(frozen=True)
+class DefaultCell:
+    """The cell the default configuration assumes around one robot (``[cell]``'s defaults): in the robot's base frame
+    ($ROBROOT: on the A1 axis at the robot's foot, z up), m. The room's walls are the site's (``config.py``); a site's
+    ``[cell]`` replaces any default."""
+
+    frame_height_m: float
+    """Height of the frame (pedestal) the robot stands on: the floor is at −frame_height_m."""
+    frame_half_width_m: float
+    """Half the frame's footprint in x and y: the keep-out box from the floor up to the base."""
+    payload_box_min_m: tuple[float, float, float]
+    payload_box_max_m: tuple[float, float, float]
+    """The box around DuT and fixture in the flange frame (z out of the flange); within ``payload_lever_max_m``."""
+
+
+@dataclass(frozen=True)
 class RobotModel:
     """One robot arm. All angles in deg, lengths in m; see the robot's module for the source of each figure."""
 
@@ -114,6 +129,8 @@ class RobotModel:
     brake_release_deg: float
     """φ' of the brake-release move the default configuration uses (paper §2.4.4: 35° on the KR 500)."""
     calibration: CalibrationLoads
+    cell: DefaultCell
+    """The cell the default configuration assumes (``[cell]``'s defaults): the robot's frame, the payload's box."""
 
     def __post_init__(self) -> None:
         six = {"axis_sign": self.axis_sign, "theta_offset_deg": self.theta_offset_deg, "home_deg": self.home_deg,
@@ -128,5 +145,9 @@ class RobotModel:
         if abs(self.lever_difference_m - self.dh[3].d_m) > 1e-12:
             raise ValueError(f"robot {self.key}: lever_difference_m {self.lever_difference_m} differs from d4 "
                              f"{self.dh[3].d_m} (in the measurement pose Δr is d4, eq. 3–4)")
+        box_lo, box_hi = self.cell.payload_box_min_m, self.cell.payload_box_max_m
+        if max(map(abs, (*box_lo, *box_hi))) > self.payload_lever_max_m + 1e-12:
+            raise ValueError(f"robot {self.key}: the default payload box {box_lo}..{box_hi} reaches beyond "
+                             f"payload_lever_max_m {self.payload_lever_max_m} (the T1 speed bound's cube)")
         if not 0.0 < self.a1_envelope_deg <= min(-self.axis_range_deg[0][0], self.axis_range_deg[0][1]):
             raise ValueError(f"robot {self.key}: A1 envelope ±{self.a1_envelope_deg} is outside the A1 range")

@@ -162,8 +162,9 @@ class CheckContext:
     #: The controller-side watchdog must be armed before the first motion (``WATCHDOG``; the daemon's push and
     #: ``rgse krl check`` set it from ``controller.watchdog_required``).
     require_watchdog: bool = False
-    #: The cell (floor, walls, keep-out boxes) the flange, wrist, elbow and payload must stay in.
-    cell: CellConfig = field(default_factory=CellConfig)
+    #: The cell (floor, walls, keep-out boxes) the flange, wrist, elbow and payload must stay in; None: ``robot``'s
+    #: default cell (``CellConfig.of_robot``).
+    cell: CellConfig | None = None
     #: Well below the 60 s the daemon's push waits for the check (procedures/engine.py): the check always ends first.
     time_budget_s: float = 20.0
     robot: RobotModel = field(default_factory=robots.active)
@@ -190,7 +191,8 @@ class _Checker(AbstractInterpreter):
         self._speed_cache: dict[tuple[Pose, Pose, tuple[float, ...]], float] = {}
         self._torque_cache: dict[tuple[Pose, Pose], float] = {}
         self._workspace_cache: dict[tuple[Pose, Pose], str | None] = {}
-        b = ctx.cell.payload_box_flange_m
+        self.cell = ctx.cell if ctx.cell is not None else CellConfig.of_robot(ctx.robot)
+        b = self.cell.payload_box_flange_m
         corners = [(x, y, z) for x in (b.min_m[0], b.max_m[0]) for y in (b.min_m[1], b.max_m[1])
                    for z in (b.min_m[2], b.max_m[2])]
         self.box_points = np.array([(0.0, 0.0, 0.0), *corners, ctx.payload_cog_flange_m], dtype=float)
@@ -441,7 +443,7 @@ class _Checker(AbstractInterpreter):
         q0, q1 = np.array(start), np.array(target)
         l1 = float(np.abs(q1 - q0).sum())
         n = max(1, int(np.ceil(l1 / WORKSPACE_STEP_DEG))) + 1
-        cell = self.ctx.cell
+        cell = self.cell
         lo = np.array(cell.walls.min_m, dtype=float)
         lo[2] = max(lo[2], cell.floor_z_m)
         hi = np.array(cell.walls.max_m, dtype=float)

@@ -25,7 +25,8 @@ ROBOT_DIR = ROOT / "rgse_daemon" / "robots"
 COMMON = {0.0, 1.0, 2.0, 4.0, 6.0, 8.0, 10.0, 30.0, 35.0, 45.0, 55.0, 90.0, 100.0, 120.0, 0.1, 0.2, 0.5, 0.6,
           1.5, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.3, 0.4, 0.45, 0.004, 0.008, 0.002, 0.015, 0.12, 0.13,
           0.14, 0.15, 0.16, 0.18, 0.22, 0.25, 0.35, 3.0, 7900.0, 9.81,
-          1.3}  # 1.3: the simulator's Stribeck ratio, not the KR 500's a2
+          1.3,  # 1.3: the simulator's Stribeck ratio, not the KR 500's a2
+          0.7}  # 0.7: a plot's alpha, a test's ratio; also the KR 500's frame half-width (its default cell)
 
 
 def _numbers(value: object) -> list[float]:

@@ -82,3 +82,39 @@ def test_the_kr500_figures_are_the_paper_s() -> None:
     r = robots.get("kr500r2830")
     assert (r.max_payload_kg, r.max_a5_torque_nm, r.lever_difference_m, r.a1_envelope_deg) == (611.0, 3330.0,
                                                                                               1.025, 45.0)
+
+
+def test_a_robot_whose_payload_box_reaches_past_its_payload_lever_is_refused() -> None:
+    import dataclasses
+    r = robots.get("kr10r1440")
+    too_long = dataclasses.replace(r.cell, payload_box_max_m=(0.5, 0.5, r.payload_lever_max_m + 0.1))
+    with pytest.raises(ValueError, match="payload_lever_max_m"):
+        dataclasses.replace(r, cell=too_long)
+
+
+def test_the_default_cell_is_the_configured_robot_s_and_the_kr500_s_is_unchanged() -> None:
+    from rgse_daemon.config import BoxConfig, CellConfig, config_from_mapping
+    # the KR 500: the paper's cell exactly as before the cell moved into the robot files
+    kr500 = CellConfig(floor_z_m=-0.6, walls=BoxConfig(min_m=(-4.5, -4.5, -0.6), max_m=(4.5, 4.5, 5.0)),
+                       keep_out=(BoxConfig(min_m=(-0.7, -0.7, -0.6), max_m=(0.7, 0.7, 0.0)),),
+                       payload_box_flange_m=BoxConfig(min_m=(-1.0, -1.0, 0.0), max_m=(1.0, 1.0, 1.5)))
+    assert config_from_mapping({}).cell == kr500 == CellConfig()
+    assert config_from_mapping({"robot": {"model": "kr500r2830"}}).cell == kr500
+    # the KR 10 gets its own payload box (its 0.5 m lever, not the KR 500's 1.5 m) and frame
+    kr10 = robots.get("kr10r1440")
+    cell = config_from_mapping({"robot": {"model": "kr10r1440"}}).cell
+    assert cell == CellConfig.of_robot(kr10) != kr500
+    assert max(cell.payload_box_flange_m.max_m) <= kr10.payload_lever_max_m
+    # a site's [cell] key replaces just that default
+    cell = config_from_mapping({"robot": {"model": "kr10r1440"}, "cell": {"floor_z_m": -0.9}}).cell
+    assert cell.floor_z_m == -0.9 and cell.payload_box_flange_m == CellConfig.of_robot(kr10).payload_box_flange_m
+
+
+def test_a_dut_heavier_than_the_limits_is_refused_for_the_configured_robot() -> None:
+    from rgse_daemon.config import config_from_mapping
+    from rgse_daemon.errors import ConfigError
+    with pytest.raises((ConfigError, ValueError), match=r"cell\.dut_mass_kg"):
+        config_from_mapping({"robot": {"model": "kr10r1440"}, "cell": {"dut_mass_kg": 20.0}})
+    light = config_from_mapping({"robot": {"model": "kr10r1440"}, "cell": {"dut_mass_kg": 5.0}})
+    assert light.cell.dut_mass_kg == 5.0
+    assert config_from_mapping({"cell": {"dut_mass_kg": 300.0}}).cell.dut_mass_kg == 300.0
