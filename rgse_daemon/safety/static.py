@@ -759,11 +759,11 @@ def _routine_problems(body: Sequence[k.Stmt], ctx: CheckContext) -> list[tuple[k
     for s in body:
         match s:
             case k.Brake() | k.Halt():
-                pass
+                continue  # it stops: what the routine is for
             case k.Assign(target=k.Name(name=name), value=value) if ctx.link_writable(name) and not name.startswith(
                 "$"
             ) and not _has_call((value,)):
-                pass
+                continue  # a handshake global the daemon reads (RGSE_WD_TRIP)
             case k.If(condition=c, then_body=a, else_body=b) if not _has_call((c,)):
                 found += _routine_problems(a, ctx) + _routine_problems(b, ctx)
             case k.While(condition=c, body=a) if not _has_call((c,)):

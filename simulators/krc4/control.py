@@ -193,7 +193,7 @@ class ControlServer:
                 async with asyncio.timeout(10.0):
                     await writer.drain()
         except (ConnectionError, TimeoutError):
-            pass
+            return  # the client went away or stopped reading: its connection is closed below
         finally:
             writer.close()
 

@@ -41,9 +41,7 @@ async def main() -> None:
     await daemon.connected.wait()
     if kind == "measurement":
         await daemon.start_measurement()
-    elif kind == "idle":
-        pass
-    else:
+    elif kind != "idle":  # "idle": the daemon alone, no run
         await daemon.start_calibration(points=CAMPAIGN, method=METHOD)
     print(json.dumps({"kind": "started"}), flush=True)
     await task
