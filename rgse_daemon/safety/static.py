@@ -433,7 +433,8 @@ class _Checker(AbstractInterpreter):
         """The first place on the joint path ``start`` → ``target`` where the payload box (DuT and fixture,
         ``cell.payload_box_flange_m``), the flange, the wrist centre or the elbow leaves the cell or enters a keep-out
         box; None: none. The cell's walls and floor are half-spaces, so the box's corners decide; a keep-out box is
-        tested against the rotated payload box exactly (separating axes).
+        tested against the rotated payload box exactly (separating axes). A touch counts: a point on the floor, a
+        wall or a keep-out box's face (after the margin) is refused.
 
         Sampling argument: between two samples the joints turn by at most ``step`` (rad, L1), so any point moves by
         at most ``step·r`` with r its largest distance from an axis, and from the nearer sample by half that. r grows
@@ -468,20 +469,20 @@ class _Checker(AbstractInterpreter):
             where = "A1..A6 = (" + ", ".join(f"{v:.1f}" for v in q) + ") deg"
             spare = f"margin {margin * 1000:.0f} mm between path samples"
             for what, p in zip(names, pts, strict=True):
-                if p[2] - margin < lo[2]:
+                if p[2] - margin <= lo[2]:  # at the floor is at or below it: a touch is a collision
                     floor = "floor" if lo[2] == cell.floor_z_m else "cell"
                     return (f"{what} reaches z = {p[2] * 1000:.0f} mm at {where}, at or below the {floor} at "
                             f"z = {lo[2] * 1000:.0f} mm (cell.floor_z_m; {spare})")
                 out = [f"{'xyz'[i]} = {v * 1000:.0f} mm" for i, v in enumerate(p)
-                       if v - margin < lo[i] or v + margin > hi[i]]
+                       if v - margin <= lo[i] or v + margin >= hi[i]]
                 if out:
                     return f"{what} leaves the cell at ({', '.join(out)}) at {where} (cell.walls; {spare})"
             for j, kb in enumerate(cell.keep_out):
                 k_lo, k_hi = np.array(kb.min_m) - margin, np.array(kb.max_m) + margin
                 hit = next((what for what, p in zip(names[8:], pts[8:], strict=True)
-                            if np.all(p > k_lo) and np.all(p < k_hi)), None)
+                            if np.all(p >= k_lo) and np.all(p <= k_hi)), None)
                 box_lo, box_hi = pts[:8].min(axis=0), pts[:8].max(axis=0)  # apart: the box is too (cheap first)
-                if (hit is None and np.all(box_hi > k_lo) and np.all(box_lo < k_hi)
+                if (hit is None and np.all(box_hi >= k_lo) and np.all(box_lo <= k_hi)
                         and _box_hits_box(pts[8] + rot @ b_centre, rot, b_half, k_lo, k_hi)):
                     hit = "the payload box"
                 if hit is not None:
