@@ -232,19 +232,22 @@ class AbstractInterpreter(ABC):
     def start_unknown(self, stmt: k.Motion) -> None:
         ...
 
+    @abstractmethod
     def motion_time_s(self, start: Pose, target: Pose, st: State) -> float:
         """Upper bound of the time (s) of the motion ``start`` → ``target`` with the settings of ``st``."""
-        return 0.0
+        ...
 
+    @abstractmethod
     def host_written(self, name: str) -> bool:
         """Whether the host (the daemon, over the link) writes variable ``name`` (a pacing WAIT FOR reads one)."""
-        return False
+        ...
 
+    @abstractmethod
     def loop_motion_s(self, stmt: k.Stmt, per_pass_s: float, passes: int | None, paced: bool, exits: bool) -> float:
         """The motion time of a loop interpreted as a fixpoint: ``per_pass_s`` per pass, ``passes`` known or not,
-        ``paced``: every pass waits for the host first (:meth:`paced_by_host`), ``exits``: an EXIT can end it.
-        Subclasses report a loop whose motion time has no bound."""
-        return per_pass_s * (passes if passes is not None else 1)
+        ``paced``: every pass waits for the host first (:meth:`paced_by_host`), ``exits``: an EXIT can end it; report
+        a loop whose motion time has no bound."""
+        ...
 
     # --- declarations ---
     def declare(self, decl: k.Decl, st: State) -> State:

@@ -451,3 +451,56 @@ def test_an_indexed_trace_member_is_named_by_its_variable() -> None:
     v = found(program('  $TRACE.NAME[1][] = "x"'))
     assert [(x.line, x.rule, x.message) for x in v] == [
         (FIRST, "SYSVAR", "write to system variable $TRACE is not allowed")]
+
+
+# --- the time bound through branches and loops (krl/abstract.py) ------------------------------------------------------
+T10_S = 10 / 1.4 + 0.2  # A3 10 deg at 2 % and 20 %: the trapezoid above
+
+
+@pytest.mark.parametrize(("setting", "bound_s"), [
+    ("$VEL_AXIS[3] = 3", T10_S),  # the slowest speed either branch leaves
+    ("$ACC_AXIS[3] = 100", T10_S),  # ... and acceleration
+    ("$OV_PRO = 50", 10 / 0.7 + 0.4),  # the lowest override either branch leaves
+])
+def test_after_a_branch_the_time_bound_takes_the_slowest_settings(setting: str, bound_s: float) -> None:
+    src = program(f"  IF RGSE_ARG == 1 THEN\n    {setting}\n  ENDIF\n  PTP {{A3 100}}")
+    assert found(src, _limits(bound_s)) == []
+    assert [x.rule for x in found(src, _limits(math.nextafter(bound_s, 0.0)))] == ["MOTION_TIME"]
+
+
+def test_after_a_branch_the_time_bound_takes_the_longer_branch() -> None:
+    src = program("  IF RGSE_ARG == 1 THEN\n    PTP {A3 100}\n  ELSE\n    PTP {A3 95}\n  ENDIF\n  PTP {A3 90}")
+    bound_s = 2 * T10_S
+    assert found(src, _limits(bound_s)) == []
+    assert [x.rule for x in found(src, _limits(math.nextafter(bound_s, 0.0)))] == ["MOTION_TIME"]
+
+
+PACED = ("  LOOP\n    WAIT FOR RGSE_CMD <> 0\n    IF RGSE_CMD == 99 THEN\n      EXIT\n    ENDIF\n"
+         "    PTP {A3 100}\n    PTP {A3 90}\n    RGSE_CMD = 0\n  ENDLOOP")
+
+
+@pytest.mark.parametrize(("change", "paced"), [
+    (("", ""), True),
+    (("    RGSE_CMD = 0\n", "    RGSE_CMD = 0\n    PTP {A3 95}\n"), False),  # ends with a motion, not the reset
+    (("    RGSE_CMD = 0\n", "    RGSE_ARR[1] = 0\n"), False),  # the reset is no plain variable
+    (("    RGSE_CMD = 0\n", "    RGSE_OTHER = 0\n"), False),  # resets a variable the wait does not read
+    (("    RGSE_CMD = 0\n", "    RGSE_CMD = 1 / 0\n"), False),  # the reset's value is a runtime error
+    (("WAIT FOR RGSE_CMD <> 0", "WAIT FOR (RGSE_CMD <> 0) OR RGSE_GO"), False),  # the wait may pass anyway
+    (("WAIT FOR RGSE_CMD <> 0", "WAIT FOR RGSE_CMD <> 0.0"), True),  # INT 0 against a REAL 0: still FALSE
+    (("    PTP {A3 90}\n", "    PTP {A3 90}\n    WAIT FOR RGSE_DONE\n"), True),  # a second wait after the motions
+    (("    WAIT FOR RGSE_CMD <> 0\n", "    WAIT SEC 1\n"), False),  # no WAIT FOR
+])
+def test_a_loop_is_paced_by_the_host_only_through_its_wait_and_reset(change: tuple[str, str], paced: bool) -> None:
+    src = program(PACED.replace(*change) if change[0] else PACED)
+    assert src != program(PACED) or change[0] == ""
+    v = found(src)
+    assert [(x.line, x.rule) for x in v if x.rule != "RUNTIME"] == ([] if paced else [(FIRST, "UNBOUNDED")]), v
+    assert {x.rule for x in v} <= {"UNBOUNDED", "RUNTIME"}  # (RUNTIME: the division by zero itself)
+
+
+def test_a_while_paced_by_the_host_is_bounded_but_a_for_is_counted() -> None:
+    body = "    WAIT FOR RGSE_CMD <> 0\n    PTP {A3 100}\n    PTP {A3 90}\n    RGSE_CMD = 0\n"
+    assert found(program(f"  WHILE RGSE_RUN\n{body}  ENDWHILE")) == []
+    # a FOR with too many passes is judged by their count, paced or not
+    many = program(f"  FOR i = 1 TO 2000\n{body}  ENDFOR", "  DECL INT i\n")
+    assert [(x.line, x.rule) for x in found(many)] == [(3, "MOTION_TIME"), (FIRST + 1, "MOTION_TIME")]
