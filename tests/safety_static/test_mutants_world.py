@@ -431,6 +431,9 @@ def test_the_refusal_lists_every_violation_with_its_file() -> None:
                                              r"<program>:16:3: A1_ENVELOPE: "):
         ensure_allowed(program("  PTP {A1 46}"), None, CTX)
     assert ensure_allowed(program("  PTP {A1 45}"), None, CTX, "world.src") is None
+    # the data list is checked too
+    with pytest.raises(ProgramRefused, match=r"world\.src:2:3: STATEMENT: INTERRUPT is not allowed"):
+        ensure_allowed(program(""), "DEFDAT world\n  INTERRUPT ON 3\nENDDAT\n", CTX, "world.src")
 
 
 def test_a_data_list_syntax_error_names_the_data_list_of_a_long_name() -> None:
