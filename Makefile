@@ -40,22 +40,24 @@ bench: $(STAMP)
 # * the mass pipeline -- pipeline/mass.py, uncertainty.py, inline.py, preprocess.py, calibration.py, selection.py,
 #   thermal.py -- against tests/pipeline (~15 s in all); the default. MUTATE=all takes every module of pipeline/
 #   (cog, inertia, excitation, study, envelope too: ~8000 mutants, several hours) and the safety check below.
-# * the interlock's static check -- MUTATE=safety: safety/static.py; MUTATE=krl: krl/evaluate.py, abstract.py,
-#   values.py -- against tests/safety_static + tests/krl without their hypothesis tests (test_property,
-#   test_differential, test_roundtrip: random programs, ~30 s per surviving mutant, and a kill by chance is no
-#   reproducible kill; they still run in `make test`).
+# * the interlock's static check -- MUTATE=safety: safety/static.py, allowlist.py, inputs.py; MUTATE=krl:
+#   krl/evaluate.py, abstract.py, values.py -- against tests/safety_static + tests/krl without their hypothesis tests
+#   (test_property, test_differential, test_roundtrip: random programs, ~30 s per surviving mutant, and a kill by
+#   chance is no reproducible kill; they still run in `make test`). The rest of safety/ (monitor.py, latch.py,
+#   makesafe.py) is guarded by tests on the TCP simulator (tests/procedures, tests/faults: 15-60 s per mutant) and is
+#   not mutated (docs/accuracy.md, "Mutation testing of the interlock's static check").
 # Only the tests of the family being mutated are collected (PYTEST_ADDOPTS=--ignore=...), so mutmut's first full
 # test run stays short.
 # Narrow it with module names or paths: MUTATE="mass thermal" (pipeline names), MUTATE=krl/values or
 # MUTATE=rgse_daemon/krl/evaluate.py. One worker by default (MUTATION_JOBS=2 for a machine of your own). The per-file
 # score is printed at the end.
 MASS_PIPELINE := mass uncertainty inline preprocess calibration selection thermal
-SAFETY_CHECK := safety/static krl/evaluate krl/abstract krl/values
+SAFETY_CHECK := safety/static safety/allowlist safety/inputs krl/evaluate krl/abstract krl/values
 MUTATE ?= $(MASS_PIPELINE)
 MUTATION_JOBS ?= 1
 # MUTATE's words as package paths (pipeline/mass, krl/values ...): "safety", "krl" name their groups; a bare name is
 # a pipeline module.
-MUTATE_PATHS = $(foreach m,$(MUTATE),$(if $(filter safety,$(m)),safety/static,$(if $(filter krl,$(m)),$(filter krl/%,$(SAFETY_CHECK)),$(if $(findstring /,$(m)),$(basename $(m:rgse_daemon/%=%)),pipeline/$(basename $(m))))))
+MUTATE_PATHS = $(foreach m,$(MUTATE),$(if $(filter safety,$(m)),$(filter safety/%,$(SAFETY_CHECK)),$(if $(filter krl,$(m)),$(filter krl/%,$(SAFETY_CHECK)),$(if $(findstring /,$(m)),$(basename $(m:rgse_daemon/%=%)),pipeline/$(basename $(m))))))
 MUTATE_RANDOM_TESTS := tests/safety_static/test_property.py tests/safety_static/test_differential.py \
 	tests/krl/test_roundtrip.py
 MUTATE_IGNORE = $(if $(filter all,$(MUTATE)),,$(if $(filter pipeline/%,$(MUTATE_PATHS)),,tests/pipeline) \

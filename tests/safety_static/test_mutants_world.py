@@ -507,3 +507,32 @@ def test_a_while_paced_by_the_host_is_bounded_but_a_for_is_counted() -> None:
     # a FOR with too many passes is judged by their count, paced or not
     many = program(f"  FOR i = 1 TO 2000\n{body}  ENDFOR", "  DECL INT i\n")
     assert [(x.line, x.rule) for x in found(many)] == [(3, "MOTION_TIME"), (FIRST + 1, "MOTION_TIME")]
+
+
+def test_the_wrist_centre_is_held_to_the_cell() -> None:
+    """At A2 -30, A3 60, A5 -120 the wrist centre hangs 0.29 m below the flange (the flange points up): the cell's
+    bottom between them refuses the wrist, nothing else."""
+    up = (0.0, -30.0, 60.0, 0.0, -120.0, 0.0)
+    frames = joint_frames(up)
+    wrist_z, flange_z = float(frames[4, 2, 3]), float(frames[5, 2, 3])
+    assert flange_z - wrist_z == pytest.approx(D6_M) and float(frames[2, 2, 3]) > flange_z
+    bottom = (wrist_z + flange_z) / 2
+    cell = _point_cell().model_copy(update={"walls": BoxConfig(min_m=(-20.0, -20.0, bottom),
+                                                               max_m=(20.0, 20.0, 20.0))})
+    v = found(program("  PTP {A3 60}"), CheckContext(start_axes_deg=up, cell=cell))
+    assert [(x.line, x.rule) for x in v] == [(FIRST, "WORKSPACE")]
+    assert v[0].message.startswith(f"the wrist centre reaches z = {wrist_z * 1000:.0f} mm at A1..A6 = (0.0, -30.0, "
+                                   "60.0, 0.0, -120.0, 0.0) deg, at or below the cell at z = ")
+
+
+def test_the_workspace_is_the_checked_robots() -> None:
+    """The KR 10 held at A2 -90, A3 90: its flange 1.06 m up, under a 1.5 m ceiling; the KR 500's would be 2.29 m
+    up, through it."""
+    from rgse_daemon import robots
+
+    kr10 = robots.get("kr10r1440")
+    assert float(joint_frames(MEAS, robot=kr10)[5, 2, 3]) < 1.2 < 1.5 < float(joint_frames(MEAS)[5, 2, 3])
+    cell = _point_cell().model_copy(update={"walls": BoxConfig(min_m=(-20.0, -20.0, -5.0), max_m=(20.0, 20.0, 1.5))})
+    assert found(program("  PTP {A3 90}"), CheckContext(start_axes_deg=MEAS, cell=cell, robot=kr10)) == []
+    assert [x.rule for x in found(program("  PTP {A3 90}"), CheckContext(start_axes_deg=MEAS, cell=cell))] == [
+        "WORKSPACE"]
