@@ -536,3 +536,34 @@ def test_the_workspace_is_the_checked_robots() -> None:
     assert found(program("  PTP {A3 90}"), CheckContext(start_axes_deg=MEAS, cell=cell, robot=kr10)) == []
     assert [x.rule for x in found(program("  PTP {A3 90}"), CheckContext(start_axes_deg=MEAS, cell=cell))] == [
         "WORKSPACE"]
+
+
+def _held_points(q: tuple[float, ...], cell: CellConfig) -> np.ndarray:
+    """The points the workspace rule tests in pose ``q``: the payload box's corners, the flange, the wrist centre and
+    the elbow (world frame, m)."""
+    frames = joint_frames(q)
+    b = cell.payload_box_flange_m
+    corners = np.array([(x, y, z) for x in (b.min_m[0], b.max_m[0]) for y in (b.min_m[1], b.max_m[1])
+                        for z in (b.min_m[2], b.max_m[2])])
+    return np.vstack([corners @ frames[5, :3, :3].T + frames[5, :3, 3], frames[5, :3, 3], frames[4, :3, 3],
+                      frames[2, :3, 3]])
+
+
+@pytest.mark.parametrize("axis", [0, 1])
+def test_a_wall_exactly_touched_on_its_low_side(axis: int) -> None:
+    """Held at A1 30 (every point off the x and y axes), the wall at the smallest x (or y) of the tested points is
+    touched: refused; a micrometre farther out: allowed."""
+    q = (30.0, -90.0, 90.0, 0.0, 0.0, 0.0)
+    base = _point_cell()
+    low = float(_held_points(q, base)[:, axis].min())
+
+    def ctx(wall: float) -> CheckContext:
+        lo = [-20.0, -20.0, -5.0]
+        lo[axis] = wall
+        return CheckContext(start_axes_deg=q, cell=base.model_copy(update={
+            "walls": BoxConfig(min_m=tuple(lo), max_m=(20.0, 20.0, 20.0))}))
+
+    v = found(program("  PTP {A1 30}"), ctx(low))
+    assert [(x.line, x.rule) for x in v] == [(FIRST, "WORKSPACE")]
+    assert f"leaves the cell at ({'xy'[axis]} = {low * 1000:.0f} mm) at A1..A6 = (30.0, " in v[0].message
+    assert found(program("  PTP {A1 30}"), ctx(low - 1e-6)) == []
