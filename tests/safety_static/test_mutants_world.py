@@ -431,6 +431,11 @@ def test_the_refusal_lists_every_violation_with_its_file() -> None:
                                              r"<program>:16:3: A1_ENVELOPE: "):
         ensure_allowed(program("  PTP {A1 46}"), None, CTX)
     assert ensure_allowed(program("  PTP {A1 45}"), None, CTX, "world.src") is None
+    # a program that does not parse is named in the error
+    from rgse_daemon.errors import KrlSyntaxError
+
+    with pytest.raises(KrlSyntaxError, match=r"world\.src"):
+        ensure_allowed(program("  PTP {A1 45"), None, CTX, "world.src")
     # the data list is checked too
     with pytest.raises(ProgramRefused, match=r"world\.src:2:3: STATEMENT: INTERRUPT is not allowed"):
         ensure_allowed(program(""), "DEFDAT world\n  INTERRUPT ON 3\nENDDAT\n", CTX, "world.src")
