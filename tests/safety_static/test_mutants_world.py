@@ -493,6 +493,7 @@ PACED = ("  LOOP\n    WAIT FOR RGSE_CMD <> 0\n    IF RGSE_CMD == 99 THEN\n      
     (("    RGSE_CMD = 0\n", "    RGSE_ARR[1] = 0\n"), False),  # the reset is no plain variable
     (("    RGSE_CMD = 0\n", "    RGSE_OTHER = 0\n"), False),  # resets a variable the wait does not read
     (("    RGSE_CMD = 0\n", "    RGSE_CMD = 1 / 0\n"), False),  # the reset's value is a runtime error
+    (("    RGSE_CMD = 0\n", "    RGSE_CMD = RGSE_ZERO\n"), False),  # the reset's value is not known
     (("WAIT FOR RGSE_CMD <> 0", "WAIT FOR (RGSE_CMD <> 0) OR RGSE_GO"), False),  # the wait may pass anyway
     (("WAIT FOR RGSE_CMD <> 0", "WAIT FOR RGSE_CMD <> 0.0"), True),  # INT 0 against a REAL 0: still FALSE
     (("    PTP {A3 90}\n", "    PTP {A3 90}\n    WAIT FOR RGSE_DONE\n"), True),  # a second wait after the motions
