@@ -573,3 +573,8 @@ def test_a_wall_exactly_touched_on_its_low_side(axis: int) -> None:
     assert [(x.line, x.rule) for x in v] == [(FIRST, "WORKSPACE")]
     assert f"leaves the cell at ({'xy'[axis]} = {low * 1000:.0f} mm) at A1..A6 = (30.0, " in v[0].message
     assert found(program("  PTP {A1 30}"), ctx(low - 1e-6)) == []
+
+
+def test_a_for_with_step_zero_is_refused_with_its_reason() -> None:
+    v = found(program("  FOR i = 1 TO 5 STEP 0\n    RGSE_LOOP = i\n  ENDFOR", "  DECL INT i\n"))
+    assert [(x.line, x.rule, x.message) for x in v] == [(FIRST + 1, "LOOP", "FOR with STEP 0 never ends")]
