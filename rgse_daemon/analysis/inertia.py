@@ -41,7 +41,7 @@ from rgse_daemon.krl.render import InertiaMove, InertiaParams, RenderedProgram, 
 from rgse_daemon.manifest import check_keys, read_toml
 from rgse_daemon.pipeline import excitation as ex
 from rgse_daemon.pipeline import inertia as inr
-from rgse_daemon.pipeline.cog import AxisGain
+from rgse_daemon.pipeline.axis_gain import AxisGain
 from rgse_daemon.trace.channels import ISTMOMENT, ISTPOSITION, MOTORTEMPERATUR, SOLLPOSITION, drive_module
 from rgse_daemon.trace.diadem import read_trace_set
 
