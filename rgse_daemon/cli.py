@@ -33,6 +33,7 @@ from rgse_daemon.errors import (
 from rgse_daemon.logs import ENV_VAR as LOG_FORMAT_ENV
 from rgse_daemon.logs import FORMATS as LOG_FORMATS
 from rgse_daemon.logs import choose_format, setup_logging
+from rgse_daemon.runkind import RunKind
 from rgse_daemon.verdict import refusal
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_FAILED", "EXIT_OK", "EXIT_REFUSED", "EXIT_WARNINGS", "build_parser", "main"]
@@ -170,7 +171,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("runs", help="the history of runs and results from the store: filter, table, CSV, JSON")
     p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its store)")
     p.add_argument("--robot", metavar="NAME", help="only this robot's runs (default: every robot in the store)")
-    p.add_argument("--kind", choices=("measurement", "calibration"))
+    p.add_argument("--kind", choices=[k.value for k in RunKind])
     p.add_argument("--state", choices=("queued", "running", "completed", "failed", "interrupted", "aborted"))
     p.add_argument("--status", choices=("ok", "warning", "refused"), help="only results of this status")
     p.add_argument("--dut", metavar="TEXT", help="DuT name, serial or part number or project contains TEXT")

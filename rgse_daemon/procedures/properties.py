@@ -268,7 +268,7 @@ def properties_plan(
         **result,
         "run_id": run.run_id,
         "robot": s.robot,
-        "run_kind": "properties",
+        "run_kind": RunKind.PROPERTIES.value,
         "trace_sha256": shas,
         "warnings": [*result.get("warnings", []), *(warnings or [])],
         "controller_copies_deleted": all(o.deleted for o in outcomes),
@@ -336,7 +336,7 @@ async def run_properties(
                                 f"{p.scheme!r}: use scheme {tors.scheme!r} or calibrate those poses")
     if p.inertia:  # gains of A4..A6, an excitation that fits the trace buffer: numeric work, off the event loop
         await asyncio.to_thread(check_feasible, s, fixture, tuple(tors.gains), p.inertia_repeats)
-    opening = d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json(), "calibration_id": cal.id,
-                                                       "properties": p.to_json()})
+    opening = d.OpenRun(RunKind.PROPERTIES, s.robot, {"settings": s.to_json(), "calibration_id": cal.id,
+                                                      "properties": p.to_json()})
     return await engine.execute(opening, lambda run: properties_plan(run, s, p, cal.document, inputs=inputs),
                                 recorder)
