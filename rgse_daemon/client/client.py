@@ -258,7 +258,7 @@ class RgseClient:
 
 
 class Run:
-    """A run started by this client (or attached to with :meth:`attach`): its events, prompts, end and result."""
+    """A run started by this client: its events, prompts, end and result."""
 
     def __init__(self, client: RgseClient, run_id: str | None, kind: RunKind) -> None:
         self.client = client
@@ -266,14 +266,6 @@ class Run:
         self.kind = kind
         self._seen = 0  # events handed out by next_event
         self._prompts_seen = 0
-
-    @classmethod
-    async def attach(cls, client: RgseClient, timeout_s: float | None = None) -> Run:
-        """The run the daemon's state names (to follow or abort a run another tool started)."""
-        state = await client.state(timeout_s)
-        if not state.run_id or state.run_kind not in tuple(RunKind):
-            raise WaitTimeout(f"no run in progress (engine {state.engine})")
-        return cls(client, state.run_id, RunKind(state.run_kind))
 
     def _id(self) -> str:
         if self.run_id is None:

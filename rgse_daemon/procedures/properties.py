@@ -65,9 +65,7 @@ from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.procedures.programs import (
     COG_TRACE_CONFIG_NAME,
     COG_TRACE_MODULES,
-    axes_of,
-    program,
-    run_checked,
+    move_to,
     trace_config_xml,
 )
 from rgse_daemon.procedures.recorder import StoreRecorder
@@ -174,19 +172,6 @@ def mass_step(run: d.RunContext, s: RunSettings, tag: str, first_index: int, cal
     """The mass loops in the measurement pose (as the measurement run's, under the same stop rule)."""
     return (yield from measurement_loops(run, s, cal_doc, lambda i: f"dut_{tag}_l{i:02d}", first_index,
                                          event_data={"phase": "mass"}, label="mass loop"))
-
-
-def move_to(pose: Sequence[float], s: RunSettings) -> Generator[m.Msg, Any, float]:
-    """PTP to ``pose`` with ``rgse_cal_pose`` (as the torsional calibration moves), rendered for the T1 limit from
-    the live axes; the engine's ``Push`` runs the interlock's static check first."""
-    snap = yield m.ReadState()
-    prog = yield m.Compute("render rgse_cal_pose", _pose_program, (s, axes_of(snap, s.meas_pose_deg), tuple(pose)),
-                           timeout_s=60.0)
-    return (yield from run_checked(prog, s)) or 0.0
-
-
-def _pose_program(s: RunSettings, start: tuple[float, ...], pose: tuple[float, ...]) -> Any:
-    return program("rgse_cal_pose", s, start, cal_pose_deg=pose)
 
 
 def cog_step(run: d.RunContext, s: RunSettings, p: PropertiesSettings, tag: str, first_index: int
