@@ -170,7 +170,7 @@ class Daemon:
         return self.admission.task
 
     @property
-    def run_kind(self) -> str | None:
+    def run_kind(self) -> RunKind | None:
         return self.admission.kind
 
     @property
@@ -391,19 +391,19 @@ class Daemon:
         if doc.get("kind") in ("safety_latch", "left_running_stopped", "run_interrupted"):
             self.light.want("red")
 
-    def _run_failed(self, kind: str, run_id: str | None, error: str) -> None:
-        self._publish_alarm({"kind": "run_failed", "run_kind": kind, "run_id": run_id,
+    def _run_failed(self, kind: RunKind, run_id: str | None, error: str) -> None:
+        self._publish_alarm({"kind": "run_failed", "run_kind": kind.value, "run_id": run_id,
                              "message": f"{kind} run failed: {error}"})
         self.light.want("red")
 
-    def _run_refused(self, kind: str, reason: str) -> None:
+    def _run_refused(self, kind: RunKind, reason: str) -> None:
         """A run request answered "no" before anything was recorded or moved: published as such, and the stack light
         is left as it is (red stays the colour of something that happened to the robot or a run)."""
-        self._publish_alarm({"kind": "run_refused", "run_kind": kind, "reason": reason,
+        self._publish_alarm({"kind": "run_refused", "run_kind": kind.value, "reason": reason,
                              "message": f"{kind} run refused: {reason}"})
 
     # --- runs ----------------------------------------------------------------------------------------------------
-    def _start_run(self, kind: str, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]],
+    def _start_run(self, kind: RunKind, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]],
                    engine: RunEngine | None = None) -> asyncio.Task[Any]:
         assert self.store is not None
         try:
@@ -429,7 +429,7 @@ class Daemon:
         inputs = self._inputs()
         dry = self._dry(self.engine) if dry_run and self.engine is not None else None
         return self._start_run(
-            "measurement",
+            RunKind.MEASUREMENT,
             lambda engine, store: run_measurement(engine, store, self.cfg, settings=settings, inputs=inputs),
             engine=dry,
         )
@@ -442,7 +442,7 @@ class Daemon:
         inputs = self._inputs()
         dry = self._dry(self.engine) if dry_run and self.engine is not None else None
         return self._start_run(
-            "properties",
+            RunKind.PROPERTIES,
             lambda engine, store: run_properties(engine, store, self.cfg, settings=settings, props=props,
                                                  inputs=inputs),
             engine=dry,
@@ -458,7 +458,7 @@ class Daemon:
                                 run_id: str | None = None, settings: RunSettings | None = None) -> asyncio.Task[Any]:
         inputs = self._inputs()
         return self._start_run(
-            "calibration",
+            RunKind.CALIBRATION,
             lambda engine, store: run_calibration(engine, store, self.cfg, points=points, method=method,
                                                   run_id=run_id, settings=settings, inputs=inputs),
         )
@@ -478,8 +478,8 @@ class Daemon:
         task = await self.start_measurement(loops=cmd.loops, fixture_mass_kg=cmd.fixture_mass_kg,
                                             dry_run=cmd.dry_run,
                                             identity=cmd.identity.as_json() if cmd.identity else None)
-        kind = self.admission.kind or "measurement"  # "properties" when every measurement is one
-        return {"accepted": kind, "run_id": await self.admission.started(task), "dry_run": cmd.dry_run}
+        kind = self.admission.kind or RunKind.MEASUREMENT  # properties when every measurement is one
+        return {"accepted": kind.value, "run_id": await self.admission.started(task), "dry_run": cmd.dry_run}
 
     async def properties(self, cmd: PropertiesCommand) -> dict[str, Any]:
         overrides: dict[str, Any] = {}
@@ -497,13 +497,13 @@ class Daemon:
             dut_abc_deg=fixture.dut_abc_deg if fixture is not None else None, inertia=cmd.inertia)
         task = await self.start_properties(settings=RunSettings.from_config(self.cfg, **overrides), props=props,
                                            dry_run=cmd.dry_run)
-        return {"accepted": "properties", "run_id": await self.admission.started(task), "dry_run": cmd.dry_run,
-                "scheme": props.scheme, "inertia": props.inertia}
+        return {"accepted": RunKind.PROPERTIES.value, "run_id": await self.admission.started(task),
+                "dry_run": cmd.dry_run, "scheme": props.scheme, "inertia": props.inertia}
 
     async def calibrate(self, cmd: CalibrateCommand) -> dict[str, Any]:
         points = [campaign_point(p) for p in cmd.points] if cmd.points is not None else None
         task = await self.start_calibration(points=points, method=cmd.method or "auto")
-        return {"accepted": "calibration", "run_id": await self.admission.started(task),
+        return {"accepted": RunKind.CALIBRATION.value, "run_id": await self.admission.started(task),
                 "points": len(points) if points else None}
 
     @property

@@ -14,8 +14,8 @@ import numpy as np
 
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline.axis_gain import AxisGain
 from rgse_daemon.pipeline.calibration import AxisK, Calibration
-from rgse_daemon.pipeline.cog import AxisGain
 from rgse_daemon.pipeline.envelope import Envelope
 from rgse_daemon.pipeline.preprocess import Preprocessing
 from rgse_daemon.pipeline.thermal import ThermalDrift

@@ -361,6 +361,12 @@ def ptp_joint_speeds_deg_s(
     return dq * scale
 
 
+#: Fraction of a speed limit that a rendered motion aims for under :func:`max_point_speed_mm_s`'s bound (the KRL
+#: renderer's axis speed, the inertia excitation's swings): headroom for rounding and sampling; the interlock checks
+#: the limit itself.
+SPEED_HEADROOM = 0.95
+
+
 def max_point_speed_mm_s(
     q_start_deg: Sequence[float],
     q_end_deg: Sequence[float],

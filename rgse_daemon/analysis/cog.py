@@ -34,6 +34,7 @@ from rgse_daemon.manifest import (
 )
 from rgse_daemon.pipeline import cog as cog_mod
 from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline import torsion
 from rgse_daemon.pipeline.cog import CogPose, cog_poses
 from rgse_daemon.pipeline.uncertainty import COVERAGE_K
 from rgse_daemon.trace.diadem import read_trace_set
@@ -324,7 +325,7 @@ def _pose_reading(directory: Path, name: str, q: tuple[float, ...], traces: Sequ
 def thermal_state_k(readings: Sequence[PoseReading]) -> dict[str, float] | None:
     """Mean motor temperature of A3..A6 over the readings (K), None when any of them lacks it."""
     out = {}
-    for ax in cog_mod.COG_AXES:
+    for ax in torsion.COG_AXES:
         values = [r.motor_temp_k[ax - 1] for r in readings if r.motor_temp_k is not None]
         if len(values) != len(readings) or not values or not np.all(np.isfinite(values)):
             return None
@@ -441,7 +442,7 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
 def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing = pp.PAPER, *,
                           periods: Sequence[tuple[str, float]] = ()) -> dict[str, Any]:
     """The ``torsional`` section of CAL.json from a campaign's ``kind = "torsional"`` points: the bare MPA's mean
-    torques per pose (the bias, with its standard error) and K per axis A3..A6 (:func:`pipeline.cog.fit_torsional`,
+    torques per pose (the bias, with its standard error) and K per axis A3..A6 (:func:`pipeline.torsion.fit_torsional`,
     leave-one-point-out validation). ``periods``: the sample period of the campaign's mass loops (every loop of a
     campaign has one period)."""
     seen = list(periods)
@@ -453,20 +454,20 @@ def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing 
 
     every: list[PoseReading] = []
 
-    def means(spec: TorsionalPointSpec) -> dict[str, cog_mod.PoseMean]:
+    def means(spec: TorsionalPointSpec) -> dict[str, torsion.PoseMean]:
         out = {}
         for p in poses:
             r = _pose_reading(directory, p.name, p.q_deg, spec.traces[p.name], pre, seen)
             every.append(r)
-            out[p.name] = cog_mod.PoseMean(r.torque_nm, r.sigma_nm)
+            out[p.name] = torsion.PoseMean(r.torque_nm, r.sigma_nm)
         return out
 
     bias = means(bias_specs[0])
-    loaded = [cog_mod.TorsionalPoint(pt.mass_kg, pt.cog_flange_m, means(pt))
+    loaded = [torsion.TorsionalPoint(pt.mass_kg, pt.cog_flange_m, means(pt))
               for pt in man.torsional_points if pt.mass_kg > 0]
     check_one_period(seen, man.path)
     try:
-        fit = cog_mod.fit_torsional(poses, bias, loaded, g_m_s2=man.setup.g_m_s2)
+        fit = torsion.fit_torsional(poses, bias, loaded, g_m_s2=man.setup.g_m_s2)
     except DataError as exc:
         raise DataError(f"{man.path}: {exc}") from None
     cal_poses = [calfile.TorsionalPose(p.name, p.q_deg, bias[p.name].torque_nm, bias[p.name].sigma_nm)

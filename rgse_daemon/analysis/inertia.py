@@ -21,7 +21,7 @@ manifest ``inertia.toml`` (docs/interfaces.md)::
 
 With a CAL.json whose ``torsional`` section has gain curves for A4–A6, the readings are taken through them
 (``pipeline.inertia.TorqueCalibration``) and the relative uncertainty of each one's slope at the run's operating
-point (parameters and model form) enters U, axis by axis (:func:`gain_slope_u_rel`), with a warning where that
+point (parameters and model form, ``AxisGain.slope_u_rel``) enters U, axis by axis, with a warning where that
 operating point lies outside the torques the calibration covered; without one, 1:1.
 """
 
@@ -41,7 +41,7 @@ from rgse_daemon.krl.render import InertiaMove, InertiaParams, RenderedProgram, 
 from rgse_daemon.manifest import check_keys, read_toml
 from rgse_daemon.pipeline import excitation as ex
 from rgse_daemon.pipeline import inertia as inr
-from rgse_daemon.pipeline.cog import AxisGain
+from rgse_daemon.pipeline.axis_gain import AxisGain
 from rgse_daemon.trace.channels import ISTMOMENT, ISTPOSITION, MOTORTEMPERATUR, SOLLPOSITION, drive_module
 from rgse_daemon.trace.diadem import read_trace_set
 
@@ -206,18 +206,6 @@ def read_strokes(directory: Path, name: str, base_deg: tuple[float, ...]) -> tup
         strokes.append(inr.Stroke(t[lo:hi], ist[lo:hi], tau[lo:hi], soll[lo:hi],
                                   temp_k=np.nan_to_num(temp[lo:hi], nan=0.0) if has_temp else None))
     return strokes, period
-
-
-def gain_slope_u_rel(gain: AxisGain, x_nm: float | None = None) -> float:
-    """Relative standard uncertainty of a gain curve's slope (the torque scale the inertia is read through) at
-    payload torque ``x_nm`` (None: the middle of the torques the campaign covered): its fitted parameters'
-    covariance (with the Student factor of its few points) and the spread of the candidate models the calibration
-    could not tell from the chosen one (model form; ``AxisGain.slope_u_rel``). The identification takes it at the
-    run's operating point, axis by axis (``TorqueCalibration.slope_u_rel_at``): a slope error of one axis is no
-    common scale of the tensor, it moves the products of inertia."""
-    if x_nm is None:
-        x_nm = 0.5 * max(abs(v) for v in gain.torque_range_nm)
-    return gain.slope_u_rel(x_nm)
 
 
 def torque_calibration(gains: dict[int, AxisGain], fixture_mass_kg: float,

@@ -19,9 +19,10 @@ from rgse_daemon.client.types import (
     WaitTimeout,
     load_points,
 )
+from rgse_daemon.runkind import RunKind
 
 __all__ = [
     "CalibrationResult", "CampaignPoint", "DaemonState", "FixtureFrame", "Identity", "MeasurementResult",
     "ProgressEvent", "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "RgseClient", "Run",
-    "RunFailed", "SyncClient", "SyncRun", "WaitTimeout", "load_points",
+    "RunFailed", "RunKind", "SyncClient", "SyncRun", "WaitTimeout", "load_points",
 ]

@@ -26,6 +26,7 @@ from typing import Any, TypeVar
 from rgse_daemon.config import Config, load_config
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.operator import DEFAULT_TIMEOUT_S, Endpoint, Session, describe_status, endpoint_of
+from rgse_daemon.runkind import RunKind
 
 from .types import (
     INTERRUPTED,
@@ -43,7 +44,6 @@ from .types import (
     Refused,
     Result,
     RunFailed,
-    RunKind,
     WaitTimeout,
 )
 
@@ -187,7 +187,7 @@ class RgseClient:
         reply = await self._command("measure", {"loops": loops, "fixture_mass_kg": fixture_mass_kg,
                                                 "dry_run": dry_run or None,
                                                 "identity": identity.as_command() if identity else None})
-        return Run(self, reply.get("run_id"), "measurement")
+        return Run(self, reply.get("run_id"), RunKind.MEASUREMENT)
 
     async def properties(self, *, loops: int | None = None, loops_per_pose: int | None = None,
                          scheme: str | None = None, fixture_mass_kg: float | None = None,
@@ -201,7 +201,7 @@ class RgseClient:
             "loops": loops, "loops_per_pose": loops_per_pose, "scheme": scheme, "fixture_mass_kg": fixture_mass_kg,
             "fixture": fixture.as_command() if fixture is not None else None, "inertia": inertia,
             "dry_run": dry_run or None, "identity": identity.as_command() if identity else None})
-        return Run(self, reply.get("run_id"), "properties")
+        return Run(self, reply.get("run_id"), RunKind.PROPERTIES)
 
     async def calibrate(self, points: Sequence[CampaignPoint] | None = None, *, method: str | None = None) -> Run:
         """Start a calibration campaign over ``points`` (``None``: paper Table 1) fitted with ``method``."""
@@ -209,7 +209,7 @@ class RgseClient:
         if points is not None:
             fields["points"] = [p.as_command() for p in points]
         reply = await self._command("calibrate", fields)
-        return Run(self, reply.get("run_id"), "calibration")
+        return Run(self, reply.get("run_id"), RunKind.CALIBRATION)
 
     async def confirm(self, run_id: str, point: int | None = None, message: str | None = None) -> None:
         """Answer the prompt of ``run_id`` (only the point it waits for is accepted)."""
@@ -229,9 +229,9 @@ class RgseClient:
             raise RunFailed(run_id, INTERRUPTED, _interrupted_reason(doc))
         if doc.get("status") == "refused":  # no figure: the reason is what there is (rgse_daemon.verdict)
             raise RunFailed(run_id, "refused", str(doc.get("reason") or "no reason given"))
-        if kind == "calibration" or (kind is None and "mass_kg" not in doc):
+        if kind == RunKind.CALIBRATION or (kind is None and "mass_kg" not in doc):
             return CalibrationResult.of(run_id, doc)
-        if kind == "properties" or (kind is None and doc.get("cog_m") is not None):
+        if kind == RunKind.PROPERTIES or (kind is None and doc.get("cog_m") is not None):
             return PropertiesResult.of(run_id, doc)
         return MeasurementResult.of(run_id, doc)
 
@@ -258,7 +258,7 @@ class RgseClient:
 
 
 class Run:
-    """A run started by this client (or attached to with :meth:`attach`): its events, prompts, end and result."""
+    """A run started by this client: its events, prompts, end and result."""
 
     def __init__(self, client: RgseClient, run_id: str | None, kind: RunKind) -> None:
         self.client = client
@@ -266,14 +266,6 @@ class Run:
         self.kind = kind
         self._seen = 0  # events handed out by next_event
         self._prompts_seen = 0
-
-    @classmethod
-    async def attach(cls, client: RgseClient, timeout_s: float | None = None) -> Run:
-        """The run the daemon's state names (to follow or abort a run another tool started)."""
-        state = await client.state(timeout_s)
-        if not state.run_id or state.run_kind not in ("measurement", "calibration", "properties"):
-            raise WaitTimeout(f"no run in progress (engine {state.engine})")
-        return cls(client, state.run_id, state.run_kind)  # type: ignore[arg-type]
 
     def _id(self) -> str:
         if self.run_id is None:

@@ -314,7 +314,6 @@ class PropertiesResult:
 
 
 Result = MeasurementResult | CalibrationResult | PropertiesResult
-RunKind = Literal["measurement", "calibration", "properties"]
 
 
 @dataclass(frozen=True)

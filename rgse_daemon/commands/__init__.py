@@ -1,7 +1,10 @@
-"""One module per ``rgse`` sub-command, each with ``run(args: argparse.Namespace) -> int``; and what several share."""
+"""One module per ``rgse`` sub-command, each with ``add_arguments(parser)`` and ``run(args: argparse.Namespace) ->
+int``; and what several share."""
 
 from __future__ import annotations
 
+import argparse
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -31,3 +34,27 @@ def absent_store(cfg: Config, what: str, config_path: Path | None) -> DataError 
         return None
     return DataError(f"{what}: not found: the {describe_store(cfg.store.url, cfg.paths.data_dir)} does not exist"
                      f"{config_hint(config_path)}")
+
+
+def finite(text: str) -> float:
+    """An argparse type: a finite number (``nan``/``inf`` are refused as such)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def positive(text: str) -> float:
+    """An argparse type: a finite number > 0 (a timeout, a time scale)."""
+    value = finite(text)
+    if value <= 0.0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text!r}")
+    return value
+
+
+def add_json(p: argparse.ArgumentParser | argparse._MutuallyExclusiveGroup) -> None:
+    """``--json``: the one JSON object a command prints instead of its text."""
+    p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")

@@ -11,12 +11,21 @@ unreachable broker, or no reply within ``--timeout`` (default 10 s). See :mod:`r
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from rgse_daemon.commands.operator_cli import report_reply, run_operator
 from rgse_daemon.io.operator import Conversation, check_fields, check_timeout, endpoint
 
 DEFAULT_REASON = "aborted by the operator (rgse abort)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse abort``."""
+    p.add_argument("--config", type=Path, required=True, metavar="FILE")
+    p.add_argument("--reason", metavar="TEXT", help="why (recorded with the run)")
+    p.add_argument("--run", metavar="RUN_ID", help="abort only this run (default: the run in progress)")
+    p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the reply (default 10)")
 
 
 def run(args: argparse.Namespace) -> int:

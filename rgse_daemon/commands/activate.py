@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from rgse_daemon import calfile
+from rgse_daemon.commands import add_json
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import EXIT_OK, DataError
 from rgse_daemon.store import EventLevel, Store
@@ -43,6 +44,14 @@ async def activate(cal_path: Path, config_path: Path | None, note: str | None) -
 
 def _sha256_and_path(path: Path) -> tuple[str, str]:
     return hashlib.sha256(path.read_bytes()).hexdigest(), str(path.resolve())
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse activate``."""
+    p.add_argument("calibration", type=Path, metavar="CAL.json")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its robot and store)")
+    p.add_argument("--note", metavar="TEXT", help="why, recorded with the activation")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

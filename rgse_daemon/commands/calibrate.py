@@ -9,6 +9,7 @@ from pathlib import Path
 
 from rgse_daemon import calfile, robots
 from rgse_daemon.analysis.calibration import POINTS_ROBOT, calibrate, fit_campaign, parse_preprocessing
+from rgse_daemon.commands import add_json
 from rgse_daemon.errors import DataError
 from rgse_daemon.kinematics import G_PAPER_M_S2
 from rgse_daemon.manifest import load_points_csv, source_sha256
@@ -33,6 +34,19 @@ def make_room(out: Path) -> str | None:
                         f"choose another path")
     out.rename(kept)
     return f"the calibration that was at {out} ({old['calibration_id']}) is kept as {kept}"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse calibrate``."""
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--points", type=Path, metavar="CSV")
+    src.add_argument("--campaign", type=Path, metavar="DIR")
+    p.add_argument("--out", type=Path, required=True, metavar="CAL.json")
+    p.add_argument("--method", default="paper", metavar="paper|auto|NAME")
+    p.add_argument("--preprocessing", metavar="paper|KEY=VALUE,...",
+                   help="campaign pre-processing: paper (method F, default) or e.g. a row of rgse study "
+                        "(crop_sigma=2,filter=gaussian,window=100,order=forward,location=huber)")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

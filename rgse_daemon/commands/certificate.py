@@ -30,6 +30,14 @@ def write(config_path: Path | None, run_id: str, out: Path | None) -> Path:
     return path
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse certificate``."""
+    p.add_argument("run_id", metavar="RUN_ID")
+    p.add_argument("--out", type=Path, metavar="FILE.pdf",
+                   help="where to write it (default <data_dir>/reports/certificate-RUN_ID.pdf)")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its store)")
+
+
 def run(args: argparse.Namespace) -> int:
     print(write(getattr(args, "config", None), args.run_id, args.out))
     return EXIT_OK

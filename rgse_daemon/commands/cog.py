@@ -7,7 +7,15 @@ import json
 from pathlib import Path
 
 from rgse_daemon.analysis.cog import compute_cog_dir
+from rgse_daemon.commands import add_json
 from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse cog``."""
+    p.add_argument("--traces", type=Path, required=True, metavar="DIR")
+    p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 from rgse_daemon.commands.operator_cli import report_reply, run_operator
@@ -22,6 +23,15 @@ from rgse_daemon.io.operator import Conversation, Unreachable, check_fields, che
 
 #: How long to wait for the daemon's state when the run is not named (it is retained: normally at once).
 STATE_WAIT_S = 3.0
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse confirm``."""
+    p.add_argument("--config", type=Path, required=True, metavar="FILE")
+    p.add_argument("--run", metavar="RUN_ID", help="the run waiting (default: the run of the daemon's state)")
+    p.add_argument("--point", type=int, metavar="N", help="index of the campaign point whose load is mounted")
+    p.add_argument("--message", metavar="TEXT", help="the operator's note, recorded with the confirmation")
+    p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the reply (default 10)")
 
 
 def run(args: argparse.Namespace) -> int:

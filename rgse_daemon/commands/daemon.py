@@ -11,6 +11,7 @@ import asyncio
 import logging
 import signal
 import sys
+from pathlib import Path
 
 from rgse_daemon.app import Daemon
 from rgse_daemon.config import Config, load_config
@@ -59,6 +60,11 @@ async def _serve(daemon: Daemon) -> None:
         for sig in (signal.SIGINT, signal.SIGTERM):
             loop.remove_signal_handler(sig)
         _say("stopped")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse daemon``."""
+    p.add_argument("--config", type=Path, required=True, metavar="FILE")
 
 
 def run(args: argparse.Namespace) -> int:

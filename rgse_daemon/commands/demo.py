@@ -44,6 +44,7 @@ from urllib.parse import urlsplit
 from rgse_daemon import kinematics as kin
 from rgse_daemon import robots
 from rgse_daemon.app import Daemon
+from rgse_daemon.commands import add_json
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.errors import ConfigError, RgseError
 from rgse_daemon.krl.render import globals_dat_text
@@ -484,6 +485,20 @@ async def _write_report(cfg: Config, run_id: str, out: Path) -> Path:
     from rgse_daemon.commands import report  # optional part: the HTML report
 
     return await asyncio.to_thread(report.write, cfg, run_id=run_id, out_dir=out)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse demo``."""
+    add_json(p)
+    p.add_argument("--report", type=Path, metavar="DIR", help="also write the HTML report into DIR")
+    p.add_argument("--mqtt", metavar="URL", help="also publish on this broker, e.g. mqtt://127.0.0.1:1883")
+    p.add_argument("--console", type=int, metavar="PORT", help="also serve the web console on 127.0.0.1:PORT")
+    p.add_argument("--inertia", action="store_true",
+                   help="the properties run also measures the inertia tensor (DuT and tare excitation)")
+    p.add_argument("--seed", type=int, default=2024, metavar="N",
+                   help="the simulated robot's seed (gains, offsets, noise; default 2024)")
+    p.add_argument("--robot", default="kr500r2830", metavar="MODEL",
+                   help="the simulated arm: kr500r2830 (default, the paper's) or kr10r1440 (its subscale bench)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,10 +8,19 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+from pathlib import Path
 
+from rgse_daemon.commands import add_json
 from rgse_daemon.commands.krl import template_defaults
 from rgse_daemon.config import load_config
 from rgse_daemon.doctor import run_doctor
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse doctor``."""
+    p.add_argument("--config", type=Path, required=True, metavar="FILE")
+    p.add_argument("--no-record", action="store_true", help="do not record the controller's file layout")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

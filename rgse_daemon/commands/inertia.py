@@ -10,6 +10,15 @@ from pathlib import Path
 import numpy as np
 
 from rgse_daemon.analysis.inertia import ECSS_REL, compute_inertia_dir
+from rgse_daemon.commands import add_json
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse inertia``."""
+    p.add_argument("--traces", type=Path, required=True, metavar="DIR")
+    p.add_argument("--calibration", type=Path, metavar="CAL.json",
+                   help="take the readings through its torsional gain curves of A4..A6 (default: 1:1)")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

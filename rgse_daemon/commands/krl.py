@@ -171,6 +171,21 @@ def render_all(args: argparse.Namespace) -> int:
     return EXIT_REFUSED if refused else EXIT_OK
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse krl``."""
+    krl_sub = p.add_subparsers(dest="krl_command", required=True, metavar="ACTION")
+    c = krl_sub.add_parser("check", help="the interlock's static check (exit 3 if refused)")
+    c.add_argument("file", type=Path, metavar="FILE.src")
+    c.add_argument("--config", type=Path, metavar="FILE")
+    c.add_argument("--payload", type=float, metavar="KG",
+                   help="the DuT's mass mounted (kg; default: cell.dut_mass_kg, else the worst credible)")
+    c.add_argument("--cog", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="the DuT's CoG in the flange frame (m; default: cell.dut_cog_flange_m, else worst credible)")
+    r = krl_sub.add_parser("render", help="render every template in krl/ with the configured defaults")
+    r.add_argument("--out", type=Path, required=True, metavar="DIR")
+    r.add_argument("--config", type=Path, metavar="FILE")
+
+
 def run(args: argparse.Namespace) -> int:
     if args.krl_command == "check":
         return check(args)

@@ -7,10 +7,25 @@ import json
 from pathlib import Path
 
 from rgse_daemon.analysis.mass import compute
+from rgse_daemon.commands import add_json, finite
 from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS, DataError
 from rgse_daemon.pipeline.envelope import DEFAULT_LIMIT
 from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.verdict import OK
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse mass``."""
+    p.add_argument("--traces", type=Path, required=True, metavar="DIR")
+    p.add_argument("--calibration", type=Path, required=True, metavar="CAL.json")
+    p.add_argument("--fixture-mass", type=finite, metavar="KG")
+    p.add_argument("--envelope-limit", type=finite, default=DEFAULT_LIMIT, metavar="FRACTION",
+                   help="refuse a DuT further outside the calibrated loads than this fraction of their span "
+                        "(default 0.5)")
+    p.add_argument("--drift-prior", type=finite, default=DRIFT_PRIOR_PER_K, metavar="PER_K",
+                   help="bound on the thermal drift coefficient |β| (1/K) that U carries where the campaign does not "
+                        "resolve β (default 0.003, i.e. 0.3 %%/K)")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

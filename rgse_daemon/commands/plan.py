@@ -22,6 +22,7 @@ import numpy as np
 
 from rgse_daemon.app import campaign_point
 from rgse_daemon.client import load_points
+from rgse_daemon.commands import add_json, finite
 from rgse_daemon.config import Config, load_config
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS, ConfigError, DataError, RgseError
@@ -136,6 +137,22 @@ def print_plan(out: dict[str, Any]) -> None:
         print(f"  - {a}")
     if out["points_out"]:
         print(f"points file: {out['points_out']} (rgse run calibrate --points {out['points_out']})")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse plan``."""
+    p.add_argument("--mass", type=finite, nargs=2, metavar=("KG", "KG"),
+                   help="the DuTs' mass range (what is mounted on the MPA), kg")
+    p.add_argument("--lever-a5", type=finite, nargs=2, metavar=("M", "M"),
+                   help="the DuTs' CoG lever range along the flange axis from A5, m")
+    p.add_argument("--dut", type=finite, nargs=2, action="append", metavar=("KG", "M"),
+                   help="one DuT (mass, lever from A5), instead of a range; repeat for a list")
+    p.add_argument("--loops-per-point", type=int, default=3, metavar="N", help="loops per point (default 3)")
+    p.add_argument("--max-distance", type=finite, default=0.15, metavar="D",
+                   help="a DuT is covered within D of a calibrated point (torque over the range's largest, per axis)")
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (settling, warm-up)")
+    p.add_argument("--points-out", type=Path, metavar="FILE.toml", help="write the points for rgse run calibrate")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,10 +6,11 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+from pathlib import Path
 from typing import Any
 
 from rgse_daemon.analysis import reference as ref
-from rgse_daemon.commands import absent_store
+from rgse_daemon.commands import absent_store, add_json, positive
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import ConfigError
 from rgse_daemon.io.scale import CraneScale
@@ -44,6 +45,18 @@ async def _reference(args: argparse.Namespace) -> dict[str, Any]:
         "table2": [{"parameter": p, "reference_crane_scale": a, "inline_robot": b} for p, a, b in rows],
         "scale_counters": counters,
     }
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse reference``."""
+    p.add_argument("--run", required=True, metavar="RUN_ID")
+    p.add_argument("--config", type=Path, metavar="FILE")
+    p.add_argument("--weighed", choices=("gross", "net"), default="gross",
+                   help="gross: DuT and fixture hang on the scale together (the paper's 117.6 kg)")
+    p.add_argument("--timeout", type=positive, metavar="S", help="wait at most S s for a stable weighing")
+    p.add_argument("--operators", type=int, metavar="N", help="operators of the crane-scale procedure (Table 2)")
+    p.add_argument("--operation-min", type=positive, metavar="MIN", help="its total time of operation (Table 2)")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -30,6 +30,7 @@ import math
 import os
 import sys
 from collections.abc import Awaitable, Callable
+from pathlib import Path
 
 from rgse_daemon.client import (
     FixtureFrame,
@@ -162,6 +163,49 @@ def _no_result(args: argparse.Namespace, reason: str, state: str, run_id: str | 
     """With ``--json``: the one JSON object of a run without a result (refused, failed, aborted, given up)."""
     if args.json:
         print(json.dumps(refusal(reason, state=state, run_id=run_id)), flush=True)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse run``."""
+    kinds = p.add_subparsers(dest="run_kind", required=True, metavar="KIND")
+    m = kinds.add_parser("measure", help="an in-line measurement of the mounted DuT")
+    m.add_argument("--loops", type=int, metavar="N")
+    m.add_argument("--fixture-mass", type=float, metavar="KG")
+    m.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
+    c = kinds.add_parser("calibrate", help="a calibration campaign (confirming each load)")
+    c.add_argument("--points", type=Path, metavar="FILE.toml", help="[[point]] tables (default: paper Table 1)")
+    c.add_argument("--method", metavar="paper|auto|NAME")
+    r = kinds.add_parser("properties", help="a mass-properties run of the mounted DuT: mass, then CoG")
+    r.add_argument("--loops", type=int, metavar="N", help="mass loops (default: measurement.loops)")
+    r.add_argument("--loops-per-pose", type=int, metavar="N", help="loops in each CoG pose")
+    r.add_argument("--scheme", choices=("paper", "full"), help="the CoG poses (default: properties.scheme)")
+    r.add_argument("--fixture-mass", type=float, metavar="KG")
+    r.add_argument("--fixture-cog", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="the fixture's CoG in the flange frame (m); with it the command's fixture frame replaces "
+                        "properties.fixture")
+    r.add_argument("--dut-origin", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="the DuT frame's origin in the flange frame (m; needs --fixture-cog)")
+    r.add_argument("--dut-abc", type=float, nargs=3, metavar=("A", "B", "C"),
+                   help="the DuT frame's KUKA A, B, C in the flange frame (deg; needs --fixture-cog)")
+    r.add_argument("--inertia", action=argparse.BooleanOptionalAction, default=None,
+                   help="also the inertia tensor: DuT and tare excitation, a prompt to take the DuT off "
+                        "(default: properties.inertia)")
+    r.add_argument("--dry-run", action="store_true", help="check and render, move nothing")
+    for q in (m, r):  # the DuT's identity: stored with the run, shown in its report, published with its result
+        q.add_argument("--dut-name", metavar="NAME", help="the DuT's name (e.g. the spacecraft's)")
+        q.add_argument("--serial-number", metavar="SN", help="the DuT's serial number")
+        q.add_argument("--part-number", metavar="PN", help="the DuT's part number")
+        q.add_argument("--project", metavar="NAME", help="the project the measurement is for")
+        q.add_argument("--operator", metavar="NAME", help="who runs the measurement")
+        q.add_argument("--note", metavar="TEXT", help="a free note, kept with the run")
+    for q in (m, c, r):
+        q.add_argument("--config", type=Path, required=True, metavar="FILE")
+        q.add_argument("--on-prompt", choices=("stdin", "wait"), default="stdin",
+                       help="stdin: a line on stdin confirms each prompt (default); wait: answered elsewhere")
+        q.add_argument("--timeout", type=float, metavar="S",
+                       help="the whole run, then it is aborted (default 3600)")
+        q.add_argument("--report", type=Path, metavar="DIR", help="also write the HTML report into DIR")
+        q.add_argument("--json", action="store_true", help="print the result as one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:

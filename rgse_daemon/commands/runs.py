@@ -18,11 +18,12 @@ from datetime import UTC, date, datetime, time
 from pathlib import Path
 from typing import Any
 
-from rgse_daemon.commands import absent_store
+from rgse_daemon.commands import absent_store, add_json
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import EXIT_OK, ConfigError, DataError
 from rgse_daemon.store import RunKind, RunState, Store
 from rgse_daemon.store.records import ResultRecord, RunRecord
+from rgse_daemon.verdict import STATUSES
 
 #: The columns, in order (docs/interfaces.md §1.4). Times are ISO 8601 UTC; masses kg, CoG m, U at k = 2.
 FIELDS = (
@@ -137,6 +138,22 @@ def as_table(rows: list[dict[str, Any]]) -> str:
         lines.append(f"{r['run_id'][:16]:16s}  {r['kind']:11s}  {r['state']:11s}  {(r['created_utc'] or '')[:19]:20s}  "
                      f"{dut[:24]:24s}  {r['status'] or '-':7s}  {figure}{warn}")
     return "\n".join(lines)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse runs``."""
+    p.add_argument("--config", type=Path, metavar="FILE", help="the daemon's configuration (its store)")
+    p.add_argument("--robot", metavar="NAME", help="only this robot's runs (default: every robot in the store)")
+    p.add_argument("--kind", choices=[k.value for k in RunKind])
+    p.add_argument("--state", choices=[s.value for s in RunState])
+    p.add_argument("--status", choices=STATUSES, help="only results of this status")
+    p.add_argument("--dut", metavar="TEXT", help="DuT name, serial or part number or project contains TEXT")
+    p.add_argument("--since", metavar="DATE", help="created on or after (2026-11-28 or an ISO 8601 time, UTC)")
+    p.add_argument("--until", metavar="DATE", help="created on or before")
+    fmt = p.add_mutually_exclusive_group()
+    fmt.add_argument("--csv", action="store_true", help="CSV with the fields of docs/interfaces.md §1.4")
+    add_json(fmt)
+    p.add_argument("--out", type=Path, metavar="FILE", help="write to FILE instead of stdout")
 
 
 def run(args: argparse.Namespace) -> int:

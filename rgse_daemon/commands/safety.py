@@ -11,10 +11,21 @@ import argparse
 import json
 import sys
 from datetime import UTC, datetime
+from pathlib import Path
 
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import EXIT_FAILED, EXIT_OK
 from rgse_daemon.safety.latch import CLEAR_HINT, clear_latch, read_latch
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse safety``."""
+    safety_sub = p.add_subparsers(dest="safety_command", required=True, metavar="ACTION")
+    c = safety_sub.add_parser("status", help="show the latch (exit 0 clear, 1 set)")
+    c.add_argument("--config", type=Path, required=True, metavar="FILE")
+    c = safety_sub.add_parser("clear", help="clear the latch after checking the robot is stopped")
+    c.add_argument("--config", type=Path, required=True, metavar="FILE")
+    c.add_argument("--message", required=True, metavar="TEXT", help="what the operator checked (logged)")
 
 
 def run(args: argparse.Namespace) -> int:

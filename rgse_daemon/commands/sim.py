@@ -187,5 +187,24 @@ async def _main(options: SimOptions) -> int:
     return 0
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse sim``."""
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=7000)
+    p.add_argument("--share", type=Path, metavar="DIR", help="the controller's 'roboter' share directory")
+    p.add_argument("--scenario", type=Path, metavar="FILE", help="scenario TOML (physics, errors, faults)")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="X", help="simulated s per wall s")
+    p.add_argument("--globals", type=Path, metavar="FILE",
+                   help="install this rgse_globals.dat (from rgse krl render) at start, as done once on a real "
+                        "controller: without it the programs stop at their first handshake variable")
+    p.add_argument("--control-port", type=int, default=None, metavar="PORT",
+                   help="what a person at the robot does, for rgse sim-op (default --port + 1 on --host, any free "
+                        "port with --port 0; -1: none)")
+    p.add_argument("--commission", action="store_true",
+                   help="commission as a real KR C4 is once: handshake globals, RGSE_GLOBALS.DAT and the resident "
+                        "program (rendered with --config) installed, so rgse doctor passes")
+    p.add_argument("--config", type=Path, metavar="FILE", help="with --commission: the daemon's configuration")
+
+
 def run(args: argparse.Namespace) -> int:
     return asyncio.run(_main(options_from_args(args)))

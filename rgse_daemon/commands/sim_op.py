@@ -14,6 +14,7 @@ import json
 import sys
 from typing import Any
 
+from rgse_daemon.commands import add_json, finite, positive
 from rgse_daemon.errors import EXIT_FAILED, EXIT_OK, ConfigError, LinkError
 
 #: Longest reply read (bytes).
@@ -83,6 +84,33 @@ async def send(host: str, port: int, request: dict[str, Any], timeout_s: float) 
     if not isinstance(reply, dict) or not isinstance(reply.get("ok"), bool):
         raise LinkError(f"rgse sim's control port {host}:{port} answered {reply!r}")
     return reply
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse sim-op``."""
+    p.add_argument("--control", default="127.0.0.1:7001", metavar="HOST:PORT", help="rgse sim's control port")
+    p.add_argument("--timeout", type=positive, default=5.0, metavar="S")
+    add_json(p)
+    ops = p.add_subparsers(dest="op", required=True, metavar="ACTION")
+    o = ops.add_parser("mount", help="mount a load (replaces what was mounted)")
+    what = o.add_mutually_exclusive_group(required=True)
+    what.add_argument("--nothing", action="store_true", help="the bare flange")
+    what.add_argument("--mpa", action="store_true", help="the mounting plate (MPA) alone: a campaign's zero point")
+    what.add_argument("--bodies", type=int, metavar="N", help="the MPA with N calibration bodies (a mass point)")
+    what.add_argument("--torque", type=int, metavar="N",
+                      help="the test adapter with N bodies (a torque point; with --lever-a5)")
+    what.add_argument("--dut", type=finite, metavar="KG", help="a device under test of KG on its fixture (with --cog)")
+    o.add_argument("--lever-a5", type=finite, metavar="M", help="--torque: the bodies' lever from A5 (m)")
+    o.add_argument("--cog", type=finite, nargs=3, metavar=("X", "Y", "Z"), help="--dut: CoG in the flange frame (m)")
+    o.add_argument("--inertia", type=finite, nargs=3, metavar=("JX", "JY", "JZ"),
+                   help="--dut: principal moments about the CoG along the flange axes (kg m^2)")
+    o.add_argument("--fixture-mass", type=finite, metavar="KG", help="--dut: the fixture's mass (default 10.288)")
+    o = ops.add_parser("mode", help="turn the mode selector")
+    o.add_argument("mode", choices=("T1", "T2", "AUT", "EX"))
+    o = ops.add_parser("enabling-switch", help="hold or release the smartPAD's enabling switch")
+    o.add_argument("state", choices=("hold", "release"))
+    ops.add_parser("acknowledge", help="acknowledge the stop message on the smartPAD")
+    ops.add_parser("status", help="what is mounted, the mode and the program state")
 
 
 def run(args: argparse.Namespace) -> int:

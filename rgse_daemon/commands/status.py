@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 from typing import Any
 
+from rgse_daemon.commands import add_json
 from rgse_daemon.commands.operator_cli import run_operator
 from rgse_daemon.errors import EXIT_OK
 from rgse_daemon.io.operator import check_timeout, describe_status, endpoint, read_status
@@ -66,6 +68,13 @@ def print_status(out: dict[str, Any]) -> None:
     print(f"results  {len(results)} retained")
     for run_id, result in results.items():
         print(f"         {run_id}  {_result_line(result)}")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse status``."""
+    p.add_argument("--config", type=Path, required=True, metavar="FILE")
+    p.add_argument("--timeout", type=float, metavar="S", help="wait at most S s for the broker (default 10)")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

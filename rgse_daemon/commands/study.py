@@ -11,15 +11,25 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from rgse_daemon import robots
 from rgse_daemon.analysis.calibration import load_campaign, points_from_raw
+from rgse_daemon.commands import add_json
 from rgse_daemon.kinematics import G_PAPER_M_S2
 from rgse_daemon.manifest import load_points_csv
 from rgse_daemon.pipeline.study import StudyGrid, rank_models, run_study
 from rgse_daemon.progress import stage_progress
 
 TOP_ROWS = 20
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``rgse study``."""
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--campaign", type=Path, metavar="DIR")
+    src.add_argument("--points", type=Path, metavar="CSV")
+    add_json(p)
 
 
 def run(args: argparse.Namespace) -> int:

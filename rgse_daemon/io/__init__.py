@@ -1,14 +1,20 @@
-"""Field devices beside the robot: the Modbus TCP safety I/O module and the reference crane scale.
+"""The daemon's I/O beside the controller link: the field devices at the robot and MQTT.
 
 Modules
 -------
-``rgse_daemon.io.modbus``  ``SafetyIo`` / ``ModbusConfig``: polls "hazard area cleared", "key switch AUT
-                           permitted" and "E-stop OK"; drives the stack light and "measurement running".
-``rgse_daemon.io.scale``   ``CraneScale`` / ``ScaleConfig``: stable weighings from the Kern HFB crane scale over
-                           RS-232 (or a ``socket://`` serial server).
+``rgse_daemon.io.modbus``       ``SafetyIo`` / ``ModbusConfig``: polls "hazard area cleared", "key switch AUT
+                                permitted" and "E-stop OK"; drives the stack light and "measurement running".
+``rgse_daemon.io.scale``        ``CraneScale`` / ``ScaleConfig``: stable weighings from the Kern HFB crane scale over
+                                RS-232 (or a ``socket://`` serial server).
+``rgse_daemon.io.mqtt``         the daemon's MQTT face (interfaces §4): status, state, progress, results and alarms
+                                out, commands in.
+``rgse_daemon.io.commands``     the schemas of the commands that arrive on ``<prefix>/cmd/<verb>``.
+``rgse_daemon.io.topics``       the topics under one prefix: the one place a topic name is built.
+``rgse_daemon.io.operator``     the operator's MQTT client (``rgse status``, ``confirm``, ``abort``; the Python client).
+``rgse_daemon.io.mqtt_client``  aiomqtt's client, made to leave nothing behind (the daemon's and the operator's).
 
-This package module holds only the error tree shared by both devices, so that importing one device never
-imports the other. Every error names the device (``device``) it came from, e.g. ``modbus 10.0.0.7:502 unit 1``
+This package module holds only the error tree shared by the two field devices, so that importing one device never
+imports the other (or MQTT). Every error names the device (``device``) it came from, e.g. ``modbus 10.0.0.7:502 unit 1``
 or ``scale /dev/ttyUSB0``.
 """
 

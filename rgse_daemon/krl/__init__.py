@@ -1,4 +1,7 @@
-"""KRL: the syntax tree, parser and formatter of the subset the daemon writes, and a walker for static checks."""
+"""KRL, the subset the daemon writes: tokens (:mod:`.lexer`), the syntax tree (:mod:`.ast`), parser and formatter,
+a walker (:mod:`.walk`), typed values (:mod:`.values`) and expression evaluation (:mod:`.evaluate`) as the controller
+has them, the abstract interpretation behind the static check (:mod:`.abstract`), and the rendering of the daemon's
+templates (:mod:`.render`)."""
 
 from rgse_daemon.krl.ast import DataList, Module, Pos, Routine
 from rgse_daemon.krl.formatter import format_expr, format_module

@@ -32,7 +32,7 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationErr
 
 from rgse_daemon import robots
 from rgse_daemon.errors import ConfigError, KrlSyntaxError
-from rgse_daemon.kinematics import max_point_speed_mm_s, measurement_pose
+from rgse_daemon.kinematics import SPEED_HEADROOM, max_point_speed_mm_s, measurement_pose
 from rgse_daemon.krl.parser import parse_dat, parse_src
 
 #: The templates: ``<name>.src`` (and an optional ``<name>.dat``) in the repository's top-level ``krl/`` directory.
@@ -45,8 +45,6 @@ PLACEHOLDER = re.compile(r"\{\{\s*([A-Za-z_][A-Za-z0-9_]*)\s*\}\}")
 #: A1 software envelope the parameter models accept: the active robot's ``a1_envelope_deg`` (paper §2.2: ±45°); a
 #: narrower configured envelope is enforced by the static check. This name is the default robot's (an alias).
 A1_ENVELOPE_DEG = robots.get(robots.DEFAULT_KEY).a1_envelope_deg
-#: Fraction of the T1 limit that :func:`safe_axis_velocity_pct` aims for: headroom for rounding and sampling.
-SPEED_HEADROOM = 0.95
 #: Smallest axis speed worth rendering (%): below it a motion would take hours; refuse instead.
 MIN_VEL_AXIS_PCT = 0.01
 
@@ -390,9 +388,9 @@ def safe_axis_velocity_pct(
     """Largest ``$VEL_AXIS`` % (same for all axes) that keeps every motion of ``paths`` under ``limit_mm_s``.
 
     The conservative speed bound of a synchronous PTP (``kinematics.max_point_speed_mm_s``) is proportional to the
-    axis speeds, so the bound at 100 % scales down linearly; ``SPEED_HEADROOM`` keeps a margin and the result is
-    rounded *down* to 0.01 %. ``override_pct``: the largest program override that may be in force (the operator can
-    raise it on the smartPAD, so 100 unless it is locked).
+    axis speeds, so the bound at 100 % scales down linearly; ``kinematics.SPEED_HEADROOM`` keeps a margin and the
+    result is rounded *down* to 0.01 %. ``override_pct``: the largest program override that may be in force (the
+    operator can raise it on the smartPAD, so 100 unless it is locked).
 
     Raises
     ------

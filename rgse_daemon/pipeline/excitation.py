@@ -46,8 +46,6 @@ def nominal_max_accel_deg_s2() -> tuple[float, ...]:
     """The active robot's axis accelerations at 100 % (deg/s²); ``NOMINAL_MAX_ACCEL_DEG_S2`` is the default
     robot's (an alias)."""
     return tuple(v / NOMINAL_RAMP_TIME_S for v in kin.robot_arrays().max_axis_speed_deg_s)
-#: Fraction of the T1 limit the swings aim for (the interlock's bound is conservative already; rounding margin).
-SPEED_HEADROOM = 0.95
 #: Wrist orientations per program and swings of each axis per orientation.
 N_BLOCKS = 3
 REPEATS = 2
@@ -142,7 +140,7 @@ def safe_single_axis_pct(q0: np.ndarray, q1: np.ndarray, points: Sequence[Sequen
     bound = kin.max_point_speed_mm_s(q0, q1, kin.robot_arrays().max_axis_speed_deg_s, points).bound_mm_s
     if bound == 0.0:
         return vel_pct_other
-    return _round_down(min(100.0, 100.0 * SPEED_HEADROOM * limit_mm_s / bound))
+    return _round_down(min(100.0, 100.0 * kin.SPEED_HEADROOM * limit_mm_s / bound))
 
 
 @dataclass(frozen=True)
@@ -176,7 +174,7 @@ def _swing(centre: np.ndarray, ax: int, payload: Payload, limit_mm_s: float, acc
     limits = kin.robot_arrays().joint_limits_deg
     lo, hi = limits[j][0] + LIMIT_MARGIN_DEG, limits[j][1] - LIMIT_MARGIN_DEG
     lever = max(_lever_m(centre, ax, pts), 1e-3)
-    w_deg_s = math.degrees(SPEED_HEADROOM * limit_mm_s / 1000.0 / lever)
+    w_deg_s = math.degrees(kin.SPEED_HEADROOM * limit_mm_s / 1000.0 / lever)
     pct = _round_down(min(100.0, 100.0 * w_deg_s / kin.robot_arrays().max_axis_speed_deg_s[j]))
     v = pct / 100.0 * kin.robot_arrays().max_axis_speed_deg_s[j]
     a_max = nominal_max_accel_deg_s2()[j]
@@ -214,7 +212,7 @@ def _block(base: np.ndarray, q5: float, q6: float, payload: Payload, limit_mm_s:
 def _reposition(q0: np.ndarray, q1: np.ndarray, payload: Payload, limit_mm_s: float, acc_pct: float) -> Move:
     vmax = kin.robot_arrays().max_axis_speed_deg_s
     bound = kin.max_point_speed_mm_s(q0, q1, vmax, payload.points_flange_m).bound_mm_s
-    pct = 100.0 if bound == 0 else _round_down(min(100.0, 100.0 * SPEED_HEADROOM * limit_mm_s / bound))
+    pct = 100.0 if bound == 0 else _round_down(min(100.0, 100.0 * kin.SPEED_HEADROOM * limit_mm_s / bound))
     return Move(tuple(q1.tolist()), (pct * REPOSITION_FRACTION,) * 6, (acc_pct,) * 6, None)
 
 

@@ -229,7 +229,7 @@ def principal(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # --- the drive's torque scale -----------------------------------------------------------------------------------
 class GainCurve(Protocol):
     """A calibrated reading of one axis: reading r (Nm) for payload torque x (Nm) and its slope dr/dx; odd in x.
-    ``rgse_daemon.pipeline.cog.AxisGain`` (CAL.json's torsional section) is one."""
+    ``rgse_daemon.pipeline.axis_gain.AxisGain`` (CAL.json's torsional section) is one."""
 
     def reading_nm(self, x_nm: np.ndarray) -> np.ndarray: ...
 

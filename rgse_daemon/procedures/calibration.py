@@ -46,8 +46,7 @@ from rgse_daemon.procedures.preconditions import PreconditionError, verify_start
 from rgse_daemon.procedures.programs import (
     COG_TRACE_CONFIG_NAME,
     COG_TRACE_MODULES,
-    axes_of,
-    program,
+    move_to,
     render_program,
     run_checked,
     trace_config_xml,
@@ -396,19 +395,6 @@ def campaign_plan(
     return summary
 
 
-def _move(pose: Sequence[float], s: RunSettings) -> Generator[m.Msg, Any, float]:
-    """PTP to ``pose`` with ``rgse_cal_pose``, rendered for the T1 limit from the live axes; the engine's ``Push``
-    runs the interlock's static check first, as for every program."""
-    snap = yield m.ReadState()
-    prog = yield m.Compute("render rgse_cal_pose", _pose_program, (s, axes_of(snap, s.meas_pose_deg), tuple(pose)),
-                           timeout_s=60.0)
-    return (yield from run_checked(prog, s)) or 0.0
-
-
-def _pose_program(s: RunSettings, start: tuple[float, ...], pose: tuple[float, ...]) -> Any:
-    return program("rgse_cal_pose", s, start, cal_pose_deg=pose)
-
-
 def _torsional_point(run: d.RunContext, s: RunSettings, point: CampaignPoint, index: int, n: int, next_index: int,
                      session: str) -> Generator[m.Msg, Any, tuple[int, float]]:
     """A torsional point: in every pose of its scheme, approached as :func:`cog_poses` prescribes (A4/A6 from
@@ -422,8 +408,8 @@ def _torsional_point(run: d.RunContext, s: RunSettings, point: CampaignPoint, in
         yield m.Emit(Event("step", f"point {index + 1}/{n}: CoG pose {k}/{len(poses)} ({pose.name})", step="pose",
                            data={"point_index": index, "pose": pose.name, "pose_index": k,
                                  "pose_count": len(poses), "q_deg": list(pose.q_deg)}))
-        yield from _move(pose.q_approach_deg, s)
-        yield from _move(pose.q_deg, s)
+        yield from move_to(pose.q_approach_deg, s)
+        yield from move_to(pose.q_deg, s)
         at_pose = replace(s, meas_pose_deg=pose.q_deg)  # the brake-release move turns A3/A5 about this pose
         previous: LoopOutcome | None = None
         for j in range(1, s.loops + 1):
@@ -436,7 +422,7 @@ def _torsional_point(run: d.RunContext, s: RunSettings, point: CampaignPoint, in
             yield m.Emit(Event("loop", f"point {index + 1}/{n} pose {pose.name} loop {j}/{s.loops} done",
                                step="loop", loop_index=j, loop_count=s.loops,
                                data={"point_index": index, "pose": pose.name, **out.timing.to_json()}))
-    yield from _move(s.meas_pose_deg, s)
+    yield from move_to(s.meas_pose_deg, s)
     return next_index, robot_s
 
 

@@ -131,6 +131,20 @@ def run_checked(prog: RenderedProgram, s: RunSettings) -> Generator[m.Msg, Any, 
     return robot_s
 
 
+def move_to(pose: Sequence[float], s: RunSettings) -> Generator[m.Msg, Any, float]:
+    """PTP to ``pose`` with ``rgse_cal_pose`` (the CoG poses of the torsional campaign and of a properties run),
+    rendered for the T1 limit from the live axes; the engine's ``Push`` runs the interlock's static check first, as
+    for every program. Returns the robot time in s."""
+    snap = yield m.ReadState()
+    prog = yield m.Compute("render rgse_cal_pose", _pose_program, (s, axes_of(snap, s.meas_pose_deg), tuple(pose)),
+                           timeout_s=60.0)
+    return (yield from run_checked(prog, s)) or 0.0
+
+
+def _pose_program(s: RunSettings, start: tuple[float, ...], pose: tuple[float, ...]) -> RenderedProgram:
+    return program("rgse_cal_pose", s, start, cal_pose_deg=pose)
+
+
 
 def run_program(program: m.Program, timeout_s: float) -> Generator[m.Msg, Any, tuple[float, float]]:
     """Push (static check first), select, start and wait for ``#P_END``. Returns (start time, robot time in s):

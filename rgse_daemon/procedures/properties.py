@@ -65,9 +65,7 @@ from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.procedures.programs import (
     COG_TRACE_CONFIG_NAME,
     COG_TRACE_MODULES,
-    axes_of,
-    program,
-    run_checked,
+    move_to,
     trace_config_xml,
 )
 from rgse_daemon.procedures.recorder import StoreRecorder
@@ -176,19 +174,6 @@ def mass_step(run: d.RunContext, s: RunSettings, tag: str, first_index: int, cal
                                          event_data={"phase": "mass"}, label="mass loop"))
 
 
-def move_to(pose: Sequence[float], s: RunSettings) -> Generator[m.Msg, Any, float]:
-    """PTP to ``pose`` with ``rgse_cal_pose`` (as the torsional calibration moves), rendered for the T1 limit from
-    the live axes; the engine's ``Push`` runs the interlock's static check first."""
-    snap = yield m.ReadState()
-    prog = yield m.Compute("render rgse_cal_pose", _pose_program, (s, axes_of(snap, s.meas_pose_deg), tuple(pose)),
-                           timeout_s=60.0)
-    return (yield from run_checked(prog, s)) or 0.0
-
-
-def _pose_program(s: RunSettings, start: tuple[float, ...], pose: tuple[float, ...]) -> Any:
-    return program("rgse_cal_pose", s, start, cal_pose_deg=pose)
-
-
 def cog_step(run: d.RunContext, s: RunSettings, p: PropertiesSettings, tag: str, first_index: int
              ) -> Generator[m.Msg, Any, tuple[list[tuple[CogPose, list[str]]], list[LoopOutcome]]]:
     """The CoG poses: every pose of the scheme, approached as :func:`cog_poses` prescribes, ``loops_per_pose``
@@ -268,7 +253,7 @@ def properties_plan(
         **result,
         "run_id": run.run_id,
         "robot": s.robot,
-        "run_kind": "properties",
+        "run_kind": RunKind.PROPERTIES.value,
         "trace_sha256": shas,
         "warnings": [*result.get("warnings", []), *(warnings or [])],
         "controller_copies_deleted": all(o.deleted for o in outcomes),
@@ -336,7 +321,7 @@ async def run_properties(
                                 f"{p.scheme!r}: use scheme {tors.scheme!r} or calibrate those poses")
     if p.inertia:  # gains of A4..A6, an excitation that fits the trace buffer: numeric work, off the event loop
         await asyncio.to_thread(check_feasible, s, fixture, tuple(tors.gains), p.inertia_repeats)
-    opening = d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json(), "calibration_id": cal.id,
-                                                       "properties": p.to_json()})
+    opening = d.OpenRun(RunKind.PROPERTIES, s.robot, {"settings": s.to_json(), "calibration_id": cal.id,
+                                                      "properties": p.to_json()})
     return await engine.execute(opening, lambda run: properties_plan(run, s, p, cal.document, inputs=inputs),
                                 recorder)

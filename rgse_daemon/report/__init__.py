@@ -1,4 +1,5 @@
-"""Plots and the HTML report of a measurement run or a calibration (one self-contained page).
+"""Plots and the HTML report of a measurement run or a calibration (one self-contained page); the one-page PDF
+certificate of a run's result (:mod:`.certificate`).
 
 Public API
 ----------

@@ -329,7 +329,7 @@ def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> Measureme
         run = repo.get_run(run_id)
     except NotFound as exc:
         raise DataError(str(exc)) from exc
-    if run.kind != RunKind.MEASUREMENT:
+    if run.kind not in (RunKind.MEASUREMENT, RunKind.PROPERTIES):
         raise DataError(f"run {run_id} is a {run.kind.value} run; report its calibration with --calibration ID")
     results = repo.results(run_id)
     if not results:

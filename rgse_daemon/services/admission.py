@@ -17,7 +17,7 @@ from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.makesafe import STOP_DEADLINE_S
 from rgse_daemon.services.link import DaemonCounters
-from rgse_daemon.store import Store
+from rgse_daemon.store import RunKind, Store
 
 log = logging.getLogger("rgse_daemon.app")
 
@@ -50,8 +50,8 @@ class RunAdmission:
     """
 
     def __init__(self, cfg: Config, counters: DaemonCounters, inputs: Callable[[], SafetyInputs | None],
-                 on_failed: Callable[[str, str | None, str], None],
-                 on_refused: Callable[[str, str], None],
+                 on_failed: Callable[[RunKind, str | None, str], None],
+                 on_refused: Callable[[RunKind, str], None],
                  on_link_lost: Callable[[str], None] | None = None) -> None:
         self.cfg = cfg
         self.counters = counters
@@ -60,7 +60,7 @@ class RunAdmission:
         self._on_refused = on_refused
         self._on_link_lost = on_link_lost
         self.task: asyncio.Task[Any] | None = None
-        self.kind: str | None = None
+        self.kind: RunKind | None = None
         self.engine: RunEngine | None = None
         """The engine of the current (or last) run: the daemon's own, or a dry run's (abort and confirm go to it)."""
         self.stopping = False
@@ -85,14 +85,14 @@ class RunAdmission:
             started.set_result(run_id)
             self.counters.runs_started += 1
 
-    def refuse(self, kind: str, exc: RgseError) -> RgseError:
+    def refuse(self, kind: RunKind, exc: RgseError) -> RgseError:
         """Count and report the refusal of a ``kind`` run request for the reason ``exc``; returns ``exc`` to raise."""
         self.counters.runs_refused += 1
         log.warning("%s run refused: %s", kind, exc)
         self._on_refused(kind, str(exc))
         return exc
 
-    def start(self, kind: str, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]], *,
+    def start(self, kind: RunKind, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]], *,
               engine: RunEngine | None, krc: Controller | None, store: Store, connected: bool,
               link_error: str | None) -> asyncio.Task[Any]:
         """Reserve the robot for one run (synchronously: no second request can slip in) and start it in a task."""
@@ -132,7 +132,7 @@ class RunAdmission:
         self.task.add_done_callback(lambda t: t.cancelled() or t.exception())  # retrieved: logged above
         return self.task
 
-    def _failed(self, kind: str, exc: Exception) -> None:
+    def _failed(self, kind: RunKind, exc: Exception) -> None:
         self.last_error = f"{type(exc).__name__}: {exc}"
         log.error("%s run failed: %s", kind, self.last_error)
         if isinstance(exc, LinkError) and self._on_link_lost is not None:  # the run's own request saw the link go

@@ -58,7 +58,7 @@ from rgse_daemon.io.commands import MAX_PAYLOAD_BYTES, CommandRefused, Duplicate
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.report import build_report
 from rgse_daemon.services.signals import STATE_LIGHT
-from rgse_daemon.store import Repository, Store
+from rgse_daemon.store import Repository, RunKind, Store
 
 log = logging.getLogger(__name__)
 
@@ -433,13 +433,12 @@ class Console:
         for r in reversed(runs):
             results = await self._store.results(r.id)
             res = results[-1].result if results else None
-            kind = "properties" if "properties" in r.config else str(r.kind)  # stored as a measurement run
             link = None
             if res is not None:
-                link = f"/report/calibration/{res['calibration_id']}" if kind == "calibration" and \
+                link = f"/report/calibration/{res['calibration_id']}" if r.kind == RunKind.CALIBRATION and \
                     res.get("calibration_id") else f"/report/run/{r.id}"
             identity = (r.config.get("settings") or {}).get("identity") if isinstance(r.config, dict) else None
-            rows.append({"run_id": r.id, "kind": kind, "state": str(r.state), "result": res, "report": link,
+            rows.append({"run_id": r.id, "kind": r.kind.value, "state": str(r.state), "result": res, "report": link,
                          "status": results[-1].status if results else None, "detail": r.detail,
                          "identity": identity, "ended": r.ended_utc.isoformat() if r.ended_utc else None})
         return web.json_response({"robot": self.robot, "runs": rows})

@@ -203,7 +203,7 @@ class Recovery:
 
     async def _tell(self, run: RunRecord, summary: dict[str, Any]) -> None:
         """A final word on the run's topic: an ``interrupted`` result, or (a campaign continues) an alarm."""
-        if run.kind == RunKind.MEASUREMENT:
+        if run.kind in (RunKind.MEASUREMENT, RunKind.PROPERTIES):
             if self.cfg.mqtt.enabled:
                 final = {"run_id": run.id, "robot": run.robot, "state": RunState.INTERRUPTED.value,
                          "detail": run.detail, "ended_utc": summary["ended_utc"], "recovery": summary}
@@ -212,7 +212,7 @@ class Recovery:
                 if self.outbox_added is not None:
                     self.outbox_added()
             self.alarm({"kind": "run_interrupted", "run_id": run.id, "run_kind": run.kind.value,
-                        "message": f"measurement run {run.id} was interrupted ({run.detail}); its final result "
+                        "message": f"{run.kind.value} run {run.id} was interrupted ({run.detail}); its final result "
                                    "says so"})
             return
         self.alarm({"kind": "run_interrupted", "run_id": run.id, "run_kind": run.kind.value,

@@ -57,7 +57,7 @@ class StatePublisher:
         engine, active = self._engine(), self.admission.active
         state: dict[str, Any] = {"engine": engine.state if engine else "disconnected",
                                  "run_id": engine.run_id if engine and active else None,
-                                 "run_kind": self.admission.kind if active else None,
+                                 "run_kind": self.admission.kind.value if active and self.admission.kind else None,
                                  "connected": self.link.connected.is_set(),
                                  "daemon": self.link.counters.as_dict()}
         krc = self.link.krc

@@ -4,8 +4,9 @@ Each migration runs in its own transaction together with the row that records it
 migration is either fully applied and recorded or not at all; re-opening applies only what is missing. A database
 written by a newer daemon (a version this code does not know) is refused rather than guessed at.
 
-``{id_pk}`` in a statement is replaced by the dialect's auto-increment primary key; all else is portable SQL.
-Migrations are append-only: never edit a released one, add the next number.
+``{id_pk}`` in a statement is replaced by the dialect's auto-increment primary key; all else is portable SQL, except
+where a migration gives SQLite its own statements (SQLite cannot change a constraint in place: it rebuilds the
+table). Migrations are append-only: never edit a released one, add the next number.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from rgse_daemon.store.backend import Backend
+from rgse_daemon.store.dialect import SQLITE
 from rgse_daemon.store.errors import StoreError
 
 
@@ -22,6 +24,11 @@ class Migration:
     version: int
     name: str
     statements: tuple[str, ...]
+    """Portable SQL; PostgreSQL's alone where :attr:`sqlite` is given."""
+    sqlite: tuple[str, ...] | None = None
+    """SQLite's own statements, a table rebuild. They run with foreign keys off (else dropping the old table would
+    empty its children) and the transaction commits only if ``PRAGMA foreign_key_check`` then finds nothing: the
+    procedure of SQLite's ALTER TABLE documentation (§7)."""
 
 
 _V1 = (
@@ -136,9 +143,43 @@ _V2 = (
     "CREATE INDEX results_status ON results(status)",
 )
 
+# A properties run is a kind of its own (rgse_daemon.runkind). Before, it was stored as 'measurement' with
+# 'properties' in its configuration: those rows become 'properties' here.
+_V3_KINDS = "('measurement', 'calibration', 'properties')"
+_V3_POSTGRESQL = (
+    "ALTER TABLE runs DROP CONSTRAINT runs_kind_check",
+    f"ALTER TABLE runs ADD CONSTRAINT runs_kind_check CHECK (kind IN {_V3_KINDS})",
+    "UPDATE runs SET kind = 'properties' WHERE kind = 'measurement' AND (config::jsonb -> 'properties') IS NOT NULL",
+)
+_V3_RUNS_COLUMNS = "id, kind, robot, state, created_utc, started_utc, ended_utc, config, directory, detail"
+_V3_SQLITE = (
+    f"""CREATE TABLE runs_v3 (
+        id TEXT PRIMARY KEY,
+        kind TEXT NOT NULL CHECK (kind IN {_V3_KINDS}),
+        robot TEXT NOT NULL REFERENCES robots(name),
+        state TEXT NOT NULL
+            CHECK (state IN ('queued', 'running', 'completed', 'failed', 'interrupted', 'aborted')),
+        created_utc TEXT NOT NULL,
+        started_utc TEXT,
+        ended_utc TEXT,
+        config TEXT NOT NULL,
+        directory TEXT NOT NULL UNIQUE,
+        detail TEXT
+    )""",
+    f"""INSERT INTO runs_v3 ({_V3_RUNS_COLUMNS})
+        SELECT id, CASE WHEN kind = 'measurement' AND json_type(config, '$.properties') IS NOT NULL
+                        THEN 'properties' ELSE kind END,
+               robot, state, created_utc, started_utc, ended_utc, config, directory, detail
+        FROM runs""",
+    "DROP TABLE runs",
+    "ALTER TABLE runs_v3 RENAME TO runs",
+    "CREATE INDEX runs_robot_state ON runs(robot, state)",
+)
+
 MIGRATIONS: tuple[Migration, ...] = (
     Migration(1, "initial schema", _V1),
     Migration(2, "result status", _V2),
+    Migration(3, "properties run kind", _V3_POSTGRESQL, sqlite=_V3_SQLITE),
 )
 
 _VERSION_TABLE = """CREATE TABLE IF NOT EXISTS schema_version (
@@ -163,23 +204,43 @@ def migrate(backend: Backend, now_utc: Callable[[], str], migrations: Sequence[M
     latest = len(migrations)
     applied: list[int] = []
     for migration in migrations:
-        with backend.transaction():
-            if backend.dialect.migration_lock:
-                backend.execute(backend.dialect.migration_lock)
-            # Read under the lock: another process may have migrated while we waited.
-            have = current_version(backend)
-            if have > latest:
-                raise StoreError(
-                    f"{backend.description}: schema version {have} is newer than this program knows ({latest}); "
-                    "upgrade the daemon"
-                )
-            if have >= migration.version:
-                continue
-            for statement in migration.statements:
-                backend.execute(statement.replace("{id_pk}", backend.dialect.id_pk))
-            backend.execute(
-                "INSERT INTO schema_version (version, name, applied_utc) VALUES (?, ?, ?)",
-                (migration.version, migration.name, now_utc()),
-            )
-            applied.append(migration.version)
+        rebuild = migration.sqlite if backend.dialect.name == SQLITE.name else None
+        if rebuild is not None:
+            backend.execute("PRAGMA foreign_keys=OFF")  # a no-op inside a transaction: before it
+        try:
+            if _apply(backend, migration, latest, now_utc, migration.statements if rebuild is None else rebuild,
+                      check_foreign_keys=rebuild is not None):
+                applied.append(migration.version)
+        finally:
+            if rebuild is not None:
+                backend.execute("PRAGMA foreign_keys=ON")
     return applied
+
+
+def _apply(backend: Backend, migration: Migration, latest: int, now_utc: Callable[[], str],
+           statements: Sequence[str], *, check_foreign_keys: bool) -> bool:
+    """Apply one migration in its own transaction unless the database has it; whether it was applied."""
+    with backend.transaction():
+        if backend.dialect.migration_lock:
+            backend.execute(backend.dialect.migration_lock)
+        # Read under the lock: another process may have migrated while we waited.
+        have = current_version(backend)
+        if have > latest:
+            raise StoreError(
+                f"{backend.description}: schema version {have} is newer than this program knows ({latest}); "
+                "upgrade the daemon"
+            )
+        if have >= migration.version:
+            return False
+        for statement in statements:
+            backend.execute(statement.replace("{id_pk}", backend.dialect.id_pk))
+        if check_foreign_keys:
+            broken = backend.execute("PRAGMA foreign_key_check")
+            if broken:
+                raise StoreError(f"{backend.description}: migration {migration.version} ({migration.name}) would "
+                                 f"break {len(broken)} foreign key(s), first {broken[0]}; nothing changed")
+        backend.execute(
+            "INSERT INTO schema_version (version, name, applied_utc) VALUES (?, ?, ?)",
+            (migration.version, migration.name, now_utc()),
+        )
+    return True

@@ -15,6 +15,7 @@ from enum import StrEnum
 from pathlib import PurePosixPath
 from typing import Any, TypeVar
 
+from rgse_daemon.runkind import RunKind
 from rgse_daemon.store.errors import StoreError
 
 E = TypeVar("E", bound=StrEnum)
@@ -23,11 +24,6 @@ _TS_FORMAT = "%Y-%m-%dT%H:%M:%S.%fZ"
 _ROBOT_NAME = re.compile(r"^[A-Za-z0-9_.\-]{1,64}$")  # as config.RobotConfig.name: it becomes an MQTT topic level
 _SHA256 = re.compile(r"^[0-9a-f]{64}$")
 _ID = re.compile(r"^[A-Za-z0-9_.:\-]{1,128}$")
-
-
-class RunKind(StrEnum):
-    MEASUREMENT = "measurement"
-    CALIBRATION = "calibration"
 
 
 class RunState(StrEnum):

@@ -57,7 +57,17 @@ from rgse_daemon.krl import ast as k
 from rgse_daemon.krl import values as kv
 from rgse_daemon.krl.evaluate import BUILTINS, Evaluator
 from rgse_daemon.krl.parser import parse_dat, parse_src
-from rgse_daemon.krl.values import KrlArray, Value, check_index, convert, element, member, merge
+from rgse_daemon.krl.values import (
+    AXIS_FIELDS,
+    EXT_FIELDS,
+    KrlArray,
+    Value,
+    check_index,
+    convert,
+    element,
+    member,
+    merge,
+)
 from rgse_daemon.krl.walk import iter_exprs
 from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, ProtocolError, format_value, parse_value
 from simulators.krc4.files import ShareFiles
@@ -85,17 +95,6 @@ from simulators.krc4.variables import (
 IPO_PERIOD_S = 0.012
 #: Shortest wall-clock sleep between ticks (s): keeps scaled-time runs from spinning the CPU.
 MIN_TICK_WALL_S = 0.002
-
-AXIS_FIELDS = ("A1", "A2", "A3", "A4", "A5", "A6")
-_EXT = ("E1", "E2", "E3", "E4", "E5", "E6")
-_STRUCT_FIELDS: dict[str, tuple[str, ...]] = {
-    "AXIS": AXIS_FIELDS,
-    "E6AXIS": AXIS_FIELDS + _EXT,
-    "FRAME": ("X", "Y", "Z", "A", "B", "C"),
-    "POS": ("X", "Y", "Z", "A", "B", "C", "S", "T"),
-    "E6POS": ("X", "Y", "Z", "A", "B", "C", "S", "T", *_EXT),
-}
-_INT_FIELDS = {"S", "T"}
 
 
 _log = logging.getLogger(__name__)
@@ -200,10 +199,6 @@ class _Interrupt:
     last: bool = False
 
 
-class _StopRequested(Exception):
-    """Raised inside the program task when a stop arrives while it cannot simply pause (never escapes the task)."""
-
-
 @dataclass
 class _Frame:
     """One routine activation: its locals and their declared types."""
@@ -283,11 +278,6 @@ class KrlInterpreter:
     def add_motion_listener(self, listener: MotionListener) -> None:
         """Call ``listener(event)`` at every motion start and end (synchronously; it must not block)."""
         self._listeners.append(listener)
-
-    @property
-    def sim_time_s(self) -> float:
-        """Simulated seconds the program task has run (motions, waits, polling)."""
-        return self._sim_time_s
 
     @property
     def state(self) -> ProState:
@@ -852,7 +842,7 @@ class KrlInterpreter:
                         ("C", c),
                         ("S", 2),
                         ("T", turn),
-                        *((e, 0.0) for e in _EXT),
+                        *((e, 0.0) for e in EXT_FIELDS),
                     ),
                 )
             ),

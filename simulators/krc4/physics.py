@@ -64,26 +64,12 @@ from scipy.spatial.transform import Rotation
 from rgse_daemon import kinematics as kin
 from rgse_daemon import robots
 from rgse_daemon.robots import CalibrationLoads
+from rgse_daemon.trace.channels import DRIVE_CHANNEL_UNITS
 from simulators.krc4.scenario import AXIS_KEYS, Scenario, default_scenario
 
-CHANNELS = (
-    "Sollposition",
-    "Istposition",
-    "Positionsschleppfehler",
-    "Geschwindigkeitsdifferenz",
-    "Motortemperatur",
-    "Istmoment",
-    "Iststrom",
-)
-CHANNEL_UNITS = {
-    "Sollposition": "deg",
-    "Istposition": "deg",
-    "Positionsschleppfehler": "deg",
-    "Geschwindigkeitsdifferenz": "deg/s",
-    "Motortemperatur": "K",
-    "Istmoment": "Nm",
-    "Iststrom": "A",
-}
+#: The drive channels a trace holds, with their units: the daemon's table (one list for both sides of the link).
+CHANNEL_UNITS = DRIVE_CHANNEL_UNITS
+CHANNELS = tuple(CHANNEL_UNITS)
 
 # --- payload chain (paper §2.2, §2.4.2–2.4.3, Table 1, Table A1) -------------------------------------------------
 # The load set's figures are the robot's (rgse_daemon/robots/: ``calibration``); the functions below take the active

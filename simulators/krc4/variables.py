@@ -38,6 +38,7 @@ from typing import Protocol, runtime_checkable
 
 from rgse_daemon import robots
 from rgse_daemon.errors import ProtocolError, RgseError, VariableError
+from rgse_daemon.krl.values import INT_FIELDS
 from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, format_value, parse_value
 from rgse_daemon.robots import RobotModel
 
@@ -126,17 +127,14 @@ def canonical(kind: Kind, text: str) -> str:
     return format_value(value)
 
 
-_INT_FIELDS = {"S", "T"}  # status and turn of a POS/E6POS are INT; the other numeric fields of the system
-# structures (E6AXIS, E6POS, FRAME, LOAD, INERTIA) are REAL.
-
-
 def _reals_in(struct: KrlStruct) -> KrlStruct:
-    """``{M 12, ...}`` reads back as ``{M 12.0, ...}``: numbers in structures are REAL except S and T."""
+    """``{M 12, ...}`` reads back as ``{M 12.0, ...}``: numbers in the system structures (E6AXIS, E6POS, FRAME,
+    LOAD, INERTIA) are REAL except the status and turn of a POS (``INT_FIELDS``)."""
     fields: list[tuple[str, KrlValue]] = []
     for name, v in struct.fields:
         if isinstance(v, KrlStruct):
             v = _reals_in(v)
-        elif isinstance(v, int) and not isinstance(v, bool) and name.upper() not in _INT_FIELDS:
+        elif isinstance(v, int) and not isinstance(v, bool) and name.upper() not in INT_FIELDS:
             v = float(v)
         fields.append((name, v))
     return KrlStruct(struct.type_name, tuple(fields))

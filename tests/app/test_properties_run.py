@@ -102,7 +102,7 @@ async def test_properties_command_measures_mass_and_cog_to_a_retained_result_and
     # stored: the run, its result, the properties run directory that `rgse cog` reads
     with Repository.open(cfg.store.url, cfg.paths.data_dir) as repo:
         run = repo.get_run(run_id)
-        assert run.state == RunState.COMPLETED and run.kind == RunKind.MEASUREMENT
+        assert run.state == RunState.COMPLETED and run.kind == RunKind.PROPERTIES
         assert run.config["properties"]["scheme"] == "paper"
         (stored,) = repo.results(run_id)
         assert stored.result["cog_m"] == doc["cog_m"]

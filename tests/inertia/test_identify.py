@@ -11,7 +11,7 @@ from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis import inertia as ai
 from rgse_daemon.pipeline import excitation as ex
 from rgse_daemon.pipeline import inertia as inr
-from rgse_daemon.pipeline.cog import AxisGain
+from rgse_daemon.pipeline.axis_gain import AxisGain
 from tests.inertia import synthetic as syn
 
 MASS_KG = 107.3

@@ -7,7 +7,7 @@ import pytest
 
 from rgse_daemon import kinematics as kin
 from rgse_daemon.errors import DataError
-from rgse_daemon.pipeline import cog
+from rgse_daemon.pipeline import axis_gain, cog
 from simulators.krc4 import physics as ph
 
 G = kin.G_PAPER_M_S2
@@ -55,9 +55,9 @@ def test_cog_poses_schemes_within_limits_with_approach():
         cog.cog_poses(near_limit, "full")
 
 
-def _gain(axis: int, params: tuple[float, ...], u_point: float = 0.0) -> cog.AxisGain:
+def _gain(axis: int, params: tuple[float, ...], u_point: float = 0.0) -> axis_gain.AxisGain:
     n = len(params)
-    return cog.AxisGain(axis, {1: "linear", 2: "poly2", 3: "poly3"}[n], params,
+    return axis_gain.AxisGain(axis, {1: "linear", 2: "poly2", 3: "poly3"}[n], params,
                         tuple(tuple(1e-8 if i == j else 0.0 for j in range(n)) for i in range(n)), u_point,
                         (-2000.0, 2000.0))
 
@@ -66,9 +66,9 @@ def test_axis_gain_inverts_its_reading():
     g = _gain(5, (0.92, 0.31, -0.05))
     x = np.array([-1500.0, -300.0, -1.0, 0.0, 2.0, 450.0, 1800.0])
     np.testing.assert_allclose(g.payload_torque_nm(g.reading_nm(x)), x, atol=1e-9)
-    assert cog.AxisGain.from_dict(5, g.to_dict()) == g
+    assert axis_gain.AxisGain.from_dict(5, g.to_dict()) == g
     with pytest.raises(DataError, match="A5"):
-        cog.AxisGain.from_dict(5, {**g.to_dict(), "params": [0.9, 0.1]})
+        axis_gain.AxisGain.from_dict(5, {**g.to_dict(), "params": [0.9, 0.1]})
 
 
 def test_fit_gain_recovers_a_known_curve_and_validates_held_out():
@@ -77,16 +77,16 @@ def test_fit_gain_recovers_a_known_curve_and_validates_held_out():
     x = rng.uniform(-800.0, 800.0, 60)
     group = np.repeat(np.arange(10), 6)
     r = x * (true[0] + true[1] * np.abs(x) / 1000.0) + rng.normal(0.0, 0.5, 60)
-    gain, ev = cog.select_gain(4, x, r, np.full(60, 0.5), group)
+    gain, ev = axis_gain.select_gain(4, x, r, np.full(60, 0.5), group)
     assert gain.model in ("poly2", "poly3")
     grid = np.linspace(-800.0, 800.0, 9)
     np.testing.assert_allclose(gain.reading_nm(grid), grid * (true[0] + true[1] * np.abs(grid) / 1000.0), atol=1.5)
     assert ev["models"]["linear"]["heldout_rms_nm"] > 5 * ev["models"]["poly2"]["heldout_rms_nm"]
     with pytest.raises(DataError, match="cannot validate"):
-        cog.fit_gain(4, x[:12], r[:12], np.ones(12), group[:12], "poly3")
+        axis_gain.fit_gain(4, x[:12], r[:12], np.ones(12), group[:12], "poly3")
     with pytest.raises(DataError, match="not monotone"):  # a reading falling with the load is no calibration
-        cog.fit_gain(4, x, -r, np.full(60, 0.5), group, "sat300")
-    sat, _ = cog.fit_gain(4, x, r, np.full(60, 0.5), group, "sat300")
+        axis_gain.fit_gain(4, x, -r, np.full(60, 0.5), group, "sat300")
+    sat, _ = axis_gain.fit_gain(4, x, r, np.full(60, 0.5), group, "sat300")
     np.testing.assert_allclose(sat.payload_torque_nm(sat.reading_nm(grid)), grid, atol=1e-6)
 
 
@@ -156,10 +156,10 @@ def test_the_torsional_catalogue_is_the_same_for_every_torque_scale(c):
     r = x * (0.9 + 0.12 * (1.0 - np.exp(-np.abs(x) / 200.0))) + rng.normal(0.0, 2.0, 10)[group] \
         + rng.normal(0.0, 0.5, 60)
     s = np.full(60, 0.5)
-    base, ev = cog.select_gain(4, x, r, s, group)
-    scaled, ev_c = cog.select_gain(4, c * x, c * r, c * s, group)
+    base, ev = axis_gain.select_gain(4, x, r, s, group)
+    scaled, ev_c = axis_gain.select_gain(4, c * x, c * r, c * s, group)
     assert base.model.startswith("sat")  # the shape of this drive, found at the base scale
-    assert cog.gain_model_params(scaled.model) == cog.gain_model_params(base.model)
+    assert axis_gain.gain_model_params(scaled.model) == axis_gain.gain_model_params(base.model)
     names, names_c = list(ev["models"]), list(ev_c["models"])
     assert len(names) == len(names_c) == 8
     assert names.index(base.model) == names_c.index(scaled.model)
@@ -170,10 +170,10 @@ def test_the_torsional_catalogue_is_the_same_for_every_torque_scale(c):
 
 
 def test_gain_model_names():
-    assert cog.gain_models(np.array([-800.0, 400.0])) == ("linear", "poly2", "poly3", "sat100", "sat200", "sat300",
-                                                           "sat500", "sat800")
-    assert [cog.gain_model_params(m) for m in ("linear", "poly3", "sat46.2", "sat300")] == [1, 3, 2, 2]
-    assert [cog.gain_model_params(m) for m in ("poly4", "sat", "sat-5", "sat0", "satx", "satnan")] == [None] * 6
+    assert axis_gain.gain_models(np.array([-800.0, 400.0])) == ("linear", "poly2", "poly3", "sat100", "sat200",
+                                                                 "sat300", "sat500", "sat800")
+    assert [axis_gain.gain_model_params(m) for m in ("linear", "poly3", "sat46.2", "sat300")] == [1, 3, 2, 2]
+    assert [axis_gain.gain_model_params(m) for m in ("poly4", "sat", "sat-5", "sat0", "satx", "satnan")] == [None] * 6
     with pytest.raises(DataError, match="unknown gain model"):
-        cog.fit_gain(4, np.linspace(1, 100, 30), np.linspace(1, 100, 30), np.ones(30), np.repeat(np.arange(6), 5),
+        axis_gain.fit_gain(4, np.linspace(1, 100, 30), np.linspace(1, 100, 30), np.ones(30), np.repeat(np.arange(6), 5),
                      "poly4")

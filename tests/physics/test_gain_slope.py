@@ -11,7 +11,7 @@ import pytest
 
 from rgse_daemon import calfile
 from rgse_daemon.errors import DataError
-from rgse_daemon.pipeline import cog
+from rgse_daemon.pipeline import axis_gain
 
 #: (t₀.₉₇₅(3) / z₀.₉₇₅)² from the tables: 3.1824 / 1.95996.
 STUDENT_4_POINTS = (3.1824 / 1.95996) ** 2
@@ -19,14 +19,14 @@ STUDENT_4_POINTS = (3.1824 / 1.95996) ** 2
 F_BOUND_4_POINTS = math.sqrt(6.388)
 
 
-def _hand_gain(candidates: tuple[cog.GainCandidate, ...]) -> cog.AxisGain:
+def _hand_gain(candidates: tuple[axis_gain.GainCandidate, ...]) -> axis_gain.AxisGain:
     """A straight line r = 1.0·x (slope variance 1e-6 from four points) and the candidates the validation kept."""
-    return cog.AxisGain(5, "linear", (1.0,), ((1e-6,),), 5.0, (-500.0, -100.0), 1.0, 4, candidates)
+    return axis_gain.AxisGain(5, "linear", (1.0,), ((1e-6,),), 5.0, (-500.0, -100.0), 1.0, 4, candidates)
 
 
 def test_slope_uncertainty_by_hand():
-    own = cog.GainCandidate("linear", (1.0,), 10.0, ((1e-6,),))
-    poly2 = cog.GainCandidate("poly2", (0.95, 0.1), 12.0)  # no covariance kept: its deviation alone
+    own = axis_gain.GainCandidate("linear", (1.0,), 10.0, ((1e-6,),))
+    poly2 = axis_gain.GainCandidate("poly2", (0.95, 0.1), 12.0)  # no covariance kept: its deviation alone
     g = _hand_gain((own, poly2))
     u_par = math.sqrt(1e-6 * STUDENT_4_POINTS)
     # poly2's slope at −600 Nm: 0.95 + 2·0.1·0.6 = 1.07, 0.07 from the line's 1.0: rectangular, /√3
@@ -39,7 +39,7 @@ def test_slope_uncertainty_by_hand():
     # a candidate's own parameter uncertainty adds to its deviation: slope variance of poly2 at −600 Nm is
     # J·Σ·Jᵀ·Student with J = [1, 1.2]
     cov2 = ((4e-4, 0.0), (0.0, 1e-4))
-    g2 = _hand_gain((own, cog.GainCandidate("poly2", (0.95, 0.1), 12.0, cov2)))
+    g2 = _hand_gain((own, axis_gain.GainCandidate("poly2", (0.95, 0.1), 12.0, cov2)))
     var2 = (4e-4 + 1.2**2 * 1e-4) * STUDENT_4_POINTS
     assert g2.slope_u_rel(-600.0) == pytest.approx(math.sqrt(0.07**2 / 3.0 + var2), rel=1e-5)
 
@@ -47,10 +47,10 @@ def test_slope_uncertainty_by_hand():
 def test_only_candidates_the_points_cannot_tell_apart_count():
     # sat300 (0.5, 1.0) has a slope of 0.5 + (1 − e⁻²) + 2·e⁻² = 1.6353 at 600 Nm: far off, counted only while its
     # held-out RMS is within √F₀.₉₅(4, 4) = 2.527 times the chosen model's (10 Nm)
-    own = cog.GainCandidate("linear", (1.0,), 10.0)
+    own = axis_gain.GainCandidate("linear", (1.0,), 10.0)
     sat_slope = 0.5 + (1.0 - math.exp(-2.0)) + 2.0 * math.exp(-2.0)
-    inside = _hand_gain((own, cog.GainCandidate("sat300", (0.5, 1.0), 0.99 * F_BOUND_4_POINTS * 10.0)))
-    outside = _hand_gain((own, cog.GainCandidate("sat300", (0.5, 1.0), 1.01 * F_BOUND_4_POINTS * 10.0)))
+    inside = _hand_gain((own, axis_gain.GainCandidate("sat300", (0.5, 1.0), 0.99 * F_BOUND_4_POINTS * 10.0)))
+    outside = _hand_gain((own, axis_gain.GainCandidate("sat300", (0.5, 1.0), 1.01 * F_BOUND_4_POINTS * 10.0)))
     assert [c.model for c in inside.admissible_candidates()] == ["linear", "sat300"]
     assert [c.model for c in outside.admissible_candidates()] == ["linear"]
     assert inside.slope_u_rel(-600.0) == pytest.approx((sat_slope - 1.0) / math.sqrt(3.0), rel=1e-6)
@@ -81,7 +81,7 @@ def test_slope_uncertainty_covers_a_curved_truth(x_op):
     for seed in range(n):
         rng = np.random.default_rng(seed)
         r = _truth_reading(x) + rng.normal(0.0, 11.0, 4)[group] + rng.normal(0.0, 0.3, 8)
-        gain, _ = cog.select_gain(5, x, r, np.full(8, 0.3), group)
+        gain, _ = axis_gain.select_gain(5, x, r, np.full(8, 0.3), group)
         err = float(gain.slope(np.array([x_op]))[0]) / _truth_slope(x_op) - 1.0
         u_par, u = gain.slope_u_rel_parts(x_op)
         hits += abs(err) <= 2.0 * u
@@ -101,7 +101,7 @@ def _torsional_doc() -> dict:
     x = np.repeat(loads, 2) * np.tile([1.0, 0.98], 4)
     group = np.repeat(np.arange(4), 2)
     r = _truth_reading(x) + rng.normal(0.0, 11.0, 4)[group]
-    gain, ev = cog.select_gain(5, x, r, np.full(8, 0.3), group)
+    gain, ev = axis_gain.select_gain(5, x, r, np.full(8, 0.3), group)
     pose = calfile.TorsionalPose("meas", (0.0, -90.0, 90.0, 0.0, 0.0, 0.0), (0.0,) * 6, (0.1,) * 6)
     return json.loads(json.dumps({"torsional": calfile.torsional_section("paper", [pose], {5: gain}, {5: ev}, 4)}))
 
@@ -145,6 +145,6 @@ def test_axis_gain_round_trips_with_its_candidates():
     rng = np.random.default_rng(2)
     x = np.repeat(np.array([-120.0, -240.0, -360.0, -480.0]), 2) * np.tile([1.0, 0.98], 4)
     group = np.repeat(np.arange(4), 2)
-    gain, _ = cog.select_gain(5, x, _truth_reading(x) + rng.normal(0.0, 5.0, 8), np.full(8, 0.3), group)
+    gain, _ = axis_gain.select_gain(5, x, _truth_reading(x) + rng.normal(0.0, 5.0, 8), np.full(8, 0.3), group)
     assert len(gain.candidates) >= 2
-    assert cog.AxisGain.from_dict(5, json.loads(json.dumps(gain.to_dict()))) == gain
+    assert axis_gain.AxisGain.from_dict(5, json.loads(json.dumps(gain.to_dict()))) == gain

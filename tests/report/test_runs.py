@@ -77,6 +77,8 @@ def test_runs_lists_exports_and_filters_the_history(world: World, tmp_path: Path
     assert [r["run_id"] for r in json.loads(capsys.readouterr().out)["runs"]] == [ids["named"]]
     assert main(["runs", "--config", str(config), "--json", "--kind", "calibration"]) == 0
     assert [r["run_id"] for r in json.loads(capsys.readouterr().out)["runs"]] == [ids["cal"]]
+    assert main(["runs", "--config", str(config), "--json", "--kind", "properties"]) == 0  # a kind of its own
+    assert json.loads(capsys.readouterr().out)["runs"] == []
     assert main(["runs", "--config", str(config), "--json", "--state", "failed"]) == 0
     assert [r["run_id"] for r in json.loads(capsys.readouterr().out)["runs"]] == [ids["failed"]]
     assert main(["runs", "--config", str(config), "--json", "--until", "2000-01-01"]) == 0

@@ -105,7 +105,7 @@ def test_run_lifecycle(repo: Repository) -> None:
 @pytest.mark.parametrize(
     ("args", "match"),
     [
-        (("weighing", ROBOT, {}), "run kind 'weighing': must be one of measurement, calibration"),
+        (("weighing", ROBOT, {}), "run kind 'weighing': must be one of measurement, properties, calibration"),
         (("measurement", "bad/robot", {}), "robot name 'bad/robot'"),
         (("measurement", ROBOT, {"x": math.nan}), "run config: not storable as JSON"),
         (("measurement", ROBOT, [1, 2]), "run config: must be a JSON object"),

@@ -18,7 +18,7 @@ import numpy as np
 from rgse_daemon import kinematics as kin
 from rgse_daemon import robots
 from rgse_daemon.analysis.cog import FixtureFrame, PoseReading, properties_manifest_toml
-from rgse_daemon.pipeline import cog
+from rgse_daemon.pipeline import cog, torsion
 from simulators.krc4 import physics as ph
 from simulators.krc4.tracefiles import write_trace_set
 
@@ -95,15 +95,15 @@ class TorsionalCampaign:
     bias: list[PoseTraces]
     points: list[tuple[float, tuple[float, float, float], list[PoseTraces]]]
 
-    def fit(self) -> cog.TorsionalFit:
+    def fit(self) -> torsion.TorsionalFit:
         bias = {t.name: _mean(t) for t in self.bias}
-        pts = [cog.TorsionalPoint(m, c, {t.name: _mean(t) for t in traces}) for m, c, traces in self.points]
-        return cog.fit_torsional(self.poses, bias, pts)
+        pts = [torsion.TorsionalPoint(m, c, {t.name: _mean(t) for t in traces}) for m, c, traces in self.points]
+        return torsion.fit_torsional(self.poses, bias, pts)
 
 
-def _mean(t: PoseTraces) -> cog.PoseMean:
+def _mean(t: PoseTraces) -> torsion.PoseMean:
     r = t.reading()
-    return cog.PoseMean(r.torque_nm, r.sigma_nm)
+    return torsion.PoseMean(r.torque_nm, r.sigma_nm)
 
 
 def simulate_torsional(model: ph.RobotModel, scheme: str = "full", n_loops: int = 2, n_samples: int = 250,

@@ -6,17 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rgse_daemon.trace.channels import DRIVE_CHANNEL_UNITS
 from simulators.krc4.tracefiles import write_trace_set
-
-DRIVE_UNITS = {
-    "Sollposition": "deg",
-    "Istposition": "deg",
-    "Positionsschleppfehler": "deg",
-    "Geschwindigkeitsdifferenz": "deg/s",
-    "Motortemperatur": "K",
-    "Istmoment": "Nm",
-    "Iststrom": "A",
-}
 
 
 def drive_channels(n: int, seed: int) -> dict[str, tuple[np.ndarray, str]]:
@@ -25,7 +16,7 @@ def drive_channels(n: int, seed: int) -> dict[str, tuple[np.ndarray, str]]:
     scale = {"Motortemperatur": 300.0, "Istmoment": 2500.0, "Iststrom": 12.0}
     return {
         name: (rng.standard_normal(n) * scale.get(name, 1.0) + (300.0 if unit == "K" else 0.0), unit)
-        for name, unit in DRIVE_UNITS.items()
+        for name, unit in DRIVE_CHANNEL_UNITS.items()
     }
 
 

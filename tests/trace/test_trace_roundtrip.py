@@ -10,9 +10,9 @@ import pytest
 
 from rgse_daemon.errors import DataError
 from rgse_daemon.trace import read_trace_file, read_trace_set
-from rgse_daemon.trace.channels import ISTMOMENT, drive_module
+from rgse_daemon.trace.channels import DRIVE_CHANNEL_UNITS, ISTMOMENT, drive_module
 from simulators.krc4.tracefiles import write_trace_set
-from tests.support.tracehelpers import DRIVE_UNITS, drive_channels, edit_channel, write_small_set
+from tests.support.tracehelpers import drive_channels, edit_channel, write_small_set
 
 
 @pytest.mark.parametrize("storage", ["BLOCK", "CHANNEL"])
@@ -36,7 +36,7 @@ def test_round_trip(tmp_path: Path, storage: str, period_s: float, factor: float
         assert tf.n_samples == n
         assert tf.module == module
         np.testing.assert_allclose(tf.time_s(), np.arange(n) * period_s, rtol=1e-12, atol=0.0)
-        assert list(tf.channels) == ["Zeit", *DRIVE_UNITS]
+        assert list(tf.channels) == ["Zeit", *DRIVE_CHANNEL_UNITS]
         for name, (values, unit) in channels.items():
             ch = ts.channel(module, name)
             assert ch.unit == unit
