@@ -50,7 +50,8 @@ class Bias:
 class Validation:
     """``fit.validation``: the held-out scheme, the chosen model's per-axis held-out residuals, the nested figure."""
 
-    scheme: str
+    scheme: str | dict[str, str]
+    """The validation scheme, in words (per part of the selection in files since f14872f)."""
     heldout_axis_rms_nm: dict[str, float]
     heldout_residual_nm: dict[str, list[float]]
     lever_group_mean_abs_err_pct: float | None = None
@@ -211,7 +212,8 @@ def _fit_dict(fit: Fit, cal: Calibration) -> dict[str, Any]:
         out["loo_residual_rms_rel"] = fit.loo_residual_rms_rel
     if fit.validation is not None:
         v = fit.validation
-        out["validation"] = {"scheme": v.scheme, "heldout_axis_rms_nm": dict(v.heldout_axis_rms_nm),
+        out["validation"] = {"scheme": v.scheme if isinstance(v.scheme, str) else dict(v.scheme),
+                             "heldout_axis_rms_nm": dict(v.heldout_axis_rms_nm),
                              "heldout_residual_nm": {k: list(r) for k, r in v.heldout_residual_nm.items()},
                              "lever_group_mean_abs_err_pct": v.lever_group_mean_abs_err_pct,
                              "nested_mean_abs_err_pct": v.nested_mean_abs_err_pct}
@@ -310,6 +312,8 @@ def _axis_model(d: Any, where: str) -> AxisK:
         k = AxisK.from_dict(d)
     except DataError as exc:
         raise DataError(f"{where}: {exc}") from None
+    if np.ndim(k.params) != 1 or not k.params.size:
+        raise DataError(f"{where}: its parameters must be a list of numbers")
     if not np.all(np.isfinite(k.params)):
         raise DataError(f"{where} has non-finite parameters")
     return k
@@ -326,11 +330,14 @@ def _matrix(v: Any, n: int, where: str) -> np.ndarray:
 
 
 def _from(parse_fn: Any, where: str, *args: Any) -> Any:
-    """A section's own ``from_dict``; its error is prefixed with the file."""
+    """A section's own ``from_dict``; its error is prefixed with the file (a section of the wrong shape can fail in
+    it with any of these: each is a DataError here)."""
     try:
         return parse_fn(*args)
-    except (DataError, TypeError) as exc:
+    except DataError as exc:
         raise DataError(f"{where}: {exc}") from None
+    except (TypeError, AttributeError, KeyError, ValueError) as exc:
+        raise DataError(f"{where}: {getattr(parse_fn, '__qualname__', 'section')}: malformed: {exc!r}") from None
 
 
 def parse(doc: Any, path: str = "CAL.json") -> CalFile:
@@ -424,8 +431,12 @@ def _validation(v: Any, where: str) -> Validation:
         if not isinstance(res[ax], list):
             raise DataError(f"{where}.heldout_residual_nm.{ax} must be a list of numbers")
         residuals[ax] = [_finite(x, f"{where}.heldout_residual_nm.{ax}") for x in res[ax]]
-    return Validation(str(d.get("scheme", "?")), {ax: _finite(rms[ax], f"{where}.heldout_axis_rms_nm.{ax}")
-                                                  for ax in AXES}, residuals,
+    scheme = d.get("scheme", "?")
+    if not (isinstance(scheme, str) or (isinstance(scheme, dict) and all(isinstance(v, str)
+                                                                          for v in scheme.values()))):
+        raise DataError(f"{where}.scheme must be text or an object of texts, got {scheme!r}")
+    return Validation(scheme if isinstance(scheme, str) else dict(scheme),
+                      {ax: _finite(rms[ax], f"{where}.heldout_axis_rms_nm.{ax}") for ax in AXES}, residuals,
                       _opt_finite(d.get("lever_group_mean_abs_err_pct"), f"{where}.lever_group_mean_abs_err_pct"),
                       _opt_finite(d.get("nested_mean_abs_err_pct"), f"{where}.nested_mean_abs_err_pct"))
 
