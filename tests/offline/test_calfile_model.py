@@ -116,7 +116,7 @@ def _edit(doc: dict, path: tuple, value) -> dict:
 _DELETE = object()
 
 
-@pytest.mark.parametrize("value", [_DELETE, "text", []], ids=repr)
+@pytest.mark.parametrize("value", [_DELETE, "text", []], ids=["removed", "text", "list"])
 def test_a_damaged_field_is_a_data_error_never_a_crash(tmp_path, fitted, value):
     """Each field of the file (down to the first entry of every list), removed or of a wrong type: the file reads
     (the field is optional or free text) or is refused with a DataError; never a KeyError or TypeError."""
