@@ -285,9 +285,11 @@ def _int(v: Any, where: str) -> int:
     return v
 
 
-def _within(v: float, bounds: tuple[float, float], where: str, unit: str = "") -> float:
+def _within(v: float, bounds: tuple[float, float], where: str, unit: str = "", shown: Any = None) -> float:
+    """``v`` if within ``bounds``; else a DataError showing ``shown`` (the value as the file has it) or ``v``."""
     if not bounds[0] <= v <= bounds[1]:
-        raise DataError(f"{where} = {v!r}{unit} is outside the plausible {bounds[0]:g}..{bounds[1]:g}{unit}")
+        raise DataError(f"{where} = {v if shown is None else shown!r}{unit} is outside the plausible "
+                        f"{bounds[0]:g}..{bounds[1]:g}{unit}")
     return v
 
 
@@ -373,7 +375,7 @@ def parse(doc: Any, path: str = "CAL.json") -> CalFile:
         raise DataError(f"{p}fit.r2 must be an object of axis -> R²")
     g = plausible_g(_finite(doc["g"], f"{p}g"), f"{p}g")
     dr = _within(_finite(doc["lever_difference_m"], f"{p}lever_difference_m"), LEVER_DIFFERENCE_RANGE_M,
-                 f"{p}lever_difference_m")
+                 f"{p}lever_difference_m", shown=doc["lever_difference_m"])
     cal = Calibration(str(doc["method"]), k3, k5, cov, rng[0], rng[1], g, dr, dict(r2), cov_ref)
     pre = None if doc.get("preprocessing") is None else _from(Preprocessing.from_dict, path, doc["preprocessing"])
     sources = doc.get("source_sha256", {})
@@ -402,7 +404,7 @@ def _parse_fit(fit: dict[str, Any], cal: Calibration, p: str) -> Fit:
     w = f"{p}fit"
     period = _opt_finite(fit.get("sample_period_s"), f"{w}.sample_period_s")
     if period is not None:
-        _within(period, (PERIOD_MIN_S, PERIOD_MAX_S), f"{w}.sample_period_s", " s")
+        _within(period, (PERIOD_MIN_S, PERIOD_MAX_S), f"{w}.sample_period_s", " s", fit["sample_period_s"])
     unc = fit.get("uncertainty")
     return Fit(
         in_sample_mean_abs_err_pct=_finite(_need(fit, "in_sample_mean_abs_err_pct", w),
