@@ -182,10 +182,10 @@ def repetition(name: str, seed: int) -> dict:
                                       *((m, m, []) for m in SINGLE)):
         cal, cu = model_of(method)
         try:
-            r = inline.in_line_mass(loops, cal, bias3, bias5, pp.PAPER, meas.fixture_mass_kg,
-                                    alternatives=[model_of(a)[0] for a in alternatives], uncertainty=cu,
-                                    alternative_uncertainty=[model_of(a)[1] for a in alternatives], envelope=env,
-                                    thermal=drift, loop_temps_k=temps)
+            r = inline.in_line_mass(loops, inline.MassCalibration(
+                cal, bias3, bias5, alternatives=[model_of(a)[0] for a in alternatives], uncertainty=cu,
+                alternative_uncertainty=[model_of(a)[1] for a in alternatives], envelope=env, thermal=drift),
+                pp.PAPER, fixture_mass_kg=meas.fixture_mass_kg, loop_temps_k=temps)
         except OperatingPointError:
             out[row] = None
             continue
@@ -312,10 +312,10 @@ def repetition33(name: str, seed: int) -> dict:
     rows = [("auto", drift)] + ([("auto, no β", None)] if name.startswith("thermal") else [])
     for row, thermal in rows:
         try:
-            r = inline.in_line_mass(loops, *[fits[chosen.method][0]], bias3, bias5, pp.PAPER, meas.fixture_mass_kg,
-                                    alternatives=[fits[a][0] for a in alts], uncertainty=fits[chosen.method][1],
-                                    alternative_uncertainty=[fits[a][1] for a in alts], envelope=env,
-                                    thermal=thermal, loop_temps_k=temps)
+            r = inline.in_line_mass(loops, inline.MassCalibration(
+                fits[chosen.method][0], bias3, bias5, alternatives=[fits[a][0] for a in alts],
+                uncertainty=fits[chosen.method][1], alternative_uncertainty=[fits[a][1] for a in alts], envelope=env,
+                thermal=thermal), pp.PAPER, fixture_mass_kg=meas.fixture_mass_kg, loop_temps_k=temps)
         except DataError as exc:
             out[row], out[f"{row} refused"] = None, str(exc)
             continue

@@ -60,13 +60,12 @@ def robot_time_s(n_poses: int, loops: int = N_LOOPS) -> float:
     return n_poses * (cc.MOVE_S + 1.0 + loops * cc.LOOP_S)
 
 
-def _doc(campaign: cc.TorsionalCampaign) -> dict:
+def _torsional(campaign: cc.TorsionalCampaign) -> calfile.Torsional:
     fit = campaign.fit()
     poses = [calfile.TorsionalPose(t.name, t.q_deg, t.reading().torque_nm, t.reading().sigma_nm)
              for t in campaign.bias]
-    return {"g": 9.81, "calibration_id": "bench",
-            "torsional": calfile.torsional_section(campaign.scheme, poses, fit.gains, fit.evaluations,
-                                                   len(campaign.points))}
+    return calfile.Torsional(campaign.scheme, {p.name: p for p in poses}, dict(fit.gains), dict(fit.evaluations),
+                             len(campaign.points))
 
 
 def repetition(seed: int) -> dict[str, dict]:
@@ -87,7 +86,7 @@ def repetition(seed: int) -> dict[str, dict]:
         model = ph.RobotModel(scenario, seed=seed)
         cc.warm_up(model)
         campaign = cc.simulate_torsional(model, scheme, n_loops=N_LOOPS, points=points, seed=seed)
-        doc = _doc(campaign)
+        tors = _torsional(campaign)
         run = cc.simulate_properties(model, dut, scheme, n_loops=N_LOOPS)
         readings = [t.reading() for t in run.poses]
         subsets = {name: (readings, mass_kg, U_MASS_KG)}
@@ -97,7 +96,8 @@ def repetition(seed: int) -> dict[str, dict]:
             subsets.update({f"poses {n}": (readings[:n], mass_kg, U_MASS_KG) for n in (2, 4, 6, 8)})
         true_dut = dut.rotation.T @ (run.true_cog_flange_m - np.asarray(dut.dut_origin_flange_m))
         for row, (rd, m, u_m) in subsets.items():
-            res = acog.compute_cog(rd, doc, mass_kg=m, u_mass_kg=u_m, fixture=run.fixture)
+            res = acog.compute_cog(rd, tors, g_m_s2=9.81, calibration_id="bench", mass_kg=m, u_mass_kg=u_m,
+                                   fixture=run.fixture)
             out[row] = {"err_mm": ((np.array(res.cog_dut_m) - true_dut) * 1000.0).tolist(),
                         "U_mm": (np.array(res.U_cog_dut_m) * 1000.0).tolist(), "n_poses": len(rd)}
     return out

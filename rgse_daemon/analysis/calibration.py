@@ -6,6 +6,7 @@ reproducible from its campaign directory."""
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ from rgse_daemon.analysis import cog as cog_analysis
 from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import (
     Manifest,
+    Setup,
     check_one_period,
     load_manifest,
     loop_periods,
@@ -238,43 +240,53 @@ def check_torques_follow_loads(points: CalibrationPoints) -> None:
 
 
 def plausible_alternatives(points: CalibrationPoints, chosen: selection.Evaluation,
-                           evaluations: list[selection.Evaluation], g: float, dr: float) -> list[dict]:
+                           evaluations: list[selection.Evaluation], g: float, dr: float
+                           ) -> tuple[calfile.Alternative, ...]:
     """The other admissible models whose held-out error is within ``PLAUSIBLE_LOO_FACTOR`` of the chosen one's,
     fitted on all points, each with its own uncertainty data (CAL.json ``fit.alternatives``: the model-form term,
     and the fallback where the chosen model's U is unusable)."""
     limit = unc.PLAUSIBLE_LOO_FACTOR * chosen.loo_mean_abs_err_pct
-    return [{"method": e.method, "loo_mean_abs_err_pct": e.loo_mean_abs_err_pct,
-             "models": cal_mod.fit(points, e.method, g, dr).models_dict(),
-             "uncertainty": unc.calibration_uncertainty(points, e.method, g, dr, e.heldout_residual_nm).to_dict()}
-            for e in evaluations if e.method != chosen.method and e.admissible and e.loo_mean_abs_err_pct <= limit]
+    return tuple(calfile.Alternative(_as_alternative(cal_mod.fit(points, e.method, g, dr)), e.loo_mean_abs_err_pct,
+                                     unc.calibration_uncertainty(points, e.method, g, dr, e.heldout_residual_nm))
+                 for e in evaluations
+                 if e.method != chosen.method and e.admissible and e.loo_mean_abs_err_pct <= limit)
+
+
+def _as_alternative(fitted: cal_mod.Calibration) -> cal_mod.Calibration:
+    """An alternative as CAL.json records it: its models only (no covariance of its own)."""
+    return dataclasses.replace(fitted, covariance=np.zeros((0, 0)), r2={}, covariance_reference=None)
 
 
 def validation_record(points: CalibrationPoints, chosen: selection.Evaluation, nested_pct: float | None
-                      ) -> dict[str, Any]:
+                      ) -> calfile.Validation:
     """CAL.json ``fit.validation``: the scheme, the chosen model's held-out per-axis residuals, the nested figure."""
     rms = chosen.axis_rms_nm
-    return {"scheme": selection.VALIDATION_SCHEME,
-            "heldout_axis_rms_nm": {"A3": float(rms[0]), "A5": float(rms[1])},
-            "heldout_residual_nm": {"A3": chosen.heldout_residual_nm[:, 0].tolist(),
-                                    "A5": chosen.heldout_residual_nm[:, 1].tolist()},
-            "lever_group_mean_abs_err_pct": (None if not np.isfinite(chosen.lever_mean_abs_err_pct)
-                                             else chosen.lever_mean_abs_err_pct),
-            "nested_mean_abs_err_pct": nested_pct}
+    return calfile.Validation(
+        selection.VALIDATION_SCHEME, {"A3": float(rms[0]), "A5": float(rms[1])},
+        {"A3": chosen.heldout_residual_nm[:, 0].tolist(), "A5": chosen.heldout_residual_nm[:, 1].tolist()},
+        None if not np.isfinite(chosen.lever_mean_abs_err_pct) else chosen.lever_mean_abs_err_pct, nested_pct)
 
 
-def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, robot: str,
-              pre: pp.Preprocessing | None, bias3: float, bias5: float, g_u: float,
-              sources: dict[str, str], where: Path,
-              thermal: dict[str, float] | None = None, nested: bool = True,
-              drift: ThermalDrift | None = None,
-              sample_period_s: float | None = None,
-              set_aside: list[tuple[int, integrity.SetAside]] = ()) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Fit and describe a calibration: (CAL.json document, the ``--json`` summary). One code path for the CLI and
-    the daemon's campaign, so a stored calibration is always reproducible from its campaign directory.
-    ``nested``: also the nested held-out figure of ``auto`` (selection repeated inside every fold; seconds).
-    ``drift``: the campaign's thermal drift (CAL.json ``fit.thermal``), removed from the DuT's loops at measurement.
-    ``sample_period_s``: the campaign's trace sample period (CAL.json ``fit.sample_period_s``; None for a points
-    CSV), compared with the DuT's at measurement."""
+@dataclass(frozen=True)
+class CampaignRecords:
+    """What a campaign's loops tell beside its points, recorded in CAL.json: ``drift`` (``fit.thermal``, removed
+    from the DuT's loops at measurement), ``sample_period_s`` (``fit.sample_period_s``, compared with the DuT's; None
+    for a points CSV) and ``set_aside`` (``fit.set_aside``: (1-based point, loop and reason))."""
+
+    drift: ThermalDrift | None = None
+    sample_period_s: float | None = None
+    set_aside: Sequence[tuple[int, integrity.SetAside]] = ()
+
+
+def calibrate(points: CalibrationPoints, method: str, setup: Setup, *, pre: pp.Preprocessing | None,
+              bias: calfile.Bias, provenance: calfile.Provenance, where: Path,
+              records: CampaignRecords = CampaignRecords(), nested: bool = True
+              ) -> tuple[calfile.CalFile, dict[str, Any]]:
+    """Fit and describe a calibration: (CAL.json, the ``--json`` summary). One code path for the CLI and the
+    daemon's campaign, so a stored calibration is always reproducible from its campaign directory. ``setup``: the
+    robot, g (and its u) and Δr. ``nested``: also the nested held-out figure of ``auto`` (selection repeated inside
+    every fold; seconds)."""
+    g, dr, drift, set_aside = setup.g_m_s2, setup.lever_difference_m, records.drift, records.set_aside
     check_torques_follow_loads(points)
     try:
         cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
@@ -283,26 +295,25 @@ def calibrate(points: CalibrationPoints, method: str, *, g: float, dr: float, ro
         cu = unc.calibration_uncertainty(points, chosen.method, g, dr, chosen.heldout_residual_nm)
     except DataError as exc:
         raise DataError(f"{where}: {exc}") from exc
-    doc = calfile.build(cal, robot=robot, preprocessing=pre, bias_a3_nm=bias3, bias_a5_nm=bias5,
-                        in_sample_pct=chosen.in_sample_mean_abs_err_pct, loo_pct=chosen.loo_mean_abs_err_pct,
-                        loo_max_kg=chosen.loo_max_abs_err_kg, source_sha256=sources,
-                        extra_fit={"n_points": len(points), "loo_residual_rms_rel": loo_rms_rel(points, chosen),
-                                   "validation": validation_record(points, chosen, nested_pct),
-                                   "uncertainty": cu.to_dict(),
-                                   "envelope": Envelope.from_torques(points.torque_a3_nm,
-                                                                     points.torque_a5_nm).to_dict(),
-                                   "alternatives": plausible_alternatives(points, chosen, evaluations, g, dr),
-                                   **({} if drift is None else {"thermal": drift.to_dict()}),
-                                   "set_aside": [{"point": p, **a.to_dict()} for p, a in set_aside]},
-                        g_u_m_s2=g_u, thermal_state_k=thermal, sample_period_s=sample_period_s)
+    validation = validation_record(points, chosen, nested_pct)
+    doc = calfile.sealed(calfile.CalFile(
+        robot=setup.robot, calibration=cal, bias=bias, provenance=provenance, preprocessing=pre,
+        g_u_m_s2=float(setup.g_u_m_s2),
+        fit=calfile.Fit(in_sample_mean_abs_err_pct=chosen.in_sample_mean_abs_err_pct,
+                        loo_mean_abs_err_pct=chosen.loo_mean_abs_err_pct, loo_max_abs_err_kg=chosen.loo_max_abs_err_kg,
+                        sample_period_s=records.sample_period_s, n_points=len(points),
+                        loo_residual_rms_rel=loo_rms_rel(points, chosen), validation=validation, uncertainty=cu,
+                        envelope=Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm),
+                        alternatives=plausible_alternatives(points, chosen, evaluations, g, dr), thermal=drift,
+                        set_aside=tuple(calfile.SetAsideLoop(p, a.loop, a.reason) for p, a in set_aside))))
     summary = {
-        "calibration_id": doc["calibration_id"],
+        "calibration_id": doc.calibration_id,
         "method": cal.method,
         "in_sample_mean_abs_err_pct": chosen.in_sample_mean_abs_err_pct,
         "loo_mean_abs_err_pct": chosen.loo_mean_abs_err_pct,
         "loo_max_abs_err_kg": chosen.loo_max_abs_err_kg,
         "nested_mean_abs_err_pct": nested_pct,
-        "heldout_axis_rms_nm": doc["fit"]["validation"]["heldout_axis_rms_nm"],
+        "heldout_axis_rms_nm": dict(validation.heldout_axis_rms_nm),
         "u_reproducibility_kg": cu.reproducibility.u_kg(g, dr),
         "points": len(points),
         "r2": cal.r2,
@@ -356,25 +367,22 @@ def parse_preprocessing(spec: str | None) -> pp.Preprocessing:
 
 
 def fit_campaign(directory: Path, method: str,
-                 pre: pp.Preprocessing = pp.PAPER) -> tuple[dict[str, Any], dict[str, Any]]:
-    """``rgse calibrate --campaign DIR [--preprocessing SPEC]`` without writing: (CAL.json document, summary)."""
+                 pre: pp.Preprocessing = pp.PAPER) -> tuple[calfile.CalFile, dict[str, Any]]:
+    """``rgse calibrate --campaign DIR [--preprocessing SPEC]`` without writing: (CAL.json, summary)."""
     data = screen_campaign(load_campaign(directory), pre)
     points, bias3, bias5 = campaign_points(data, pre)
-    setup = data.manifest.setup
-    doc, summary = calibrate(points, method, g=setup.g_m_s2, dr=setup.lever_difference_m, robot=setup.robot,
-                             pre=pre, bias3=bias3, bias5=bias5, g_u=setup.g_u_m_s2,
-                             sources=source_sha256(data.files), where=directory, thermal=data.thermal_state_k,
-                             drift=campaign_thermal(data, pre), sample_period_s=campaign_period_s(data),
-                             set_aside=data.set_aside)
+    doc, summary = calibrate(points, method, data.manifest.setup, pre=pre, bias=calfile.Bias(bias3, bias5),
+                             provenance=calfile.Provenance(source_sha256(data.files), data.thermal_state_k),
+                             where=directory, records=CampaignRecords(campaign_thermal(data, pre),
+                                                                      campaign_period_s(data), data.set_aside))
     if data.manifest.torsional_points:
         # the CoG calibration (issue #14): bias per pose and K for A3..A6 from the torsional points
-        doc["torsional"] = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre,
-                                                              periods=data.period)
-        calfile.seal(doc)
-        summary["calibration_id"] = doc["calibration_id"]
-        summary["torsional"] = {ax: {"model": d["model"], "u_point_nm": d["u_point_nm"],
-                                     "heldout_rms_nm": d["evaluation"]["models"][d["model"]]["heldout_rms_nm"]}
-                                for ax, d in doc["torsional"]["axes"].items()}
+        tors = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre, periods=data.period)
+        doc = calfile.sealed(dataclasses.replace(doc, torsional=tors))
+        summary["calibration_id"] = doc.calibration_id
+        summary["torsional"] = {f"A{ax}": {"model": g.model, "u_point_nm": g.u_point_nm,
+                                           "heldout_rms_nm": tors.evaluations[ax]["models"][g.model]["heldout_rms_nm"]}
+                                for ax, g in tors.gains.items()}
     return doc, summary
 
 

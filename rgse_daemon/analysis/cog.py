@@ -125,9 +125,9 @@ def _three(v: np.ndarray) -> tuple[float, float, float]:
     return (float(v[0]), float(v[1]), float(v[2]))
 
 
-def compute_cog(readings: Sequence[PoseReading], cal_doc: dict, *, mass_kg: float, u_mass_kg: float,
-                fixture: FixtureFrame, g_m_s2: float | None = None) -> CogResult:
-    """The DuT's CoG from its pose readings and a calibration document.
+def compute_cog(readings: Sequence[PoseReading], tors: calfile.Torsional | None, *, g_m_s2: float,
+                calibration_id: str | None, mass_kg: float, u_mass_kg: float, fixture: FixtureFrame) -> CogResult:
+    """The DuT's CoG from its pose readings and a calibration's torsional section (CAL.json ``torsional``).
 
     ``mass_kg``: the DuT's mass from the mass run (fixture excluded), ``u_mass_kg`` its *standard* uncertainty
     (the mass result's ``u_kg``). Each reading is bias-corrected with the calibration's bare reading of the pose of
@@ -136,7 +136,6 @@ def compute_cog(readings: Sequence[PoseReading], cal_doc: dict, *, mass_kg: floa
     DataError naming CAL.json when the calibration has no torsional section or lacks a pose's bias.
     """
     where = "CAL.json"
-    tors = calfile.torsional(cal_doc, where)
     if tors is None:
         raise DataError(f"{where}: the calibration has no 'torsional' section (no CoG calibration: run a campaign "
                         f"with torsional points, then rgse calibrate); the CoG cannot be computed")
@@ -146,7 +145,7 @@ def compute_cog(readings: Sequence[PoseReading], cal_doc: dict, *, mass_kg: floa
         raise DataError(f"CoG: DuT mass must be a finite mass > 0 kg, got {mass_kg}")
     if not (math.isfinite(u_mass_kg) and u_mass_kg >= 0):
         raise DataError(f"CoG: u_mass_kg must be finite and >= 0, got {u_mass_kg}")
-    g = float(cal_doc.get("g", kin.G_PAPER_M_S2)) if g_m_s2 is None else g_m_s2
+    g = g_m_s2
     warnings: list[str] = []
     poses = []
     names = [r.pose for r in readings]
@@ -181,7 +180,7 @@ def compute_cog(readings: Sequence[PoseReading], cal_doc: dict, *, mass_kg: floa
     if np.isfinite(fit.chi2_red) and fit.chi2_red > 4.0:
         warnings.append(f"the poses disagree more than their noise explains (reduced chi2 {fit.chi2_red:.1f}); "
                         f"U is scaled by it")
-    mismatch = thermal_mismatch(thermal_state_k(readings), (cal_doc.get("torsional") or {}).get("thermal_state_k"))
+    mismatch = thermal_mismatch(thermal_state_k(readings), tors.thermal_state_k)
     if mismatch is not None:
         warnings.append(mismatch)
     c_dut, cov_dut = cog_mod.to_dut_frame(fit.cog_m, fit.cov_m2, fixture.dut_origin_flange_m, fixture.dut_abc_deg)
@@ -194,7 +193,7 @@ def compute_cog(readings: Sequence[PoseReading], cal_doc: dict, *, mass_kg: floa
         "n_equations": fit.n_equations,
         "fitted_offsets_nm": fit.offsets_nm,
         "axes": [f"A{ax}" for ax in sorted(tors.gains)],
-        "calibration_id": cal_doc.get("calibration_id"),
+        "calibration_id": calibration_id,
     }
     if tors.scheme != "?" and {r.pose for r in readings} - set(tors.poses):
         warnings.append("poses outside the calibration's scheme")
@@ -412,9 +411,10 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
 
     The DuT's mass (and its standard uncertainty): ``mass_kg``/``u_mass_kg`` when given, else ``[properties]
     mass_kg``/``u_mass_kg``, else the in-line mass of the directory's ``[measurement]`` loops (as ``rgse mass``)."""
-    doc, _cal, pre = calfile.read(calibration_path)
+    calf = calfile.read(calibration_path)
+    pre = calf.preprocessing
     run = read_properties_dir(directory, pre or pp.PAPER)
-    calfile.check_robot(calibration_path, doc, run.robot)
+    calfile.check_robot(calibration_path, calf, run.robot)
     mass_warnings: list[str] = []
     if mass_kg is None:
         if run.mass_kg is not None:
@@ -424,11 +424,12 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
             mass_kg, u_mass_kg = mass.mass_kg, mass.u_kg
             mass_warnings = [f"mass: {w}" for w in mass.warnings]  # the mass the CoG rests on: its warnings hold
     try:
-        result = compute_cog(run.readings, doc, mass_kg=mass_kg, u_mass_kg=u_mass_kg or 0.0, fixture=run.fixture,
-                             g_m_s2=run.g_m_s2)
+        result = compute_cog(run.readings, calf.torsional, calibration_id=calf.calibration_id, mass_kg=mass_kg,
+                             u_mass_kg=u_mass_kg or 0.0, fixture=run.fixture,
+                             g_m_s2=calf.calibration.g_m_s2 if run.g_m_s2 is None else run.g_m_s2)
     except DataError as exc:
         raise DataError(str(exc).replace("CAL.json", str(calibration_path))) from None
-    cal_period_s = calfile.sample_period_s(calibration_path, doc)
+    cal_period_s = calf.fit.sample_period_s
     rate = None if run.period_s is None else mass_analysis.period_mismatch(run.period_s, cal_period_s, pre or pp.PAPER)
     warnings = [*mass_warnings, *result.warnings, *([rate] if rate is not None else [])]
     # (a trace-period warning is the mass loops' and the poses' alike: said once)
@@ -440,7 +441,7 @@ def compute_cog_dir(directory: Path | str, calibration_path: Path | str, *, mass
 # The torsional calibration of a campaign directory (CAL.json ``torsional``)
 # ---------------------------------------------------------------------------------------------------------------------
 def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing = pp.PAPER, *,
-                          periods: Sequence[tuple[str, float]] = ()) -> dict[str, Any]:
+                          periods: Sequence[tuple[str, float]] = ()) -> calfile.Torsional:
     """The ``torsional`` section of CAL.json from a campaign's ``kind = "torsional"`` points: the bare MPA's mean
     torques per pose (the bias, with its standard error) and K per axis A3..A6 (:func:`pipeline.torsion.fit_torsional`,
     leave-one-point-out validation). ``periods``: the sample period of the campaign's mass loops (every loop of a
@@ -472,9 +473,5 @@ def torsional_calibration(directory: Path, man: Manifest, pre: pp.Preprocessing 
         raise DataError(f"{man.path}: {exc}") from None
     cal_poses = [calfile.TorsionalPose(p.name, p.q_deg, bias[p.name].torque_nm, bias[p.name].sigma_nm)
                  for p in poses]
-    section = calfile.torsional_section(man.torsional_scheme or "custom", cal_poses, fit.gains, fit.evaluations,
-                                        len(loaded))
-    thermal = thermal_state_k(every)
-    if thermal is not None:
-        section["thermal_state_k"] = thermal
-    return section
+    return calfile.Torsional(man.torsional_scheme or "custom", {p.name: p for p in cal_poses}, dict(fit.gains),
+                             dict(fit.evaluations), len(loaded), thermal_state_k(every))

@@ -245,8 +245,7 @@ def compute_inertia_dir(directory: Path | str, calibration_path: Path | str | No
             raise DataError(f"{directory}: {dut_name} / {tare_name}: {exc}") from exc
     cal = None
     if calibration_path is not None:
-        doc = calfile.read(calibration_path)[0]
-        tors = calfile.torsional(doc, calibration_path)
+        tors = calfile.read(calibration_path).torsional
         if tors is None:
             raise DataError(f"{calibration_path}: no torsional section (the gain curves of A4..A6)")
         cal = torque_calibration(tors.gains, man.fixture_mass_kg, man.fixture_cog_flange_m)

@@ -60,24 +60,20 @@ class MassResult:
                 "thermal_applied": self.thermal_applied, "status": status_of({"warnings": self.warnings})}
 
 
-def measure(loops: list[Loop], cal: Calibration, cal_doc: dict[str, Any], pre: pp.Preprocessing,
-            fixture_mass_kg: float, g_measurement_m_s2: float | None = None,
-            g_u_measurement_m_s2: float = 0.0, alternatives: list[Calibration] = (),
+def measure(loops: list[Loop], cal: calfile.CalFile, pre: pp.Preprocessing, fixture_mass_kg: float,
+            g_measurement_m_s2: float | None = None, g_u_measurement_m_s2: float = 0.0,
             envelope_limit: float = inline.env_mod.DEFAULT_LIMIT,
             drift_prior_per_k: float = inline.DRIFT_PRIOR_PER_K) -> MassResult:
     """Pre-process every loop, set the disturbed ones aside, average (eq. 16), normalise with the calibration's M_0,
     apply eq. 21, budget U."""
-    fit = cal_doc["fit"]
-    r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in loops], cal,
-                            float(cal_doc["bias_nm"]["A3"]), float(cal_doc["bias_nm"]["A5"]), pre, fixture_mass_kg,
-                            float(fit.get("loo_residual_rms_rel", 0.0)), float(cal_doc.get("g_u_m_s2", 0.0)),
-                            g_measurement_m_s2, g_u_measurement_m_s2, alternatives,
-                            **calfile.uncertainty_inputs("CAL.json", cal_doc, cal, alternatives),
+    r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in loops],
+                            cal.mass_calibration(), pre, fixture_mass_kg=fixture_mass_kg,
+                            g_measurement_m_s2=g_measurement_m_s2, g_u_measurement_m_s2=g_u_measurement_m_s2,
                             envelope_limit=envelope_limit,
                             loop_temps_k=[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in loops],
                             drift_prior_per_k=drift_prior_per_k)
     return MassResult(r.mass_kg, r.uncertainty.u_kg, r.uncertainty.expanded_kg, r.gross_mass_kg, fixture_mass_kg,
-                      len(r.loops_used), r.samples_used, r.samples_total, str(cal_doc["calibration_id"]), r.method,
+                      len(r.loops_used), r.samples_used, r.samples_total, cal.calibration_id, r.method,
                       r.warnings, r.uncertainty.components(), operating_point=r.operating_point,
                       loops_used=r.loops_used, loops_set_aside=[a.to_dict() for a in r.loops_set_aside],
                       thermal_applied=r.thermal_applied)
@@ -107,22 +103,23 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
     man = load_manifest(directory)
     if not man.measurement_traces:
         raise DataError(f"{man.path}: no [measurement] table (is this a calibration campaign?)")
-    doc, cal, pre = calfile.read(calibration_path)
-    calfile.check_robot(calibration_path, doc, man.setup.robot)
+    calf = calfile.read(calibration_path)
+    calfile.check_robot(calibration_path, calf, man.setup.robot)
+    cal, pre = calf.calibration, calf.preprocessing
     check_pose(man.path, man.setup.lever_difference_m, man.setup.g_m_s2, cal)
     fixture = fixture_mass_kg if fixture_mass_kg is not None else (man.fixture_mass_kg or 0.0)
     if not np.isfinite(fixture) or fixture < 0:
         raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")
     loops = read_loops(directory, man.measurement_traces)
-    result = measure(loops, cal, doc, pre or pp.PAPER, fixture, man.setup.g_m_s2, man.setup.g_u_m_s2 or 0.0,
-                     calfile.alternatives(calibration_path, doc, cal), envelope_limit, drift_prior_per_k)
-    rate = period_mismatch(loops[0].period_s, calfile.sample_period_s(calibration_path, doc), pre or pp.PAPER)
+    result = measure(loops, calf, pre or pp.PAPER, fixture, man.setup.g_m_s2, man.setup.g_u_m_s2 or 0.0,
+                     envelope_limit, drift_prior_per_k)
+    rate = period_mismatch(loops[0].period_s, calf.fit.sample_period_s, pre or pp.PAPER)
     if rate is not None:
         result.warnings.append(rate)
     if abs(man.setup.lever_difference_m - cal.lever_difference_m) > 1e-6 or abs(man.setup.g_m_s2 - cal.g_m_s2) > 1e-6:
         result.warnings.append("measurement pose (lever_difference_m, g) differs from the calibration's")
     result.motor_temp_k = thermal_state_k(loops)
-    mismatch = thermal_mismatch(result.motor_temp_k, doc.get("thermal_state_k"),
+    mismatch = thermal_mismatch(result.motor_temp_k, calf.provenance.thermal_state_k,
                                 corrected=any(result.thermal_applied.values()))
     if mismatch is not None:
         result.warnings.append(mismatch)
@@ -133,10 +130,9 @@ def budget(directory: Path, traces: Sequence[str], calibration_path: Path, fixtu
            g_m_s2: float | None = None, g_u_m_s2: float = 0.0) -> MassResult:
     """The mass and its U budget from the loops ``traces`` of ``directory`` so far, by the same :func:`measure` as
     :func:`compute` (no manifest needed): what the stop rule (pipeline/stopping.py) predicts from during a run."""
-    doc, cal, pre = calfile.read(calibration_path)
+    calf = calfile.read(calibration_path)
     loops = read_loops(directory, tuple(traces))
-    return measure(loops, cal, doc, pre or pp.PAPER, fixture_mass_kg, g_m_s2, g_u_m_s2,
-                   calfile.alternatives(calibration_path, doc, cal))
+    return measure(loops, calf, calf.preprocessing or pp.PAPER, fixture_mass_kg, g_m_s2, g_u_m_s2)
 
 
 def _ms(period_s: float) -> str:

@@ -26,8 +26,8 @@ from rgse_daemon.store import EventLevel, Store
 
 async def activate(cal_path: Path, config_path: Path | None, note: str | None) -> dict[str, Any]:
     cfg = load_config(config_path)
-    doc, _, _ = calfile.read(cal_path)
-    calfile.check_robot(cal_path, doc, cfg.robot.name)
+    doc, cal = calfile.read_document(cal_path)
+    calfile.check_robot(cal_path, cal, cfg.robot.name)
     sha256, where = await asyncio.to_thread(_sha256_and_path, cal_path)
     async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
         before = await store.active_calibration(cfg.robot.name)

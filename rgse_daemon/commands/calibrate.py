@@ -12,7 +12,7 @@ from rgse_daemon.analysis.calibration import POINTS_ROBOT, calibrate, fit_campai
 from rgse_daemon.commands import add_json
 from rgse_daemon.errors import DataError
 from rgse_daemon.kinematics import G_PAPER_M_S2
-from rgse_daemon.manifest import load_points_csv, source_sha256
+from rgse_daemon.manifest import Setup, load_points_csv, source_sha256
 
 
 def make_room(out: Path) -> str | None:
@@ -24,16 +24,16 @@ def make_room(out: Path) -> str | None:
     if not out.is_file() or out.is_symlink():
         raise DataError(f"--out {out}: exists and is not a regular file; choose another path")
     try:
-        old, _, _ = calfile.read(out)
+        old = calfile.read(out)
     except DataError:
         raise DataError(f"--out {out}: exists and is not a calibration file (an input of the fit?); it is not "
                         f"overwritten, choose another path") from None
-    kept = out.with_name(f"{out.stem}.{old['calibration_id']}{out.suffix}")
+    kept = out.with_name(f"{out.stem}.{old.calibration_id}{out.suffix}")
     if kept.exists():
         raise DataError(f"--out {out}: the calibration it holds is to be kept as {kept}, which exists; "
                         f"choose another path")
     out.rename(kept)
-    return f"the calibration that was at {out} ({old['calibration_id']}) is kept as {kept}"
+    return f"the calibration that was at {out} ({old.calibration_id}) is kept as {kept}"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -53,10 +53,10 @@ def run(args: argparse.Namespace) -> int:
     if args.points is not None:
         if getattr(args, "preprocessing", None) is not None:
             raise DataError("--preprocessing applies to --campaign (the points of a CSV are already averaged)")
-        doc, summary = calibrate(load_points_csv(args.points), args.method, g=G_PAPER_M_S2,
-                                 dr=robots.active().lever_difference_m, robot=POINTS_ROBOT,
-                                 pre=None, bias3=0.0, bias5=0.0, g_u=0.0, sources=source_sha256([args.points]),
-                                 where=args.points)
+        setup = Setup(POINTS_ROBOT, G_PAPER_M_S2, robots.active().lever_difference_m)
+        doc, summary = calibrate(load_points_csv(args.points), args.method, setup, pre=None,
+                                 bias=calfile.Bias(0.0, 0.0),
+                                 provenance=calfile.Provenance(source_sha256([args.points])), where=args.points)
     else:
         pre = parse_preprocessing(getattr(args, "preprocessing", None))
         doc, summary = fit_campaign(args.campaign, args.method, pre)
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"calibration {doc['calibration_id']} ({summary['method']}) written to {args.out}")
+        print(f"calibration {doc.calibration_id} ({summary['method']}) written to {args.out}")
         print(f"{'method':18s} {'params':>6s} {'in-sample %':>12s} {'held-out %':>10s} {'max kg':>8s} "
               f"{'lever %':>8s}  admissible")
         for e in summary["models"]:
@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"thermal drift {ax['description']}")
         for a in summary.get("set_aside", []):  # loops left out of the points (their files stay as they are)
             print(f"set aside: point {a['point']} loop {a['loop']}: {a['reason']}")
-        period_s = doc["fit"].get("sample_period_s")
+        period_s = doc.fit.sample_period_s
         if period_s is not None:  # a measurement at another period gets a warning (CAL.json fit.sample_period_s)
             print(f"trace sample period {period_s * 1e3:g} ms: measure the DuT at the same period")
         sys.stdout.flush()

@@ -58,28 +58,46 @@ def slope_kg_per_nm(cal: Calibration, torque_a3_nm: float, torque_a5_nm: float, 
     return d3 / (2 * h_nm), d5 / (2 * h_nm)
 
 
-def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: float, bias_a5_nm: float,
-                 pre: pp.Preprocessing, fixture_mass_kg: float = 0.0, model_rms_rel: float = 0.0,
-                 g_u_calibration_m_s2: float = 0.0, g_measurement_m_s2: float | None = None,
-                 g_u_measurement_m_s2: float = 0.0, alternatives: Sequence[Calibration] = (),
-                 uncertainty: unc.CalibrationUncertainty | None = None,
-                 alternative_uncertainty: Sequence[unc.CalibrationUncertainty | None] = (),
-                 envelope: env_mod.Envelope | None = None,
-                 envelope_limit: float = env_mod.DEFAULT_LIMIT, thermal: ThermalDrift | None = None,
-                 loop_temps_k: Sequence[tuple[float | None, float | None]] | None = None,
-                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> InlineMass:
-    """Mass of the DuT and its uncertainty from its loops (interfaces §1 ``rgse mass``).
-
-    ``alternatives``: the other admissible calibration models (same points), for the model-form spread, with their
+@dataclass(frozen=True)
+class MassCalibration:
+    """What eq. 21 and the U budget take from a calibration (CAL.json, read as
+    :meth:`rgse_daemon.calfile.CalFile.mass_calibration`): the model, the bias M_0 per axis, and the campaign's
+    records for U. ``alternatives``: the other admissible models (same points), for the model-form spread, with their
     own ``alternative_uncertainty`` (same order; None where a file has none). ``uncertainty``: the calibration's
     :class:`~rgse_daemon.pipeline.uncertainty.CalibrationUncertainty`; None (an older calibration file) gives the
-    former budget with ``model_rms_rel``. ``envelope``: what the campaign covered; far outside (beyond
-    ``envelope_limit``) raises :class:`~rgse_daemon.pipeline.envelope.OperatingPointError`. ``thermal``: the
-    campaign's drift of the torque estimate with motor temperature; with ``loop_temps_k`` (A3, A5 per loop, K) every
-    loop is brought to the campaign's temperature (:mod:`rgse_daemon.pipeline.thermal`) and U gets its ``thermal``
-    term. An ``uncertainty`` (or an alternative's) from a file written before ``refit_basis`` whose model has a
-    ``sat`` term draws a warning (:func:`stale_refits_warning`): its refits are in another basis.
+    former budget with ``model_rms_rel``. ``envelope``: what the campaign covered. ``thermal``: the campaign's drift
+    of the torque estimate with motor temperature. ``g_u_m_s2``: the standard uncertainty of the calibration's g."""
+
+    cal: Calibration
+    bias_a3_nm: float
+    bias_a5_nm: float
+    model_rms_rel: float = 0.0
+    g_u_m_s2: float = 0.0
+    alternatives: Sequence[Calibration] = ()
+    uncertainty: unc.CalibrationUncertainty | None = None
+    alternative_uncertainty: Sequence[unc.CalibrationUncertainty | None] = ()
+    envelope: env_mod.Envelope | None = None
+    thermal: ThermalDrift | None = None
+
+
+def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre: pp.Preprocessing, *,
+                 fixture_mass_kg: float = 0.0, g_measurement_m_s2: float | None = None,
+                 g_u_measurement_m_s2: float = 0.0, envelope_limit: float = env_mod.DEFAULT_LIMIT,
+                 loop_temps_k: Sequence[tuple[float | None, float | None]] | None = None,
+                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> InlineMass:
+    """Mass of the DuT and its uncertainty from its loops (interfaces §1 ``rgse mass``) with ``calibration``
+    (:class:`MassCalibration`).
+
+    Far outside the calibration's envelope (beyond ``envelope_limit``) raises
+    :class:`~rgse_daemon.pipeline.envelope.OperatingPointError`. With the calibration's ``thermal`` drift and
+    ``loop_temps_k`` (A3, A5 per loop, K) every loop is brought to the campaign's temperature
+    (:mod:`rgse_daemon.pipeline.thermal`) and U gets its ``thermal`` term. An ``uncertainty`` (or an alternative's)
+    from a file written before ``refit_basis`` whose model has a ``sat`` term draws a warning
+    (:func:`stale_refits_warning`): its refits are in another basis.
     """
+    c = calibration
+    cal, bias_a3_nm, bias_a5_nm, thermal, envelope = c.cal, c.bias_a3_nm, c.bias_a5_nm, c.thermal, c.envelope
+    uncertainty, alternatives, alternative_uncertainty = c.uncertainty, c.alternatives, c.alternative_uncertainty
     warnings: list[str] = []
     temps = None
     if thermal is not None and loop_temps_k is not None and len(loop_temps_k) == len(loops) and all(
@@ -155,7 +173,7 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
     g_meas = cal.g_m_s2 if g_measurement_m_s2 is None else g_measurement_m_s2
     alt_mass = np.array([float(a.mass_kg(m3, m5)) for a in alternatives])
     u_loops = unc.loop_spread_kg(loop_mass, loop_se)
-    u_g = unc.g_kg(gross, cal.g_m_s2, g_u_calibration_m_s2, g_meas, g_u_measurement_m_s2)
+    u_g = unc.g_kg(gross, cal.g_m_s2, c.g_u_m_s2, g_meas, g_u_measurement_m_s2)
     u_thermal = None if temps is None else float(np.hypot(  # β3 and β5 estimated independently
         s3 * _u_thermal_nm(thermal, "A3", raw3, temps[:, 0], drift_used["A3"], drift_prior_per_k),
         s5 * _u_thermal_nm(thermal, "A5", raw5, temps[:, 1], drift_used["A5"], drift_prior_per_k)))
@@ -163,7 +181,7 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
         u = unc.MassUncertainty(
             u_loops_kg=u_loops,
             u_calibration_kg=unc.calibration_mc_kg(cal, m3, m5),
-            u_model_kg=unc.model_kg(gross, model_rms_rel, alt_mass),
+            u_model_kg=unc.model_kg(gross, c.model_rms_rel, alt_mass),
             u_reference_kg=unc.reference_mc_kg(cal, m3, m5),
             u_g_kg=u_g,
             u_thermal_kg=u_thermal,

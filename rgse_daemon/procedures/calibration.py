@@ -204,7 +204,7 @@ def check_points_support(points: Sequence[CampaignPoint], method: str, s: RunSet
 
 
 # --- the offline path ---------------------------------------------------------------------------------------------
-def fit_campaign(directory: Path, method: str = "auto") -> tuple[dict[str, Any], dict[str, Any]]:
+def fit_campaign(directory: Path, method: str = "auto") -> tuple[calfile.CalFile, dict[str, Any]]:
     """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --json`` as a function (the same
     :func:`analysis.calibration.fit_campaign`); writes CAL.json into the campaign directory."""
     doc, summary = campaign_analysis.fit_campaign(directory, method)
@@ -251,7 +251,7 @@ def write_campaign_manifest(run_dir: Path, s: RunSettings, points: list[tuple[Ca
 
 
 def _finish(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, list[str]]],
-            method: str) -> tuple[dict[str, Any], dict[str, Any]]:
+            method: str) -> tuple[calfile.CalFile, dict[str, Any]]:
     write_campaign_manifest(run_dir, s, points)
     return fit_campaign(run_dir, method)
 
@@ -263,10 +263,12 @@ def reproducibility_of(cal_doc: dict[str, Any] | None) -> tuple[float, float] | 
     if cal_doc is None:
         return None
     try:
-        rep = cal_doc["fit"]["uncertainty"]["reproducibility"]
-        out = (float(rep["rms_a3_nm"]), float(rep["rms_a5_nm"]))
-    except (KeyError, TypeError, ValueError):
+        u = calfile.load(cal_doc, "the active calibration").fit.uncertainty
+    except DataError:
         return None
+    if u is None:
+        return None
+    out = (u.reproducibility.rms_a3_nm, u.reproducibility.rms_a5_nm)
     return out if all(math.isfinite(v) and v > 0 for v in out) else None
 
 
@@ -387,9 +389,9 @@ def campaign_plan(
         "robot_time_s": robot_s, "robot_time_note": "loops (motion, settling, recording) of this session",
         "stop_rule": {"max_loops": s.loops, "min_loops": s.stop_rule.min_loops, "loop_share": s.stop_loop_share,
                       "reproducibility_nm": None if reproducibility_nm is None else list(reproducibility_nm)}})
-    yield d.Result(summary, shas, calibration=doc)
+    yield d.Result(summary, shas, calibration=doc.to_dict())
     n = len(summary["warnings"] or ())
-    yield m.Emit(Event("result", f"{summary['status']}: calibration {doc['calibration_id']} ({summary['method']}) "
+    yield m.Emit(Event("result", f"{summary['status']}: calibration {doc.calibration_id} ({summary['method']}) "
                                  f"active" + (f"; {n} warning{'s' if n != 1 else ''}" if n else ""),
                        step="result", data=summary))
     return summary

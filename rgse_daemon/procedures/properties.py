@@ -308,7 +308,7 @@ async def run_properties(
     if cal is None:
         raise PreconditionError(f"robot {s.robot}: no active calibration; run a calibration campaign first")
     try:
-        tors = calfile.torsional(cal.document, f"calibration {cal.id}")
+        tors = calfile.load(cal.document, f"calibration {cal.id}").torsional
     except DataError as exc:
         raise PreconditionError(str(exc)) from None
     if tors is None:

@@ -126,6 +126,8 @@ class PointView:
 class CalibrationView:
     record: CalibrationRecord
     document: dict[str, Any]
+    """The CAL.json document exactly as stored (what a reproduction writes)."""
+    cal_file: calfile.CalFile
     calibration: Calibration
     preprocessing: pp.Preprocessing
     run: RunRecord | None
@@ -164,16 +166,12 @@ class ReportMeta:
 # ------------------------------------------------------------------------------------------------------------
 # helpers
 # ------------------------------------------------------------------------------------------------------------
-def calibration_from_document(doc: dict[str, Any], what: str) -> tuple[Calibration, pp.Preprocessing | None]:
-    """Validate a stored CAL.json document exactly as ``rgse mass`` reads the file (:func:`calfile.read`)."""
-    with tempfile.TemporaryDirectory(prefix="rgse-report-") as tmp:
-        path = Path(tmp) / f"{what}.json"
-        path.write_text(json.dumps(doc), encoding="utf-8")
-        try:
-            _, cal, pre = calfile.read(path)
-        except DataError as exc:
-            raise DataError(f"{what}: stored calibration document is invalid: {str(exc).split(': ', 1)[-1]}") from exc
-    return cal, pre
+def calibration_from_document(doc: dict[str, Any], what: str) -> calfile.CalFile:
+    """Validate a stored CAL.json document exactly as ``rgse mass`` reads the file (:func:`calfile.load`)."""
+    try:
+        return calfile.load(doc, what)
+    except DataError as exc:
+        raise DataError(f"{what}: stored calibration document is invalid: {str(exc).split(': ', 1)[-1]}") from exc
 
 
 def _same(a: float, b: float) -> bool:
@@ -267,11 +265,11 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     except NotFound as exc:
         raise DataError(str(exc)) from exc
     doc = rec.document
-    cal, pre = calibration_from_document(doc, f"calibration {calibration_id}")
-    cfg = pre or pp.PAPER
-    checks: list[str] = [f"calibration {calibration_id}: document valid (schema {doc.get('schema')})"]
+    calf = calibration_from_document(doc, f"calibration {calibration_id}")
+    cal, cfg = calf.calibration, calf.preprocessing or pp.PAPER
+    checks: list[str] = [f"calibration {calibration_id}: document valid (schema {calf.schema})"]
     if rec.run_id is None:
-        return CalibrationView(rec, doc, cal, cfg, None, [], [], checks)
+        return CalibrationView(rec, doc, calf, cal, cfg, None, [], [], checks)
     run = repo.get_run(rec.run_id)
     # the torsional points (CoG, measured in several poses) are not mass points: the mass calibration ignores them
     # (as analysis.calibration does), and so does this recomputation; CAL.json's torsional section is shown as stored
@@ -279,7 +277,7 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     loops = repo.loops(run.id)
     files = repo.trace_files(run.id)
     if not specs:
-        return CalibrationView(rec, doc, cal, cfg, run, [], files, checks)
+        return CalibrationView(rec, doc, calf, cal, cfg, run, [], files, checks)
     root = archive_root(data_dir)
     _verify_files(root, files, checks, f"calibration run {run.id}")
     raw3, raw5, loop_idx = [], [], []
@@ -300,8 +298,8 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     if not zero.any():
         raise DataError(f"calibration run {run.id}: no 'zero' point, so no bias M_0")
     bias3, bias5 = float(np.array(raw3)[zero].mean()), float(np.array(raw5)[zero].mean())
-    _check(checks, "bias M_0 of A3 (Nm)", float(doc["bias_nm"]["A3"]), bias3)
-    _check(checks, "bias M_0 of A5 (Nm)", float(doc["bias_nm"]["A5"]), bias5)
+    _check(checks, "bias M_0 of A3 (Nm)", calf.bias.a3_nm, bias3)
+    _check(checks, "bias M_0 of A5 (Nm)", calf.bias.a5_nm, bias5)
     mass = np.array([float(p.spec["mass_kg"]) for p in specs])
     e3 = cal.g_m_s2 * mass * np.array([float(p.spec["lever_a3_m"]) for p in specs])
     e5 = cal.g_m_s2 * mass * np.array([float(p.spec["lever_a5_m"]) for p in specs])
@@ -317,7 +315,7 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     views = [PointView(p.index, p.spec, loop_idx[i], float(n3[i]), float(n5[i]), float(e3[i]), float(e5[i]),
                        float(calc[i]), mass_sigma_cal_kg(cal, float(n3[i]), float(n5[i])))
              for i, p in enumerate(specs)]
-    return CalibrationView(rec, doc, cal, cfg, run, views, files, checks)
+    return CalibrationView(rec, doc, calf, cal, cfg, run, views, files, checks)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -360,10 +358,10 @@ def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> Measureme
                                          f"all recorded")
     raw: list[Loop] = [read_loop(_loop_directory(root, lp, files), lp.trace_name) for lp in loops]
     fixture = float(res.get("fixture_mass_kg", 0.0))
-    bias3, bias5 = float(doc["bias_nm"]["A3"]), float(doc["bias_nm"]["A5"])
+    bias3, bias5 = calv.cal_file.bias.a3_nm, calv.cal_file.bias.a5_nm
     # the campaign's thermal drift (CAL.json fit.thermal): every loop brought to the campaign's temperature, as
     # pipeline.inline does when each loop recorded its A3/A5 motor temperatures
-    thermal = calfile.thermal(f"calibration {cal_id}", doc)
+    thermal = calv.cal_file.fit.thermal
     temps = [(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in raw]
     if thermal is None or not all(t is not None for pair in temps for t in pair):
         thermal = None

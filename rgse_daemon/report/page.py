@@ -146,29 +146,29 @@ def _checks(checks: Sequence[str]) -> str:
 # calibration section (shared by both pages)
 # ------------------------------------------------------------------------------------------------------------
 def _calibration_summary(calv: CalibrationView) -> str:
-    rec, doc, cal = calv.record, calv.document, calv.calibration
-    fit = doc.get("fit", {})
-    pre = doc.get("preprocessing")
+    rec, calf, cal = calv.record, calv.cal_file, calv.calibration
+    fit = calf.fit
+    pre = None if calf.preprocessing is None else calf.preprocessing.to_dict()
     rows = [
         ("calibration id", code(rec.id, "calibration_id")),
         ("method", code(cal.method, "calibration_method")),
         ("robot", code(rec.robot)),
-        ("created (document)", t(doc.get("created_utc", "–"))),
+        ("created (document)", t(calf.created_utc or "–")),
         ("added to the store", when(rec.added_utc)),
         ("active", (badge(True, "active", "") + f" since {when(rec.activated_utc)}") if rec.active
          else '<span class="badge info">not active</span>'),
         ("campaign run", code(rec.run_id) if rec.run_id else "– (fitted from pre-averaged points)"),
         ("g", num(cal.g_m_s2, "g", "g_m_s2", "m/s²")),
         ("lever difference r_A3 − r_A5", num(cal.lever_difference_m, "g", "lever_difference_m", "m")),
-        ("bias M₀ A3 / A5", num(float(doc["bias_nm"]["A3"]), ".3f", "bias_a3_nm", "Nm") + " / "
-         + num(float(doc["bias_nm"]["A5"]), ".3f", "bias_a5_nm", "Nm")),
+        ("bias M₀ A3 / A5", num(calf.bias.a3_nm, ".3f", "bias_a3_nm", "Nm") + " / "
+         + num(calf.bias.a5_nm, ".3f", "bias_a5_nm", "Nm")),
         ("calibrated torque range A3", num(cal.torque_range_a3_nm[0], ".1f", "range_a3_lo") + " … "
          + num(cal.torque_range_a3_nm[1], ".1f", "range_a3_hi", "Nm")),
         ("calibrated torque range A5", num(cal.torque_range_a5_nm[0], ".1f", "range_a5_lo") + " … "
          + num(cal.torque_range_a5_nm[1], ".1f", "range_a5_hi", "Nm")),
-        ("mean abs. mass error in sample / LOO", num(fit.get("in_sample_mean_abs_err_pct"), ".4f", "in_sample_pct", "%")
-         + " / " + num(fit.get("loo_mean_abs_err_pct"), ".4f", "loo_pct", "%")),
-        ("LOO max abs. mass error", num(fit.get("loo_max_abs_err_kg"), ".3f", "loo_max_kg", "kg")),
+        ("mean abs. mass error in sample / LOO", num(fit.in_sample_mean_abs_err_pct, ".4f", "in_sample_pct", "%")
+         + " / " + num(fit.loo_mean_abs_err_pct, ".4f", "loo_pct", "%")),
+        ("LOO max abs. mass error", num(fit.loo_max_abs_err_kg, ".3f", "loo_max_kg", "kg")),
         ("pre-processing",
          code(json.dumps(pre, sort_keys=True), wrap=True) if pre else "– (not recorded; paper method F)"),
     ]
@@ -227,7 +227,7 @@ def calibration_section(calv: CalibrationView, working: tuple[float, float] | No
 
 
 def _calibration_provenance(calv: CalibrationView) -> str:
-    src = calv.document.get("source_sha256") or {}
+    src = calv.cal_file.provenance.source_sha256
     rows = [(code(name), code(sha, "source_sha256", wrap=True)) for name, sha in sorted(src.items())]
     out = "<h3>Calibration inputs (CAL.json <code>source_sha256</code>)</h3>"
     out += table(("file", "SHA-256"), rows) if rows else "<p>none recorded</p>"
@@ -287,7 +287,7 @@ def _result_summary(view: MeasurementView) -> str:
          + num(res.get("samples_total"), "d", "samples_total")),
         ("calibration", code(res.get("calibration_id"), "result_calibration_id") + " "
          + code(res.get("method"), "result_method")),
-        *_thermal_rows(res.get("motor_temp_k"), view.calibration.document.get("thermal_state_k")),
+        *_thermal_rows(res.get("motor_temp_k"), view.calibration.cal_file.provenance.thermal_state_k),
         ("ECSS-E-10-03C mass accuracy ± 0.05 %",
          f"{badge(ecss_ok, 'met', 'not met')} U / m = {num(100 * rel, '.3f', 'U_rel_pct', '%')} "
          f"(requirement {num(100 * ECSS_MASS_REL, '.2f', 'ecss_pct', '%')} = "

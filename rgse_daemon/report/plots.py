@@ -249,9 +249,8 @@ def calibration_results(calv: CalibrationView) -> bytes:
     ax.axhline(0.0, color="#7f7f7f", lw=0.8)
     ax.errorbar(x, calc - true, yerr=band, fmt="o", color="#1f77b4", capsize=4,
                 label=f"calculated − true mass, ± {BAND_K:g}σ from the parameter covariance")
-    loo = calv.document.get("fit", {}).get("loo_max_abs_err_kg")
-    if isinstance(loo, int | float):
-        ax.axhspan(-loo, loo, color="#ff7f0e", alpha=0.12, label=f"leave-one-out max error ± {loo:.3f} kg")
+    loo = calv.cal_file.fit.loo_max_abs_err_kg  # finite: validated on reading
+    ax.axhspan(-loo, loo, color="#ff7f0e", alpha=0.12, label=f"leave-one-out max error ± {loo:.3f} kg")
     ax.set_xticks(x)
     ax.set_xticklabels([f"{i}\n{m:g} kg" for i, m in zip(x, true, strict=True)], fontsize=7)
     ax.set_xlabel("calibration point")

@@ -52,7 +52,7 @@ async def test_campaign_measures_torsional_points_in_every_pose(sim: SimulatedKr
     assert [pt.mass_kg for pt in man.torsional_points] == [0.0, 2 * 20.93, 4 * 20.93, 6 * 20.93]
     assert all(len(t) == 1 for pt in man.torsional_points for t in pt.traces.values())
     doc = json.loads((run_dir / "CAL.json").read_text())
-    tors = calfile.torsional(doc)
+    tors = calfile.read(run_dir / "CAL.json").torsional
     assert tors is not None and set(tors.poses) == {"meas", "A6+90"} and set(tors.gains) == {3, 4, 5, 6}
     assert doc["calibration_id"] == summary["calibration_id"]
     # its report: the mass calibration recomputed from the archived mass points (the torsional ones left out, as

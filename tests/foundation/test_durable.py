@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rgse_daemon import calfile
 from rgse_daemon.durable import write_atomic
+from rgse_daemon.pipeline.calibration import Calibration, PolyK
+
+
+def linear_calibration() -> Calibration:
+    return Calibration("axis-linear", PolyK(np.array([1.0])), PolyK(np.array([1.0])), np.eye(2), (0.0, 1.0),
+                       (0.0, 1.0), 9.81, 1.0)
 
 
 def test_writes_text_and_bytes_with_the_mode_of_a_plain_open(tmp_path: Path) -> None:
@@ -35,8 +44,11 @@ def test_a_failed_write_leaves_the_old_file_and_no_temporary(tmp_path: Path) -> 
 
 def test_calfile_write_replaces_atomically(tmp_path: Path) -> None:
     target = tmp_path / "CAL.json"
-    calfile.write(target, {"a": 1})
+    first = calfile.sealed(calfile.CalFile("R", linear_calibration(), calfile.Bias(0.0, 0.0),
+                                           calfile.Fit(1.0, 1.0, 1.0)))
+    calfile.write(target, first)
     inode = target.stat().st_ino
-    calfile.write(target, {"a": 2})
-    assert target.read_text() == '{\n  "a": 2\n}\n'
+    second = calfile.sealed(dataclasses.replace(first, bias=calfile.Bias(1.0, 2.0)))
+    calfile.write(target, second)
+    assert target.read_text() == json.dumps(second.to_dict(), indent=2) + "\n"
     assert target.stat().st_ino != inode  # a new file renamed over the old one, never rewritten in place

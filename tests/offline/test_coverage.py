@@ -48,10 +48,12 @@ def one_repetition(seed: int) -> tuple[float, inline.InlineMass]:
     cu = unc.calibration_uncertainty(points, METHOD, G, dr, ev.heldout_residual_nm)
     dut_kg, cog_z_m = dut_of(seed)
     meas = simulate_measurement(model, dut_kg, cog_z_m)
-    r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in meas.loops], cal,
-                            bias3, bias5, pp.PAPER, meas.fixture_mass_kg, uncertainty=cu,
-                            envelope=Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm),
-                            thermal=campaign_thermal(data, pp.PAPER),
+    r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in meas.loops],
+                            inline.MassCalibration(cal, bias3, bias5, uncertainty=cu,
+                                                   envelope=Envelope.from_torques(points.torque_a3_nm,
+                                                                                  points.torque_a5_nm),
+                                                   thermal=campaign_thermal(data, pp.PAPER)),
+                            pp.PAPER, fixture_mass_kg=meas.fixture_mass_kg,
                             loop_temps_k=[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in meas.loops])
     return dut_kg, r
 

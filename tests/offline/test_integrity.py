@@ -149,8 +149,8 @@ def test_a_campaign_with_one_gapped_loop_still_calibrates_and_says_what_it_set_a
                                 "axis-quad", "--json"])
     assert [(a["point"], a["loop"]) for a in summary["set_aside"]] == [(6, "cal05_l02")]
     assert "samples missing" in summary["set_aside"][0]["reason"]
-    doc, _, _ = calfile.read(cal)
-    assert doc["fit"]["set_aside"] == summary["set_aside"]
+    doc = calfile.read(cal)
+    assert [{"point": a.point, "loop": a.loop, "reason": a.reason} for a in doc.fit.set_aside] == summary["set_aside"]
     res = mass_json(capsys, mass_argv(tmp_path / "dut", cal), "ok")
     assert abs(res["mass_kg"] - DUT_KG) <= res["U_kg"]
     capsys.readouterr()
@@ -177,8 +177,8 @@ def test_beta_fitted_on_a_small_span_is_not_applied_and_u_carries_the_drift(tmp_
     assert main(["calibrate", "--campaign", str(tmp_path / "cal"), "--out", str(cal), "--method", "axis-quad"]) == 0
     text = capsys.readouterr().out
     assert "thermal drift A5 β = " in text and "not resolved (its loops spanned 0." in text and "not applied" in text
-    doc, _, _ = calfile.read(cal)
-    assert doc["fit"]["thermal"]["span_k"]["A5"] < 0.5
+    doc = calfile.read(cal)
+    assert doc.fit.thermal.span_k["A5"] < 0.5
     res = mass_json(capsys, mass_argv(tmp_path / "dut", cal), "warning")
     assert res["thermal_applied"] == {"A3": False, "A5": False}
     assert any(w.startswith("thermal drift of A5 not corrected") and "Measure the DuT at the campaign's motor "
@@ -198,5 +198,5 @@ def test_a_dut_in_the_gap_between_mass_stack_and_torque_rows_is_outside(plain, t
     assert res["operating_point"] == "outside"
     assert any("from the nearest calibrated configuration" in w for w in res["warnings"]), res["warnings"]
     assert abs(res["mass_kg"] - 150.0) <= res["U_kg"]
-    doc, _, _ = calfile.read(plain / "CAL.json")
-    assert len(doc["fit"]["envelope"]["points_nm"]) == 14
+    doc = calfile.read(plain / "CAL.json")
+    assert len(doc.fit.envelope.points_nm) == 14

@@ -112,5 +112,5 @@ def test_an_unknown_refit_basis_is_refused_naming_the_field(tmp_path, capsys, di
         field, shown = "fit.uncertainty.refit_basis", repr(value)
     bad = rewritten(tmp_path, doc, "bad.json")
     err = one_line_error(capsys, ["mass", "--traces", str(dirs / "dut"), "--calibration", str(bad)])
-    assert err.endswith(f"CAL.json: {field}: unknown value {shown} (known: calibration; absent in files written "
-                        f"before it)"), err
+    assert err.endswith(f"{bad}: {field}: unknown value {shown} (known: calibration; absent in files written "
+                        f"before it)"), err  # the file named, as every error of calfile.read names it

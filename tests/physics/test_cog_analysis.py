@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -16,15 +17,19 @@ from simulators.krc4 import physics as ph
 from tests.support import cogcampaign as cc
 
 
-def _doc(campaign: cc.TorsionalCampaign) -> dict:
+def _doc(campaign: cc.TorsionalCampaign) -> calfile.Torsional:
+    """The campaign's CAL.json ``torsional`` section, through JSON and back as the daemon reads it."""
     fit = campaign.fit()
     poses = [calfile.TorsionalPose(t.name, t.q_deg, t.reading().torque_nm, t.reading().sigma_nm)
              for t in campaign.bias]
     every = [t.reading() for t in campaign.bias] + [t.reading() for _, _, ts in campaign.points for t in ts]
-    return {"g": 9.81, "calibration_id": "sim",
-            "torsional": {**calfile.torsional_section(campaign.scheme, poses, fit.gains, fit.evaluations,
-                                                      len(campaign.points)),
-                          "thermal_state_k": acog.thermal_state_k(every)}}
+    tors = calfile.Torsional(campaign.scheme, {p.name: p for p in poses}, dict(fit.gains), dict(fit.evaluations),
+                             len(campaign.points), acog.thermal_state_k(every))
+    return calfile.parse_torsional(json.loads(json.dumps(calfile.torsional_dict(tors))))
+
+
+def _cog(readings, tors: calfile.Torsional | None, **kw) -> acog.CogResult:
+    return acog.compute_cog(readings, tors, g_m_s2=9.81, calibration_id="sim", **kw)
 
 
 @pytest.fixture(scope="module")
@@ -39,16 +44,16 @@ def measured():
 def test_old_calibration_without_torsional_section_is_refused(measured):
     _, run = measured
     with pytest.raises(DataError, match=r"CAL.json: the calibration has no 'torsional' section"):
-        acog.compute_cog([t.reading() for t in run.poses], {"g": 9.81}, mass_kg=107.3, u_mass_kg=0.1,
+        _cog([t.reading() for t in run.poses], None, mass_kg=107.3, u_mass_kg=0.1,
                          fixture=run.fixture)
 
 
 def test_missing_pose_bias_is_named(measured):
     campaign, run = measured
-    doc = _doc(campaign)
-    del doc["torsional"]["poses"]["A5-45"]
+    full = _doc(campaign)
+    doc = dataclasses.replace(full, poses={k: v for k, v in full.poses.items() if k != "A5-45"})
     with pytest.raises(DataError, match=r"CAL.json: torsional section has no bias for pose 'A5-45'"):
-        acog.compute_cog([t.reading() for t in run.poses], doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+        _cog([t.reading() for t in run.poses], doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
 
 
 def test_bad_inputs_are_refused(measured):
@@ -56,22 +61,22 @@ def test_bad_inputs_are_refused(measured):
     doc = _doc(campaign)
     readings = [t.reading() for t in run.poses]
     with pytest.raises(DataError, match="mass"):
-        acog.compute_cog(readings, doc, mass_kg=float("nan"), u_mass_kg=0.1, fixture=run.fixture)
+        _cog(readings, doc, mass_kg=float("nan"), u_mass_kg=0.1, fixture=run.fixture)
     moved = [acog.PoseReading(readings[0].pose, (0.0, -90.0, 90.0, 0.0, 3.0, 0.0), readings[0].torque_nm,
                               readings[0].sigma_nm), *readings[1:]]
     with pytest.raises(DataError, match="differs from the calibration's"):
-        acog.compute_cog(moved, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+        _cog(moved, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
     with pytest.raises(DataError, match="fixture frame"):
         acog.FixtureFrame(-1.0, (0.0, 0.0, 0.0))
     with pytest.raises(DataError, match="do not determine"):
-        acog.compute_cog(readings[:1], doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+        _cog(readings[:1], doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
 
 
 def test_cog_of_the_wing_box_across_the_launch_axis(measured):
     """Across the flange axis (x, y) the CoG is within the ECSS ±1 mm and U covers it; along it (z) see bench/cog.py:
     the calibration bodies' seating scatter limits z to several mm."""
     campaign, run = measured
-    res = acog.compute_cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=107.3, u_mass_kg=0.15,
+    res = _cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=107.3, u_mass_kg=0.15,
                            fixture=run.fixture)
     err_mm = (np.array(res.cog_flange_m) - run.true_cog_flange_m) * 1000.0
     U_mm = np.array(res.U_cog_flange_m) * 1000.0
@@ -91,7 +96,7 @@ def test_eq5_7_levers_beside_the_least_squares(measured):
     axis, b and c the flange-transverse offsets; within a few mm of the least-squares CoG (they cannot remove the
     mounting's offsets)."""
     campaign, run = measured
-    res = acog.compute_cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=107.3, u_mass_kg=0.0,
+    res = _cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=107.3, u_mass_kg=0.0,
                            fixture=run.fixture)
     lev = res.budget["eq5_7_levers_m"]
     m_fix, c_fix = ph.FIXTURE_MASS_KG, np.array(ph.fixture_cog_flange_m())
@@ -152,10 +157,10 @@ def test_a_thermal_mismatch_with_the_torsional_campaign_is_warned(measured):
     campaign, run = measured
     doc = _doc(campaign)
     readings = [t.reading() for t in run.poses]
-    same = acog.compute_cog(readings, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+    same = _cog(readings, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
     assert not any("motor temperatures" in w for w in same.warnings), same.warnings
     warmer = [dataclasses.replace(r, motor_temp_k=tuple(t + 5.0 for t in r.motor_temp_k)) for r in readings]
-    res = acog.compute_cog(warmer, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
+    res = _cog(warmer, doc, mass_kg=107.3, u_mass_kg=0.1, fixture=run.fixture)
     assert any("motor temperatures in the CoG poses differ" in w and "A5 +5." in w for w in res.warnings)
 
 
@@ -167,6 +172,6 @@ def test_a_dut_beyond_the_calibrated_torques_is_warned(measured):
     cc.warm_up(model)
     heavy = dataclasses.replace(ph.refex_wing_box(), mass_kg=300.0, cog_dut_m=(-0.02, 0.03, 0.45))
     run = cc.simulate_properties(model, heavy, "full")
-    res = acog.compute_cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=300.0, u_mass_kg=1.0,
+    res = _cog([t.reading() for t in run.poses], _doc(campaign), mass_kg=300.0, u_mass_kg=1.0,
                            fixture=run.fixture)
     assert any("outside what the torsional calibration covered" in w for w in res.warnings), res.warnings

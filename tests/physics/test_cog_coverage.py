@@ -3,6 +3,7 @@ as often as it claims. The full figures, and what limits the launch axis, are in
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -28,12 +29,12 @@ def _one(seed: int) -> tuple[np.ndarray, np.ndarray]:
     fit = campaign.fit()
     poses = [calfile.TorsionalPose(t.name, t.q_deg, t.reading().torque_nm, t.reading().sigma_nm)
              for t in campaign.bias]
-    doc = {"g": 9.81, "calibration_id": "cov",
-           "torsional": calfile.torsional_section("full", poses, fit.gains, fit.evaluations, len(campaign.points))}
+    tors = calfile.parse_torsional(json.loads(json.dumps(calfile.torsional_dict(calfile.Torsional(
+        "full", {p.name: p for p in poses}, dict(fit.gains), dict(fit.evaluations), len(campaign.points))))))
     run = cc.simulate_properties(model, dut, "full")
     mass = dut.mass_kg + float(rng.normal(0.0, U_MASS_KG))
-    res = acog.compute_cog([t.reading() for t in run.poses], doc, mass_kg=mass, u_mass_kg=U_MASS_KG,
-                           fixture=run.fixture)
+    res = acog.compute_cog([t.reading() for t in run.poses], tors, g_m_s2=9.81, calibration_id="cov", mass_kg=mass,
+                           u_mass_kg=U_MASS_KG, fixture=run.fixture)
     true_dut = dut.rotation.T @ (run.true_cog_flange_m - np.asarray(dut.dut_origin_flange_m))
     return np.array(res.cog_dut_m) - true_dut, np.array(res.U_cog_dut_m)
 

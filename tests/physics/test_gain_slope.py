@@ -103,12 +103,13 @@ def _torsional_doc() -> dict:
     r = _truth_reading(x) + rng.normal(0.0, 11.0, 4)[group]
     gain, ev = axis_gain.select_gain(5, x, r, np.full(8, 0.3), group)
     pose = calfile.TorsionalPose("meas", (0.0, -90.0, 90.0, 0.0, 0.0, 0.0), (0.0,) * 6, (0.1,) * 6)
-    return json.loads(json.dumps({"torsional": calfile.torsional_section("paper", [pose], {5: gain}, {5: ev}, 4)}))
+    return json.loads(json.dumps({"torsional": calfile.torsional_dict(
+        calfile.Torsional("paper", {"meas": pose}, {5: gain}, {5: ev}, 4))}))
 
 
 def test_old_cal_json_without_the_candidates_still_reads():
     doc = _torsional_doc()
-    new = calfile.torsional(doc)
+    new = calfile.parse_torsional(doc["torsional"])
     assert new is not None
     g = new.gains[5]
     assert {c.model for c in g.candidates} == set(doc["torsional"]["axes"]["A5"]["evaluation"]["models"])
@@ -119,7 +120,7 @@ def test_old_cal_json_without_the_candidates_still_reads():
     no_cov = json.loads(json.dumps(doc))
     for rec in no_cov["torsional"]["axes"]["A5"]["evaluation"]["models"].values():
         del rec["covariance"]
-    g_nc = calfile.torsional(no_cov).gains[5]
+    g_nc = calfile.parse_torsional(no_cov["torsional"]).gains[5]
     assert all(c.covariance is None for c in g_nc.candidates)
     assert g_nc.slope_u_rel_parts(-600.0)[0] <= g_nc.slope_u_rel(-600.0) <= g.slope_u_rel(-600.0)
     # without the evaluation record (or without the models' params): the chosen model's parameters alone
@@ -130,7 +131,7 @@ def test_old_cal_json_without_the_candidates_still_reads():
         else:
             for rec in old["torsional"]["axes"]["A5"]["evaluation"]["models"].values():
                 del rec["params"]
-        g_old = calfile.torsional(old).gains[5]
+        g_old = calfile.parse_torsional(old["torsional"]).gains[5]
         assert g_old.candidates == ()
         assert g_old.params == g.params and g_old.torque_range_nm == g.torque_range_nm
         assert g_old.slope_u_rel(-600.0) == g_old.slope_u_rel_parts(-600.0)[0] == g.slope_u_rel_parts(-600.0)[0]
@@ -138,7 +139,7 @@ def test_old_cal_json_without_the_candidates_still_reads():
     bad = json.loads(json.dumps(doc))
     bad["torsional"]["axes"]["A5"]["evaluation"]["models"]["poly2"]["params"] = [1.0]
     with pytest.raises(DataError, match="poly2"):
-        calfile.torsional(bad)
+        calfile.parse_torsional(bad["torsional"])
 
 
 def test_axis_gain_round_trips_with_its_candidates():

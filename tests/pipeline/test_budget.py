@@ -47,7 +47,8 @@ def loops_of(t3: float, t5: float, n_loops: int = 4, n: int = 400, sigma3: float
 
 def test_in_line_mass_is_gross_minus_fixture_after_bias():
     cal = linear_cal()
-    r = inline.in_line_mass(loops_of(1100.0, 250.0), cal, 100.0, 50.0, RAW, fixture_mass_kg=10.288)
+    r = inline.in_line_mass(loops_of(1100.0, 250.0), inline.MassCalibration(cal, 100.0, 50.0), RAW,
+                            fixture_mass_kg=10.288)
     gross = (1.1 * 1000.0 - 0.85 * 200.0) / (G * DR)
     assert r.gross_mass_kg == pytest.approx(gross)
     assert r.mass_kg == pytest.approx(gross - 10.288)
@@ -59,8 +60,10 @@ def test_sensitivities_feed_the_loop_term_per_axis():
     s3, s5 = inline.slope_kg_per_nm(cal, 1000.0, 200.0)
     assert s3 == pytest.approx(1.1 / (G * DR)) and s5 == pytest.approx(-0.85 / (G * DR))
     # noise on A3 only, then on A5 only: the loop term scales with that axis' sensitivity
-    only3 = inline.in_line_mass(loops_of(1000.0, 200.0, sigma3=20.0, seed=1), cal, 0.0, 0.0, RAW)
-    only5 = inline.in_line_mass(loops_of(1000.0, 200.0, sigma5=20.0, seed=1), cal, 0.0, 0.0, RAW)
+    only3 = inline.in_line_mass(loops_of(1000.0, 200.0, sigma3=20.0, seed=1), inline.MassCalibration(cal, 0.0, 0.0),
+                                RAW)
+    only5 = inline.in_line_mass(loops_of(1000.0, 200.0, sigma5=20.0, seed=1), inline.MassCalibration(cal, 0.0, 0.0),
+                                RAW)
     ratio = only3.uncertainty.u_loops_kg / only5.uncertainty.u_loops_kg
     assert ratio == pytest.approx(1.1 / 0.85, rel=0.02)
     # the within-loop (batch means) error of one axis, times its sensitivity, over √loops
@@ -107,8 +110,8 @@ def test_new_budget_terms_reach_the_result():
     ref = np.array([[1.1, 0.85], [1.1001, 0.85]])
     cu = unc.CalibrationUncertainty(unc.Reproducibility(10.0, 10.0, 0.5), boot, ref)
     alt = linear_cal(1.102, 0.85)
-    r = inline.in_line_mass(loops_of(1000.0, 200.0, sigma3=5.0, sigma5=5.0), cal, 0.0, 0.0, RAW,
-                            alternatives=[alt], uncertainty=cu)
+    mc = inline.MassCalibration(cal, 0.0, 0.0, alternatives=[alt], uncertainty=cu)
+    r = inline.in_line_mass(loops_of(1000.0, 200.0, sigma3=5.0, sigma5=5.0), mc, RAW)
     m3, m5 = r.torque_a3_nm, r.torque_a5_nm
     masses = [(p[0] * m3 - p[1] * m5) / (G * DR) for p in boot]
     c = r.uncertainty.components()
@@ -135,7 +138,7 @@ def test_loops_disagree_flags_scatter_beyond_the_loops_own_errors():
     drifted = [(np.full(400, 1000.0 + 30.0 * k), np.full(400, 200.0), 0.012, f"l{k}") for k in range(3)]
     noisy = [(a3 + np.random.default_rng(k).normal(0, 1.0, 400), a5, dt, n) for k, (a3, a5, dt, n) in
              enumerate(drifted)]
-    r = inline.in_line_mass(noisy, cal, 0.0, 0.0, RAW)
+    r = inline.in_line_mass(noisy, inline.MassCalibration(cal, 0.0, 0.0), RAW)
     assert any("loops disagree" in w for w in r.warnings)
 
 
@@ -181,8 +184,8 @@ def test_outside_widens_u_by_the_models_spread_and_far_outside_is_refused():
                                     np.zeros((0, 2)))
     env = E.Envelope((0.0, 2500.0), (0.0, 700.0), (0.15, 0.3))
     kw = {"alternatives": alts, "uncertainty": cu, "alternative_uncertainty": [None, None], "envelope": env}
-    inside = inline.in_line_mass(loops_of(2000.0, 400.0), cal, 0.0, 0.0, RAW, **kw)
-    outside = inline.in_line_mass(loops_of(2800.0, 560.0), cal, 0.0, 0.0, RAW, **kw)
+    inside = inline.in_line_mass(loops_of(2000.0, 400.0), inline.MassCalibration(cal, 0.0, 0.0, **kw), RAW)
+    outside = inline.in_line_mass(loops_of(2800.0, 560.0), inline.MassCalibration(cal, 0.0, 0.0, **kw), RAW)
     assert inside.operating_point == "inside" and not inside.warnings
     assert outside.operating_point == "outside"
     assert any("outside the calibrated envelope" in w for w in outside.warnings)
@@ -191,9 +194,9 @@ def test_outside_widens_u_by_the_models_spread_and_far_outside_is_refused():
     assert inside.uncertainty.u_model_kg == pytest.approx(unc.model_form_kg(
         inside.gross_mass_kg, np.array([float(a.mass_kg(2000.0, 400.0)) for a in alts])))
     with pytest.raises(E.OperatingPointError, match="far outside"):
-        inline.in_line_mass(loops_of(4000.0, 800.0), cal, 0.0, 0.0, RAW, **kw)
-    assert inline.in_line_mass(loops_of(4000.0, 800.0), cal, 0.0, 0.0, RAW, envelope_limit=2.0,
-                               **kw).operating_point == "outside"
+        inline.in_line_mass(loops_of(4000.0, 800.0), inline.MassCalibration(cal, 0.0, 0.0, **kw), RAW)
+    assert inline.in_line_mass(loops_of(4000.0, 800.0), inline.MassCalibration(cal, 0.0, 0.0, **kw), RAW,
+                               envelope_limit=2.0).operating_point == "outside"
 
 
 @pytest.fixture
@@ -235,13 +238,13 @@ def test_unusable_model_hands_over_to_an_admissible_alternative():
     alt = linear_cal(1.101, 0.85)
     tight = unc.CalibrationUncertainty(unc.Reproducibility(1.0, 1.0, 0.0),
                                        np.array([[1.101, 0.85], [1.1011, 0.85]]), np.zeros((0, 2)))
-    r = inline.in_line_mass(loops_of(1000.0, 200.0), cal, 0.0, 0.0, RAW, alternatives=[alt], uncertainty=wide,
-                            alternative_uncertainty=[tight])
+    mc = inline.MassCalibration(cal, 0.0, 0.0, alternatives=[alt], uncertainty=wide, alternative_uncertainty=[tight])
+    r = inline.in_line_mass(loops_of(1000.0, 200.0), mc, RAW)
     assert r.method == alt.method or r.gross_mass_kg == pytest.approx(float(alt.mass_kg(1000.0, 200.0)))
     assert any("unusable" in w for w in r.warnings)
     assert r.uncertainty.u_model_kg == pytest.approx(abs(float(cal.mass_kg(1000.0, 200.0)) - r.gross_mass_kg))
     # no usable alternative: the model is kept with its wide U and a warning
-    r = inline.in_line_mass(loops_of(1000.0, 200.0), cal, 0.0, 0.0, RAW, uncertainty=wide)
+    r = inline.in_line_mass(loops_of(1000.0, 200.0), inline.MassCalibration(cal, 0.0, 0.0, uncertainty=wide), RAW)
     assert r.gross_mass_kg == pytest.approx(float(cal.mass_kg(1000.0, 200.0)))
     assert any("no calibration model has a usable" in w for w in r.warnings)
 
@@ -385,24 +388,26 @@ def test_unusable_and_slope_boundaries():
 
 def test_in_line_mass_counts_defaults_and_messages():
     cal = linear_cal()
-    r = inline.in_line_mass(loops_of(1100.0, 250.0, n_loops=3, n=150), cal, 100.0, 50.0, RAW)
+    r = inline.in_line_mass(loops_of(1100.0, 250.0, n_loops=3, n=150), inline.MassCalibration(cal, 100.0, 50.0), RAW)
     assert r.mass_kg == r.gross_mass_kg and (r.samples_used, r.samples_total) == (450, 450)
     np.testing.assert_allclose(r.loop_mass_kg, np.full(3, r.gross_mass_kg))
     assert r.warnings == [] and r.method == "axis-linear"
-    short = inline.in_line_mass(loops_of(1100.0, 250.0, n_loops=2, n=99), cal, 0.0, 0.0, RAW)
+    short = inline.in_line_mass(loops_of(1100.0, 250.0, n_loops=2, n=99), inline.MassCalibration(cal, 0.0, 0.0), RAW)
     assert short.warnings == ["loop l0: only 99 valid samples", "loop l1: only 99 valid samples"]
-    assert not inline.in_line_mass(loops_of(1100.0, 250.0, n_loops=2, n=100), cal, 0.0, 0.0, RAW).warnings
+    assert not inline.in_line_mass(loops_of(1100.0, 250.0, n_loops=2, n=100), inline.MassCalibration(cal, 0.0, 0.0),
+                                   RAW).warnings
     # the pre-processing is the one given: a spike stays in with RAW and is cropped by the paper's method
     spiked = [(np.r_[np.full(399, 1000.0), 5000.0], np.full(400, 200.0), 0.012, "l0")] * 2
-    raw = inline.in_line_mass(spiked, cal, 0.0, 0.0, RAW)
+    raw = inline.in_line_mass(spiked, inline.MassCalibration(cal, 0.0, 0.0), RAW)
     assert raw.torque_a3_nm == pytest.approx(1010.0)
-    assert inline.in_line_mass(spiked, cal, 0.0, 0.0, pp.PAPER).torque_a3_nm == pytest.approx(1000.0)
+    assert inline.in_line_mass(spiked, inline.MassCalibration(cal, 0.0, 0.0),
+                               pp.PAPER).torque_a3_nm == pytest.approx(1000.0)
     # without an envelope (an older file) the fitted range warns
-    big = inline.in_line_mass(loops_of(5000.0, 250.0), cal, 0.0, 0.0, RAW)
+    big = inline.in_line_mass(loops_of(5000.0, 250.0), inline.MassCalibration(cal, 0.0, 0.0), RAW)
     assert any("outside the calibrated range" in w for w in big.warnings)
     drift = [(np.full(400, 1000.0 + 40.0 * k) + np.random.default_rng(k).normal(0, 1, 400), np.full(400, 200.0),
               0.012, f"l{k}") for k in range(3)]
-    assert inline.in_line_mass(drift, cal, 0.0, 0.0, RAW).warnings == [
+    assert inline.in_line_mass(drift, inline.MassCalibration(cal, 0.0, 0.0), RAW).warnings == [
         "loops disagree beyond their own spread (drift or a disturbed loop)"]
 
 
@@ -411,7 +416,7 @@ def test_former_budget_and_g():
     cal = C.Calibration("axis-linear", C.GainK(("lin",), np.array([1.1])), C.GainK(("lin",), np.array([0.85])), cov,
                         (0.0, 3000.0), (0.0, 800.0), G, DR, covariance_reference=np.diag([1e-8, 1e-8]))
     loops = loops_of(1000.0, 200.0, sigma3=3.0, sigma5=3.0)
-    r = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW)
+    r = inline.in_line_mass(loops, inline.MassCalibration(cal, 0.0, 0.0), RAW)
     m3, m5 = r.torque_a3_nm, r.torque_a5_nm
     c = r.uncertainty.components()
     assert set(c) == {"loops", "calibration", "model", "reference", "g"}
@@ -421,13 +426,15 @@ def test_former_budget_and_g():
     assert c["loops"] == pytest.approx(unc.loop_spread_kg(r.loop_mass_kg, np.hypot(
         1.1 / (G * DR) * np.array([unc.batch_means_se(a) for a, _, _, _ in loops]),
         0.85 / (G * DR) * np.array([unc.batch_means_se(b) for _, b, _, _ in loops]))))
-    rel = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, model_rms_rel=0.01)
+    rel = inline.in_line_mass(loops, inline.MassCalibration(cal, 0.0, 0.0, model_rms_rel=0.01), RAW)
     assert rel.uncertainty.u_model_kg == pytest.approx(0.01 * rel.gross_mass_kg)
-    other_site = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, g_measurement_m_s2=9.8134,
+    other_site = inline.in_line_mass(loops, inline.MassCalibration(cal, 0.0, 0.0), RAW, g_measurement_m_s2=9.8134,
                                      g_u_measurement_m_s2=0.0069)
     assert other_site.uncertainty.u_g_kg == pytest.approx(other_site.gross_mass_kg * 0.0069 / 9.8134)
-    assert inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, g_measurement_m_s2=9.8134).uncertainty.u_g_kg == 0.0
-    both = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, g_u_calibration_m_s2=0.001, g_measurement_m_s2=9.8134)
+    assert inline.in_line_mass(loops, inline.MassCalibration(cal, 0.0, 0.0), RAW,
+                               g_measurement_m_s2=9.8134).uncertainty.u_g_kg == 0.0
+    both = inline.in_line_mass(loops, inline.MassCalibration(cal, 0.0, 0.0, g_u_m_s2=0.001), RAW,
+                               g_measurement_m_s2=9.8134)
     assert both.uncertainty.u_g_kg == pytest.approx(both.gross_mass_kg * 0.001 / G)
 
 

@@ -340,7 +340,7 @@ def test_in_line_mass_preprocesses_a5_with_the_given_settings():
     a5 = np.full(200, 200.0)
     a5[100] = 2200.0
     loops = [(np.full(200, 1000.0), a5, 0.012, "l0")]
-    r = inline.in_line_mass(loops, linear_cal(), 0.0, 0.0, RAW)
+    r = inline.in_line_mass(loops, inline.MassCalibration(linear_cal(), 0.0, 0.0), RAW)
     assert r.torque_a5_nm == pytest.approx(200.0 + 2000.0 / 200)
 
 
@@ -354,8 +354,8 @@ def test_in_line_mass_corrects_each_axis_at_its_own_temperature_in_both_budgets(
                                     np.zeros((0, 2)))
     s3 = 1.1 / (G * DR)
     for kw in ({}, {"uncertainty": cu}):
-        r = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, thermal=drift, loop_temps_k=temps,
-                                g_u_calibration_m_s2=0.01, g_measurement_m_s2=9.8134, **kw)
+        r = inline.in_line_mass(loops, inline.MassCalibration(cal, 0.0, 0.0, thermal=drift, g_u_m_s2=0.01, **kw), RAW,
+                                loop_temps_k=temps, g_measurement_m_s2=9.8134)
         m3 = 1000.0 * (1 - 0.001 * 15.0)  # mean of the corrections at +10 K and +20 K
         assert (r.torque_a3_nm, r.torque_a5_nm) == (pytest.approx(m3), pytest.approx(200.0))
         c = r.uncertainty.components()

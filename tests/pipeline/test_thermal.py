@@ -100,8 +100,9 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
     loops = [(np.full(50, at(true3 + bias3, BETA["A3"], t3, ref3)),
               np.full(50, at(true5 + bias5, BETA["A5"], t5, ref5)), 0.012, f"l{k}") for k, (t3, t5) in enumerate(temps)]
     want = float(cal.mass_kg(true3, true5))
-    plain = inline.in_line_mass(loops, cal, bias3, bias5, RAW)
-    fixed = inline.in_line_mass(loops, cal, bias3, bias5, RAW, thermal=drift, loop_temps_k=temps)
+    plain = inline.in_line_mass(loops, inline.MassCalibration(cal, bias3, bias5), RAW)
+    fixed = inline.in_line_mass(loops, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW,
+                                loop_temps_k=temps)
     assert abs(plain.mass_kg - want) > 0.5  # uncorrected: most of a kilogram off
     assert abs(fixed.mass_kg - want) < 0.1 * abs(plain.mass_kg - want)
     c = fixed.uncertainty.components()
@@ -118,12 +119,13 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
     far = [(ref3 + d, ref5 + d) for d in (35.0, 22.0, 15.0)]
     hot = [(np.full(50, at(true3 + bias3, BETA["A3"], t3, ref3)), np.full(50, at(true5 + bias5, BETA["A5"], t5, ref5)),
             0.012, f"l{k}") for k, (t3, t5) in enumerate(far)]
-    out = inline.in_line_mass(hot, cal, bias3, bias5, RAW, thermal=drift, loop_temps_k=far)
+    out = inline.in_line_mass(hot, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW, loop_temps_k=far)
     assert out.thermal_applied == {"A3": False, "A5": False}
     assert any("thermal drift of A5 not corrected" in w and "beyond 3 × the" in w for w in out.warnings), out.warnings
     assert abs(out.mass_kg - want) < out.uncertainty.expanded_kg
     # loops without a temperature: no correction, no thermal term
-    none = inline.in_line_mass(loops, cal, bias3, bias5, RAW, thermal=drift, loop_temps_k=[(None, None)] * 3)
+    none = inline.in_line_mass(loops, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW,
+                               loop_temps_k=[(None, None)] * 3)
     assert none.mass_kg == pytest.approx(plain.mass_kg) and "thermal" not in none.uncertainty.components()
 
 
@@ -145,8 +147,8 @@ def test_excess_counts_only_what_the_reproducibility_does_not_hold():
                         np.zeros((2, 2)), (0.0, 3000.0), (0.0, 800.0), G, DR)
     loops = [(np.full(10, 3000.0), np.full(10, 600.0), 0.012, "l0"), (np.full(10, 3000.0), np.full(10, 600.0), 0.012,
                                                                          "l1")]
-    r = inline.in_line_mass(loops, cal, 0.0, 0.0, RAW, alternatives=[alt], uncertainty=cu,
-                            alternative_uncertainty=[None])
+    r = inline.in_line_mass(loops, inline.MassCalibration(cal, 0.0, 0.0, alternatives=[alt], uncertainty=cu,
+                                                          alternative_uncertainty=[None]), RAW)
     full = 0.001 * 3000.0 / (G * DR)
     at_points = np.sqrt(np.mean([(0.001 * 1000.0 / (G * DR)) ** 2, (0.001 * 2000.0 / (G * DR)) ** 2]))
     assert r.uncertainty.u_model_kg == pytest.approx(np.sqrt(full**2 - at_points**2))

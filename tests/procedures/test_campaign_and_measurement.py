@@ -88,7 +88,7 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     # the campaign directory reproduces the calibration by the offline path
     run_dir = archive_root(cfg.paths.data_dir) / run.directory
     doc, again = fit_campaign(run_dir)
-    assert again["calibration_id"] == cal.id == doc["calibration_id"]
+    assert again["calibration_id"] == cal.id == doc.calibration_id
 
     sim.mount(dut_payload(DUT_MASS_KG, (0.0, 0.05, 0.25), fixture_mass_kg=FIXTURE_KG))
     events: list[Event] = []

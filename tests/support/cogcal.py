@@ -23,4 +23,4 @@ def fit_sim_cog_calibration(directory: Path, scheme: str = "paper", seed: int = 
     with (directory / "campaign" / "manifest.toml").open("a", encoding="utf-8") as f:
         f.write("\n" + "\n".join(lines))
     doc, _ = fit_campaign(directory / "campaign", "auto")
-    return doc
+    return doc.to_dict()

@@ -87,7 +87,7 @@ def fit_sim_calibration(directory: Path, seed: int = 5) -> dict[str, Any]:
     campaign, model = simulate_campaign(seed, n_loops=2)
     write_dirs(campaign, simulate_measurement(model, 50.0, n_loops=1), directory / "campaign", directory / "dut")
     doc, _ = fit_campaign(directory / "campaign", "auto")
-    return doc
+    return doc.to_dict()
 
 
 async def seed_calibration(cfg: Config, doc: dict[str, Any]) -> str:
