@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from rgse_daemon.errors import DataError
-from rgse_daemon.pipeline.calibration import AxisK, Calibration
 from rgse_daemon.pipeline.axis_gain import AxisGain
+from rgse_daemon.pipeline.calibration import AxisK, Calibration
 from rgse_daemon.pipeline.envelope import Envelope
 from rgse_daemon.pipeline.inline import MassCalibration
 from rgse_daemon.pipeline.preprocess import Preprocessing
