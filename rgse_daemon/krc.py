@@ -7,7 +7,7 @@ The engine (``procedures/``), the interlock (``safety/monitor.py``, ``safety/mak
 * :class:`rgse_daemon.controller.Controller`: the TCP link to a real (or simulated) KR C4, which switches between C3
   Bridge and plain KUKAVARPROXY inside itself (snapshots, files over the wire or the mounted share);
 * in the tests, the same :class:`~rgse_daemon.controller.Controller` over an in-process link to the simulated KR C4
-  (``simulators/krc4/inprocess.py``): no socket, every other part the same (docs/controller.md, "The controller
+  (``simulators/krc4/inprocess.py``): no socket, every other part the same (docs/architecture.md, "The controller
   interface").
 
 A new controller protocol (RSI, mxAutomation) implements these methods; the procedures do not change.
