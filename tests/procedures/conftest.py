@@ -2,8 +2,9 @@
 
 The engine's unit tests talk to the simulated KR C4 in process (``simulators/krc4/inprocess.py``: the daemon's own
 Controller and link, the simulator's own server, only the socket replaced by an in-memory pipe). A test module
-that asks for TCP starts its simulator (``await sim.start()``, or its own ``sim`` fixture, as
-test_campaign_and_measurement.py): :func:`controller` and :func:`heartbeat` then go over the socket. Every path is
+that asks for TCP starts its simulator (``await sim.start()``, or its own ``sim`` fixture): :func:`controller` and
+:func:`heartbeat` then go over the socket. The interlock's tests (test_monitor.py, test_file_window.py) and the
+campaign-then-measurement run (test_campaign_and_measurement.py) do. Every path is
 also run end to end over TCP by the daemon's tests (tests/app, tests/sim_e2e)."""
 
 from __future__ import annotations

@@ -22,6 +22,13 @@ from tests.support.polling import wait_until
 
 from .conftest import controller, heartbeat, make_engine
 
+
+@pytest.fixture
+async def sim(sim: SimulatedKrc4) -> SimulatedKrc4:
+    """The interlock end to end: the simulated KR C4 listens, and the daemon's link reaches it over TCP."""
+    await sim.start()
+    return sim
+
 FILE_BYTES = 120_000  # each .r64: 1.2 s of the simulator's default 100 kB/s, longer than the staleness limit
 
 
