@@ -1,4 +1,5 @@
-"""The KR C4 as the rest of the daemon sees it: a state snapshot, guarded writes, files and program control.
+"""The KR C4 over TCP: the implementation of :class:`~rgse_daemon.krc.KrcController` (a state snapshot, guarded
+writes, files and program control) that the daemon runs with.
 
 It sits on :class:`~rgse_daemon.link.pool.LinkPool` and hides which server runs on the controller:
 
@@ -31,8 +32,7 @@ import os
 import re
 import shutil
 import time
-from collections.abc import AsyncIterator, Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import AsyncIterator, Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -40,6 +40,7 @@ from rgse_daemon.config import ControllerConfig, Protocol
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import ConfigError, LinkError, LinkTimeout, NotAllowedError, ProtocolError, VariableError
 from rgse_daemon.filelayout import TRACE_DIR_CANDIDATES, FileLayout, is_trace_name
+from rgse_daemon.krc import AXES, SNAPSHOT_VARIABLES, DirEntry, LoadData, Pose, Snapshot
 from rgse_daemon.link import frames as fr
 from rgse_daemon.link.connection import ConnectionState
 from rgse_daemon.link.errors import CommandError, NotSupportedError
@@ -50,116 +51,10 @@ from rgse_daemon.safety.allowlist import WRITABLE_PREFIX, WRITABLE_VARIABLES, wr
 log = logging.getLogger(__name__)
 _T = TypeVar("_T")
 
-AXES = range(1, 7)
-#: What one snapshot reads, in this order (26 variables: one #6 with C3 Bridge).
-SNAPSHOT_VARIABLES: tuple[str, ...] = (
-    "$MODE_OP",
-    "$PRO_STATE1",
-    "$PRO_NAME1[]",
-    "$AXIS_ACT",
-    "$POS_ACT",
-    *(f"$TORQUE_AXIS_ACT[{i}]" for i in AXES),
-    *(f"$MOT_TEMP[{i}]" for i in AXES),
-    "$TRACE.STATE",
-    "$PERI_RDY",
-    "$USER_SAF",
-    "$STOPMESS",
-    "$OV_PRO",
-    "$LOAD",
-    "$BRAKE_SIG",
-    "$VEL_ACT",
-    "$ROB_STOPPED",
-)
-
 #: #29 End copy flag: overwrite an existing file (docs/protocol.md §2, file operation constants).
 COPY_OVERWRITE_EXISTS = 64
 #: How often a file read starts again from Begin after the connection (and with it the server's buffer) was lost.
 FILE_READ_ATTEMPTS = 3
-
-
-@dataclass(frozen=True)
-class Pose:
-    """``$POS_ACT``: TCP position in mm and orientation in degrees (KUKA A/B/C = Z/Y/X Euler angles)."""
-
-    x_mm: float
-    y_mm: float
-    z_mm: float
-    a_deg: float
-    b_deg: float
-    c_deg: float
-    status: int | None = None
-    turn: int | None = None
-
-
-@dataclass(frozen=True)
-class LoadData:
-    """``$LOAD``: payload mass in kg (−1 = "unknown payload" mode), centre of mass in mm, inertia in kg·m²."""
-
-    mass_kg: float
-    cog_mm: tuple[float, float, float]
-    inertia_kgm2: tuple[float, float, float]
-
-
-@dataclass(frozen=True)
-class Snapshot:
-    """One reading of the controller's state. A field is ``None`` when its variable could not be read or parsed;
-    ``errors`` then says why (by variable name). ``raw`` keeps every value text as read.
-
-    Enumerations are given without ``#`` (``mode_op == "T1"``, ``pro_state1 == "P_ACTIVE"``).
-    """
-
-    taken_at_s: float  # wall clock (time.time()) when the read finished
-    read_duration_s: float
-    mode_op: str | None
-    pro_state1: str | None
-    pro_name1: str | None
-    axes_deg: tuple[float, ...] | None  # A1..A6 of $AXIS_ACT
-    pos_act: Pose | None
-    torques_nm: tuple[float | None, ...]  # $TORQUE_AXIS_ACT[1..6]
-    motor_temps_k: tuple[float | None, ...]  # $MOT_TEMP[1..6], Kelvin
-    trace_state: str | None
-    peri_rdy: bool | None
-    user_saf: bool | None
-    stopmess: bool | None
-    ov_pro_pct: int | None
-    load: LoadData | None
-    brake_sig: str | None  # one character per axis, "1" = brake released
-    vel_act_m_s: float | None
-    rob_stopped: bool | None
-    raw: Mapping[str, str] = field(default_factory=dict)
-    errors: Mapping[str, str] = field(default_factory=dict)
-
-    @property
-    def complete(self) -> bool:
-        return not self.errors
-
-
-@dataclass(frozen=True)
-class DirEntry:
-    """One entry of :meth:`Controller.list_dir`: the name as the server gave it (a full name or only the entry's
-    own) and the server's info text, whose format the protocol leaves open (parsed defensively)."""
-
-    name: str
-    info: str = ""
-    listed_as: str = ""
-    """The name exactly as the server listed it, when that was not the full name (only the entry's own name)."""
-
-    @property
-    def is_dir(self) -> bool:
-        return self.name.endswith(("\\", "/"))
-
-    @property
-    def base_name(self) -> str:
-        return re.split(r"[\\/]", self.name.rstrip("\\/"))[-1]
-
-    @property
-    def size_bytes(self) -> int | None:
-        """The size if the info text is ``<itemType>;<sizeBytes>;<attributes>;<modified>`` (four integers), else
-        ``None``: an unknown format is never guessed at."""
-        parts = self.info.split(";")
-        if len(parts) == 4 and all(p.strip().isdigit() for p in parts):
-            return int(parts[1])
-        return None
 
 
 class _Decoder:
@@ -331,6 +226,11 @@ class Controller:
     async def read(self, name: str) -> KrlValue:
         """One variable, parsed (``ProtocolError`` if the text is not a KRL value)."""
         return parse_value(await self.pool.read(name))
+
+    async def read_many(self, names: Sequence[str]) -> dict[str, str | VariableError]:
+        """Many variables' value texts, each name mapped to its text or the ``VariableError`` that refused it: one #6
+        per ≤ 255 names with C3 Bridge, concurrent #0 reads over the pool with KUKAVARPROXY. Link failures raise."""
+        return await self.pool.read_many(names)
 
     async def write(self, name: str, value: KrlValue) -> KrlValue:
         """Write a Python value as KRL (``str`` becomes a quoted CHAR[] string); returns ``value``.

@@ -40,9 +40,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rgse_daemon.config import Config, Protocol
-from rgse_daemon.controller import SNAPSHOT_VARIABLES, WRITABLE_VARIABLES, Controller, DirEntry
+from rgse_daemon.controller import WRITABLE_VARIABLES, Controller
 from rgse_daemon.errors import RgseError
 from rgse_daemon.filelayout import TRACE_DIR_CANDIDATES, FileLayout, save_layout
+from rgse_daemon.krc import SNAPSHOT_VARIABLES, DirEntry, KrcController
 from rgse_daemon.krl import ast as k
 from rgse_daemon.krl.parser import parse_dat, parse_src
 from rgse_daemon.krl.render import TemplateDefaults, default_params, globals_dat_text, render
@@ -129,7 +130,7 @@ async def run_doctor(cfg: Config, krl_defaults: TemplateDefaults, *, record: boo
     add = report.checks.append
     try:
         async with Controller.connect(cfg.controller) as krc:
-            add(await _reachable(krc))
+            add(await _reachable(krc, cfg))
             add(await _protocol(krc, cfg))
             add(await _guarded("mode and safety", _mode_and_safety(krc)))
             add(await _guarded("variables", _variables(krc)))
@@ -168,18 +169,20 @@ async def _guarded(name: str, aw: Awaitable[Check]) -> Check:
 
 
 # --- the controller ---------------------------------------------------------------------------------------------------
-async def _reachable(krc: Controller) -> Check:
+async def _reachable(krc: KrcController, cfg: Config) -> Check:
     rtts = []
     for _ in range(PING_SAMPLES):
         t0 = time.monotonic()
         await krc.read_raw("PING")
         rtts.append(time.monotonic() - t0)
     what = "C3 Bridge" if krc.protocol is Protocol.C3BRIDGE else "plain KUKAVARPROXY"
-    return Check("controller", True, f"{krc.cfg.host}:{krc.cfg.port} answers ({what}); PING round trip median "
+    where = f"{cfg.controller.host}:{cfg.controller.port}"
+    return Check("controller", True, f"{where} answers ({what}); PING round trip median "
                  f"{statistics.median(rtts) * 1e3:.1f} ms, max {max(rtts) * 1e3:.1f} ms")
 
 
 async def _protocol(krc: Controller, cfg: Config) -> Check:
+    # the server's version and message types: a question to the TCP server itself, not to any KrcController
     if krc.protocol is Protocol.KVP:
         if cfg.controller.share_dir is None:
             return Check("protocol", False, "plain KUKAVARPROXY: no program control, and files only over the share",
@@ -200,7 +203,7 @@ async def _protocol(krc: Controller, cfg: Config) -> Check:
     return Check("protocol", True, f"C3 Bridge {version}")
 
 
-async def _mode_and_safety(krc: Controller) -> Check:
+async def _mode_and_safety(krc: KrcController) -> Check:
     snap = await krc.snapshot()
     problems, fixes = [], []
     if snap.mode_op != "T1":
@@ -221,8 +224,8 @@ async def _mode_and_safety(krc: Controller) -> Check:
                  f"#{snap.pro_state1}")
 
 
-async def _variables(krc: Controller) -> Check:
-    values = await krc.pool.read_many(READ_VARIABLES)
+async def _variables(krc: KrcController) -> Check:
+    values = await krc.read_many(READ_VARIABLES)
     bad = []
     for name in READ_VARIABLES:
         got = values.get(name)
@@ -240,9 +243,9 @@ async def _variables(krc: Controller) -> Check:
     return Check("variables", True, f"all {len(READ_VARIABLES)} variables the daemon reads answer")
 
 
-async def _globals(krc: Controller) -> Check:
+async def _globals(krc: KrcController) -> Check:
     names = handshake_globals()
-    values = await krc.pool.read_many(names)
+    values = await krc.read_many(names)
     missing = [n for n in names if not isinstance(values.get(n), str)]
     if missing:
         return Check("handshake globals", False, f"not declared on the controller: {', '.join(missing)}",
@@ -259,7 +262,7 @@ async def _globals(krc: Controller) -> Check:
     return Check("handshake globals", True, detail + f"; {GLOBALS_FILE} is current")
 
 
-async def _resident(krc: Controller, defaults: TemplateDefaults) -> Check:
+async def _resident(krc: KrcController, defaults: TemplateDefaults) -> Check:
     name = PROGRAM_DIR + RESIDENT.upper() + ".SRC"
     expected = krl_bytes(render(RESIDENT, default_params(RESIDENT, defaults)).src_text)
     fix = "rgse krl render --out build/krl --config FILE, then copy build/krl/rgse_resident.src to KRC:\\R1\\Program"
@@ -274,7 +277,7 @@ async def _resident(krc: Controller, defaults: TemplateDefaults) -> Check:
     return Check("resident program", True, f"{name} current (sha256 {want[:12]}…)")
 
 
-async def _trace_config(krc: Controller, cfg: Config) -> Check:
+async def _trace_config(krc: KrcController, cfg: Config) -> Check:
     from rgse_daemon.procedures.programs import TRACE_CONFIG_NAME, trace_config_xml
     from rgse_daemon.procedures.settings import RunSettings
 
@@ -294,7 +297,7 @@ def _listing_kind(entry: DirEntry, size: int) -> str:
     return "text"
 
 
-async def _round_trip(krc: Controller, cfg: Config) -> tuple[Check, FileLayout | None]:
+async def _round_trip(krc: KrcController, cfg: Config) -> tuple[Check, FileLayout | None]:
     """Write, list, read back and delete a file in TRACE with each path form until one works."""
     data = bytes((i * 7 + 3) % 251 for i in range(ROUND_TRIP_BYTES))
     if krc.protocol is Protocol.KVP:
@@ -329,7 +332,7 @@ async def _round_trip(krc: Controller, cfg: Config) -> tuple[Check, FileLayout |
                  "check that C:\\KRC\\ROBOTER\\TRACE exists and C3 Bridge may write there; then rerun"), None
 
 
-async def _one_round_trip(krc: Controller, trace_dir: str, data: bytes) -> tuple[DirEntry, float]:
+async def _one_round_trip(krc: KrcController, trace_dir: str, data: bytes) -> tuple[DirEntry, float]:
     name = trace_dir + ROUND_TRIP_NAME
     await krc.put_file(name, data)
     try:
@@ -348,7 +351,7 @@ async def _one_round_trip(krc: Controller, trace_dir: str, data: bytes) -> tuple
     return entries[0], rate
 
 
-async def _allowed_writes(krc: Controller) -> Check:
+async def _allowed_writes(krc: KrcController) -> Check:
     names = [*sorted(WRITABLE_VARIABLES), *handshake_globals()]
     refused, skipped = [], []
     for name in names:
@@ -376,7 +379,7 @@ async def _allowed_writes(krc: Controller) -> Check:
 TIMER_PROBE_S = 0.3
 
 
-async def _watchdog(krc: Controller, cfg: Config) -> Check:
+async def _watchdog(krc: KrcController, cfg: Config) -> Check:
     name = "controller watchdog"
     fix_install = ("install the current rendering of the resident program (rgse krl render), see the 'resident "
                    "program' line")
@@ -392,7 +395,7 @@ async def _watchdog(krc: Controller, cfg: Config) -> Check:
     timer, stop, flag = (f"${v}[{WATCHDOG_TIMER}]" for v in ("TIMER", "TIMER_STOP", "TIMER_FLAG"))
 
     async def read() -> tuple[int, bool, bool]:
-        raw = await krc.pool.read_many([timer, stop, flag])
+        raw = await krc.read_many([timer, stop, flag])
         bad = [n for n in (timer, stop, flag) if not isinstance(raw.get(n), str)]
         if bad:
             raise RgseError(f"{', '.join(bad)} not readable on the controller: {raw.get(bad[0])}")

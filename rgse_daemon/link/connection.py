@@ -353,7 +353,7 @@ class Connection:
         self._state = ConnectionState.CONNECTING
         try:
             async with asyncio.timeout(self.connect_timeout_s):
-                reader, writer = await asyncio.open_connection(self.host, self.port)
+                reader, writer = await self._open()
         except (TimeoutError, OSError) as exc:
             self._failures += 1
             self.stats.connect_failures += 1
@@ -388,6 +388,11 @@ class Connection:
         self._next_attempt = 0.0
         self._last_used = time.monotonic()
         log.debug("%s: connected to %s:%s", self.name, self.host, self.port)
+
+    async def _open(self) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:
+        """The byte stream to the server: a TCP connection to ``host``:``port`` (the tests' in-process link to the
+        simulated KR C4 replaces only this, ``simulators/krc4/inprocess.py``)."""
+        return await asyncio.open_connection(self.host, self.port)
 
     def _drop(self, reason: str) -> None:
         if self._last_error != reason:

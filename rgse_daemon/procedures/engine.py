@@ -43,8 +43,8 @@ from pathlib import Path
 from typing import Any
 
 from rgse_daemon.aio import within
-from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import InterlockError, LinkError, RgseError
+from rgse_daemon.krc import KrcController, Snapshot
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.events import Event, Subscriber
@@ -143,7 +143,7 @@ class RunEngine:
 
     def __init__(
         self,
-        krc: Controller,
+        krc: KrcController,
         *,
         checker: ProgramChecker,
         monitor: Monitor | None = None,

@@ -5,8 +5,8 @@ from __future__ import annotations
 from collections.abc import Callable, Generator
 from typing import Any
 
-from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError
+from rgse_daemon.krc import Snapshot
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.safety.inputs import SafetyInputs

@@ -10,8 +10,8 @@ from collections.abc import Callable, Generator, Sequence
 from typing import Any
 
 from rgse_daemon.config import CellConfig, LimitsConfig
-from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import InterlockError, KrlSyntaxError
+from rgse_daemon.krc import Snapshot
 from rgse_daemon.krl.render import RenderedProgram, TemplateDefaults, cube_corners, default_params, render
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.engine import ProgramChecker

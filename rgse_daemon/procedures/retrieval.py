@@ -30,8 +30,9 @@ from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rgse_daemon.controller import Controller, share_path
+from rgse_daemon.controller import share_path
 from rgse_daemon.errors import DataError, RgseError
+from rgse_daemon.krc import KrcController
 from rgse_daemon.link.errors import CommandError
 from rgse_daemon.manifest import MODULE_A3, MODULE_A5
 from rgse_daemon.store.archive import ArchivedFile, ArchiveError, archive_file_async, file_digest
@@ -99,7 +100,7 @@ def _write_staging(path: Path, data: bytes) -> None:
 
 
 async def pull_trace(
-    krc: Controller,
+    krc: KrcController,
     trace: str,
     dest_dir: Path,
     *,
@@ -171,7 +172,7 @@ def archived_not_indexed(run_dir: Path, trace: str, indexed: set[Path]) -> list[
 
 
 async def _delete_controller_copies(
-    krc: Controller, trace_dir: str, names: list[str], share_dir: Path | None
+    krc: KrcController, trace_dir: str, names: list[str], share_dir: Path | None
 ) -> tuple[bool, str]:
     """Delete the controller's copies (called only once all are archived); returns (deleted, note). Never raises
     for a failed delete: a file the controller refuses to delete is named in the note, a link failure stops."""
@@ -186,7 +187,7 @@ async def _delete_controller_copies(
     return True, "deleted on the controller share"
 
 
-async def _delete_over_link(krc: Controller, trace_dir: str, names: list[str]) -> tuple[bool, str]:
+async def _delete_over_link(krc: KrcController, trace_dir: str, names: list[str]) -> tuple[bool, str]:
     refused: list[str] = []
     for i, name in enumerate(names):
         try:

@@ -7,7 +7,7 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from typing import Any
 
-from rgse_daemon.controller import Snapshot
+from rgse_daemon.krc import Snapshot
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.preconditions import verify_start

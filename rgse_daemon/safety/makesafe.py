@@ -27,8 +27,8 @@ import time
 from dataclasses import dataclass
 
 from rgse_daemon.aio import within
-from rgse_daemon.controller import Controller
 from rgse_daemon.errors import RgseError
+from rgse_daemon.krc import KrcController
 
 _log = logging.getLogger(__name__)
 
@@ -78,7 +78,7 @@ class StopReport:
                 f"{last})")
 
 
-async def _read_state(krc: Controller) -> tuple[str, str, str]:
+async def _read_state(krc: KrcController) -> tuple[str, str, str]:
     """``$PRO_STATE1``, ``$PRO_NAME1[]``, ``$TRACE.STATE``: the three variables the stop needs, not a whole snapshot
     (a fault in any other variable must not keep the stop from being confirmed)."""
     values = [str(await krc.read_raw(n)).strip() for n in ("$PRO_STATE1", "$PRO_NAME1[]", "$TRACE.STATE")]
@@ -91,7 +91,7 @@ def ours(program: str | None) -> bool:
 
 
 async def stop_until_confirmed(
-    krc: Controller,
+    krc: KrcController,
     *,
     deadline_s: float = STOP_DEADLINE_S,
     any_program: bool = True,
@@ -145,7 +145,7 @@ async def stop_until_confirmed(
         pause_s = min(BACKOFF_MAX_S, pause_s * 2.0)
 
 
-async def sweep(krc: Controller, *, deadline_s: float = STOP_DEADLINE_S) -> StopReport:
+async def sweep(krc: KrcController, *, deadline_s: float = STOP_DEADLINE_S) -> StopReport:
     """At start and on every (re)connect: stop and deselect an ``RGSE_*`` program left active, stopped or reset,
     and stop a trace left running. The report's :attr:`StopReport.acted` says whether anything was left."""
     return await stop_until_confirmed(krc, deadline_s=deadline_s, any_program=False)

@@ -4,7 +4,7 @@ Interlocks are **declarative watchers** (bluesky suspenders, architecture lesson
 list of small :class:`Watcher` objects, each a name, a message, the snapshot fields it needs and a predicate —
 not ``if``\\ s scattered through the plans. A watcher whose fields are unreadable (``None``) trips: doubt = trip.
 
-Every ``poll_period_s`` (default 50 ms, i.e. 20 Hz) the monitor takes one :meth:`Controller.snapshot` (one
+Every ``poll_period_s`` (default 50 ms, i.e. 20 Hz) the monitor takes one :meth:`KrcController.snapshot` (one
 multi-read with C3 Bridge) with a deadline of ``stale_periods`` poll periods; a failed or late snapshot is link
 loss. If the monitor itself fails (a bug, a reply no check foresaw), that is a trip of the ``monitor`` watcher: the
 robot is never left moving unwatched. On a trip it, in this order and each step bounded by ``stop_timeout_s``:
@@ -57,8 +57,8 @@ from enum import StrEnum
 
 from rgse_daemon.aio import within
 from rgse_daemon.config import LimitsConfig
-from rgse_daemon.controller import Controller, Snapshot
 from rgse_daemon.errors import InterlockError, LinkError, RgseError
+from rgse_daemon.krc import KrcController, Snapshot
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.safety.makesafe import STOP_DEADLINE_S, TRACE_ACTIVE_STATES, StopReport, stop_until_confirmed
 
@@ -319,7 +319,7 @@ class Monitor:
 
     def __init__(
         self,
-        krc: Controller,
+        krc: KrcController,
         *,
         watchers: Sequence[Watcher] = DEFAULT_WATCHERS,
         context: WatchContext | None = None,

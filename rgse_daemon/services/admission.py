@@ -10,8 +10,8 @@ from dataclasses import replace
 from typing import Any
 
 from rgse_daemon.config import Config
-from rgse_daemon.controller import Controller
 from rgse_daemon.errors import LinkError, RgseError
+from rgse_daemon.krc import KrcController
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.safety.inputs import SafetyInputs
@@ -93,7 +93,7 @@ class RunAdmission:
         return exc
 
     def start(self, kind: RunKind, coro_factory: Callable[[RunEngine, Store], Awaitable[Any]], *,
-              engine: RunEngine | None, krc: Controller | None, store: Store, connected: bool,
+              engine: RunEngine | None, krc: KrcController | None, store: Store, connected: bool,
               link_error: str | None) -> asyncio.Task[Any]:
         """Reserve the robot for one run (synchronously: no second request can slip in) and start it in a task."""
         if self.stopping:
@@ -139,7 +139,7 @@ class RunAdmission:
             self._on_link_lost(str(exc) or type(exc).__name__)
         self._on_failed(kind, self.run_id, self.last_error)
 
-    async def check_start_mode(self, krc: Controller, engine: RunEngine) -> None:
+    async def check_start_mode(self, krc: KrcController, engine: RunEngine) -> None:
         """Before anything is recorded or moved: AUT only with the safety I/O module's inputs all good (area
         cleared, key switch AUT permitted, E-stop OK, a fresh reading), in T1 with a configured module only when it
         reads and says E-stop OK, else :class:`PreconditionError` — the plan's

@@ -46,7 +46,9 @@ class Heartbeat:
     """Feeds the controller-side watchdog; see the module docstring. ``beats``/``failures`` count what it did,
     ``last_beat_s`` is the monotonic time of the last good beat (``None``: none yet)."""
 
-    def __init__(self, cfg: ControllerConfig, alarms: Alarms, link_up: Callable[[], bool]) -> None:
+    def __init__(self, cfg: ControllerConfig, alarms: Alarms, link_up: Callable[[], bool], *,
+                 connection: Connection | None = None) -> None:
+        """``connection``: the one it beats on; by default its own TCP connection to ``cfg``'s controller."""
         for name in (TIMER, TIMER_STOP):
             assert writable(name), name  # the allow-list admits exactly these two for the heartbeat
         self.cfg = cfg
@@ -57,7 +59,7 @@ class Heartbeat:
         self.failures = 0
         self.last_beat_s: float | None = None
         self._next_trip_check_s = 0.0
-        self._conn = Connection.from_config(cfg, name="heartbeat")
+        self._conn = connection if connection is not None else Connection.from_config(cfg, name="heartbeat")
 
     @property
     def deadline_s(self) -> float:

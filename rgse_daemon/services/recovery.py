@@ -32,9 +32,9 @@ from typing import Any
 
 from rgse_daemon.aio import within
 from rgse_daemon.config import Config
-from rgse_daemon.controller import Controller
 from rgse_daemon.errors import RgseError
 from rgse_daemon.io.topics import Topics
+from rgse_daemon.krc import KrcController
 from rgse_daemon.procedures.retrieval import REQUIRED_SUFFIXES, TRACE_DIR, archived_not_indexed, base_name, pull_trace
 from rgse_daemon.safety.latch import CLEAR_HINT, SafetyLatch
 from rgse_daemon.safety.makesafe import STEP_TIMEOUT_S, StopReport, sweep
@@ -79,7 +79,7 @@ class Recovery:
             log.error("event %s not stored: %s", kind, exc)
 
     # --- 1. the sweep -------------------------------------------------------------------------------------------
-    async def on_connect(self, krc: Controller) -> None:
+    async def on_connect(self, krc: KrcController) -> None:
         """Sweep, then recover interrupted runs; the daemon admits runs only after this returned."""
         report = await sweep(krc)
         if report.acted or not report.confirmed:
@@ -97,7 +97,7 @@ class Recovery:
         except (RgseError, TimeoutError, OSError) as exc:  # the link, the store or the disk (still full) failed:
             log.error("recovery of interrupted runs incomplete: %s", exc)  # the next connect tries again
 
-    async def _trace_written(self, krc: Controller) -> None:
+    async def _trace_written(self, krc: KrcController) -> None:
         """A trace stopped by the sweep is still being written (``#T_WRITING``): wait for its files (bounded)."""
         deadline = time.monotonic() + TRACE_WRITTEN_S
         while True:
@@ -121,7 +121,7 @@ class Recovery:
         await self._event("critical", "safety_latch", message, data=latch.to_json())
 
     # --- 2. interrupted runs ------------------------------------------------------------------------------------
-    async def recover_runs(self, krc: Controller) -> list[str]:
+    async def recover_runs(self, krc: KrcController) -> list[str]:
         """Recover every interrupted run of this robot not recovered since its last interruption; returns their
         ids."""
         done: list[str] = []
@@ -140,7 +140,7 @@ class Recovery:
                     done.append(run.id)
         return done
 
-    async def recover_run(self, krc: Controller, run: RunRecord, *, ended: bool = False) -> dict[str, Any]:
+    async def recover_run(self, krc: KrcController, run: RunRecord, *, ended: bool = False) -> dict[str, Any]:
         """Pull, index and mark the loops of ``run`` (see the module docstring). ``ended``: a run that ended (failed,
         aborted) with a loop ``recorded`` but not archived; its state and result stay as they are, and a loop whose
         trace is neither on the controller nor complete in the archive becomes ``failed`` (nothing left to pull)."""

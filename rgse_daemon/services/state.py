@@ -9,8 +9,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from rgse_daemon.controller import Snapshot
 from rgse_daemon.errors import LinkError, RgseError
+from rgse_daemon.krc import Snapshot
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.services.admission import RunAdmission
 from rgse_daemon.services.link import ControllerLink

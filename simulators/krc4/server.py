@@ -476,6 +476,11 @@ class KrcServer:
         await self.close()
 
     @property
+    def closed(self) -> bool:
+        """:meth:`close` has run: no connection, TCP or in-process (:mod:`simulators.krc4.inprocess`), is served."""
+        return self._stopped.is_set()
+
+    @property
     def client_count(self) -> int:
         """Connections currently open and admitted."""
         return len(self._connections)

@@ -190,6 +190,7 @@ class SimulatedKrc4:
         self._motion_start: MotionEvent | None = None
         self._move_anchor = (0.0, 0.0)  # (clock, interpreter time) at the start of the current move
         self._physics_s = self.clock.now_s()
+        self._static_cache: tuple[Payload, tuple[object, ...], np.ndarray] | None = None
         self._register_getters()
 
     # --- lifecycle ----------------------------------------------------------------------------------------------
@@ -340,7 +341,18 @@ class SimulatedKrc4:
             m = self.history.sample(np.array([now - SERVO_LAG_S]))  # the arm, following the command
             return dynamic_reading_nm(self.model, self.dynamics, m.q_deg[0], m.qd_deg_s[0], m.qdd_deg_s2[0],
                                       self.payload)
-        return self.model.static_reading_nm(self._q(), self.payload)
+        return self._static_reading_nm()
+
+    def _static_reading_nm(self) -> np.ndarray:
+        """The settled reading at the current pose: a function of the pose, the payload and this mounting only, so
+        computed once for the six ``$TORQUE_AXIS_ACT[i]`` of a snapshot (and each poll while nothing changes)."""
+        model = self.model
+        q = self._q()
+        key = (q.tobytes(), model.mount_offset_nm.tobytes(), model.mount_cog_shift_m, model.residual_nm.tobytes())
+        cached = self._static_cache
+        if cached is None or cached[0] is not self.payload or cached[1] != key:  # a payload is immutable
+            cached = self._static_cache = (self.payload, key, model.static_reading_nm(q, self.payload))
+        return cached[2].copy()
 
     def _register_getters(self) -> None:
         axes = [self.model.scenario.axis(i) for i in range(1, 7)]

@@ -1,7 +1,15 @@
-"""Fixtures: a simulated KR C4 on a real socket, the daemon's Controller, store, engine and short run settings."""
+"""Fixtures: a simulated KR C4, the daemon's Controller on it, store, engine and short run settings.
+
+The engine's unit tests talk to the simulated KR C4 in process (``simulators/krc4/inprocess.py``: the daemon's own
+Controller and link, the simulator's own server, only the socket replaced by an in-memory pipe). A test module
+that asks for TCP starts its simulator (``await sim.start()``, or its own ``sim`` fixture): :func:`controller` and
+:func:`heartbeat` then go over the socket. The interlock's tests (test_monitor.py, test_file_window.py) and the
+campaign-then-measurement run (test_campaign_and_measurement.py) do. Every path is
+also run end to end over TCP by the daemon's tests (tests/app, tests/sim_e2e)."""
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import AsyncIterator
 from pathlib import Path
 
@@ -17,6 +25,7 @@ from rgse_daemon.procedures.programs import static_checker
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.safety.monitor import Monitor
 from rgse_daemon.store import Store
+from simulators.krc4.inprocess import InProcessConnection, in_process_controller
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.krc4.variables import Kind
 from tests.support.heartbeat import beating
@@ -40,14 +49,19 @@ def install_globals(sim: SimulatedKrc4) -> None:
             sim.store.declare_global(dn.name, kinds[decl.type_name], default)
 
 
+#: ``controller.port`` of a simulator that does not listen (the in-process link does not use it).
+UNUSED_PORT = 7000
+
+
 def make_config(sim: SimulatedKrc4, data_dir: Path, **measurement: object) -> Config:
     ms = {"loops": 2, "settle_s": 0.01, "trace_period_s": 0.012, "trace_samples": 250, "warmup_cycles": 1,
           "fixture_mass_kg": 10.288, "program_timeout_s": 60.0, "trace_timeout_s": 30.0,
           "warmup_until_steady": False, **measurement}
     return config_from_mapping({
         "robot": {"name": ROBOT},
-        "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge", "share_dir": str(sim.share_dir),
-                       "request_timeout_s": 2.0, "watchdog_bound_s": 1.0},  # a loaded machine: as the monitor
+        "controller": {"host": "127.0.0.1", "port": sim.port or UNUSED_PORT, "protocol": "c3bridge",
+                       # a loaded machine: as the monitor
+                       "share_dir": str(sim.share_dir), "request_timeout_s": 2.0, "watchdog_bound_s": 1.0},
         "paths": {"data_dir": str(data_dir)},
         "measurement": ms,
         # support.plans.long_motion runs 60 warm-up cycles (up to 3186 s of motion by the check's bound): the tests
@@ -58,9 +72,27 @@ def make_config(sim: SimulatedKrc4, data_dir: Path, **measurement: object) -> Co
 
 @pytest.fixture
 async def sim(tmp_path: Path) -> AsyncIterator[SimulatedKrc4]:
-    async with SimulatedKrc4(tmp_path / "share", seed=7, time_scale=TIME_SCALE, latency_s=0.0) as s:
+    """The simulated KR C4, not listening: the tests reach it in process."""
+    s = SimulatedKrc4(tmp_path / "share", seed=7, time_scale=TIME_SCALE, latency_s=0.0)
+    try:
         install_globals(s)
         yield s
+    finally:
+        await s.close()
+
+
+def controller(sim: SimulatedKrc4, cfg: Config) -> contextlib.AbstractAsyncContextManager[Controller]:
+    """The daemon's Controller on ``sim``: over TCP if it listens, else in process."""
+    if sim.port:
+        return Controller.connect(cfg.controller)
+    return in_process_controller(sim.server, cfg.controller)
+
+
+def heartbeat(sim: SimulatedKrc4, cfg: Config) -> contextlib.AbstractAsyncContextManager[object]:
+    """The daemon's heartbeat on ``sim`` (its own connection, as in the daemon): over TCP if it listens."""
+    if sim.port:
+        return beating(cfg.controller)
+    return beating(cfg.controller, connection=InProcessConnection.to(sim.server, cfg.controller, name="heartbeat"))
 
 
 @pytest.fixture
@@ -74,8 +106,8 @@ def settings(cfg: Config) -> RunSettings:
 
 
 @pytest.fixture
-async def krc(cfg: Config) -> AsyncIterator[Controller]:
-    async with Controller.connect(cfg.controller) as c, beating(cfg.controller):  # the daemon's heartbeat
+async def krc(sim: SimulatedKrc4, cfg: Config) -> AsyncIterator[Controller]:
+    async with controller(sim, cfg) as c, heartbeat(sim, cfg):  # the daemon's heartbeat
         yield c
 
 

@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 
-from rgse_daemon.controller import Controller
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures.calibration import fit_campaign, run_calibration, table1_points
 from rgse_daemon.procedures.engine import RunEngine
@@ -22,7 +21,7 @@ from simulators.krc4.scenario import default_scenario
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.plans import short
 
-from .conftest import TIME_SCALE, install_globals, make_engine
+from .conftest import TIME_SCALE, controller, install_globals, make_engine
 
 DUT_MASS_KG = 95.0
 FIXTURE_KG = 10.288
@@ -216,7 +215,7 @@ async def test_campaign_resumes_after_restart(sim, cfg, krc, store: Store, engin
     assert sim.interpreter.state.name != "ACTIVE"
 
     # "restart": a new controller link and a new engine on the same store
-    async with Controller.connect(cfg.controller) as krc2:
+    async with controller(sim, cfg) as krc2:
         engine2 = make_engine(krc2, cfg)
         seen2: list[int] = []
         engine2.subscribe(mount_on_confirm(sim, engine2, seen2))

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from rgse_daemon.controller import Controller
 from rgse_daemon.errors import InterlockError
 from rgse_daemon.manifest import MODULE_A3, MODULE_A5
 from rgse_daemon.procedures import messages as m
@@ -19,10 +18,16 @@ from rgse_daemon.procedures.retrieval import PulledTrace
 from rgse_daemon.safety.monitor import InterlockTrip
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.krc4.variables import e6axis
-from tests.support.heartbeat import beating
 from tests.support.polling import wait_until
 
-from .conftest import make_engine
+from .conftest import controller, heartbeat, make_engine
+
+
+@pytest.fixture
+async def sim(sim: SimulatedKrc4) -> SimulatedKrc4:
+    """The interlock end to end: the simulated KR C4 listens, and the daemon's link reaches it over TCP."""
+    await sim.start()
+    return sim
 
 FILE_BYTES = 120_000  # each .r64: 1.2 s of the simulator's default 100 kB/s, longer than the staleness limit
 
@@ -72,7 +77,7 @@ async def test_motion_seen_during_a_pull_trips(sim, engine: RunEngine, tmp_path:
 
 async def test_a_status_read_later_than_the_file_work_allows_trips(sim, cfg, tmp_path: Path) -> None:
     _big_trace(sim, "w4")
-    async with Controller.connect(cfg.controller) as krc, beating(cfg.controller):
+    async with controller(sim, cfg) as krc, heartbeat(sim, cfg):
         engine = make_engine(krc, cfg)
         task = asyncio.create_task(engine.run(_pull_plan("w4", tmp_path / "run")))
         await asyncio.sleep(0.3)

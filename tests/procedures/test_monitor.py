@@ -20,6 +20,13 @@ from tests.support.plans import long_motion, moving, robot_still, trace_stopped
 from tests.support.polling import wait_until
 
 
+@pytest.fixture
+async def sim(sim: SimulatedKrc4) -> SimulatedKrc4:
+    """The interlock end to end: the simulated KR C4 listens, and the daemon's link reaches it over TCP."""
+    await sim.start()
+    return sim
+
+
 def _release_enabling_switch(sim: SimulatedKrc4) -> None:
     sim.set_enabling_switch(False)
 

@@ -10,14 +10,16 @@ import contextlib
 from collections.abc import AsyncIterator
 
 from rgse_daemon.config import ControllerConfig
+from rgse_daemon.link.connection import Connection
 from rgse_daemon.services.heartbeat import Heartbeat
 from rgse_daemon.services.signals import Alarms, StackLight
 
 
 @contextlib.asynccontextmanager
-async def beating(cfg: ControllerConfig) -> AsyncIterator[Heartbeat]:
+async def beating(cfg: ControllerConfig, *, connection: Connection | None = None) -> AsyncIterator[Heartbeat]:
+    """Beat on ``connection`` (default: the heartbeat's own TCP connection to ``cfg``'s controller)."""
     alarms: list[dict[str, object]] = []
-    heartbeat = Heartbeat(cfg, Alarms(alarms.append, StackLight(None)), link_up=lambda: True)
+    heartbeat = Heartbeat(cfg, Alarms(alarms.append, StackLight(None)), link_up=lambda: True, connection=connection)
     stop = asyncio.Event()
     task = asyncio.create_task(heartbeat.run(stop), name="test-heartbeat")
     try:
