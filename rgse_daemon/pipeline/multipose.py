@@ -40,6 +40,9 @@ from rgse_daemon.robots.model import RobotModel
 
 #: Level of the F test that finds a DuT's visits scattering more than the calibration's visits did.
 VISIT_F_LEVEL = 0.99
+#: Standard uncertainty (m) of the lever change between the poses as the DH rows give it: a catalogue's DH lengths
+#: are good to about 1 mm (an assumption; a lab that measured its arm's lengths may state less).
+LEVER_U_M = 1e-3
 #: The smallest lever change (m) between the poses that the mass may rest on.
 MIN_LEVER_CHANGE_M = 0.3
 

@@ -94,5 +94,4 @@ ROBOT = RobotModel(
     # project choice (issue #35): the measurement pose and the forearm raised to vertical (A3 0°, A5 +90°): the
     # flange's lever to A3 falls from 1.315 to 0.345 m while its orientation, and so every load's A5 torque, stays
     multipose_a3_deg=(0.0, -90.0),
-    multipose_lever_u_m=0.001,  # project assumption: the catalogue's DH lengths [RKC] to about 1 mm
 )

@@ -134,8 +134,6 @@ class RobotModel:
     multipose_a3_deg: tuple[float, ...] = ()
     """The lever poses of the multi-pose mass (issue #35): A3 offsets (deg) from the measurement pose, A5 turned by
     the opposite so that the flange keeps its orientation (:mod:`rgse_daemon.pipeline.multipose`); () = none."""
-    multipose_lever_u_m: float = 0.001
-    """Standard uncertainty (m) of the flange's lever change to A3 between those poses as the DH rows give it."""
 
     def __post_init__(self) -> None:
         six = {"axis_sign": self.axis_sign, "theta_offset_deg": self.theta_offset_deg, "home_deg": self.home_deg,

@@ -15,7 +15,7 @@ from rgse_daemon.pipeline import multipose as mp
 from rgse_daemon.pipeline import preprocess as pp
 from simulators.krc4 import physics as ph
 from tests.support import simmultipose as sm
-from tests.support.simcampaign import CHANGE_BODIES_S, DR, G, SETTLE_S
+from tests.support.simcampaign import CHANGE_BODIES_S, DR, SETTLE_S, G
 
 
 def test_lever_poses_keep_the_flange_and_change_the_lever_to_a3():
@@ -60,7 +60,7 @@ def _wing_box_both_ways(seed: int, offset_nm: tuple[float, float]) -> tuple[floa
         tr = model.sample_trace(q0, payload, 250, 0.012)
         a3.append(pp.process_loop(tr[3]["Istmoment"], 0.012, pp.PAPER).torque_nm)
         a5.append(pp.process_loop(tr[5]["Istmoment"], 0.012, pp.PAPER).torque_nm)
-    zero = [k for k, p in enumerate(c.campaign.manifest.points) if p.kind == "zero"][0]
+    zero = next(k for k, p in enumerate(c.campaign.manifest.points) if p.kind == "zero")
     b3 = float(np.mean([pp.process_loop(lp.torque_a3_nm, 0.012, pp.PAPER).torque_nm for lp in c.campaign.loops[zero]]))
     b5 = float(np.mean([pp.process_loop(lp.torque_a5_nm, 0.012, pp.PAPER).torque_nm for lp in c.campaign.loops[zero]]))
     # holding torques are negative for a load in front: eq. 14 on their magnitudes

@@ -14,7 +14,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from rgse_daemon import kinematics as kin
-from rgse_daemon import robots
 from rgse_daemon.analysis.calibration import CampaignData, campaign_points, campaign_thermal
 from rgse_daemon.pipeline import cog as cog_mod
 from rgse_daemon.pipeline import multipose as mp
@@ -122,12 +121,11 @@ def simulate_multipose_campaign(seed: int, bias_visits: int = 4, scenario=None, 
     model.new_mounting()
     bare = visit_poses(model, poses, bias_visits, ph.Payload((ph.mpa(),)), drift, applied)
     bias, sigma, dof = mp.pose_bias(bare)
-    robot = robots.active()
     if lever_gain:
         x, r, grp = lever_points(model, poses, bias, drift, applied)
         gain, _ = cog_mod.select_gain(3, x, r, np.ones_like(x), grp)
     else:
         gain = a3_gain(data)
     cal = mp.MultiPoseCalibration(tuple(poses), bias, sigma, dof, gain,
-                                  drift.u_coeff_per_k["A3"] if applied else 0.0, robot.multipose_lever_u_m, G)
+                                  drift.u_coeff_per_k["A3"] if applied else 0.0, mp.LEVER_U_M, G)
     return MultiPoseCampaign(camp, model, data, cal, drift, applied)
