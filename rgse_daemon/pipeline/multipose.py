@@ -62,6 +62,12 @@ def flange_lever_a3_m(q_deg: Sequence[float], robot: RobotModel | None = None) -
     return float(-kin.gravity_regressor(q_deg, 1.0, robot)[2, 0])
 
 
+def pose_name(a3_offset_deg: float) -> str:
+    """A lever pose's name, as the CoG scheme ``lever`` calls it (:func:`~rgse_daemon.pipeline.cog.cog_poses`):
+    ``meas`` for the measurement pose, else e.g. ``A3-90``."""
+    return "meas" if a3_offset_deg == 0.0 else f"A3{a3_offset_deg:+g}"
+
+
 def lever_poses(measurement_pose_deg: Sequence[float], a3_offsets_deg: Sequence[float] | None = None,
                 robot: RobotModel | None = None) -> list[LeverPose]:
     """The scheme's poses: the measurement pose with A3 + Δ_k and A5 − Δ_k (``a3_offsets_deg`` default: the
@@ -85,7 +91,7 @@ def lever_poses(measurement_pose_deg: Sequence[float], a3_offsets_deg: Sequence[
         if not np.allclose(kin.flange_frame(q, r)[:3, :3], rot0, atol=1e-9):
             raise DataError(f"multi-pose mass: lever pose A3 {d:+g}° turns the flange (the measurement pose's A2 and "
                             f"A3 must keep A3 and A5 parallel)")
-        out.append(LeverPose(f"A3{d:+g}", tuple(float(v) for v in q), flange_lever_a3_m(q, r)))
+        out.append(LeverPose(pose_name(d), tuple(float(v) for v in q), flange_lever_a3_m(q, r)))
     levers = [p.lever_a3_m for p in out]
     if max(levers) - min(levers) < MIN_LEVER_CHANGE_M:
         raise DataError(f"multi-pose mass: the poses change the lever to A3 by only {max(levers) - min(levers):.3f} m "
