@@ -4,7 +4,7 @@ changes the kinematics give, in the spirit of eq. 3/4 (docs/accuracy.md, "Multi-
 Lever poses (:func:`lever_poses`): the measurement pose with A3 turned by Δ_k and A5 by −Δ_k. The flange keeps its
 orientation, so the CoG offset of every flange load has the same lever to A3 in every pose (and its A5 torque does not
 change at all); only the flange origin's horizontal lever to A3, L_k, changes (KR 500: 1.315 m in the measurement pose,
-0.345 m with the forearm vertical). The payload torque on A3 in pose k (holding-torque sign, MPA excluded):
+0.522 m with the forearm raised by 80°). The payload torque on A3 in pose k (holding-torque sign, MPA excluded):
 
     x_k = −g·m·L_k + c                                                   (MP1)
 
@@ -64,7 +64,7 @@ def flange_lever_a3_m(q_deg: Sequence[float], robot: RobotModel | None = None) -
 
 def pose_name(a3_offset_deg: float) -> str:
     """A lever pose's name, as the CoG scheme ``lever`` calls it (:func:`~rgse_daemon.pipeline.cog.cog_poses`):
-    ``meas`` for the measurement pose, else e.g. ``A3-90``."""
+    ``meas`` for the measurement pose, else e.g. ``A3-80``."""
     return "meas" if a3_offset_deg == 0.0 else f"A3{a3_offset_deg:+g}"
 
 

@@ -20,9 +20,9 @@ from tests.support.simcampaign import CHANGE_BODIES_S, DR, SETTLE_S, G
 
 def test_lever_poses_keep_the_flange_and_change_the_lever_to_a3():
     poses = mp.lever_poses(kin.measurement_pose())
-    assert [p.name for p in poses] == ["meas", "A3-90"]
+    assert [p.name for p in poses] == ["meas", "A3-80"]
     assert poses[0].lever_a3_m == pytest.approx(1.315, abs=1e-3)
-    assert poses[1].lever_a3_m == pytest.approx(0.345, abs=1e-3)
+    assert poses[1].lever_a3_m == pytest.approx(0.522, abs=1e-3)
     # any flange load's CoG offset has the same A3 lever in both poses, and its A5 torque does not change
     y = [kin.gravity_regressor(p.q_deg, G) for p in poses]
     np.testing.assert_allclose(y[0][2, 1:], y[1][2, 1:], atol=1e-9)
@@ -40,7 +40,7 @@ def test_lever_poses_refuse_a_robot_without_them_and_poses_beyond_the_ranges():
 
 def test_visit_order_goes_back_and_forth():
     poses = mp.lever_poses(kin.measurement_pose())
-    assert [p.name for p in mp.visit_order(poses, 3)] == ["meas", "A3-90", "A3-90", "meas", "meas", "A3-90"]
+    assert [p.name for p in mp.visit_order(poses, 3)] == ["meas", "A3-80", "A3-80", "meas", "meas", "A3-80"]
 
 
 def _wing_box_both_ways(seed: int, offset_nm: tuple[float, float]) -> tuple[float, float]:
