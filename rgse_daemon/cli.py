@@ -300,7 +300,9 @@ def build_parser() -> argparse.ArgumentParser:
     r = kinds.add_parser("properties", help="a mass-properties run of the mounted DuT: mass, then CoG")
     r.add_argument("--loops", type=int, metavar="N", help="mass loops (default: measurement.loops)")
     r.add_argument("--loops-per-pose", type=int, metavar="N", help="loops in each CoG pose")
-    r.add_argument("--scheme", choices=("paper", "full"), help="the CoG poses (default: properties.scheme)")
+    r.add_argument("--scheme", choices=("paper", "full", "lever"), help="the CoG poses (default: properties.scheme)")
+    r.add_argument("--mass-method", choices=("single", "multipose", "auto"),
+                   help="where the mass comes from (default: properties.mass_method)")
     r.add_argument("--fixture-mass", type=float, metavar="KG")
     r.add_argument("--fixture-cog", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="the fixture's CoG in the flange frame (m); with it the command's fixture frame replaces "

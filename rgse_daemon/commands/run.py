@@ -184,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
                     run_ = await rgse.properties(loops=args.loops, loops_per_pose=args.loops_per_pose,
                                                  scheme=args.scheme, fixture_mass_kg=args.fixture_mass,
                                                  fixture=fixture, inertia=args.inertia, dry_run=args.dry_run,
-                                                 identity=identity)
+                                                 identity=identity, mass_method=args.mass_method)
                 else:
                     run_ = await rgse.calibrate(points, method=args.method)
             except Refused as exc:
