@@ -18,7 +18,12 @@ Robot minutes: a loop is the daemon's measured loop (``LOOP_ROBOT_S``: the demo'
 robot time, issue #35); a pose change is a PTP of A3 and A5 at the T1 limit on the payload box's corners (computed
 from the kinematics, :func:`pose_change_s`). The campaign's extra minutes for the multi-pose section are printed too.
 
-Run: ``nice .venv/bin/python bench/multipose.py [--seeds 40] [--first-seed 0] [--workers 1|2] [--json]``.
+``--path files`` runs the daemon's path instead: the torsional campaign in scheme ``lever`` and the wing box's
+properties run written as trace files, CAL.json fitted as ``rgse calibrate`` does, the masses by ``analysis``
+(:func:`repetition_files`).
+
+Run: ``nice .venv/bin/python bench/multipose.py [--seeds 40] [--first-seed 0] [--workers 1|2] [--path memory|files]
+[--json]``.
 """
 
 from __future__ import annotations
@@ -118,6 +123,45 @@ def repetition(seed: int) -> dict:
     return out
 
 
+def repetition_files(seed: int) -> dict:
+    """The daemon's path (``--path files``): the paper's campaign and a torsional campaign in scheme ``lever``
+    written as trace files and fitted as ``rgse calibrate --campaign`` does (K_A3 from the six torsional points in
+    every pose, each with its own offset), then the wing box's properties run in scheme ``lever`` (2 loops per pose)
+    as files, its mass by ``analysis.multipose`` and ``analysis.mass`` (the measurement pose's loops)."""
+    import tempfile
+
+    from rgse_daemon.analysis import mass as mass_analysis
+    from rgse_daemon.analysis.calibration import fit_campaign
+    from rgse_daemon.analysis.multipose import compute_multipose_dir
+    from tests.support import cogcampaign as cc
+    from tests.support import simcampaign as sc
+
+    wing = ph.refex_wing_box()
+    with tempfile.TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        campaign, model = sc.simulate_campaign(seed, n_loops=2)
+        sc.write_dirs(campaign, sc.simulate_measurement(model, 50.0, n_loops=1), d / "campaign", d / "dut")
+        cc.warm_up(model)
+        lines = cc.torsional_manifest_lines(d / "campaign", cc.simulate_torsional(model, "lever", seed=seed))
+        with (d / "campaign" / "manifest.toml").open("a", encoding="utf-8") as f:
+            f.write("\n" + "\n".join(lines))
+        doc, _ = fit_campaign(d / "campaign", "auto")
+        (d / "CAL.json").write_text(json.dumps(doc), encoding="utf-8")
+        run = cc.simulate_properties(model, wing, "lever")
+        cc.write_properties_dir(d / "prop", run, robot=sc.ROBOT, scheme="lever", measurement_pose_traces=True)
+        multi = compute_multipose_dir(d / "prop", d / "CAL.json")
+        single = mass_analysis.compute(d / "prop", d / "CAL.json")
+    poses = mp.lever_poses(kin.measurement_pose())
+    return {"seed": seed, "truth_kg": wing.mass_kg,
+            "single pose, 2 loops (files)": {"err_kg": single.mass_kg - wing.mass_kg, "U_kg": single.U_kg,
+                                             "budget_kg": single.u_components_kg,
+                                             "robot_min": 2 * LOOP_ROBOT_S / 60.0},
+            "multi-pose, 2 loops per pose (files)": {
+                "err_kg": multi.mass_kg - wing.mass_kg, "U_kg": multi.uncertainty.expanded_kg,
+                "budget_kg": multi.uncertainty.components(), "warnings": multi.warnings,
+                "robot_min": (4 * LOOP_ROBOT_S + 2 * pose_change_s(poses[0].q_deg, poses[1].q_deg)) / 60.0}}
+
+
 def summarise(runs: list[dict], row: str) -> dict:
     rs = [r[row] for r in runs]
     err = np.array([x["err_kg"] for x in rs])
@@ -139,12 +183,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=40)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=1, choices=(1, 2))
+    ap.add_argument("--path", choices=("memory", "files"), default="memory",
+                    help="memory: the scheme's own lever calibration in memory; files: the daemon's path through "
+                         "trace files and CAL.json's torsional section in scheme lever (about 30 s per seed)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     t0 = time.monotonic()
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     with ProcessPoolExecutor(args.workers) as pool:
-        runs = list(pool.map(repetition, seeds))
+        runs = list(pool.map(repetition if args.path == "memory" else repetition_files, seeds))
     rows = [k for k in runs[0] if k not in ("seed", "truth_kg")]
     table = {row: summarise(runs, row) for row in rows}
     poses = mp.lever_poses(kin.measurement_pose())
@@ -164,8 +211,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {row} | {s['n']} | {s['U_pct']:.2f}, {s['U_pct_max']:.2f} | {100 * s['coverage']:.0f} % "
               f"({100 * lo:.0f}–{100 * hi:.0f}) | {s['mean_abs_err_pct']:.2f} | {s['mean_err_kg']:+.3f} | "
               f"{s['robot_min']:.1f} | {budget} |")
-    print(f"multi-pose section of the campaign: +{campaign_extra_min:.0f} robot min (bare MPA {BIAS_VISITS} visits "
-          f"per pose, {n_lever} stacks 1 visit per pose; body changes not counted)")
+    if args.path == "memory":
+        print(f"multi-pose section of the campaign: +{campaign_extra_min:.0f} robot min (bare MPA {BIAS_VISITS} "
+              f"visits per pose, {n_lever} stacks 1 visit per pose; body changes not counted)")
+    else:
+        print("files: the single pose's U carries the thermal bound of a DuT measured warm after a cold mass "
+              "campaign (its beta is not extrapolated); the multi-pose mass is brought to the torsional campaign's "
+              "temperature")
     print(f"{args.seeds} seeds (from {args.first_seed}), wing box {ph.refex_wing_box().mass_kg} kg, "
           f"{time.monotonic() - t0:.0f} s")
     return 0
