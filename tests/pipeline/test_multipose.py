@@ -108,3 +108,51 @@ def test_multipose_u_covers_the_truth_out_of_sample():
         z.append(err / r.uncertainty.u_kg)
     assert hits >= 10
     assert float(np.mean(np.square(z))) < stats.chi2.ppf(0.995, len(z)) / len(z)
+
+
+def _synthetic(mass_kg: float, offset_nm: float, gain: float = 0.92):
+    """Readings of a linear drive (r = gain·x + offset) in the two lever poses, three visits each, with a bare
+    reading per pose, and an A3 gain fitted on exact points: (visits, calibration)."""
+    from rgse_daemon.pipeline.cog import fit_gain
+
+    poses = mp.lever_poses(kin.measurement_pose())
+    x_cal = np.array([-500.0, -1000.0, -2000.0, -3000.0])
+    k, _ = fit_gain(3, x_cal, gain * x_cal, np.ones(4), np.arange(4), "linear")
+    bias = {p.name: mp.PoseBias(-1000.0 * (i + 1), 0.3) for i, p in enumerate(poses)}
+    c = 0.05 * mass_kg * G  # the CoG's part of x, the same in every pose
+    visits = [mp.PoseVisits(p.name, bias[p.name].torque_a3_nm + gain * (-G * mass_kg * p.lever_a3_m + c) + offset_nm
+                            + np.array([-0.2, 0.0, 0.2]), np.zeros(3)) for p in poses]
+    cal = mp.MultiPoseCalibration(tuple(poses), bias, 0.2, 12, k, 0.0, mp.LEVER_U_M, G)
+    return visits, cal
+
+
+def test_mp2_recovers_the_mass_of_a_linear_drive_whatever_its_offset():
+    for offset in (0.0, 25.0, -40.0):
+        visits, cal = _synthetic(107.3, offset)
+        r = mp.multipose_mass(visits, cal, fixture_mass_kg=10.0)
+        assert r.gross_mass_kg == pytest.approx(107.3, abs=1e-6) and r.mass_kg == pytest.approx(97.3, abs=1e-6)
+        parts = r.uncertainty.components()
+        assert set(parts) == {"visits", "bias", "gain", "lever", "thermal", "g"}
+        assert parts["lever"] == pytest.approx(107.3 * mp.LEVER_U_M / (1.315 - 0.522), rel=1e-2)
+
+
+def test_multipose_mass_names_what_is_missing():
+    visits, cal = _synthetic(50.0, 0.0)
+    with pytest.raises(DataError, match="at least two"):
+        mp.multipose_mass(visits[:1], cal)
+    bare = mp.MultiPoseCalibration(cal.poses, {"meas": cal.bias["meas"]}, 0.2, 12, cal.gain_a3, 0.0, mp.LEVER_U_M, G)
+    with pytest.raises(DataError, match="no bare reading in pose A3-80"):
+        mp.multipose_mass(visits, bare)
+    once = [mp.PoseVisits(v.pose, v.torque_a3_nm[:1], v.thermal_lever_nm_k[:1]) for v in visits]
+    no_rep = mp.MultiPoseCalibration(cal.poses, cal.bias, 0.0, 0, cal.gain_a3, 0.0, mp.LEVER_U_M, G)
+    with pytest.raises(DataError, match="no repeatability"):
+        mp.multipose_mass(once, no_rep)
+
+
+def test_visits_scattering_beyond_the_calibration_widen_u_and_warn():
+    visits, cal = _synthetic(107.3, 0.0)
+    loud = [mp.PoseVisits(v.pose, v.torque_a3_nm + np.array([-3.0, 0.0, 3.0]), v.thermal_lever_nm_k) for v in visits]
+    quiet = mp.multipose_mass(visits, cal)
+    r = mp.multipose_mass(loud, cal)
+    assert r.warnings and "more than the calibration's" in r.warnings[0]
+    assert r.uncertainty.components()["visits"] > 5 * quiet.uncertainty.components()["visits"]
