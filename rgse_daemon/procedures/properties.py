@@ -47,7 +47,7 @@ from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.topics import Topics
 from rgse_daemon.pipeline.cog import SCHEMES, CogPose, cog_poses
-from rgse_daemon.pipeline.multipose import choose_method
+from rgse_daemon.pipeline.multipose import choose_method, lever_poses
 from rgse_daemon.pipeline.stopping import StopDecision
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
@@ -373,6 +373,11 @@ async def run_properties(
     p = props or PropertiesSettings.from_config(cfg)
     fixture = p.fixture(s.fixture_mass_kg)  # refuse a bad fixture before the run opens
     cog_poses(s.meas_pose_deg, p.scheme)
+    if p.mass_method != "single":  # a robot without lever poses (robots/<model>.py multipose_a3_deg)
+        try:
+            lever_poses(s.meas_pose_deg)
+        except DataError as exc:
+            raise PreconditionError(f"properties mass_method {p.mass_method!r}: {exc}") from None
     recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
     cal = await recorder.active_calibration(s.robot)
     if cal is None:
