@@ -494,11 +494,13 @@ class Daemon:
             self.cfg, scheme=cmd.scheme, loops_per_pose=cmd.loops_per_pose,
             fixture_cog_flange_m=fixture.cog_flange_m if fixture is not None else None,
             dut_origin_flange_m=fixture.dut_origin_flange_m if fixture is not None else None,
-            dut_abc_deg=fixture.dut_abc_deg if fixture is not None else None, inertia=cmd.inertia)
+            dut_abc_deg=fixture.dut_abc_deg if fixture is not None else None, inertia=cmd.inertia,
+            mass_method=cmd.mass_method)
         task = await self.start_properties(settings=RunSettings.from_config(self.cfg, **overrides), props=props,
                                            dry_run=cmd.dry_run)
         return {"accepted": RunKind.PROPERTIES.value, "run_id": await self.admission.started(task),
-                "dry_run": cmd.dry_run, "scheme": props.scheme, "inertia": props.inertia}
+                "dry_run": cmd.dry_run, "scheme": props.scheme, "inertia": props.inertia,
+                "mass_method": props.mass_method}
 
     async def calibrate(self, cmd: CalibrateCommand) -> dict[str, Any]:
         points = [campaign_point(p) for p in cmd.points] if cmd.points is not None else None

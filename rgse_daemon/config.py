@@ -404,8 +404,12 @@ class FixtureFrameConfig(_Section):
 class PropertiesConfig(_Section):
     """The mass-properties run (mass, then the CoG poses; interfaces §4, README "Centre of gravity")."""
 
-    scheme: Literal["paper", "full"] = "full"
-    """The CoG poses: ``paper`` (eq. 5-7: measurement pose, A6 +90°) or ``full`` (A6 0/90/180/270°, A4/A5 tilts)."""
+    scheme: Literal["paper", "full", "lever"] = "full"
+    """The CoG poses: ``paper`` (eq. 5-7: measurement pose, A6 +90°), ``full`` (A6 0/90/180/270°, A4/A5 tilts) or
+    ``lever`` (the paper's and the multi-pose mass's lever poses: forearm raised, A5 turned back)."""
+    mass_method: Literal["single", "multipose", "auto"] = "single"
+    """Where a properties run's mass comes from: ``single`` (the paper's pose), ``multipose`` (the lever poses; needs
+    scheme ``lever`` and loops_per_pose >= 2) or ``auto`` (both, the one with the least U² per robot minute)."""
     loops_per_pose: int = Field(2, ge=1, le=20)
     """Brake-release loops (each with one trace of the A3..A6 drives) in every CoG pose."""
     when: Literal["on_request", "every_measurement"] = "on_request"

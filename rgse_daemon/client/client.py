@@ -192,15 +192,18 @@ class RgseClient:
     async def properties(self, *, loops: int | None = None, loops_per_pose: int | None = None,
                          scheme: str | None = None, fixture_mass_kg: float | None = None,
                          fixture: FixtureFrame | None = None, inertia: bool | None = None,
-                         dry_run: bool = False, identity: Identity | None = None) -> Run:
-        """Start a mass-properties run of the mounted DuT: its mass, then its CoG in the poses of ``scheme``
-        (``"paper"`` or ``"full"``), with ``inertia`` then its inertia tensor (the run asks the operator to take the
+                         dry_run: bool = False, identity: Identity | None = None,
+                         mass_method: str | None = None) -> Run:
+        """Start a mass-properties run of the mounted DuT: its mass (by ``mass_method``: ``"single"``,
+        ``"multipose"`` or ``"auto"``), then its CoG in the poses of ``scheme`` (``"paper"``, ``"full"`` or
+        ``"lever"``), with ``inertia`` then its inertia tensor (the run asks the operator to take the
         DuT off for the tare: answer that prompt); ``None`` takes the daemon's ``[measurement]``/``[properties]``
         settings."""
         reply = await self._command("properties", {
             "loops": loops, "loops_per_pose": loops_per_pose, "scheme": scheme, "fixture_mass_kg": fixture_mass_kg,
             "fixture": fixture.as_command() if fixture is not None else None, "inertia": inertia,
-            "dry_run": dry_run or None, "identity": identity.as_command() if identity else None})
+            "dry_run": dry_run or None, "identity": identity.as_command() if identity else None,
+            "mass_method": mass_method})
         return Run(self, reply.get("run_id"), RunKind.PROPERTIES)
 
     async def calibrate(self, points: Sequence[CampaignPoint] | None = None, *, method: str | None = None) -> Run:

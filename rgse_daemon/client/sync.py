@@ -101,10 +101,11 @@ class SyncClient:
 
     def properties(self, *, loops: int | None = None, loops_per_pose: int | None = None, scheme: str | None = None,
                    fixture_mass_kg: float | None = None, fixture: FixtureFrame | None = None,
-                   inertia: bool | None = None, dry_run: bool = False, identity: Identity | None = None) -> SyncRun:
+                   inertia: bool | None = None, dry_run: bool = False, identity: Identity | None = None,
+                   mass_method: str | None = None) -> SyncRun:
         return SyncRun(self, self.call(self.client.properties(
             loops=loops, loops_per_pose=loops_per_pose, scheme=scheme, fixture_mass_kg=fixture_mass_kg,
-            fixture=fixture, inertia=inertia, dry_run=dry_run, identity=identity)))
+            fixture=fixture, inertia=inertia, dry_run=dry_run, identity=identity, mass_method=mass_method)))
 
     def calibrate(self, points: Sequence[CampaignPoint] | None = None, *, method: str | None = None) -> SyncRun:
         return SyncRun(self, self.call(self.client.calibrate(points, method=method)))

@@ -2,7 +2,7 @@
 its result, for shell scripts (on :mod:`rgse_daemon.client`).
 
 ``rgse run measure --config FILE [--loops N] [--fixture-mass KG] [--dry-run]``
-``rgse run properties --config FILE [--loops N] [--loops-per-pose N] [--scheme paper|full] [--fixture-mass KG]
+``rgse run properties --config FILE [--loops N] [--loops-per-pose N] [--scheme paper|full|lever] [--mass-method single|multipose|auto] [--fixture-mass KG]
 [--fixture-cog X Y Z [--dut-origin X Y Z] [--dut-abc A B C]] [--dry-run]``
 ``rgse run calibrate --config FILE [--points FILE.toml] [--method M]``
 common: ``[--on-prompt stdin|wait] [--timeout S] [--report DIR] [--json]``
@@ -178,7 +178,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r = kinds.add_parser("properties", help="a mass-properties run of the mounted DuT: mass, then CoG")
     r.add_argument("--loops", type=int, metavar="N", help="mass loops (default: measurement.loops)")
     r.add_argument("--loops-per-pose", type=int, metavar="N", help="loops in each CoG pose")
-    r.add_argument("--scheme", choices=("paper", "full"), help="the CoG poses (default: properties.scheme)")
+    r.add_argument("--scheme", choices=("paper", "full", "lever"), help="the CoG poses (default: properties.scheme)")
+    r.add_argument("--mass-method", choices=("single", "multipose", "auto"),
+                   help="where the mass comes from (default: properties.mass_method)")
     r.add_argument("--fixture-mass", type=float, metavar="KG")
     r.add_argument("--fixture-cog", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="the fixture's CoG in the flange frame (m); with it the command's fixture frame replaces "
@@ -228,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
                     run_ = await rgse.properties(loops=args.loops, loops_per_pose=args.loops_per_pose,
                                                  scheme=args.scheme, fixture_mass_kg=args.fixture_mass,
                                                  fixture=fixture, inertia=args.inertia, dry_run=args.dry_run,
-                                                 identity=identity)
+                                                 identity=identity, mass_method=args.mass_method)
                 else:
                     run_ = await rgse.calibrate(points, method=args.method)
             except Refused as exc:

@@ -162,8 +162,10 @@ class PropertiesCommand(_Command):
     """Mass loops in the measurement pose; ``None``: ``measurement.loops``."""
     loops_per_pose: int | None = Field(None, ge=1, le=20)
     """Loops in each CoG pose; ``None``: ``properties.loops_per_pose``."""
-    scheme: Literal["paper", "full"] | None = None
+    scheme: Literal["paper", "full", "lever"] | None = None
     """The CoG poses; ``None``: ``properties.scheme``."""
+    mass_method: Literal["single", "multipose", "auto"] | None = None
+    """Where the mass comes from; ``None``: ``properties.mass_method``."""
     fixture_mass_kg: Mass_kg | None = None
     fixture: FixtureFrameSpec | None = None
     """``None``: ``properties.fixture`` of the config."""

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from rgse_daemon import kinematics as kin
+from rgse_daemon import robots
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.axis_gain import AxisGain
 
@@ -51,7 +52,7 @@ def cog_paper(
 # ---------------------------------------------------------------------------------------------------------------------
 # Pose schemes of a mass-properties run
 # ---------------------------------------------------------------------------------------------------------------------
-SCHEMES = ("paper", "full")
+SCHEMES = ("paper", "full", "lever")
 
 #: Tilts of the "full" scheme (deg), relative to the measurement pose: (name, ΔA4, ΔA5, ΔA6).
 #: A6 at 0/90/180/270° puts each flange-transverse CoG coordinate under the A4/A6 torque twice with opposite signs
@@ -90,21 +91,27 @@ def cog_poses(measurement_pose_deg: Sequence[float], scheme: str = "full") -> li
     """The static poses of a CoG scheme around the measurement pose, in the order they are measured.
 
     ``"paper"``: eq. 5–7's scheme, the measurement pose (A5 gives the lever a, A6 the offset c) and A6 turned by 90°
-    (A6 gives b). ``"full"``: A6 at 0/90/180/270°, A5 tilted ±45° and A4 ±90° with A5 +45° (see ``_FULL_TILTS``).
+    (A6 gives b). ``"lever"``: the paper's poses and the multi-pose mass's lever poses (the robot's
+    ``multipose_a3_deg``: A3 turned, A5 turned back, :mod:`rgse_daemon.pipeline.multipose`). ``"full"``: A6 at
+    0/90/180/270°, A5 tilted ±45° and A4 ±90° with A5 +45° (see ``_FULL_TILTS``).
     Every pose lies within the axis ranges (DataError otherwise). A plan moves to ``q_approach_deg`` and then to
     ``q_deg`` (then the brake-release move), in the calibration campaign as in the properties run: every axis
     arrives at each pose from the same side in both, so the friction hysteresis cancels in the bias-corrected
     torque.
     """
-    tilts = {"paper": _PAPER_TILTS, "full": _FULL_TILTS}.get(scheme)
+    tilts = {"paper": _PAPER_TILTS, "full": _FULL_TILTS, "lever": _PAPER_TILTS}.get(scheme)
     if tilts is None:
         raise DataError(f"unknown CoG scheme {scheme!r}; use one of {', '.join(SCHEMES)}")
+    turns = [(name, 0.0, d4, d5, d6) for name, d4, d5, d6 in tilts]
+    if scheme == "lever":  # the multi-pose mass's lever poses (issue #35): A3 turned, A5 against it
+        # (names as pipeline.multipose.pose_name gives them)
+        turns += [(f"A3{d:+g}", d, 0.0, -d, 0.0) for d in robots.active().multipose_a3_deg if d != 0.0]
     base = np.asarray(measurement_pose_deg, dtype=float)
     if base.shape != (6,) or not np.all(np.isfinite(base)):
         raise DataError(f"measurement pose must be six finite angles A1..A6 (deg), got {measurement_pose_deg!r}")
     out = []
-    for name, d4, d5, d6 in tilts:
-        q = base + np.array([0.0, 0.0, 0.0, d4, d5, d6])
+    for name, d3, d4, d5, d6 in turns:
+        q = base + np.array([0.0, 0.0, d3, d4, d5, d6])
         if not kin.within_limits(q):
             raise DataError(f"CoG pose {name} {q.tolist()} is outside the axis ranges")
         approach = q - np.array([0.0, 0.0, 0.0, APPROACH_DEG, 0.0, APPROACH_DEG])

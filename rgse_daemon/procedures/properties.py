@@ -34,18 +34,20 @@ from __future__ import annotations
 import asyncio
 import json
 import time
-from collections.abc import Callable, Generator, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from rgse_daemon import calfile
 from rgse_daemon.analysis.cog import FixtureFrame, compute_cog_dir, properties_manifest_toml
+from rgse_daemon.analysis.multipose import compute_multipose_dir
 from rgse_daemon.config import Config
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.topics import Topics
 from rgse_daemon.pipeline.cog import SCHEMES, CogPose, cog_poses
+from rgse_daemon.pipeline.multipose import choose_method, lever_poses
 from rgse_daemon.pipeline.stopping import StopDecision
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
@@ -91,12 +93,16 @@ class PropertiesSettings:
     """Also the inertia: DuT and tare excitation after the CoG poses (issue #15)."""
     inertia_repeats: int = REPEATS
     """Swings of each wrist axis per orientation in the excitation (``[properties] inertia_repeats``)."""
+    mass_method: str = "single"
+    """Where the mass comes from (``[properties] mass_method``): ``single`` (the paper's pose, eq. 21), ``multipose``
+    (the lever poses of scheme ``lever``, :mod:`rgse_daemon.pipeline.multipose`) or ``auto`` (both computed, the one
+    with the least U² per robot minute reported)."""
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> PropertiesSettings:
         p = cfg.properties
         base = cls(p.scheme, p.loops_per_pose, p.fixture.cog_flange_m, p.fixture.dut_origin_flange_m,
-                   p.fixture.dut_abc_deg, p.inertia, p.inertia_repeats)
+                   p.fixture.dut_abc_deg, p.inertia, p.inertia_repeats, p.mass_method)
         return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
     def fixture(self, fixture_mass_kg: float) -> FixtureFrame:
@@ -106,6 +112,13 @@ class PropertiesSettings:
             raise PreconditionError(f"properties scheme {self.scheme!r}: use one of {', '.join(SCHEMES)}")
         if self.loops_per_pose < 1:
             raise PreconditionError(f"properties loops_per_pose {self.loops_per_pose}: must be >= 1")
+        if self.mass_method not in MASS_METHODS:
+            raise PreconditionError(f"properties mass_method {self.mass_method!r}: use one of "
+                                    f"{', '.join(MASS_METHODS)}")
+        if self.mass_method != "single" and (self.scheme != "lever" or self.loops_per_pose < 2):
+            raise PreconditionError(f"properties mass_method {self.mass_method!r} needs scheme 'lever' (the lever "
+                                    f"poses) and loops_per_pose >= 2 (their repeatability), got scheme "
+                                    f"{self.scheme!r} with {self.loops_per_pose} loop(s) per pose")
         cog = self.fixture_cog_flange_m
         if cog is None:
             if fixture_mass_kg > 0:
@@ -123,7 +136,7 @@ class PropertiesSettings:
         return {"scheme": self.scheme, "loops_per_pose": self.loops_per_pose,
                 "fixture_cog_flange_m": None if self.fixture_cog_flange_m is None else list(self.fixture_cog_flange_m),
                 "dut_origin_flange_m": list(self.dut_origin_flange_m), "dut_abc_deg": list(self.dut_abc_deg),
-                "inertia": self.inertia, "inertia_repeats": self.inertia_repeats}
+                "inertia": self.inertia, "inertia_repeats": self.inertia_repeats, "mass_method": self.mass_method}
 
 
 def pose_trace_name(tag: str, pose_number: int, loop_number: int) -> str:
@@ -145,12 +158,15 @@ def write_properties_dir(run_dir: Path, s: RunSettings, mass_traces: Sequence[st
     write_atomic(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
 
 
-def compute_properties(run_dir: Path) -> dict[str, Any]:
-    """Mass and CoG of a properties run directory, as ``rgse mass`` and ``rgse cog`` compute them from its files."""
+def compute_properties(run_dir: Path, mass_method: str = "single",
+                       robot_time_s: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """Mass and CoG of a properties run directory, as ``rgse mass`` and ``rgse cog`` compute them from its files;
+    the mass by ``mass_method`` (:class:`PropertiesSettings`), ``robot_time_s``: the robot seconds each method's
+    loops took (``single``, ``multipose``) for ``auto``."""
     from rgse_daemon.procedures.measurement import compute_mass
 
     cal = run_dir / CALIBRATION_FILE
-    mass = compute_mass(run_dir, cal)
+    mass = _chosen_mass(run_dir, compute_mass(run_dir, cal), mass_method, robot_time_s or {})
     cog = compute_cog_dir(run_dir, cal, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
     c = cog.to_json()
     return {**mass, "cog_m": c["cog_flange_m"], "U_cog_m": c["U_cog_flange_m"], "cog_dut_m": c["cog_dut_m"],
@@ -159,10 +175,45 @@ def compute_properties(run_dir: Path) -> dict[str, Any]:
             "warnings": list(dict.fromkeys([*mass.get("warnings", []), *cog.warnings]))}
 
 
+#: The mass methods of a properties run (``[properties] mass_method``).
+MASS_METHODS = ("single", "multipose", "auto")
+
+
+def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_time_s: Mapping[str, float]
+                 ) -> dict[str, Any]:
+    """The mass result of ``mass_method``: the single pose's as it is, or with the multi-pose mass's figures in its
+    place; both under ``mass_methods`` (each with its robot time), which one under ``mass_method``."""
+    methods: dict[str, Any] = {"single": {"mass_kg": single["mass_kg"], "U_kg": single["U_kg"],
+                                          "u_components_kg": single["u_components_kg"],
+                                          "robot_time_s": robot_time_s.get("single")}}
+    if mass_method == "single":
+        return {**single, "mass_method": "single", "mass_methods": methods}
+    try:
+        multi = compute_multipose_dir(run_dir, run_dir / CALIBRATION_FILE)
+    except DataError as exc:
+        if mass_method == "multipose":
+            raise
+        return {**single, "mass_method": "single", "mass_methods": methods,
+                "warnings": [*single["warnings"], f"multi-pose mass not available ({exc}): the single pose's used"]}
+    mj = multi.to_json()
+    methods["multipose"] = {"mass_kg": mj["mass_kg"], "U_kg": mj["U_kg"], "u_components_kg": mj["budget_kg"],
+                            "robot_time_s": robot_time_s.get("multipose"), "visits": mj["visits"]}
+    chosen = mass_method
+    if mass_method == "auto":
+        chosen = choose_method({k: (v["U_kg"], max(float(v["robot_time_s"] or 0.0), 1.0) / 60.0)
+                                for k, v in methods.items()})
+    if chosen == "single":
+        return {**single, "mass_method": "single", "mass_methods": methods}
+    return {**single, "mass_kg": mj["mass_kg"], "u_kg": mj["u_kg"], "U_kg": mj["U_kg"],
+            "gross_mass_kg": mj["gross_mass_kg"], "u_components_kg": mj["budget_kg"], "mass_method": "multipose",
+            "mass_methods": methods, "warnings": [*single["warnings"], *(f"multi-pose: {w}" for w in multi.warnings)]}
+
+
 def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, fixture: FixtureFrame,
-            poses: list[tuple[CogPose, list[str]]], cal_doc: dict[str, Any]) -> dict[str, Any]:
+            poses: list[tuple[CogPose, list[str]]], cal_doc: dict[str, Any], mass_method: str = "single",
+            robot_time_s: Mapping[str, float] | None = None) -> dict[str, Any]:
     write_properties_dir(run_dir, s, mass_traces, scheme, fixture, poses, cal_doc)
-    return {**compute_properties(run_dir), "mass_traces": list(mass_traces),
+    return {**compute_properties(run_dir, mass_method, robot_time_s), "mass_traces": list(mass_traces),
             "cog_poses": [{"name": p.name, "q_deg": list(p.q_deg), "traces": list(t)} for p, t in poses]}
 
 
@@ -230,8 +281,12 @@ def properties_plan(
     poses, pose_loops = yield from cog_step(run, s, p, tag, 1 + len(mass_loops))
     yield m.Emit(Event("step", "computing mass and CoG (offline path)", step="compute"))
     t0 = time.monotonic()
+    lever = {t for pose, traces in poses or [] if pose.name == "meas" or pose.name.startswith("A3") for t in traces}
+    robot_s = {"single": sum(o.timing.robot_s for o in mass_loops),
+               "multipose": sum(o.timing.robot_s for o in pose_loops if o.trace in lever)}
     result = yield m.Process("compute mass and CoG", _finish,
-                             (run.run_dir, s, [o.trace for o in mass_loops], p.scheme, fixture, poses, cal_doc))
+                             (run.run_dir, s, [o.trace for o in mass_loops], p.scheme, fixture, poses, cal_doc,
+                              p.mass_method, robot_s))
     compute_s = time.monotonic() - t0
     inertia_loops: list[LoopOutcome] = []
     if p.inertia:
@@ -303,6 +358,11 @@ async def run_properties(
     p = props or PropertiesSettings.from_config(cfg)
     fixture = p.fixture(s.fixture_mass_kg)  # refuse a bad fixture before the run opens
     cog_poses(s.meas_pose_deg, p.scheme)
+    if p.mass_method != "single":  # a robot without lever poses (robots/<model>.py multipose_a3_deg)
+        try:
+            lever_poses(s.meas_pose_deg)
+        except DataError as exc:
+            raise PreconditionError(f"properties mass_method {p.mass_method!r}: {exc}") from None
     recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
     cal = await recorder.active_calibration(s.robot)
     if cal is None:

@@ -91,4 +91,8 @@ ROBOT = RobotModel(
         payload_box_min_m=(-1.0, -1.0, 0.0),  # project choice: within payload_lever_max_m
         payload_box_max_m=(1.0, 1.0, 1.5),
     ),
+    # project choice (issue #35): the measurement pose and the forearm raised by 80° (A3 10°, A5 +80°): the flange's
+    # lever to A3 falls from 1.315 to 0.522 m while its orientation, and so every load's A5 torque, stays. Not 90°:
+    # the brake-release move's +35° on A5 would pass its +120° limit (the interlock's static check refuses it)
+    multipose_a3_deg=(0.0, -80.0),
 )

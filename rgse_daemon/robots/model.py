@@ -131,6 +131,9 @@ class RobotModel:
     calibration: CalibrationLoads
     cell: DefaultCell
     """The cell the default configuration assumes (``[cell]``'s defaults): the robot's frame, the payload's box."""
+    multipose_a3_deg: tuple[float, ...] = ()
+    """The lever poses of the multi-pose mass (issue #35): A3 offsets (deg) from the measurement pose, A5 turned by
+    the opposite so that the flange keeps its orientation (:mod:`rgse_daemon.pipeline.multipose`); () = none."""
 
     def __post_init__(self) -> None:
         six = {"axis_sign": self.axis_sign, "theta_offset_deg": self.theta_offset_deg, "home_deg": self.home_deg,

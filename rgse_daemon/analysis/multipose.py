@@ -1,0 +1,86 @@
+"""The multi-pose mass of a properties run directory (issue #35): the A3 traces of its lever poses (CoG scheme
+``lever``), the bare readings and K_A3 of CAL.json's ``torsional`` section, β of ``fit.thermal``. The numbers are
+computed in :mod:`rgse_daemon.pipeline.multipose`; one code path for the daemon and a re-analysis of the files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from rgse_daemon import calfile
+from rgse_daemon.errors import DataError
+from rgse_daemon.manifest import TORQUE_CHANNEL, load_manifest, mean_temperature_k, read_toml
+from rgse_daemon.pipeline import multipose as mp
+from rgse_daemon.pipeline import preprocess as pp
+from rgse_daemon.pipeline.thermal import ThermalDrift
+from rgse_daemon.trace.diadem import read_trace_set
+
+A3_MODULE = "NextGenDrive#3"
+
+
+def _visits(directory: Path, pose: str, traces: list[str], pre: pp.Preprocessing, thermal: ThermalDrift | None
+            ) -> mp.PoseVisits:
+    """Per loop of the pose: the pre-processed A3 mean, brought to β's reference temperature when β applies."""
+    means, levers = [], []
+    for t in traces:
+        ts = read_trace_set(directory, t)
+        tf = ts.files.get(A3_MODULE)
+        if tf is None:
+            raise DataError(f"{directory}: trace {t!r} of pose {pose} has no A3 drive ({A3_MODULE})")
+        values = np.asarray(ts.channel(A3_MODULE, TORQUE_CHANNEL).values, float)
+        mean = pp.process_loop(values, float(tf.period_s), pre).torque_nm
+        temp = mean_temperature_k(tf)
+        if thermal is None or temp is None or not math.isfinite(temp):
+            means.append(mean)
+            levers.append(0.0)
+        else:
+            means.append(thermal.correct_nm("A3", mean, temp))
+            levers.append(mean * (temp - thermal.reference_k["A3"]))
+    return mp.PoseVisits(pose, np.array(means), np.array(levers))
+
+
+def compute_multipose_dir(directory: Path | str, calibration_path: Path | str,
+                          fixture_mass_kg: float | None = None) -> mp.MultiPoseMass:
+    """MP1–MP3 for a properties run directory measured in the ``lever`` scheme. DataError naming the file when the
+    run has no lever poses, CAL.json no torsional section with their bare readings and K_A3, or a pose one loop."""
+    directory = Path(directory)
+    doc, _cal, pre = calfile.read(calibration_path)
+    tors = calfile.torsional(doc, calibration_path)
+    if tors is None or 3 not in tors.gains:
+        raise DataError(f"{calibration_path}: no torsional section with A3's gain: the multi-pose mass needs a CoG "
+                        f"calibration in scheme 'lever'")
+    man = load_manifest(directory)
+    props = read_toml(man.path).get("properties") or {}
+    specs = {p["name"]: (tuple(float(v) for v in p["q_deg"]), list(p["traces"])) for p in props.get("pose", [])}
+    names = [n for n in specs if n == "meas" or n.startswith("A3")]
+    if len(names) < 2:
+        raise DataError(f"{man.path}: no lever poses (measure in CoG scheme 'lever' for the multi-pose mass)")
+    # K_A3 and the bare readings hold at the torsional campaign's mean A3 temperature: the DuT's loops are brought
+    # there with the campaign's β (not to the mass campaign's reference: K_A3 would then be off by β·ΔT, 1.5 % over
+    # the 20 K between a cold mass campaign and a warm torsional one)
+    thermal = calfile.thermal(calibration_path, doc)
+    t_state = ((doc.get("torsional") or {}).get("thermal_state_k") or {}).get("A3")
+    if thermal is not None and (thermal.unresolved("A3") is not None or t_state is None):
+        thermal = None
+    if thermal is not None:
+        thermal = dataclasses.replace(thermal, reference_k={**thermal.reference_k, "A3": float(t_state)})
+    poses, bias = [], {}
+    for n in names:
+        q, _ = specs[n]
+        cal_pose = tors.poses.get(n)
+        if cal_pose is None:
+            raise DataError(f"{calibration_path}: torsional section has no bare reading in pose {n}")
+        if max(abs(a - b) for a, b in zip(cal_pose.q_deg, q, strict=True)) > 0.5:
+            raise DataError(f"{man.path}: pose {n} {list(q)} is not the calibration's {list(cal_pose.q_deg)}")
+        poses.append(mp.LeverPose(n, q, mp.flange_lever_a3_m(q)))
+        bias[n] = mp.PoseBias(cal_pose.bias_nm[2], cal_pose.u_bias_nm[2])
+    cal = mp.MultiPoseCalibration(tuple(poses), bias, 0.0, 0, tors.gains[3],
+                                  0.0 if thermal is None else thermal.u_coeff_per_k["A3"], mp.LEVER_U_M,
+                                  man.setup.g_m_s2)
+    visits = [_visits(directory, n, specs[n][1], pre or pp.PAPER, thermal) for n in names]
+    m_f = man.fixture_mass_kg if fixture_mass_kg is None else fixture_mass_kg
+    return mp.multipose_mass(visits, cal, 0.0 if m_f is None else m_f)

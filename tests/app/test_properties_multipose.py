@@ -1,0 +1,68 @@
+"""The multi-pose mass end to end (issue #35): an MQTT ``properties`` command with scheme ``lever`` and mass method
+``auto`` → the daemon → the simulated KR C4 on a real socket (the mass loops, the paper's CoG poses and the lever
+pose with the forearm raised, every motion through the interlock's static check) → a result that records both
+masses, their robot time and the method it chose; and the refusal of ``multipose`` without the lever poses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from simulators.krc4 import physics as ph
+from simulators.krc4.sim import SimulatedKrc4
+from tests.app.test_properties_run import _config, peer
+from tests.support.cogcal import fit_sim_cog_calibration
+from tests.support.daemon import Events, command, run_end, running_daemon, seed_calibration
+from tests.support.mqtt import MosquittoProcess
+from tests.support.polling import wait_until
+
+WING_BOX = ph.refex_wing_box()
+
+
+@pytest.fixture(scope="module")
+def lever_calibration_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """CAL.json of the simulated robot with its torsional section in scheme ``lever`` (fitted offline)."""
+    return fit_sim_cog_calibration(tmp_path_factory.mktemp("lever-calibration"), "lever")
+
+
+@pytest.mark.timeout(400)  # the lever calibration fitted offline (about 60 s) and the run (deadline 300 s)
+async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_the_choice(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, lever_calibration_doc: dict[str, Any],
+        tmp_path: Path) -> None:
+    cfg = _config(sim, private_broker, tmp_path / "data", scheme="lever", loops_per_pose=2, mass_method="auto")
+    await seed_calibration(cfg, lever_calibration_doc)
+    sim.mount(WING_BOX.payload())
+    events = Events()
+    fixture = {"cog_flange_m": list(ph.fixture_cog_flange_m()),
+               "dut_origin_flange_m": list(WING_BOX.dut_origin_flange_m), "dut_abc_deg": list(WING_BOX.dut_abc_deg)}
+    async with running_daemon(cfg, on_event=events) as rd, peer(private_broker) as op:
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        reply = await command(op, "properties", {"fixture": fixture})
+        assert reply["ok"] is True and reply["scheme"] == "lever" and reply["mass_method"] == "auto"
+        result = await run_end(rd, timeout_s=300.0)
+    assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["meas", "A6+90", "A3-80"]
+    methods = result["mass_methods"]
+    assert set(methods) == {"single", "multipose"} and result["mass_method"] in methods
+    assert methods["multipose"]["visits"] == {"meas": 2, "A3-80": 2}
+    assert methods["single"]["robot_time_s"] > 0 and methods["multipose"]["robot_time_s"] > 0
+    chosen = methods[result["mass_method"]]
+    assert result["mass_kg"] == pytest.approx(chosen["mass_kg"]) and result["U_kg"] == pytest.approx(chosen["U_kg"])
+    # auto: the least U² per robot minute
+    score = {k: v["U_kg"] ** 2 * v["robot_time_s"] for k, v in methods.items()}
+    assert result["mass_method"] == min(score, key=score.get)
+    for name, m in methods.items():
+        assert abs(m["mass_kg"] - WING_BOX.mass_kg) <= m["U_kg"], (name, m)
+
+
+async def test_multipose_refused_without_the_lever_poses(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, lever_calibration_doc: dict[str, Any],
+        tmp_path: Path) -> None:
+    cfg = _config(sim, private_broker, tmp_path / "data", scheme="paper", loops_per_pose=2)
+    await seed_calibration(cfg, lever_calibration_doc)
+    async with running_daemon(cfg) as rd, peer(private_broker) as op:
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        reply = await command(op, "properties", {"fixture": {"cog_flange_m": list(ph.fixture_cog_flange_m())},
+                                                 "mass_method": "multipose"})
+        assert reply["ok"] is False and "needs scheme 'lever'" in reply["error"]
