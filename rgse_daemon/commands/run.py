@@ -2,7 +2,7 @@
 its result, for shell scripts (on :mod:`rgse_daemon.client`).
 
 ``rgse run measure --config FILE [--loops N] [--fixture-mass KG] [--dry-run]``
-``rgse run properties --config FILE [--loops N] [--loops-per-pose N] [--scheme paper|full|lever] [--mass-method single|multipose|auto] [--fixture-mass KG]
+``rgse run properties --config FILE [--loops N] [--loops-per-pose N] [--scheme paper|full|lever] [--fixture-mass KG]
 [--fixture-cog X Y Z [--dut-origin X Y Z] [--dut-abc A B C]] [--dry-run]``
 ``rgse run calibrate --config FILE [--points FILE.toml] [--method M]``
 common: ``[--on-prompt stdin|wait] [--timeout S] [--report DIR] [--json]``

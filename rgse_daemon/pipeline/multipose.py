@@ -34,7 +34,7 @@ from scipy import stats
 from rgse_daemon import kinematics as kin
 from rgse_daemon import robots
 from rgse_daemon.errors import DataError
-from rgse_daemon.pipeline.cog import AxisGain
+from rgse_daemon.pipeline.axis_gain import AxisGain
 from rgse_daemon.pipeline.uncertainty import COVERAGE_K
 from rgse_daemon.robots.model import RobotModel
 

@@ -113,7 +113,7 @@ def test_multipose_u_covers_the_truth_out_of_sample():
 def _synthetic(mass_kg: float, offset_nm: float, gain: float = 0.92):
     """Readings of a linear drive (r = gain·x + offset) in the two lever poses, three visits each, with a bare
     reading per pose, and an A3 gain fitted on exact points: (visits, calibration)."""
-    from rgse_daemon.pipeline.cog import fit_gain
+    from rgse_daemon.pipeline.axis_gain import fit_gain
 
     poses = mp.lever_poses(kin.measurement_pose())
     x_cal = np.array([-500.0, -1000.0, -2000.0, -3000.0])

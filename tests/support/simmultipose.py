@@ -15,7 +15,7 @@ import numpy as np
 
 from rgse_daemon import kinematics as kin
 from rgse_daemon.analysis.calibration import CampaignData, campaign_points, campaign_thermal
-from rgse_daemon.pipeline import cog as cog_mod
+from rgse_daemon.pipeline import axis_gain
 from rgse_daemon.pipeline import multipose as mp
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline.thermal import ThermalDrift
@@ -71,13 +71,13 @@ def visit_poses(model: ph.RobotModel, poses: list[mp.LeverPose], visits_per_pose
     return [mp.PoseVisits(k, np.array([a for a, _ in v]), np.array([b for _, b in v])) for k, v in got.items()]
 
 
-def a3_gain(data: CampaignData) -> cog_mod.AxisGain:
+def a3_gain(data: CampaignData) -> axis_gain.AxisGain:
     """K_A3 from the campaign's loaded points: the A3 reading normalised with the MPA's zero point against the
     expected payload torque −g·m·r_A3 (holding-torque sign), each point its own group (one mounting)."""
     points, _, _ = campaign_points(data, pp.PAPER)
     loaded = points.mass_kg > 0
     x, r = -points.expected_a3_nm[loaded], points.torque_a3_nm[loaded]
-    gain, _ = cog_mod.select_gain(3, x, r, np.ones_like(x), np.arange(x.size))
+    gain, _ = axis_gain.select_gain(3, x, r, np.ones_like(x), np.arange(x.size))
     return gain
 
 
@@ -123,7 +123,7 @@ def simulate_multipose_campaign(seed: int, bias_visits: int = 4, scenario=None, 
     bias, sigma, dof = mp.pose_bias(bare)
     if lever_gain:
         x, r, grp = lever_points(model, poses, bias, drift, applied)
-        gain, _ = cog_mod.select_gain(3, x, r, np.ones_like(x), grp)
+        gain, _ = axis_gain.select_gain(3, x, r, np.ones_like(x), grp)
     else:
         gain = a3_gain(data)
     cal = mp.MultiPoseCalibration(tuple(poses), bias, sigma, dof, gain,
