@@ -48,8 +48,8 @@ def compute_multipose_dir(directory: Path | str, calibration_path: Path | str,
     """MP1–MP3 for a properties run directory measured in the ``lever`` scheme. DataError naming the file when the
     run has no lever poses, CAL.json no torsional section with their bare readings and K_A3, or a pose one loop."""
     directory = Path(directory)
-    doc, _cal, pre = calfile.read(calibration_path)
-    tors = calfile.torsional(doc, calibration_path)
+    calf = calfile.read(calibration_path)
+    pre, tors = calf.preprocessing, calf.torsional
     if tors is None or 3 not in tors.gains:
         raise DataError(f"{calibration_path}: no torsional section with A3's gain: the multi-pose mass needs a CoG "
                         f"calibration in scheme 'lever'")
@@ -62,8 +62,8 @@ def compute_multipose_dir(directory: Path | str, calibration_path: Path | str,
     # K_A3 and the bare readings hold at the torsional campaign's mean A3 temperature: the DuT's loops are brought
     # there with the campaign's β (not to the mass campaign's reference: K_A3 would then be off by β·ΔT, 1.5 % over
     # the 20 K between a cold mass campaign and a warm torsional one)
-    thermal = calfile.thermal(calibration_path, doc)
-    t_state = ((doc.get("torsional") or {}).get("thermal_state_k") or {}).get("A3")
+    thermal = calf.fit.thermal
+    t_state = (tors.thermal_state_k or {}).get("A3")
     if thermal is not None and (thermal.unresolved("A3") is not None or t_state is None):
         thermal = None
     if thermal is not None:
