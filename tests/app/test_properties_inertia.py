@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from rgse_daemon import calfile
 from rgse_daemon.cli import main
 from rgse_daemon.client import PropertiesResult
 from rgse_daemon.config import Config, config_from_mapping
@@ -159,7 +160,7 @@ async def test_inertia_is_refused_before_anything_moves_without_wrist_gains(
     cfg = _config(sim, private_broker, tmp_path / "data")
     doc = json.loads(json.dumps(cog_calibration_doc))
     del doc["torsional"]["axes"]["A5"]  # a campaign that did not trace A5 in its torsional points
-    await seed_calibration(cfg, doc)
+    await seed_calibration(cfg, calfile.seal(doc))  # sealed, as its campaign would have written it
     async with running_daemon(cfg) as rd, peer(private_broker) as op:
         await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
         bad = await command(op, "properties", {"fixture": FIXTURE, "inertia": "yes"})
