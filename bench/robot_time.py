@@ -15,7 +15,14 @@ time (first loop's start to the last loop's files indexed) minus their robot tim
 pull, the store, the stop rule's interim budget, the last loop's pull. The daemon's own CPU work is *not* faster
 with the time scale, so at ``--time-scale`` S the overhead is an upper bound (its CPU part counts S times).
 
-Run: ``.venv/bin/python bench/robot_time.py [--time-scale 50] [--seed 2024] [--hash-mb 200]``
+The goal's figure is therefore the ``overhead`` run: ``--overhead-loops`` mass loops at ``--overhead-scale`` (default
+1: real time, file work at 40 kB/s, the simulator's 2 ms per request) with the daemon's engine, monitor, heartbeat,
+recorder and store, every message the engine executes timed (:class:`TimedEngine`) and printed as where the loops'
+wall time goes. Then the planner's prediction for a 50-250 kg campaign (bench/plan.py; ``--run`` there runs it) and
+issue 35's goals as one table: goal, bound, measured, met.
+
+Run: ``.venv/bin/python bench/robot_time.py [--time-scale 50] [--seed 2024] [--hash-mb 200] [--overhead-scale 1]``
+(about 15 min on a free 2-core machine, 4 of them the real-time overhead run).
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from typing import Any
 
 import blake3
 import numpy as np
+import plan as plan_bench
 from demo_sim import FILE_RATE_BYTES_S, demo_sim, finished, heartbeat, running_daemon
 
 from rgse_daemon.commands import demo
@@ -281,8 +289,48 @@ def main() -> None:
     if args.overhead_scale > 0:
         out["overhead"] = asyncio.run(overhead_run(args.overhead_scale, args.seed, args.overhead_loops))
     out["hash"] = hash_rows(args.hash_mb, args.hash_runs)
+    with tempfile.TemporaryDirectory(prefix="rgse-robot-time-plan-") as tmp:
+        out["campaign_plan"] = plan_bench.predicted(Path(tmp) / "plan.toml")["time"]
     _print_table(out)
+    _print_goals(out)
     print(json.dumps(out))
+
+
+def goal_rows(out: dict[str, Any]) -> list[tuple[str, str, str, bool | None]]:
+    """Issue 35's goals: (goal, its bound, what this run measured, met?); None: not measured by this bench."""
+    rows: list[tuple[str, str, str, bool | None]] = []
+    runs = {r["run"]: r for r in out.get("rows", [])}
+    rule, fixed, props = runs.get("stop rule"), runs.get("fixed 10"), runs.get("properties")
+    if rule is not None and fixed is not None:
+        rows.append(("in-line mass at today's U", "<= 4 min", f"{rule['robot_min']:.2f} min, {rule['loops']} loops, "
+                     f"U {rule['U_kg']:.2f} kg (fixed 10: {fixed['robot_min']:.2f} min, U {fixed['U_kg']:.2f} kg)",
+                     rule["robot_min"] <= 4.0 and rule["U_kg"] <= 1.01 * fixed["U_kg"]))
+    o = out.get("overhead")
+    if o is not None:
+        rows.append(("daemon overhead at 40 kB/s", "<= 1 % of robot time",
+                     f"{o['overhead_pct']:.2f} % (x{o['scale']:g}, {o['loops']} loops; last loop's pull "
+                     f"{o['last_pull_pct']:.2f} %)", o["overhead_pct"] <= 1.0))
+    if props is not None:
+        rows.append(("properties run (mass and CoG)", "<= 8 min", f"{props['robot_min']:.2f} min (mass "
+                     f"{props['mass_min']:.2f} + CoG {props['cog_min']:.2f}), U {props['U_kg']:.2f} kg",
+                     props["robot_min"] <= 8.0))
+    t = out.get("campaign_plan")
+    if t is not None:
+        rows.append(("planned campaign 50-250 kg", "<= 120 min", f"{t['robot_min_s'] / 60:.0f}-{t['robot_s'] / 60:.0f} "
+                     f"min predicted ({t['loops']} loops; bench/plan.py --run runs it)", t["robot_s"] / 60 <= 120.0))
+    rows.append(("multi-pose mass", "U <= 1.5 % of the mass, coverage 90-99 %", "not measured here", None))
+    h = out.get("hash")
+    if h is not None:
+        rows.append(("read + BLAKE3", ">= 0.5x numpy.fromfile", f"{h['read + BLAKE3']:.2f}x ({h['size_mb']:.0f} MB, "
+                     f"warm cache)", h["read + BLAKE3"] >= 0.5))
+    return rows
+
+
+def _print_goals(out: dict[str, Any]) -> None:
+    print(f"\nissue 35's goals (one run; seed {out['seed']}):")
+    print("| goal | bound | measured | met? |\n|---|---|---|---|")
+    for goal, bound, measured, met in goal_rows(out):
+        print(f"| {goal} | {bound} | {measured} | {'-' if met is None else 'yes' if met else 'NO'} |")
 
 
 def _print_table(out: dict[str, Any]) -> None:
