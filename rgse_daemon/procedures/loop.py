@@ -3,7 +3,7 @@
 A *loop* (paper §2.4.4, Fig. 23/24) is: brake-release move (A3 and A5 rotate by φ' and back) → settle → trace of
 ``trace_samples`` at ``trace_period_s`` → pull the trace files, verify and archive them → record the loop. A series
 of loops takes the file work off the robot's path (``previous``/``defer`` of :func:`loop`, :func:`collect` for the
-last one): loop N's pull, its archive, index and delete, and the check and push of loop N+1's move run while loop
+last one): loop N's pull, its archive, index and delete, and the check and push of loop N+2's move run while loop
 N+1's trace records (the robot stands still, no program runs: the file-window rule), so that between two recordings
 only the move and its handshakes remain. Its timing is split into **robot time** (program start → ``#P_END`` as the
 controller reports it, the settling wait and trace start → ``#T_END``) and **daemon overhead** (pulling, archiving,
