@@ -28,24 +28,22 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from rgse_daemon.app import Daemon, campaign_point
+from demo_sim import demo_sim, finished, running_daemon
+
+from rgse_daemon.app import campaign_point
 from rgse_daemon.client import load_points
 from rgse_daemon.commands import demo
 from rgse_daemon.commands import plan as plan_cmd
 from rgse_daemon.config import load_config
 from rgse_daemon.io.commands import CalibrationPoint
-from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.pipeline import planning as pl
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.settings import RunSettings
-from simulators.krc4.process import SimProcess
 
 MASS_KG = (50.0, 250.0)
 LEVER_A5_M = (0.40, 0.90)
 #: bench/robot_time.py at x50 (commit c8ada2c): the demo's campaign, 42 loops.
 DEMO_CAMPAIGN_LOOPS_MIN, DEMO_CAMPAIGN_LOOPS = 54.8, 42
-#: The daemon's default controller file rate (B/s of real time), scaled with the simulator as bench/robot_time.py.
-FILE_RATE_BYTES_S = 40_000.0
 GOAL_MIN = 120.0
 
 
@@ -63,13 +61,11 @@ def predicted(points_out: Path) -> dict[str, Any]:
 class WarmupClock:
     """The engine's events, timed: warm-up runs (``step`` events of step ``warm-up``) and their wall spacing."""
 
-    def __init__(self, operator: demo.Operator) -> None:
-        self.operator = operator
+    def __init__(self) -> None:
         self.events: list[tuple[float, Event]] = []
 
     def __call__(self, ev: Event) -> None:
         self.events.append((time.monotonic(), ev))
-        self.operator(ev)
 
     def warmup_wall_s(self) -> tuple[int, int, float]:
         """(warm-ups, warm-up runs, their wall time): each run's duration is the median spacing of two runs of one
@@ -83,40 +79,18 @@ class WarmupClock:
 
 
 async def run_campaign(points_file: Path, scale: float, seed: int, loops: int) -> dict[str, Any]:
-    rate = FILE_RATE_BYTES_S * scale
-    with tempfile.TemporaryDirectory(prefix="rgse-bench-plan-") as tmp:
-        root = Path(tmp)
-        sim = SimProcess(root / "share", seed=seed, time_scale=scale, globals_dat=globals_dat_text(),
-                         file_rate_bytes_s=rate)
-        await asyncio.to_thread(sim.start)
-        try:
-            cfg = demo.demo_config(sim, root / "data", None, time_scale=scale, file_rate_bytes_s=rate)
-            s = RunSettings.from_config(cfg, loops=loops)
-            points = [campaign_point(CalibrationPoint.model_validate(p.as_command()), s.g_m_s2)
-                      for p in load_points(points_file)]
-            ref: list[Daemon] = []
-            clock = WarmupClock(demo.Operator(sim, ref, demo.SilentView()))
-            daemon = Daemon(cfg, on_event=clock)
-            ref.append(daemon)
-            stop = asyncio.Event()
-            service = asyncio.create_task(daemon.run(stop), name="rgse-bench-plan-daemon")
-            try:
-                async with asyncio.timeout(30):
-                    await daemon.connected.wait()
-                t0 = time.monotonic()
-                async with asyncio.timeout(3600):
-                    cal = await (await daemon.start_calibration(points=points, method="auto", settings=s))
-                wall = time.monotonic() - t0
-                warmups, warm_runs, warm_wall = clock.warmup_wall_s()
-                await sim.mount(demo.DUT.payload())
-                async with asyncio.timeout(3600):
-                    res = await (await daemon.start_measurement())
-            finally:
-                stop.set()
-                async with asyncio.timeout(60):
-                    await service
-        finally:
-            await asyncio.to_thread(sim.stop)
+    async with demo_sim("rgse-bench-plan-", scale, seed) as (sim, cfg):
+        s = RunSettings.from_config(cfg, loops=loops)
+        points = [campaign_point(CalibrationPoint.model_validate(p.as_command()), s.g_m_s2)
+                  for p in load_points(points_file)]
+        clock = WarmupClock()
+        async with running_daemon(sim, cfg, clock) as daemon:
+            t0 = time.monotonic()
+            cal = await finished(await daemon.start_calibration(points=points, method="auto", settings=s))
+            wall = time.monotonic() - t0
+            warmups, warm_runs, warm_wall = clock.warmup_wall_s()
+            await sim.mount(demo.DUT.payload())
+            res = await finished(await daemon.start_measurement())
     return {"scale": scale, "seed": seed, "loops_per_point": loops, "points": len(points),
             "campaign_wall_s": wall, "loops_robot_min": float(cal["robot_time_s"]) * scale / 60.0,
             "loops": sum(int(p["loops"]) for p in cal.get("points_stop", [])),

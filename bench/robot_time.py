@@ -15,7 +15,14 @@ time (first loop's start to the last loop's files indexed) minus their robot tim
 pull, the store, the stop rule's interim budget, the last loop's pull. The daemon's own CPU work is *not* faster
 with the time scale, so at ``--time-scale`` S the overhead is an upper bound (its CPU part counts S times).
 
-Run: ``.venv/bin/python bench/robot_time.py [--time-scale 50] [--seed 2024] [--hash-mb 200]``
+The goal's figure is therefore the ``overhead`` run: ``--overhead-loops`` mass loops at ``--overhead-scale`` (default
+1: real time, file work at 40 kB/s, the simulator's 2 ms per request) with the daemon's engine, monitor, heartbeat,
+recorder and store, every message the engine executes timed (:class:`TimedEngine`) and printed as where the loops'
+wall time goes. Then the planner's prediction for a 50-250 kg campaign (bench/plan.py; ``--run`` there runs it) and
+issue 35's goals as one table: goal, bound, measured, met.
+
+Run: ``.venv/bin/python bench/robot_time.py [--time-scale 50] [--seed 2024] [--hash-mb 200] [--overhead-scale 1]``
+(about 15 min on a free 2-core machine, 4 of them the real-time overhead run).
 """
 
 from __future__ import annotations
@@ -32,12 +39,12 @@ from typing import Any
 
 import blake3
 import numpy as np
+import plan as plan_bench
+from demo_sim import FILE_RATE_BYTES_S, demo_sim, finished, heartbeat, running_daemon
 
-from rgse_daemon.app import Daemon
 from rgse_daemon.commands import demo
 from rgse_daemon.controller import Controller
 from rgse_daemon.io.topics import Topics
-from rgse_daemon.krl.render import globals_dat_text
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.engine import RunEngine
@@ -51,11 +58,8 @@ from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
 from rgse_daemon.store import RunKind, Store
 from rgse_daemon.trace import read_trace_set
 from simulators.krc4 import physics as ph
-from simulators.krc4.process import SimProcess
 from simulators.krc4.tracefiles import write_trace_set
 
-#: The daemon's default controller file rate (config.ControllerConfig.file_rate_bytes_s), B/s of real time.
-FILE_RATE_BYTES_S = 40_000.0
 #: Issue 35's reference figures (min of robot time): today's 10-loop mass and properties runs, the paper's run.
 TODAY_MASS_MIN, TODAY_PROPERTIES_MIN, PAPER_MIN = 11.5, 16.75, 25.0
 
@@ -88,94 +92,143 @@ def _run_row(name: str, result: dict[str, Any], scale: float, true_kg: float) ->
 
 
 async def robot_runs(scale: float, seed: int) -> dict[str, Any]:
-    rate = FILE_RATE_BYTES_S * scale
-    with tempfile.TemporaryDirectory(prefix="rgse-robot-time-") as tmp:
-        root = Path(tmp)
-        sim = SimProcess(root / "share", seed=seed, time_scale=scale, globals_dat=globals_dat_text(),
-                         file_rate_bytes_s=rate)
-        await asyncio.to_thread(sim.start)
-        try:
-            cfg = demo.demo_config(sim, root / "data", None, time_scale=scale, file_rate_bytes_s=rate)
-            ref: list[Daemon] = []
-            operator = demo.Operator(sim, ref, demo.SilentView())
-            daemon = Daemon(cfg, on_event=operator)
-            ref.append(daemon)
-            stop = asyncio.Event()
-            service = asyncio.create_task(daemon.run(stop), name="rgse-bench-daemon")
-            try:
-                async with asyncio.timeout(30):
-                    await daemon.connected.wait()
-                t0 = time.monotonic()
-                cal = await _wait(await daemon.start_calibration(
-                    points=demo.CAMPAIGN, method="auto",
-                    settings=RunSettings.from_config(cfg, loops=demo.CAMPAIGN_LOOPS, warmup_cycles=1)))
-                cal_wall = time.monotonic() - t0
-                await sim.mount(demo.DUT.payload())
-                rows = []
-                rule = await _wait(await daemon.start_measurement())
-                rows.append(_run_row("stop rule", rule, scale, demo.DUT_MASS_KG))
-                daemon.cfg = cfg.model_copy(update={"measurement": cfg.measurement.model_copy(
-                    update={"stop_loop_share": 0.0})})
-                fixed = await _wait(await daemon.start_measurement())
-                rows.append(_run_row("fixed 10", fixed, scale, demo.DUT_MASS_KG))
-                daemon.cfg = cfg
-                props = await _wait(await daemon.start_properties(props=PropertiesSettings(
-                    demo.COG_SCHEME, demo.PROPERTIES_LOOPS_PER_POSE, ph.fixture_cog_flange_m(),
-                    demo.DUT.dut_origin_flange_m, demo.DUT.dut_abc_deg, False)))
-                rows.append(_run_row("properties", props, scale, demo.DUT_MASS_KG))
-            finally:
-                stop.set()
-                async with asyncio.timeout(60):
-                    await service
-        finally:
-            await asyncio.to_thread(sim.stop)
+    async with demo_sim("rgse-robot-time-", scale, seed) as (sim, cfg), running_daemon(sim, cfg) as daemon:
+        t0 = time.monotonic()
+        cal = await finished(await daemon.start_calibration(points=demo.CAMPAIGN, method="auto", settings=RunSettings.
+                                                      from_config(cfg, loops=demo.CAMPAIGN_LOOPS, warmup_cycles=1)))
+        cal_wall = time.monotonic() - t0
+        await sim.mount(demo.DUT.payload())
+        rows = []
+        rule = await finished(await daemon.start_measurement())
+        rows.append(_run_row("stop rule", rule, scale, demo.DUT_MASS_KG))
+        daemon.cfg = cfg.model_copy(update={"measurement": cfg.measurement.model_copy(
+            update={"stop_loop_share": 0.0})})
+        fixed = await finished(await daemon.start_measurement())
+        rows.append(_run_row("fixed 10", fixed, scale, demo.DUT_MASS_KG))
+        daemon.cfg = cfg
+        props = await finished(await daemon.start_properties(props=PropertiesSettings(
+            demo.COG_SCHEME, demo.PROPERTIES_LOOPS_PER_POSE, ph.fixture_cog_flange_m(),
+            demo.DUT.dut_origin_flange_m, demo.DUT.dut_abc_deg, False)))
+        rows.append(_run_row("properties", props, scale, demo.DUT_MASS_KG))
     return {"rows": rows, "campaign_robot_min": float(cal.get("robot_time_s", 0.0)) * scale / 60.0,
             "campaign_wall_s": cal_wall, "campaign_points_stop": cal.get("points_stop", [])}
+
+
+#: Where the loops' wall time goes, by the message the engine executed (bench/robot_time.py's breakdown). The robot's
+#: own time: the move (``WaitProgram``), the settling (``Sleep``), the recording (``TraceWait``).
+ROBOT_PARTS = ("motion", "settle", "record")
+_PART_OF = {"WaitProgram": "motion", "Sleep": "settle", "TraceWait": "record", "Select": "select",
+            "Start": "start", "VerifyDone": "handshake RGSE_DONE", "ReadState": "read state",
+            "TraceStart": "trace start (3 writes)", "PullJoin": "wait for the pull", "Pull": "last loop's pull",
+            "DeleteTraceCopies": "delete on the controller", "Compute": "render (beyond settling)",
+            "Process": "stop rule's budget", "Checkpoint": "events", "Emit": "events", "PutFile": "put file"}
+
+
+class TimedEngine(RunEngine):
+    """The daemon's engine, timing each message it executes (wall s): the overhead run's breakdown. The static check
+    and the wait for a pull in flight before a ``Push`` are told apart from the transfer."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.spans: list[tuple[str, float, float]] = []
+
+    async def _execute(self, msg: m.Msg) -> Any:
+        t0 = time.monotonic()
+        try:
+            return await super()._execute(msg)
+        finally:
+            name = type(msg).__name__
+            part = _PART_OF.get(name, "store" if isinstance(msg, d.Document) else name)
+            if name == "Push":
+                part = "push (transfer)"
+            self.spans.append((part, t0, time.monotonic()))
+
+    async def _pulls_ended(self, what: str) -> None:
+        t0 = time.monotonic()
+        try:
+            await super()._pulls_ended(what)
+        finally:
+            self.spans.append(("wait for the pull", t0, time.monotonic()))
+
+    async def _check(self, prog: m.Program) -> None:
+        t0 = time.monotonic()
+        try:
+            await super()._check(prog)
+        finally:
+            self.spans.append(("push (static check)", t0, time.monotonic()))
+
+
+def breakdown(spans: list[tuple[str, float, float]], t_start: float, t_end: float, settle_s: float,
+              overrun_s: list[float]) -> dict[str, float]:
+    """Wall s by part between ``t_start`` and ``t_end``, each span without the spans nested in it (the static check
+    and a pull's wait inside a ``Push``); what no span covers is the plan's own code and the event loop (``plan
+    code``). Two windows count as wholes, for the robot stands still in them and their work is hidden: a loop's
+    settling (move's end to trace start; ``settle`` up to ``settle_s``, past it ``settle window beyond settling``)
+    and its recording (trace start to ``#T_END`` seen, the previous loop's pull and the next move's push in it;
+    ``record``, less what the loop timed as work past the trace's end, ``overrun_s`` in loop order). A wait for a
+    pull after the last recording is the last loop's pull, which nothing overlaps."""
+    inside = sorted(((p, a, b) for p, a, b in spans if a >= t_start and b <= t_end), key=lambda x: (x[1], -x[2]))
+    last_record = max((b for p, _, b in inside if p == "record"), default=t_end)
+    moves = [b for p, _, b in inside if p == "motion"]
+    starts = [a for p, a, _ in inside if p == "trace start (3 writes)"]
+    ends = [b for p, _, b in inside if p == "record"]
+    settles = [(e, min(t for t in starts if t >= e)) for e in moves if any(t >= e for t in starts)]
+    records = [(t, min(e for e in ends if e >= t)) for t in starts if any(e >= t for e in ends)]
+    windows = settles + records
+    out: dict[str, float] = {}
+    covered = sum(w1 - w0 for w0, w1 in windows)
+    for p, a, b in inside:
+        if any(w0 <= a and b <= w1 for w0, w1 in windows):
+            continue
+        nested = sum(nb - na for q, na, nb in inside if (na, nb, q) != (a, b, p) and a <= na and nb <= b)
+        if not any(oa <= a and b <= ob and (oa, ob) != (a, b) for _, oa, ob in inside):
+            covered += b - a
+        part = "last loop's pull" if p == "wait for the pull" and a >= last_record else p
+        out[part] = out.get(part, 0.0) + (b - a) - nested
+    out["plan code"] = (t_end - t_start) - covered
+    out["settle"] = sum(min(w1 - w0, settle_s) for w0, w1 in settles)
+    out["settle window beyond settling"] = sum(max(0.0, w1 - w0 - settle_s) for w0, w1 in settles)
+    out["work past the trace's end"] = sum(overrun_s[:len(records)])
+    out["record"] = sum(w1 - w0 for w0, w1 in records) - out["work past the trace's end"]
+    return out
 
 
 async def overhead_run(scale: float, seed: int, loops: int) -> dict[str, Any]:
     """The daemon's overhead on the loops' path near real time: a series of ``loops`` mass loops (no warm-up; the
     stop rule's interim budget is timed in the calibrated runs above and added) on a simulator at ``scale`` with
     the controller's file work at 40 kB/s x ``scale``. The engine, monitor, recorder and store as the daemon runs
-    them."""
-    rate = FILE_RATE_BYTES_S * scale
-    with tempfile.TemporaryDirectory(prefix="rgse-overhead-") as tmp:
-        root = Path(tmp)
-        sim = SimProcess(root / "share", seed=seed, time_scale=scale, globals_dat=globals_dat_text(),
-                         file_rate_bytes_s=rate)
-        await asyncio.to_thread(sim.start)
-        try:
-            cfg = demo.demo_config(sim, root / "data", None, time_scale=scale, file_rate_bytes_s=rate)
-            s = RunSettings.from_config(cfg, loops=loops, warmup_cycles=0)
-            async with Controller.connect(cfg.controller) as krc, await Store.open(None, cfg.paths.data_dir) as store:
-                engine = RunEngine(krc, checker=static_checker(cfg.limits, cfg.measurement.payload_lever_max_m),
-                                   monitor=Monitor(krc, stale_periods=cfg.limits.snapshot_stale_s
-                                                   / DEFAULT_POLL_PERIOD_S),
-                                   share_dir=cfg.controller.share_dir)
-                recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+    them; the engine times every message (:class:`TimedEngine`)."""
+    async with demo_sim("rgse-overhead-", scale, seed) as (_sim, cfg):
+        s = RunSettings.from_config(cfg, loops=loops, warmup_cycles=0)
+        async with (Controller.connect(cfg.controller) as krc, await Store.open(None, cfg.paths.data_dir) as store,
+                    heartbeat(cfg)):
+            engine = TimedEngine(krc, checker=static_checker(cfg.limits, cfg.measurement.payload_lever_max_m),
+                                 monitor=Monitor(krc, stale_periods=cfg.limits.snapshot_stale_s
+                                                 / DEFAULT_POLL_PERIOD_S),
+                                 share_dir=cfg.controller.share_dir)
+            recorder = StoreRecorder(store, cfg.paths.data_dir, Topics.of(cfg.mqtt, cfg.robot.name))
+            window: list[float] = []
 
-                def plan(run: d.RunContext) -> m.Plan:
-                    yield from prepare(s, None)
-                    t0 = time.monotonic()
-                    outcomes, _ = yield from measurement_loops(run, s, None, lambda i: f"ovh_l{i:02d}")
-                    return outcomes, time.monotonic() - t0
+            def plan(run: d.RunContext) -> m.Plan:
+                yield from prepare(s, None)
+                window.append(time.monotonic())
+                outcomes, _ = yield from measurement_loops(run, s, None, lambda i: f"ovh_l{i:02d}")
+                window.append(time.monotonic())
+                return outcomes
 
-                outcomes, wall = await engine.execute(
-                    d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json()}), plan, recorder)
-        finally:
-            await asyncio.to_thread(sim.stop)
-    robot = sum(o.timing.robot_s for o in outcomes)
-    last = outcomes[-1].timing.pull_s
-    return {"scale": scale, "loops": loops, "robot_min": robot * scale / 60.0, "overhead_pct": 100.0 * (wall - robot)
-            / robot, "last_pull_pct": 100.0 * last / robot, "pull_total_s_real": [o.timing.pull_total_s * scale
-                                                                               for o in outcomes],
+            outcomes = await engine.execute(
+                d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json()}), plan, recorder)
+    wall = window[1] - window[0]
+    parts = breakdown(engine.spans, window[0], window[1], s.settle_s, [o.timing.overrun_s for o in outcomes])
+    robot = sum(parts.get(p, 0.0) for p in ROBOT_PARTS)
+    last = parts.get("last loop's pull", 0.0)
+    return {"scale": scale, "loops": loops, "robot_min": robot * scale / 60.0,
+            "overhead_pct": 100.0 * (wall - robot) / robot, "last_pull_pct": 100.0 * last / robot,
+            "parts_s_real": {k: v * scale for k, v in sorted(parts.items(), key=lambda kv: -kv[1])},
+            "parts_pct": {k: 100.0 * v / robot for k, v in parts.items() if k not in ROBOT_PARTS},
+            "pull_total_s_real": [o.timing.pull_total_s * scale for o in outcomes],
             "pull_wait_s_real": [o.timing.pull_s * scale for o in outcomes],
             "settle_record_s_real": [(o.timing.settle_s + o.timing.record_s) * scale for o in outcomes]}
-
-
-async def _wait(task: asyncio.Task[Any]) -> Any:
-    async with asyncio.timeout(3600):
-        return await task
 
 
 def _best_s(fn: Callable[[], object], runs: int) -> float:
@@ -225,7 +278,8 @@ def main() -> None:
     ap.add_argument("--hash-mb", type=float, default=200.0)
     ap.add_argument("--hash-runs", type=int, default=5)
     ap.add_argument("--skip-robot", action="store_true", help="no calibrated runs (the overhead and hash rows only)")
-    ap.add_argument("--overhead-scale", type=float, default=4.0, help="the overhead run's time scale (0: none)")
+    ap.add_argument("--overhead-scale", type=float, default=1.0,
+                    help="the overhead run's time scale (0: none; 1: real time)")
     ap.add_argument("--overhead-loops", type=int, default=3)
     args = ap.parse_args()
     out: dict[str, Any] = {"time_scale": args.time_scale, "seed": args.seed,
@@ -235,8 +289,48 @@ def main() -> None:
     if args.overhead_scale > 0:
         out["overhead"] = asyncio.run(overhead_run(args.overhead_scale, args.seed, args.overhead_loops))
     out["hash"] = hash_rows(args.hash_mb, args.hash_runs)
+    with tempfile.TemporaryDirectory(prefix="rgse-robot-time-plan-") as tmp:
+        out["campaign_plan"] = plan_bench.predicted(Path(tmp) / "plan.toml")["time"]
     _print_table(out)
+    _print_goals(out)
     print(json.dumps(out))
+
+
+def goal_rows(out: dict[str, Any]) -> list[tuple[str, str, str, bool | None]]:
+    """Issue 35's goals: (goal, its bound, what this run measured, met?); None: not measured by this bench."""
+    rows: list[tuple[str, str, str, bool | None]] = []
+    runs = {r["run"]: r for r in out.get("rows", [])}
+    rule, fixed, props = runs.get("stop rule"), runs.get("fixed 10"), runs.get("properties")
+    if rule is not None and fixed is not None:
+        rows.append(("in-line mass at today's U", "<= 4 min", f"{rule['robot_min']:.2f} min, {rule['loops']} loops, "
+                     f"U {rule['U_kg']:.2f} kg (fixed 10: {fixed['robot_min']:.2f} min, U {fixed['U_kg']:.2f} kg)",
+                     rule["robot_min"] <= 4.0 and rule["U_kg"] <= 1.01 * fixed["U_kg"]))
+    o = out.get("overhead")
+    if o is not None:
+        rows.append(("daemon overhead at 40 kB/s", "<= 1 % of robot time",
+                     f"{o['overhead_pct']:.2f} % (x{o['scale']:g}, {o['loops']} loops; last loop's pull "
+                     f"{o['last_pull_pct']:.2f} %)", o["overhead_pct"] <= 1.0))
+    if props is not None:
+        rows.append(("properties run (mass and CoG)", "<= 8 min", f"{props['robot_min']:.2f} min (mass "
+                     f"{props['mass_min']:.2f} + CoG {props['cog_min']:.2f}), U {props['U_kg']:.2f} kg",
+                     props["robot_min"] <= 8.0))
+    t = out.get("campaign_plan")
+    if t is not None:
+        rows.append(("planned campaign 50-250 kg", "<= 120 min", f"{t['robot_min_s'] / 60:.0f}-{t['robot_s'] / 60:.0f} "
+                     f"min predicted ({t['loops']} loops; bench/plan.py --run runs it)", t["robot_s"] / 60 <= 120.0))
+    rows.append(("multi-pose mass", "U <= 1.5 % of the mass, coverage 90-99 %", "not measured here", None))
+    h = out.get("hash")
+    if h is not None:
+        rows.append(("read + BLAKE3", ">= 0.5x numpy.fromfile", f"{h['read + BLAKE3']:.2f}x ({h['size_mb']:.0f} MB, "
+                     f"warm cache)", h["read + BLAKE3"] >= 0.5))
+    return rows
+
+
+def _print_goals(out: dict[str, Any]) -> None:
+    print(f"\nissue 35's goals (one run; seed {out['seed']}):")
+    print("| goal | bound | measured | met? |\n|---|---|---|---|")
+    for goal, bound, measured, met in goal_rows(out):
+        print(f"| {goal} | {bound} | {measured} | {'-' if met is None else 'yes' if met else 'NO'} |")
 
 
 def _print_table(out: dict[str, Any]) -> None:
@@ -271,6 +365,10 @@ def _print_table(out: dict[str, Any]) -> None:
         print(f"  pulls (real s): their own time {[round(v, 1) for v in o['pull_total_s_real']]}, waited "
               f"{[round(v, 1) for v in o['pull_wait_s_real']]}, next loop's settling + recording "
               f"{[round(v, 1) for v in o['settle_record_s_real']]}")
+        print(f"  where the loops' wall time goes (s real = wall x{o['scale']:g}; % of robot time):")
+        for part, v in o["parts_s_real"].items():
+            pct = o["parts_pct"].get(part)
+            print(f"    {part:<28} {v:>8.2f} s" + ("" if pct is None else f" {pct:>7.2f} %"))
     h = out["hash"]
     print(f"read + hash vs numpy.fromfile ({h['size_mb']:.0f} MB, warm cache, fromfile {h['fromfile_mb_s']:.0f} MB/s;"
           f" goal >= 0.5x): no hash {h['read, no hash']:.2f}x, SHA-256 {h['read + SHA-256']:.2f}x, "

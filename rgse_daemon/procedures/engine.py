@@ -18,7 +18,9 @@ lessons 1–3):
   stops program and trace at once, publishes an ``alarm`` event and fails the plan with
   :class:`~rgse_daemon.safety.monitor.InterlockTrip`, interrupting whatever message was executing.
 * **Static check before motion.** ``Push`` runs the checker (the interlock's static check against the live
-  snapshot) and refuses before a byte reaches the controller; a refusal is an ``alarm`` too.
+  snapshot) and refuses before a byte reaches the controller; a refusal is an ``alarm`` too. Every ``Push`` is
+  checked; one whose bytes this plan already wrote to the controller since the last program start (a move pushed
+  ahead while the robot stood still) sends nothing again.
 * **Pause/resume** take effect at ``Checkpoint`` messages (robot still, nothing recording); **abort** interrupts
   at once with :class:`PlanAborted` (then the finaliser runs); cancelling the task does the same and re-raises.
 * **Dry run:** only messages whose type is ``inert`` execute; every other one is logged and answered with its
@@ -35,6 +37,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import hashlib
 import logging
 import time
 from collections.abc import Callable, Coroutine
@@ -174,6 +177,9 @@ class RunEngine:
         self._trace_armed = False
         self._running = False
         self._pulls: dict[str, tuple[asyncio.Task[Any], float]] = {}
+        #: Controller file -> SHA-256 of the bytes a ``Push`` of this plan wrote there since the last program start:
+        #: a push of the same bytes (a move pushed ahead, while the robot stood still) is checked again but not sent.
+        self._written: dict[str, bytes] = {}
         #: (kg, flange-frame CoG m) of the load a ``Mounted`` message declared in this plan; None: the checker's own
         self._mounted: tuple[float, tuple[float, float, float]] | None = None
 
@@ -279,6 +285,7 @@ class RunEngine:
         self._interrupt = None
         self._trace_armed = False
         self._mounted = None
+        self._written = {}
         self._set_state(EngineState.RUNNING)
         outcome = EngineState.FAILED
         try:
@@ -409,11 +416,16 @@ class RunEngine:
         prog = msg.program
         await self._check(prog)
         src_name = msg.dry_reply()
+        files = [*([(PROGRAM_DIR + prog.name.upper() + ".DAT", prog.dat_text.encode("latin-1"))]
+                   if prog.dat_text is not None else []), (src_name, prog.src_text.encode("latin-1"))]
+        digests = [hashlib.sha256(data).digest() for _, data in files]
+        if all(self._written.get(name) == h for (name, _), h in zip(files, digests, strict=True)):
+            return src_name  # checked now; these very bytes went there since the last program start (a push ahead)
         async with self._file_window(f"push {prog.name}"):
-            if prog.dat_text is not None:
-                await self._bounded(f"put {prog.name}.DAT", self.krc.put_file(
-                    PROGRAM_DIR + prog.name.upper() + ".DAT", prog.dat_text.encode("latin-1")))
-            await self._bounded(f"put {src_name}", self.krc.put_file(src_name, prog.src_text.encode("latin-1")))
+            for (name, data), h in zip(files, digests, strict=True):
+                self._written.pop(name, None)
+                await self._bounded(f"put {name}", self.krc.put_file(name, data))
+                self._written[name] = h
         return src_name
 
     def _file_window(self, what: str) -> contextlib.AbstractAsyncContextManager[Any]:
@@ -427,6 +439,7 @@ class RunEngine:
         await self._bounded(f"select {msg.name}", self.krc.select_program(msg.name, force=True))
 
     async def _do_Start(self, msg: m.Start) -> float:
+        self._written.clear()  # a push after a program ran sends its files again
         self._expect(Expect.RUNNING)
         t0 = time.monotonic()
         await self._bounded("start", self.krc.start_program())
@@ -474,6 +487,7 @@ class RunEngine:
         await self._bounded(f"write {msg.name}", self.krc.write_raw(msg.name, msg.text))
 
     async def _do_PutFile(self, msg: m.PutFile) -> None:
+        self._written.pop(msg.name, None)
         async with self._file_window(f"put {msg.name}"):
             await self._bounded(f"put {msg.name}", self.krc.put_file(msg.name, msg.data),
                                 REQUEST_TIMEOUT_S + self.krc.file_timeout_s(len(msg.data)))

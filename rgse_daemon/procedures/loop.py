@@ -2,11 +2,13 @@
 
 A *loop* (paper §2.4.4, Fig. 23/24) is: brake-release move (A3 and A5 rotate by φ' and back) → settle → trace of
 ``trace_samples`` at ``trace_period_s`` → pull the trace files, verify and archive them → record the loop. A series
-of loops takes the pull off the robot's path: loop N's files are pulled while loop N+1 settles and records
-(``previous``/``defer`` of :func:`loop`, :func:`collect` for the last one). Its
-timing is split into **robot time** (program start → ``#P_END`` as the controller reports it, the settling wait and
-trace start → ``#T_END``) and **daemon overhead** (pulling, archiving, recording), both in the loop event. What the
-loop records it yields as run documents (:mod:`~rgse_daemon.procedures.documents`).
+of loops takes the file work off the robot's path (``previous``/``defer`` of :func:`loop`, :func:`collect` for the
+last one): loop N's pull, its archive, index and delete, and the check and push of loop N+2's move run while loop
+N+1's trace records (the robot stands still, no program runs: the file-window rule), so that between two recordings
+only the move and its handshakes remain. Its timing is split into **robot time** (program start → ``#P_END`` as the
+controller reports it, the settling wait and trace start → ``#T_END``) and **daemon overhead** (pulling, archiving,
+recording, work that outlasts the trace), both in the loop event. What the loop records it yields as run documents
+(:mod:`~rgse_daemon.procedures.documents`).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from typing import Any
 
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
+from rgse_daemon.procedures.engine import WAIT_POLL_S
 from rgse_daemon.procedures.programs import TRACE_CONFIG_NAME, render_program, run_checked
 from rgse_daemon.procedures.settings import RunSettings
 
@@ -39,6 +42,9 @@ class LoopTiming:
     """The stop rule's interim budget after this loop (on the robot's path)."""
     render_s: float = 0.0
     """Rendering the next loop's move beyond the settling it overlaps (on the robot's path)."""
+    overrun_s: float = 0.0
+    """The work done while the trace recorded (the previous loop's pull, archive, index and delete; the next move's
+    check and push) past the trace's end (on the robot's path; its recording then counts as its nominal length)."""
 
     @property
     def robot_s(self) -> float:
@@ -46,12 +52,13 @@ class LoopTiming:
 
     @property
     def overhead_s(self) -> float:
-        return self.pull_s + self.store_s + self.predict_s + self.render_s
+        return self.pull_s + self.store_s + self.predict_s + self.render_s + self.overrun_s
 
     def to_json(self) -> dict[str, float]:
         return {"robot_s": self.robot_s, "overhead_s": self.overhead_s, "motion_s": self.motion_s,
                 "settle_s": self.settle_s, "record_s": self.record_s, "pull_s": self.pull_s, "store_s": self.store_s,
-                "pull_total_s": self.pull_total_s, "predict_s": self.predict_s, "render_s": self.render_s}
+                "pull_total_s": self.pull_total_s, "predict_s": self.predict_s, "render_s": self.render_s,
+                "overrun_s": self.overrun_s}
 
 
 @dataclass
@@ -69,6 +76,9 @@ class LoopOutcome:
     next_axes_deg: tuple[float, ...] | None = None
 
 
+#: How often the engine polls $TRACE.STATE (s): a TraceWait that returned within two polls found the trace ended.
+TRACE_POLL_S = WAIT_POLL_S
+
 #: A move rendered ahead is used only if the axes at the next loop's start are within this of the ones it was
 #: rendered from (deg; the monitor's "has moved" tolerance); else it is rendered again. The push checks it against
 #: the live snapshot either way.
@@ -83,9 +93,11 @@ def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *, point_ind
     ``s.meas_pose_deg`` (a CoG pose of the mass-properties run passes its own pose there).
 
     ``previous``: a loop of the same series whose files are still on the controller (``pending``): its pull starts
-    once this loop's move has ended, runs while this loop settles and records, and is archived, indexed and only then
-    deleted on the controller before this loop returns. ``defer``: leave this loop's own files for the next loop (or
-    :func:`collect`); its outcome is then ``pending``."""
+    once this loop's trace has started, runs while it records, and is archived, indexed and only then deleted on the
+    controller before the trace is awaited. ``defer``: leave this loop's own files for the next loop (or
+    :func:`collect`); its outcome is then ``pending``, and the next loop's move, rendered while this loop settles, is
+    checked and pushed while it records (the next loop's push then finds it on the controller: the engine checks it
+    again and sends no byte)."""
     timing = LoopTiming()
     snap = yield m.ReadState()
     brake = _ahead(previous, snap)
@@ -95,8 +107,6 @@ def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *, point_ind
     timing.motion_s = (yield from run_checked(brake, s)) or 0.0
     t0 = time.monotonic()
     still = (yield m.ReadState()) if defer else None  # where the robot stands for the next loop's move
-    if previous is not None and previous.pending:
-        yield m.PullStart(previous.trace, run.run_dir)  # only now: no file work while the robot moves
     next_program = None
     if still is not None:  # render the next loop's move while this one settles (CPU; the robot stands still)
         next_program = yield from render_program("rgse_brake_release", s, still)
@@ -107,11 +117,23 @@ def loop(index: int, trace: str, run: d.RunContext, s: RunSettings, *, point_ind
     yield d.LoopRecording(index, robot_end_utc=_now(), record_start_utc=_now())
     t0 = time.monotonic()
     yield m.TraceStart(trace, trace_config)
-    yield m.TraceWait(s.trace_timeout_s)
-    timing.record_s = time.monotonic() - t0
-    yield d.LoopRecorded(index, _now())
+    # while the trace records (the robot stands still, no program runs): file work, one operation at a time, after
+    # the trace's start (a file read blocks the controller's other requests, the trace's start included)
     if previous is not None and previous.pending:
-        yield from collect(previous, run, s, started=True)
+        yield m.PullStart(previous.trace, run.run_dir)
+    if next_program is not None:
+        yield m.Push(next_program)  # checked against the live state; after the pull (the engine waits for it)
+    if previous is not None and previous.pending:
+        yield from collect(previous, run, s, started=True)  # archived, indexed, only then deleted
+        previous.timing.pull_s = previous.timing.store_s = 0.0  # hidden by this recording; past it: overrun_s
+    waited_s = (yield m.TraceWait(s.trace_timeout_s)) or 0.0
+    elapsed_s = time.monotonic() - t0
+    if waited_s > 2 * TRACE_POLL_S or elapsed_s <= s.trace_wall_s:  # the trace ended after the work: its own time
+        timing.record_s = elapsed_s
+    else:  # the work outlasted the trace: the recording counts as its nominal length, the rest is overhead
+        timing.record_s = s.trace_wall_s
+        timing.overrun_s = elapsed_s - s.trace_wall_s
+    yield d.LoopRecorded(index, _now())
     outcome = LoopOutcome(trace, timing, index=index, pending=True, next_program=next_program,
                           next_axes_deg=None if still is None else still.axes_deg)
     if not defer:

@@ -28,6 +28,8 @@ TRACE_MODULES = ("KRCIpo", "NextGenDrive#3", "NextGenDrive#5")
 #: and the torsional axes A4/A6 that see the CoG's offsets, paper eq. 5-7).
 COG_TRACE_CONFIG_NAME = "rgse_cog.xml"
 COG_TRACE_MODULES = ("KRCIpo", "NextGenDrive#3", "NextGenDrive#4", "NextGenDrive#5", "NextGenDrive#6")
+#: How many "allowed" verdicts the static check keeps by their exact inputs (program text and context).
+CHECK_MEMO = 4
 #: Opaque channel IDs requested per module (the ID-to-name mapping is not public; the drive modules record their
 #: seven standard channels).
 TRACE_CHANNELS = (1, 2, 3, 4, 5, 6, 7)
@@ -90,6 +92,7 @@ def static_checker(
     a plan declared what it mounted (``m.Mounted``: a calibration point's bodies)."""
     points = tuple(tuple(p) for p in cube_corners(payload_lever_max_m))
     default_kg, default_cog = payload
+    allowed: list[tuple[str, str, str | None, str]] = []  # the last verdicts "allowed", by their exact inputs
 
     def check(prog: m.Program, snap: Snapshot,
               payload: tuple[float, tuple[float, float, float]] | None = None) -> None:
@@ -108,10 +111,18 @@ def static_checker(
             require_watchdog=require_watchdog,
             **({"cell": cell} if cell is not None else {}),
         )
+        # the check is a function of the program's text and the context alone: the same program in the very same
+        # context (a loop's next move, checked while the robot stood still, checked again at its push) is allowed
+        # again without recomputing the path; any change of the context (an axis, the mode, an input) recomputes it
+        key = (prog.name, prog.src_text, prog.dat_text, repr(ctx))
+        if key in allowed:
+            return
         try:
             ensure_allowed(prog.src_text, prog.dat_text, ctx, file=f"{prog.name}.src")
         except KrlSyntaxError as exc:
             raise InterlockError(f"{prog.name}.src: refused, does not parse: {exc}") from exc
+        allowed.append(key)
+        del allowed[:-CHECK_MEMO]
 
     return check
 

@@ -39,6 +39,8 @@ class RunSettings:
     g_m_s2: float = kin.G_PAPER_M_S2
     lever_difference_m: float = field(default_factory=lambda: robots.active().lever_difference_m)
     meas_pose_deg: tuple[float, ...] = field(default_factory=lambda: tuple(float(v) for v in kin.measurement_pose()))
+    time_scale: float = 1.0
+    """``controller.time_scale``: 1 on a real KR C4 (the trace's wall time is its configured time divided by it)."""
     identity: dict[str, str] | None = field(default=None, hash=False)
     """Who and what is measured (interfaces §4.3 ``identity``), published with the result; None: not given."""
 
@@ -71,6 +73,7 @@ class RunSettings:
             stop_target_U_kg=ms.stop_target_U_kg,
             lever_difference_m=cfg.robot_model.lever_difference_m,
             meas_pose_deg=tuple(float(v) for v in kin.measurement_pose(robot=cfg.robot_model)),
+            time_scale=scale,
         )
         return replace(base, **overrides)
 
@@ -81,6 +84,11 @@ class RunSettings:
     @property
     def trace_time_s(self) -> float:
         return self.trace_samples * self.trace_period_s
+
+    @property
+    def trace_wall_s(self) -> float:
+        """How long a trace records in wall time (its configured time on a real KR C4)."""
+        return self.trace_time_s / self.time_scale
 
     def to_json(self) -> dict[str, Any]:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}

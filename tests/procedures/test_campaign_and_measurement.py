@@ -92,19 +92,15 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     sim.mount(dut_payload(DUT_MASS_KG, (0.0, 0.05, 0.25), fixture_mass_kg=FIXTURE_KG))
     events: list[Event] = []
     engine.subscribe(events.append)
-    # the pull of loop N overlaps loop N+1, and nothing is deleted on the controller before it is archived and
-    # indexed: seen from the documents as the store makes them durable
-    on_controller = {}
+    # the pull of loop N, its archive and index run while loop N+1's trace records, and nothing is deleted on the
+    # controller before it is archived and indexed: seen from the documents as the store makes them durable
     overlap = []
 
     def watch(doc: d.Document) -> None:
-        if isinstance(doc, d.LoopStarted):
-            on_controller[doc.index] = doc.trace
-        if isinstance(doc, d.LoopRecording) and doc.index > 1:
-            overlap.append((doc.index - 1, on_controller[doc.index - 1] in engine.pulls_in_flight))
         if isinstance(doc, d.TraceArchived):
             left = {p.name for p in (sim.share_dir / "TRACE").iterdir()}
             assert {f.path.name for f in doc.files} <= left, "a trace file left the controller before its index"
+            overlap.append((doc.index, doc.trace))
 
     engine.subscribe_documents(watch)
     result = await run_measurement(engine, store, cfg, settings=steady(cfg, loops=6, trace_samples=600,
@@ -118,10 +114,13 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     rule = result["stop_rule"]
     assert rule["loops_analysed"] == n - 1 and rule["predicted_loop_share"] <= 0.2 and rule["max_loops"] == 6
     assert result["u_components_kg"]["loops"] <= 0.25 * result["u_kg"]  # the rule's prediction held
-    assert overlap == [(i, True) for i in range(1, n)]
+    # loop N's files indexed after loop N+1's trace started and before its end was awaited (the documents' order
+    # below); the last loop's after its own trace
+    assert [i for i, _ in overlap] == list(range(1, n + 1))
     seq = ["LoopStarted", "LoopRecording", "LoopRecorded"]
     assert [type(doc).__name__ for doc in docs] == [
-        "OpenRun", *seq, *[t for _ in range(n - 1) for t in (*seq, "TraceArchived")], "TraceArchived", "Result",
+        "OpenRun", *seq, *[t for _ in range(n - 1) for t in ("LoopStarted", "LoopRecording", "TraceArchived",
+                                                             "LoopRecorded")], "TraceArchived", "Result",
         "CloseRun"]
     assert sim.truth is not None and sim.truth.payload_mass_kg > DUT_MASS_KG + FIXTURE_KG  # + the MPA
     err_kg = abs(result["mass_kg"] - DUT_MASS_KG)
