@@ -183,11 +183,14 @@ class RgseClient:
     async def measure(self, *, loops: int | None = None, fixture_mass_kg: float | None = None,
                       dry_run: bool = False, identity: Identity | None = None) -> Run:
         """Start a measurement of the mounted DuT (named by ``identity``); the run's handle (a dry run has
-        ``run_id`` ``None``)."""
+        ``run_id`` ``None``). Its kind is the one the daemon accepted: ``properties`` where every measurement is one
+        (``[properties] when = "every_measurement"``), so that :meth:`Run.result` reads its CoG too."""
         reply = await self._command("measure", {"loops": loops, "fixture_mass_kg": fixture_mass_kg,
                                                 "dry_run": dry_run or None,
                                                 "identity": identity.as_command() if identity else None})
-        return Run(self, reply.get("run_id"), RunKind.MEASUREMENT)
+        accepted = reply.get("accepted")
+        kind = RunKind(accepted) if accepted in tuple(RunKind) else RunKind.MEASUREMENT
+        return Run(self, reply.get("run_id"), kind)
 
     async def properties(self, *, loops: int | None = None, loops_per_pose: int | None = None,
                          scheme: str | None = None, fixture_mass_kg: float | None = None,

@@ -20,6 +20,7 @@ from rgse_daemon.client import (
     Refused,
     RgseClient,
     RunFailed,
+    RunKind,
     SyncClient,
     WaitTimeout,
     load_points,
@@ -206,3 +207,15 @@ async def test_a_lost_broker_ends_the_wait_at_once_not_at_its_deadline(
         with pytest.raises(Unreachable, match="connection lost"):
             await rgse.confirm(run.run_id or "")
         rd.daemon.engine.abort("test over")
+
+
+async def test_a_measurement_that_the_daemon_accepted_as_a_properties_run_is_one_in_the_client() -> None:
+    """``[properties] when = "every_measurement"``: ``measure`` starts a properties run (test_properties_run.py,
+    over the broker); the handle takes the kind the reply names, so its result is read with the CoG."""
+    client = RgseClient.of(config_from_mapping({"mqtt": {"enabled": True, "command_auth": "open_lab_bench"}}))
+    for kind in (RunKind.PROPERTIES, RunKind.MEASUREMENT):
+        async def reply(verb: str, fields: dict[str, Any], accepted: str = kind.value) -> dict[str, Any]:
+            assert verb == "measure"
+            return {"ok": True, "accepted": accepted, "run_id": "r-1"}  # the reply as the daemon sends it
+        client._command = reply  # type: ignore[method-assign]  # no broker needed for what the reply says
+        assert (await client.measure()).kind == kind
