@@ -106,8 +106,10 @@ async def test_a_named_dut_with_a_warning_everywhere_the_operator_looks(
 
         # the console, as the operator reads it
         await page.wait_for("document.getElementById('result-status').textContent === 'warning'", "the status shown")
+        # the history row is written when the run's end reaches the console, which may come after its result
         await page.wait_for("[...document.querySelectorAll('#history tr')].some(r => r.innerText.includes("
-                            "'Refex wing box'))", "the DuT in the history")
+                            "'Refex wing box') && r.innerText.includes('warning'))", "the DuT's warning in the history")
+        await page.wait_for("document.getElementById('run-where').innerText.endsWith('run done')", "the run's end")
         now = datetime.now()
         body = str(await page.evaluate("document.body.innerText"))
         assert "Invalid Date" not in body
