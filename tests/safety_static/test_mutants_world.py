@@ -578,3 +578,14 @@ def test_a_wall_exactly_touched_on_its_low_side(axis: int) -> None:
 def test_a_for_with_step_zero_is_refused_with_its_reason() -> None:
     v = found(program("  FOR i = 1 TO 5 STEP 0\n    RGSE_LOOP = i\n  ENDFOR", "  DECL INT i\n"))
     assert [(x.line, x.rule, x.message) for x in v] == [(FIRST + 1, "LOOP", "FOR with STEP 0 never ends")]
+
+
+def test_a_parameter_steers_both_branches_and_an_untracked_declaration_is_evaluated() -> None:
+    """The main routine's parameter T is declared (own) but its value is the caller's: both branches of IF T == 1
+    are followed, the fast one is refused. A CHAR (not tracked) initialised from an own INT is read for errors."""
+    src = ("&ACCESS RVP\n&REL 1\nDEF world(T :IN)\n  DECL INT T\n  DECL INT n = 3\n  DECL CHAR c = n\n" + SLOW
+           + "\n  IF T == 1 THEN\n    $VEL_AXIS[3] = 100\n  ENDIF\n  PTP {A3 100}\nEND\n")
+    v = found(src)
+    assert [(x.line, x.rule) for x in v] == [(22, "SPEED")]
+    assert found(src.replace("DECL CHAR c = n", "DECL CHAR c = 1 / 0")) == [
+        Violation(6, 19, "RUNTIME", "the controller stops here: division by zero"), *v]
