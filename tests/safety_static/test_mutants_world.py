@@ -589,3 +589,12 @@ def test_a_parameter_steers_both_branches_and_an_untracked_declaration_is_evalua
     assert [(x.line, x.rule) for x in v] == [(22, "SPEED")]
     assert found(src.replace("DECL CHAR c = n", "DECL CHAR c = 1 / 0")) == [
         Violation(6, 19, "RUNTIME", "the controller stops here: division by zero"), *v]
+
+
+@pytest.mark.parametrize(("body", "what"), [("I = TRUE", "BOOL TRUE to an INT"), ("B = 1", "INT 1 to a BOOL"),
+                                            ("I = #X", "ENUM #X to an INT")])
+def test_a_type_mismatch_is_a_runtime_error_at_its_statement(body: str, what: str) -> None:
+    """The conversion's error has no place of its own: the statement's is reported."""
+    v = found(program(f"  {body}", "  DECL INT I\n  DECL BOOL B\n"))
+    assert [(x.line, x.column, x.rule, x.message) for x in v] == [
+        (FIRST + 2, 3, "RUNTIME", f"the controller stops here: cannot assign {what}")]
