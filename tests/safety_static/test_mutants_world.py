@@ -598,3 +598,15 @@ def test_a_type_mismatch_is_a_runtime_error_at_its_statement(body: str, what: st
     v = found(program(f"  {body}", "  DECL INT I\n  DECL BOOL B\n"))
     assert [(x.line, x.column, x.rule, x.message) for x in v] == [
         (FIRST + 2, 3, "RUNTIME", f"the controller stops here: cannot assign {what}")]
+
+
+@pytest.mark.parametrize("write", ["X.A1 = 5\n  PTP X", "XS[1] = {A1 5}\n  PTP XS[1]"])
+def test_a_partial_write_keeps_the_other_fields_of_a_target(write: str) -> None:
+    """A member write or a partial aggregate into an array element changes only that field: A3 150 (beyond the
+    KR 500's 144) stays in the target and is refused."""
+    decls = "  DECL E6AXIS X\n  DECL E6AXIS XS[2]\n"
+    first = "{A1 0, A2 -90, A3 150, A4 0, A5 0, A6 0, E1 0, E2 0, E3 0, E4 0, E5 0, E6 0}"
+    src = program(f"  X = {first}\n  XS[1] = {first}\n  {write}", decls)
+    v = found(src)
+    assert [(x.line, x.rule) for x in v] == [(FIRST + 5, "JOINT_LIMIT")]
+    assert v[0].message == "A3 target 150 deg outside the axis range -100..144 deg"
