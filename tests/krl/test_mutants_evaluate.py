@@ -625,3 +625,10 @@ def test_an_operator_the_evaluator_does_not_know_is_an_error_at_its_place() -> N
         with pytest.raises(EvalError) as info:
             e.binary("MOD", a, b, where)
         assert info.value.reason == "unknown operator MOD" and info.value.pos == where
+
+
+def test_an_expression_of_no_known_kind_is_an_error_at_its_place() -> None:
+    e = Evaluator(read=lambda n: UNKNOWN, call=lambda c: UNKNOWN)
+    with pytest.raises(EvalError, match="cannot evaluate Halt") as info:
+        e.value(k.Halt(k.Pos(4, 7)))  # type: ignore[arg-type]
+    assert info.value.pos == k.Pos(4, 7)

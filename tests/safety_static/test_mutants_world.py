@@ -578,3 +578,35 @@ def test_a_wall_exactly_touched_on_its_low_side(axis: int) -> None:
 def test_a_for_with_step_zero_is_refused_with_its_reason() -> None:
     v = found(program("  FOR i = 1 TO 5 STEP 0\n    RGSE_LOOP = i\n  ENDFOR", "  DECL INT i\n"))
     assert [(x.line, x.rule, x.message) for x in v] == [(FIRST + 1, "LOOP", "FOR with STEP 0 never ends")]
+
+
+def test_a_parameter_steers_both_branches_and_an_untracked_declaration_is_evaluated() -> None:
+    """The main routine's parameter T is declared (own) but its value is the caller's: both branches of IF T == 1
+    are followed, the fast one is refused. A CHAR (not tracked) initialised from an own INT is read for errors."""
+    src = ("&ACCESS RVP\n&REL 1\nDEF world(T :IN)\n  DECL INT T\n  DECL INT n = 3\n  DECL CHAR c = n\n" + SLOW
+           + "\n  IF T == 1 THEN\n    $VEL_AXIS[3] = 100\n  ENDIF\n  PTP {A3 100}\nEND\n")
+    v = found(src)
+    assert [(x.line, x.rule) for x in v] == [(22, "SPEED")]
+    assert found(src.replace("DECL CHAR c = n", "DECL CHAR c = 1 / 0")) == [
+        Violation(6, 19, "RUNTIME", "the controller stops here: division by zero"), *v]
+
+
+@pytest.mark.parametrize(("body", "what"), [("I = TRUE", "BOOL TRUE to an INT"), ("B = 1", "INT 1 to a BOOL"),
+                                            ("I = #X", "ENUM #X to an INT")])
+def test_a_type_mismatch_is_a_runtime_error_at_its_statement(body: str, what: str) -> None:
+    """The conversion's error has no place of its own: the statement's is reported."""
+    v = found(program(f"  {body}", "  DECL INT I\n  DECL BOOL B\n"))
+    assert [(x.line, x.column, x.rule, x.message) for x in v] == [
+        (FIRST + 2, 3, "RUNTIME", f"the controller stops here: cannot assign {what}")]
+
+
+@pytest.mark.parametrize("write", ["X.A1 = 5\n  PTP X", "XS[1] = {A1 5}\n  PTP XS[1]"])
+def test_a_partial_write_keeps_the_other_fields_of_a_target(write: str) -> None:
+    """A member write or a partial aggregate into an array element changes only that field: A3 150 (beyond the
+    KR 500's 144) stays in the target and is refused."""
+    decls = "  DECL E6AXIS X\n  DECL E6AXIS XS[2]\n"
+    first = "{A1 0, A2 -90, A3 150, A4 0, A5 0, A6 0, E1 0, E2 0, E3 0, E4 0, E5 0, E6 0}"
+    src = program(f"  X = {first}\n  XS[1] = {first}\n  {write}", decls)
+    v = found(src)
+    assert [(x.line, x.rule) for x in v] == [(FIRST + 5, "JOINT_LIMIT")]
+    assert v[0].message == "A3 target 150 deg outside the axis range -100..144 deg"
