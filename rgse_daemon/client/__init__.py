@@ -15,6 +15,7 @@ from rgse_daemon.client.types import (
     PropertiesResult,
     Refused,
     Result,
+    ResultRefused,
     RunFailed,
     WaitTimeout,
     load_points,
@@ -22,6 +23,6 @@ from rgse_daemon.client.types import (
 
 __all__ = [
     "CalibrationResult", "CampaignPoint", "DaemonState", "FixtureFrame", "Identity", "MeasurementResult",
-    "ProgressEvent", "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "RgseClient", "Run",
-    "RunFailed", "SyncClient", "SyncRun", "WaitTimeout", "load_points",
+    "ProgressEvent", "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "ResultRefused",
+    "RgseClient", "Run", "RunFailed", "SyncClient", "SyncRun", "WaitTimeout", "load_points",
 ]

@@ -100,7 +100,7 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
         clean.append((np.where(ok, a3, np.nan), np.where(ok, a5, np.nan), period_s, name))
     loop_temps = None if temps is None else temps[kept]
     if not clean or (gapped and len(clean) < integrity.MIN_LOOPS):
-        raise integrity.TooFewLoops(_too_few(len(clean), gapped))
+        raise integrity.TooFewLoops(_too_few(len(clean), gapped), [c[3] for c in clean], gapped)
     drift_used = _drift_applied(thermal, loop_temps, warnings, drift_prior_per_k)
     first = _loop_readings(clean, pre, thermal, loop_temps, drift_used, bias_a3_nm, bias_a5_nm)
     s3, s5 = slope_kg_per_nm(cal, first.m3, first.m5)
@@ -114,7 +114,8 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
     screening = integrity.screen([c[3] for c in clean], series, loop_mass0, se0, allowance, integrity.MIN_LOOPS,
                                  "kg", gapped)
     if not screening.enough:
-        raise integrity.TooFewLoops(_too_few(len(screening.used), screening.set_aside))
+        raise integrity.TooFewLoops(_too_few(len(screening.used), screening.set_aside),
+                                    [clean[i][3] for i in screening.used], screening.set_aside)
     clean = [clean[i] for i in screening.used]
     if loop_temps is not None:
         loop_temps = loop_temps[screening.used]
