@@ -14,6 +14,7 @@ import numpy as np
 
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline import inline
 from rgse_daemon.pipeline.calibration import AxisK, Calibration
 from rgse_daemon.pipeline.cog import AxisGain
 from rgse_daemon.pipeline.envelope import Envelope
@@ -263,10 +264,25 @@ def thermal(path: Path | str, doc: dict[str, Any]) -> ThermalDrift | None:
 def uncertainty_inputs(path: Path | str, doc: dict[str, Any], cal: Calibration, alts: list[Calibration]
                        ) -> dict[str, Any]:
     """The keyword arguments of :func:`rgse_daemon.pipeline.inline.in_line_mass` that come from a calibration file:
-    ``uncertainty``, ``alternative_uncertainty``, ``envelope`` and ``thermal`` (None / empty in older files)."""
+    ``uncertainty``, ``alternative_uncertainty``, ``envelope``, ``thermal`` and ``extrapolation_kg`` (None / empty in
+    older files)."""
+    env = envelope(path, doc)
     return {"uncertainty": uncertainty(path, doc, cal),
             "alternative_uncertainty": alternative_uncertainties(path, doc, list(alts)),
-            "envelope": envelope(path, doc), "thermal": thermal(path, doc)}
+            "envelope": env, "thermal": thermal(path, doc),
+            "extrapolation_kg": inline.extrapolation_slope_kg(env, heldout_residual_nm(doc), cal.g_m_s2,
+                                                              cal.lever_difference_m)}
+
+
+def heldout_residual_nm(doc: dict[str, Any]) -> np.ndarray | None:
+    """``fit.validation.heldout_residual_nm`` as (n, 2) A3/A5 (Nm); None if the file has none (or it is malformed:
+    then U outside the envelope falls back to the models' spread)."""
+    v = ((doc.get("fit") or {}).get("validation") or {}).get("heldout_residual_nm")
+    try:
+        r = np.array([v["A3"], v["A5"]], float).T
+    except (KeyError, TypeError, ValueError):
+        return None
+    return r if r.ndim == 2 and r.shape[1] == 2 else None
 
 
 def check_robot(path: Path | str, doc: dict[str, Any], robot: str) -> None:

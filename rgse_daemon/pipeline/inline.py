@@ -67,7 +67,8 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
                  envelope: env_mod.Envelope | None = None,
                  envelope_limit: float = env_mod.DEFAULT_LIMIT, thermal: ThermalDrift | None = None,
                  loop_temps_k: Sequence[tuple[float | None, float | None]] | None = None,
-                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> InlineMass:
+                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K,
+                 extrapolation_kg: float | None = None) -> InlineMass:
     """Mass of the DuT and its uncertainty from its loops (interfaces §1 ``rgse mass``).
 
     ``alternatives``: the other admissible calibration models (same points), for the model-form spread, with their
@@ -77,7 +78,10 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
     ``envelope_limit``) raises :class:`~rgse_daemon.pipeline.envelope.OperatingPointError`. ``thermal``: the
     campaign's drift of the torque estimate with motor temperature; with ``loop_temps_k`` (A3, A5 per loop, K) every
     loop is brought to the campaign's temperature (:mod:`rgse_daemon.pipeline.thermal`) and U gets its ``thermal``
-    term. An ``uncertainty`` (or an alternative's) from a file written before ``refit_basis`` whose model has a
+    term. ``extrapolation_kg``: how the calibration's held-out error grows with the distance to its configurations
+    (:func:`extrapolation_slope_kg`, kg per unit distance); a DuT outside the envelope gets U widened by it times its
+    distance (None or NaN: by the spread of the admissible models there, as before). An ``uncertainty`` (or an
+    alternative's) from a file written before ``refit_basis`` whose model has a
     ``sat`` term draws a warning (:func:`stale_refits_warning`): its refits are in another basis.
     """
     warnings: list[str] = []
@@ -134,8 +138,10 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
                                               f"envelope: {check.detail}; calibrate with loads that cover it")
         if check.status == "outside":
             where = "outside"
-            warnings.append(f"operating point outside the calibrated envelope ({check.detail}): U widened by the "
-                            f"spread of the admissible models there")
+            how = ("the spread of the admissible models there" if not _resolved(extrapolation_kg, envelope) else
+                   f"what the calibration's own held-out configurations erred at that distance "
+                   f"({extrapolation_kg * envelope.nearest(m3, m5):.3g} kg)")
+            warnings.append(f"operating point outside the calibrated envelope ({check.detail}): U widened by {how}")
     if uncertainty is not None:
         stale = [c.method for c, u in [(cal, uncertainty), *zip(alternatives, alternative_uncertainty, strict=False)]
                  if unc.stale_refits(c, u)]
@@ -170,7 +176,10 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
             u_thermal_kg=u_thermal,
         )
     else:
-        if where == "outside":
+        if where == "outside" and _resolved(extrapolation_kg, envelope):
+            assert envelope is not None and extrapolation_kg is not None
+            spread = extrapolation_kg * envelope.nearest(m3, m5)  # out of sample: the held-out error at this distance
+        elif where == "outside":
             spread = unc.model_spread_kg(gross, alt_mass)
         else:  # the alternatives' lack of fit at calibration-like points is in the reproducibility already
             spread = unc.excess_kg(unc.model_form_kg(gross, alt_mass), uncertainty.at_interior(
@@ -192,6 +201,29 @@ def in_line_mass(loops: Sequence[LoopSamples], cal: Calibration, bias_a3_nm: flo
     return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings, cal.method,
                       where, [c[3] for c in clean], list(screening.set_aside),
                       {} if temps is None else {ax: bool(v) for ax, v in drift_used.items()})
+
+
+def extrapolation_slope_kg(envelope: env_mod.Envelope | None, heldout_residual_nm: np.ndarray | None,
+                           g_m_s2: float, lever_difference_m: float) -> float | None:
+    """:func:`~rgse_daemon.pipeline.uncertainty.extrapolation_kg_per_distance` of a calibration: its held-out per-axis
+    residuals (n, 2; Nm, CAL.json ``fit.validation.heldout_residual_nm``) in kg by eq. 21 (∂m/∂(K·M)_A3 = 1/(g·Δr),
+    A5 −1/(g·Δr)), the loaded configurations' distances to their nearest other one (``envelope.points_nm``, same
+    order), the interior ones as the reproducibility's. None without points or residuals, or if they do not match."""
+    if envelope is None or not envelope.points_nm or heldout_residual_nm is None:
+        return None
+    r = np.asarray(heldout_residual_nm, float)
+    p = np.abs(np.asarray(envelope.points_nm, float))
+    if r.ndim != 2 or r.shape != p.shape:
+        return None
+    loaded = p[:, 0] > 0
+    interior = loaded & (p[:, 0] < p[:, 0].max()) & (p[:, 1] < p[:, 1].max())
+    r_kg = (r[:, 0] - r[:, 1]) / abs(g_m_s2 * lever_difference_m)
+    c = unc.extrapolation_kg_per_distance(np.where(loaded, r_kg, np.nan), envelope.neighbour_distances(), interior)
+    return c if np.isfinite(c) else None
+
+
+def _resolved(extrapolation_kg: float | None, envelope: env_mod.Envelope | None) -> bool:
+    return envelope is not None and extrapolation_kg is not None and bool(np.isfinite(extrapolation_kg))
 
 
 @dataclass(frozen=True)
