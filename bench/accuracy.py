@@ -28,7 +28,8 @@ Issue 33's rows (``--issue33 [NAME]``, :data:`ISSUE33`; docs/accuracy.md): a kno
 missing samples (DIAdem's no value) in each channel of the campaign and of the DuT through real trace files,
 thermal drift (β = 0 and the simulator's) on campaigns spanning 0.2-4.6 K with and without the correction, and DuTs
 in the gap between the mass stack and the torque rows; each row counts the refusals and the loops set aside by
-reason.
+reason. The rows on one in-memory campaign share its fit per seed (``_FITS``); ``--runs-out FILE`` keeps every story,
+so that chunks of seeds (``--first-seed``) can be summarised together.
 
 Run: ``.venv/bin/python bench/accuracy.py [--seeds N] [--first-seed S] [--workers 1|2] [--json]`` (120 seeds from
 0 by default, 11 min on 2 cores: at 40 the |err|/floor ratio wanders by about ±0.1; coverage with its Clopper-Pearson
@@ -252,20 +253,75 @@ def _through_files(camp, meas, gap, rng, root: Path):
     return data, read_loops(root / "dut", man.measurement_traces), f"{victim.trace} {channel} {length:.0%}"
 
 
+#: The in-memory campaigns' fits of this process, by (scenario, seed): the rows that share a campaign (``clean``,
+#: ``bump``, ``stack-row-gap``, ``thermal-3K`` and ``-near`` on the default one; the other spans with their ``-near``)
+#: fit it once per seed. Each use gets its own copy of the robot model after the campaign (its state and noise).
+_FITS: dict[tuple, tuple] = {}
+
+
+def _campaign_fit(seed: int, beta0: bool, campaign: dict, data=None, camp=None, model=None) -> tuple:
+    """The campaign of ``seed`` (screened like ``rgse calibrate``), ``auto`` and everything the DuT's mass needs; from
+    ``data`` (read back from trace files) if given, else simulated in memory and cached. Raises DataError if the
+    campaign is refused."""
+    import copy
+    import pickle
+
+    from rgse_daemon.analysis.calibration import screen_campaign
+
+    key = (seed, beta0, tuple(sorted(campaign.items())))
+    if data is None and key in _FITS:
+        blob, fitted = _FITS[key]
+        camp, model = pickle.loads(blob)
+        return (camp, model, *fitted)
+    if camp is None:
+        sc = _beta0(default_scenario()) if beta0 else default_scenario()
+        camp, model = simulate_campaign(seed, scenario=sc, **campaign)
+    blob = pickle.dumps((camp, model)) if data is None else None
+    if data is None:
+        data = CampaignData(camp.manifest, [[(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point]
+                                            for point in camp.loops], [],
+                            loop_temps_k=[[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in point]
+                                          for point in camp.loops])
+    data = screen_campaign(data, pp.PAPER)
+    dr = camp.manifest.setup.lever_difference_m
+    points, bias3, bias5 = campaign_points(data, pp.PAPER)
+    evaluations = selection.evaluate_all(points, G, dr)
+    chosen = selection.choose_auto(points, evaluations)
+    by = {e.method: e for e in [*evaluations, chosen]}
+    limit = unc.PLAUSIBLE_LOO_FACTOR * chosen.loo_mean_abs_err_pct
+    alts = [e.method for e in evaluations if e.method != chosen.method and e.admissible
+            and e.loo_mean_abs_err_pct <= limit]
+    fits = {m: (cal_mod.fit(points, m, G, dr), unc.calibration_uncertainty(points, m, G, dr,
+                                                                           by[m].heldout_residual_nm))
+            for m in [chosen.method, *alts]}
+    drift = campaign_thermal(data, pp.PAPER)
+    env = Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm)
+    extrapolation = inline.extrapolation_slope_kg(env, by[chosen.method].heldout_residual_nm, G, dr)
+    set_aside = [f"point {p} loop {a.loop}: {a.reason}" for p, a in data.set_aside]
+    fitted = (set_aside, chosen.method, alts, fits, bias3, bias5, drift, env, extrapolation)
+    if blob is not None:
+        _FITS[key] = (blob, fitted)
+        camp, model = pickle.loads(blob)
+    return (camp, copy.deepcopy(model) if blob is None else model, *fitted)
+
+
 def repetition33(name: str, seed: int) -> dict:
     """One story of an issue-33 row: the campaign (screened like ``rgse calibrate``), ``auto``, one DuT; the result,
     or the refusal's reason, and the loops set aside."""
     import tempfile
 
-    from rgse_daemon.analysis.calibration import screen_campaign
     from rgse_daemon.errors import DataError
     from tests.support.simcampaign import Knock
 
     spec = ISSUE33[name]
-    sc = default_scenario()
-    if spec.get("beta0"):
-        sc = _beta0(sc)
-    camp, model = simulate_campaign(seed, scenario=sc, **spec.get("campaign", {}))
+    beta0, campaign = bool(spec.get("beta0")), spec.get("campaign", {})
+    try:
+        camp, model, *fitted = _campaign_fit(seed, beta0, campaign) if "gap" not in spec else (None, None)
+    except DataError as exc:
+        return {"dut_kg": float("nan"), "auto": None, "auto refused": f"campaign: {exc}"}
+    if camp is None:  # through trace files: simulated here, fitted from what is read back
+        sc = _beta0(default_scenario()) if beta0 else default_scenario()
+        camp, model = simulate_campaign(seed, scenario=sc, **campaign)
     rng = np.random.default_rng(3300 + seed)
     dut_kg, cog = float(rng.uniform(*spec.get("dut_kg", (20.0, 230.0)))), float(rng.uniform(*spec.get("cog",
                                                                                                        (0.05, 0.35))))
@@ -280,30 +336,14 @@ def repetition33(name: str, seed: int) -> dict:
     if "gap" in spec:
         with tempfile.TemporaryDirectory() as tmp:
             data, dut_loops, out["gap"] = _through_files(camp, meas, spec["gap"], rng, Path(tmp))
+        try:
+            _, _, *fitted = _campaign_fit(seed, beta0, campaign, data=data, camp=camp, model=model)
+        except DataError as exc:
+            return {**out, "auto": None, "auto refused": f"campaign: {exc}"}
     else:
-        data = CampaignData(camp.manifest, [[(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point]
-                                            for point in camp.loops], [],
-                            loop_temps_k=[[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in point]
-                                          for point in camp.loops])
         dut_loops = meas.loops
-    try:
-        data = screen_campaign(data, pp.PAPER)
-    except DataError as exc:
-        return {**out, "auto": None, "auto refused": f"campaign: {exc}"}
-    out["cal set aside"] = [f"point {p} loop {a.loop}: {a.reason}" for p, a in data.set_aside]
-    dr = camp.manifest.setup.lever_difference_m
-    points, bias3, bias5 = campaign_points(data, pp.PAPER)
-    evaluations = selection.evaluate_all(points, G, dr)
-    chosen = selection.choose_auto(points, evaluations)
-    by = {e.method: e for e in [*evaluations, chosen]}
-    limit = unc.PLAUSIBLE_LOO_FACTOR * chosen.loo_mean_abs_err_pct
-    alts = [e.method for e in evaluations if e.method != chosen.method and e.admissible
-            and e.loo_mean_abs_err_pct <= limit]
-    fits = {m: (cal_mod.fit(points, m, G, dr), unc.calibration_uncertainty(points, m, G, dr,
-                                                                           by[m].heldout_residual_nm))
-            for m in [chosen.method, *alts]}
-    drift = campaign_thermal(data, pp.PAPER)
-    env = Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm)
+    set_aside, chosen, alts, fits, bias3, bias5, drift, env, extrapolation = fitted
+    out["cal set aside"] = set_aside
     loops = [(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in dut_loops]
     temps = [(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in dut_loops]
     if drift is not None and temps[0][0] is not None:
@@ -313,9 +353,10 @@ def repetition33(name: str, seed: int) -> dict:
     for row, thermal in rows:
         try:
             r = inline.in_line_mass(loops, inline.MassCalibration(
-                fits[chosen.method][0], bias3, bias5, alternatives=[fits[a][0] for a in alts],
-                uncertainty=fits[chosen.method][1], alternative_uncertainty=[fits[a][1] for a in alts], envelope=env,
-                thermal=thermal), pp.PAPER, fixture_mass_kg=meas.fixture_mass_kg, loop_temps_k=temps)
+                fits[chosen][0], bias3, bias5, alternatives=[fits[a][0] for a in alts],
+                uncertainty=fits[chosen][1], alternative_uncertainty=[fits[a][1] for a in alts], envelope=env,
+                thermal=thermal, extrapolation_kg=extrapolation), pp.PAPER, fixture_mass_kg=meas.fixture_mass_kg,
+                loop_temps_k=temps)
         except DataError as exc:
             out[row], out[f"{row} refused"] = None, str(exc)
             continue
@@ -354,15 +395,20 @@ def summarise33(runs: list[dict], row: str) -> dict:
     return s
 
 
-def main33(seeds: int, first: int, workers: int, names: list[str], as_json: bool) -> int:
+def main33(seeds: int, first: int, workers: int, names: list[str], as_json: bool, runs_out: Path | None = None
+           ) -> int:
     t0 = time.monotonic()
-    jobs = [(name, seed) for name in names for seed in range(first, first + seeds)]
+    jobs = [(name, seed) for seed in range(first, first + seeds) for name in names]  # a seed's rows together
     with ProcessPoolExecutor(workers) as pool:
-        done = list(pool.map(_run33, jobs, chunksize=2))
+        done = list(pool.map(_run33, jobs, chunksize=len(names)))
     table = {}
     for name in names:
         runs = [r for (n, _), r in zip(jobs, done, strict=True) if n == name]
         table[name] = {row: summarise33(runs, row) for row in ("auto", "auto, no β") if row in runs[0]}
+    if runs_out is not None:  # every story, so that chunks of seeds can be summarised together (merge33)
+        runs_out.write_text(json.dumps({"first_seed": first, "seeds": seeds, "seconds": time.monotonic() - t0,
+                                        "runs": {n: [r for (m, _), r in zip(jobs, done, strict=True) if m == n]
+                                                 for n in names}}))
     if as_json:
         print(json.dumps({"bench": "accuracy-issue33", "seeds": seeds, "first_seed": first, "table": table,
                           "seconds": round(time.monotonic() - t0, 1)}))
@@ -425,10 +471,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--issue33", action="append", nargs="?", const="all", choices=["all", *ISSUE33],
                     help="the rows of issue 33 (bump, missing samples, thermal spans, the stack/row gap) instead")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--runs-out", type=Path, help="with --issue33: also write every story to this JSON file")
     args = ap.parse_args(argv)
     if args.issue33:
         names = list(ISSUE33) if "all" in args.issue33 else args.issue33
-        return main33(args.seeds, args.first_seed, args.workers, names, args.json)
+        return main33(args.seeds, args.first_seed, args.workers, names, args.json, args.runs_out)
     t0 = time.monotonic()
     table = {}
     names = args.scenario or list(SCENARIOS)

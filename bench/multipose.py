@@ -108,8 +108,9 @@ def repetition(seed: int) -> dict:
         temps.append((float(np.mean(tr[3]["Motortemperatur"])), float(np.mean(tr[5]["Motortemperatur"]))))
     out: dict = {"seed": seed, "truth_kg": truth}
     for n in SINGLE_LOOPS:
-        r = inline.in_line_mass(loops[:n], cal, bias3, bias5, pp.PAPER, ph.FIXTURE_MASS_KG, uncertainty=cu,
-                                envelope=env, thermal=c.thermal, loop_temps_k=temps[:n])
+        r = inline.in_line_mass(loops[:n], inline.MassCalibration(cal, bias3, bias5, uncertainty=cu, envelope=env,
+                                                                  thermal=c.thermal),
+                                pp.PAPER, fixture_mass_kg=ph.FIXTURE_MASS_KG, loop_temps_k=temps[:n])
         out[f"single pose, {n} loops"] = {"err_kg": r.mass_kg - truth, "U_kg": r.uncertainty.expanded_kg,
                                           "budget_kg": r.uncertainty.components(),
                                           "robot_min": n * LOOP_ROBOT_S / 60.0}

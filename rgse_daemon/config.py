@@ -288,6 +288,11 @@ class MeasurementConfig(_Section):
     1 - sqrt(1 - share²) (2 % at 0.2). 0 switches the test off."""
     stop_target_U_kg: float | None = Field(None, gt=0.0)
     """Stop once U (k = 2) predicted for the loops measured is at most this (kg); None: no target."""
+    replacement_loops: int = Field(3, ge=0, le=20)
+    """Loops a run may measure beyond ``loops`` to replace loops the integrity check set aside (missing samples, a
+    step inside the loop, a loop far from the others; rgse_daemon/pipeline/integrity.py) when fewer than
+    ``min_loops`` (or ``loops``, if smaller) are kept. Once spent, the mass rests on the loops kept, or the result is
+    refused (too few). 0: never measure more than ``loops``."""
     settle_s: float = Field(4.0, ge=0.0, le=120.0)
     """Waiting time after the brake-release move before recording (paper: 2 × 2 s)."""
     trace_period_s: Literal[0.001, 0.004, 0.012] = 0.012

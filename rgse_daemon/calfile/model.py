@@ -18,7 +18,7 @@ from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.axis_gain import AxisGain
 from rgse_daemon.pipeline.calibration import AxisK, Calibration
 from rgse_daemon.pipeline.envelope import Envelope
-from rgse_daemon.pipeline.inline import MassCalibration
+from rgse_daemon.pipeline.inline import MassCalibration, extrapolation_slope_kg
 from rgse_daemon.pipeline.preprocess import Preprocessing
 from rgse_daemon.pipeline.thermal import ThermalDrift
 from rgse_daemon.pipeline.uncertainty import CalibrationUncertainty
@@ -166,7 +166,19 @@ class CalFile:
                                model_rms_rel=self.fit.loo_residual_rms_rel or 0.0, g_u_m_s2=self.g_u_m_s2 or 0.0,
                                alternatives=tuple(a.calibration for a in alts), uncertainty=self.fit.uncertainty,
                                alternative_uncertainty=tuple(a.uncertainty for a in alts),
-                               envelope=self.fit.envelope, thermal=self.fit.thermal)
+                               envelope=self.fit.envelope, thermal=self.fit.thermal,
+                               extrapolation_kg=extrapolation_slope_kg(self.fit.envelope, self.heldout_residual_nm(),
+                                                                       self.calibration.g_m_s2,
+                                                                       self.calibration.lever_difference_m))
+
+    def heldout_residual_nm(self) -> np.ndarray | None:
+        """``fit.validation.heldout_residual_nm`` as (n, 2) A3/A5 (Nm); None if the file has none (U outside the
+        envelope then falls back to the models' spread)."""
+        v = self.fit.validation
+        if v is None or not v.heldout_residual_nm.get("A3") or not v.heldout_residual_nm.get("A5"):
+            return None
+        r = np.array([v.heldout_residual_nm["A3"], v.heldout_residual_nm["A5"]], float)
+        return r.T if r.ndim == 2 else None
 
     def to_dict(self) -> dict[str, Any]:
         """The JSON document, keys in the order the project has always written them."""

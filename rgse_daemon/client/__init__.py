@@ -15,6 +15,7 @@ from rgse_daemon.client.types import (
     PropertiesResult,
     Refused,
     Result,
+    ResultRefused,
     RunFailed,
     WaitTimeout,
     load_points,
@@ -23,6 +24,6 @@ from rgse_daemon.runkind import RunKind
 
 __all__ = [
     "CalibrationResult", "CampaignPoint", "DaemonState", "FixtureFrame", "Identity", "MeasurementResult",
-    "ProgressEvent", "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "RgseClient", "Run",
-    "RunFailed", "RunKind", "SyncClient", "SyncRun", "WaitTimeout", "load_points",
+    "ProgressEvent", "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "ResultRefused",
+    "RgseClient", "Run", "RunFailed", "RunKind", "SyncClient", "SyncRun", "WaitTimeout", "load_points",
 ]

@@ -43,6 +43,7 @@ from .types import (
     PropertiesResult,
     Refused,
     Result,
+    ResultRefused,
     RunFailed,
     WaitTimeout,
 )
@@ -228,13 +229,14 @@ class RgseClient:
     # --- results ------------------------------------------------------------------------------------------------
     async def result(self, run_id: str, kind: RunKind | None = None, timeout_s: float | None = None) -> Result:
         """The result of ``run_id`` (retained on the broker: also of a run that ended before this client);
-        :class:`RunFailed` (state ``refused``, its reason) for a result whose status is ``refused``."""
+        :class:`ResultRefused` (a :class:`RunFailed`, state ``refused``, its reason and the result object) for a
+        result whose status is ``refused``."""
         doc = await self.until(lambda: self._results.get(run_id), f"the result of run {run_id}",
                                timeout_s or self.timeout_s)
         if doc.get("state") == INTERRUPTED:
             raise RunFailed(run_id, INTERRUPTED, _interrupted_reason(doc))
         if doc.get("status") == "refused":  # no figure: the reason is what there is (rgse_daemon.verdict)
-            raise RunFailed(run_id, "refused", str(doc.get("reason") or "no reason given"))
+            raise ResultRefused(run_id, doc)
         if kind == RunKind.CALIBRATION or (kind is None and "mass_kg" not in doc):
             return CalibrationResult.of(run_id, doc)
         if kind == RunKind.PROPERTIES or (kind is None and doc.get("cog_m") is not None):

@@ -47,6 +47,17 @@ class RunFailed(RgseError):
         self.reason = reason
 
 
+class ResultRefused(RunFailed):
+    """The run completed and its result is ``refused`` (rgse_daemon.verdict): no figure, and ``reason`` says why (too
+    few loops left after setting the disturbed ones aside, an operating point far outside the calibration). ``result``
+    is the daemon's result object (its ``error``, ``loops_used``, ``loops_set_aside``); state ``refused``. A result,
+    not a failed run: ``rgse run`` exits 2 with it, as ``rgse mass`` does with its refusal."""
+
+    def __init__(self, run_id: str, result: dict[str, Any]) -> None:
+        super().__init__(run_id, "refused", str(result.get("reason") or "no reason given"))
+        self.result = result
+
+
 class WaitTimeout(RgseError):
     """What a wait was for did not happen within its deadline (exit status 1: the work did not finish)."""
 

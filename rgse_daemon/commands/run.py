@@ -37,6 +37,7 @@ from rgse_daemon.client import (
     Identity,
     Prompt,
     Refused,
+    ResultRefused,
     RgseClient,
     Run,
     RunFailed,
@@ -44,7 +45,7 @@ from rgse_daemon.client import (
     load_points,
 )
 from rgse_daemon.commands.operator_cli import run_operator
-from rgse_daemon.errors import EXIT_FAILED, EXIT_OK, EXIT_WARNINGS, ConfigError
+from rgse_daemon.errors import EXIT_BAD_INPUT, EXIT_FAILED, EXIT_OK, EXIT_WARNINGS, ConfigError
 from rgse_daemon.verdict import OK, REFUSED, refusal
 
 DEFAULT_RUN_TIMEOUT_S = 3600.0
@@ -159,6 +160,19 @@ async def follow(rgse: RgseClient, run: Run, args: argparse.Namespace, timeout_s
     return EXIT_OK if result.status == OK else EXIT_WARNINGS
 
 
+def _refused(args: argparse.Namespace, exc: ResultRefused) -> None:
+    """A run that completed with a refused result: its reason and the loops set aside on stderr (stdout: one line,
+    ``--json`` the result object)."""
+    r = exc.result
+    _say(f"rgse run: run {exc.run_id}: result refused: {exc.reason}")
+    for a in r.get("loops_set_aside") or ():
+        _say(f"rgse run: loop {a.get('loop')} set aside: {a.get('reason')}")
+    if args.json:
+        print(json.dumps({**r, "status": REFUSED, "state": "completed", "run_id": exc.run_id}), flush=True)
+    else:
+        print(f"run {exc.run_id}: status refused: {exc.reason}")
+
+
 def _no_result(args: argparse.Namespace, reason: str, state: str, run_id: str | None = None) -> None:
     """With ``--json``: the one JSON object of a run without a result (refused, failed, aborted, given up)."""
     if args.json:
@@ -242,6 +256,9 @@ def run(args: argparse.Namespace) -> int:
                 return EXIT_OK
             try:
                 return await follow(rgse, run_, args, timeout_s)
+            except ResultRefused as exc:  # a result, not a failed run: as rgse mass refuses (exit 2, one object)
+                _refused(args, exc)
+                return EXIT_BAD_INPUT
             except (RunFailed, WaitTimeout, Refused) as exc:
                 _say(f"rgse run: failed: {exc}")
                 if run_.end_state() is None:

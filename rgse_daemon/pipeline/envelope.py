@@ -90,6 +90,19 @@ class Envelope:
         d = (p - x) / scale
         return float(np.sqrt((d**2).sum(axis=1)).min())
 
+    def neighbour_distances(self) -> np.ndarray:
+        """Each calibrated configuration's distance to the nearest *other* one, as :meth:`nearest` measures it: how
+        far a held-out configuration lay from what the rest calibrated. Empty without points."""
+        if not self.points_nm or len(self.points_nm) < 2:
+            return np.zeros(0)
+        p = np.asarray(self.points_nm, float)
+        if self.sign is None:
+            p = np.abs(p)
+        d = (p[:, None, :] - p[None, :, :]) / np.maximum(np.abs(p).max(axis=0), 1e-9)
+        dist = np.sqrt((d**2).sum(axis=2))
+        np.fill_diagonal(dist, np.inf)
+        return dist.min(axis=1)
+
     @classmethod
     def from_dict(cls, d: Any) -> Envelope:
         try:

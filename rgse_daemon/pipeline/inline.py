@@ -78,6 +78,10 @@ class MassCalibration:
     alternative_uncertainty: Sequence[unc.CalibrationUncertainty | None] = ()
     envelope: env_mod.Envelope | None = None
     thermal: ThermalDrift | None = None
+    extrapolation_kg: float | None = None
+    """How the calibration's held-out error grows with the distance to its configurations
+    (:func:`extrapolation_slope_kg`, kg per unit distance); a DuT outside the envelope gets U widened by it times its
+    distance (None or NaN: by the spread of the admissible models there)."""
 
 
 def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre: pp.Preprocessing, *,
@@ -98,6 +102,7 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     c = calibration
     cal, bias_a3_nm, bias_a5_nm, thermal, envelope = c.cal, c.bias_a3_nm, c.bias_a5_nm, c.thermal, c.envelope
     uncertainty, alternatives, alternative_uncertainty = c.uncertainty, c.alternatives, c.alternative_uncertainty
+    extrapolation_kg = c.extrapolation_kg
     warnings: list[str] = []
     temps = None
     if thermal is not None and loop_temps_k is not None and len(loop_temps_k) == len(loops) and all(
@@ -118,7 +123,7 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
         clean.append((np.where(ok, a3, np.nan), np.where(ok, a5, np.nan), period_s, name))
     loop_temps = None if temps is None else temps[kept]
     if not clean or (gapped and len(clean) < integrity.MIN_LOOPS):
-        raise integrity.TooFewLoops(_too_few(len(clean), gapped))
+        raise integrity.TooFewLoops(_too_few(len(clean), gapped), [c[3] for c in clean], gapped)
     drift_used = _drift_applied(thermal, loop_temps, warnings, drift_prior_per_k)
     first = _loop_readings(clean, pre, thermal, loop_temps, drift_used, bias_a3_nm, bias_a5_nm)
     s3, s5 = slope_kg_per_nm(cal, first.m3, first.m5)
@@ -132,7 +137,8 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     screening = integrity.screen([c[3] for c in clean], series, loop_mass0, se0, allowance, integrity.MIN_LOOPS,
                                  "kg", gapped)
     if not screening.enough:
-        raise integrity.TooFewLoops(_too_few(len(screening.used), screening.set_aside))
+        raise integrity.TooFewLoops(_too_few(len(screening.used), screening.set_aside),
+                                    [clean[i][3] for i in screening.used], screening.set_aside)
     clean = [clean[i] for i in screening.used]
     if loop_temps is not None:
         loop_temps = loop_temps[screening.used]
@@ -151,8 +157,10 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
                                               f"envelope: {check.detail}; calibrate with loads that cover it")
         if check.status == "outside":
             where = "outside"
-            warnings.append(f"operating point outside the calibrated envelope ({check.detail}): U widened by the "
-                            f"spread of the admissible models there")
+            how = ("the spread of the admissible models there" if not _resolved(extrapolation_kg, envelope) else
+                   f"what the calibration's own held-out configurations erred at that distance "
+                   f"({extrapolation_kg * envelope.nearest(m3, m5):.3g} kg)")
+            warnings.append(f"operating point outside the calibrated envelope ({check.detail}): U widened by {how}")
     if uncertainty is not None:
         stale = [c.method for c, u in [(cal, uncertainty), *zip(alternatives, alternative_uncertainty, strict=False)]
                  if unc.stale_refits(c, u)]
@@ -187,7 +195,10 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
             u_thermal_kg=u_thermal,
         )
     else:
-        if where == "outside":
+        if where == "outside" and _resolved(extrapolation_kg, envelope):
+            assert envelope is not None and extrapolation_kg is not None
+            spread = extrapolation_kg * envelope.nearest(m3, m5)  # out of sample: the held-out error at this distance
+        elif where == "outside":
             spread = unc.model_spread_kg(gross, alt_mass)
         else:  # the alternatives' lack of fit at calibration-like points is in the reproducibility already
             spread = unc.excess_kg(unc.model_form_kg(gross, alt_mass), uncertainty.at_interior(
@@ -209,6 +220,29 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings, cal.method,
                       where, [c[3] for c in clean], list(screening.set_aside),
                       {} if temps is None else {ax: bool(v) for ax, v in drift_used.items()})
+
+
+def extrapolation_slope_kg(envelope: env_mod.Envelope | None, heldout_residual_nm: np.ndarray | None,
+                           g_m_s2: float, lever_difference_m: float) -> float | None:
+    """:func:`~rgse_daemon.pipeline.uncertainty.extrapolation_kg_per_distance` of a calibration: its held-out per-axis
+    residuals (n, 2; Nm, CAL.json ``fit.validation.heldout_residual_nm``) in kg by eq. 21 (∂m/∂(K·M)_A3 = 1/(g·Δr),
+    A5 −1/(g·Δr)), the loaded configurations' distances to their nearest other one (``envelope.points_nm``, same
+    order), the interior ones as the reproducibility's. None without points or residuals, or if they do not match."""
+    if envelope is None or not envelope.points_nm or heldout_residual_nm is None:
+        return None
+    r = np.asarray(heldout_residual_nm, float)
+    p = np.abs(np.asarray(envelope.points_nm, float))
+    if r.ndim != 2 or r.shape != p.shape:
+        return None
+    loaded = p[:, 0] > 0
+    interior = loaded & (p[:, 0] < p[:, 0].max()) & (p[:, 1] < p[:, 1].max())
+    r_kg = (r[:, 0] - r[:, 1]) / abs(g_m_s2 * lever_difference_m)
+    c = unc.extrapolation_kg_per_distance(np.where(loaded, r_kg, np.nan), envelope.neighbour_distances(), interior)
+    return c if np.isfinite(c) else None
+
+
+def _resolved(extrapolation_kg: float | None, envelope: env_mod.Envelope | None) -> bool:
+    return envelope is not None and extrapolation_kg is not None and bool(np.isfinite(extrapolation_kg))
 
 
 @dataclass(frozen=True)

@@ -59,7 +59,13 @@ MEDIAN_SE_FACTOR = 1.2533
 
 
 class TooFewLoops(DataError):
-    """Fewer loops than the configured minimum remain after setting the disturbed ones aside: refused."""
+    """Fewer loops than the configured minimum remain after setting the disturbed ones aside: refused.
+    ``used``: the loops that remained (names); ``set_aside``: those left out, with their reasons."""
+
+    def __init__(self, message: str, used: Sequence[str] = (), set_aside: Sequence[SetAside] = ()) -> None:
+        super().__init__(message)
+        self.used = list(used)
+        self.set_aside = list(set_aside)
 
 
 @dataclass(frozen=True)

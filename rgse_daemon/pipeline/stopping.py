@@ -6,9 +6,15 @@ does not move with more loops of the same mounting. With the loop term a share `
 more could shrink U by at most ``1 − √(1 − r²)`` (2 % at r = 0.2). So a run stops when
 
 * it has ``max_loops`` (the configured ``loops``): ``max loops``; else, once it has at least ``min_loops``
-  (:data:`MIN_LOOPS`: the loop-to-loop consistency check needs three),
+  (:data:`MIN_LOOPS`: the loop-to-loop consistency check needs three) loops **kept** (the loops the integrity check
+  of :mod:`rgse_daemon.pipeline.integrity` set aside do not count),
 * U predicted for the loops measured is at most ``target_U_kg``: ``target U met``, or
 * the predicted loop term is at most ``loop_share`` of the predicted u: ``loop term below share``.
+
+Loops set aside are replaced: a run that has measured its ``max_loops`` but kept fewer than it needs
+(``min_loops``, or ``max_loops`` if that is smaller) goes on with replacement loops, at most ``replacements`` of them
+(the config's ``measurement.replacement_loops``); then it stops (``replacements spent``) and the mass is computed
+from what was kept, or refused if too few were.
 
 A campaign point stops by the same rule (:func:`point_prediction`): its loop term (the standard error of its mean
 torque) against the scatter a new mounting adds, the reproducibility of the calibration in use.
@@ -36,6 +42,7 @@ MIN_LOOPS = 3
 MAX_LOOPS = "max loops"
 TARGET_MET = "target U met"
 LOOP_SHARE = "loop term below share"
+REPLACEMENTS_SPENT = "replacements spent"
 CONTINUE = ""
 
 
@@ -43,13 +50,15 @@ CONTINUE = ""
 class StopRule:
     """``max_loops``: the configured loops; ``min_loops`` ≥ :data:`MIN_LOOPS` unless ``max_loops`` is smaller;
     ``loop_share``: 0 switches the share test off; ``target_U_kg``: None switches the target test off (both off:
-    always ``max_loops`` loops, the former fixed count)."""
+    always ``max_loops`` loops, the former fixed count); ``replacements``: loops the run may measure beyond
+    ``max_loops`` to replace loops set aside."""
 
     max_loops: int
     min_loops: int = MIN_LOOPS
     loop_share: float = 0.2
     target_U_kg: float | None = None
     k: float = 2.0
+    replacements: int = 0
 
     def __post_init__(self) -> None:
         if self.max_loops < 1:
@@ -60,6 +69,14 @@ class StopRule:
             raise ValueError(f"stop rule: loop_share {self.loop_share} must be in [0, 1)")
         if self.target_U_kg is not None and not self.target_U_kg > 0.0:
             raise ValueError(f"stop rule: target_U_kg {self.target_U_kg} must be > 0")
+        if self.replacements < 0:
+            raise ValueError(f"stop rule: replacements {self.replacements} must be >= 0")
+
+    @property
+    def needed(self) -> int:
+        """The loops a run must keep before it may stop at ``max_loops``: ``min_loops``, or ``max_loops`` if fewer
+        were asked for."""
+        return min(self.min_loops, self.max_loops)
 
     @property
     def fixed(self) -> bool:
@@ -91,12 +108,15 @@ class Prediction:
 class StopDecision:
     stop: bool
     reason: str
-    """One of :data:`MAX_LOOPS`, :data:`TARGET_MET`, :data:`LOOP_SHARE`; empty while the run goes on."""
+    """One of :data:`MAX_LOOPS`, :data:`TARGET_MET`, :data:`LOOP_SHARE`, :data:`REPLACEMENTS_SPENT`; empty while the
+    run goes on."""
     prediction: Prediction | None = None
+    kept: int | None = None
+    """The loops kept when it was decided (None: not screened)."""
 
     def to_json(self) -> dict[str, object]:
         p = self.prediction
-        return {"stop_reason": self.reason or None, "loops": None if p is None else p.loops,
+        return {"stop_reason": self.reason or None, "loops_kept": self.kept, "loops": None if p is None else p.loops,
                 "loops_analysed": None if p is None else p.analysed,
                 "predicted_U_kg": None if p is None else p.U_kg,
                 "predicted_loop_share": None if p is None else p.loop_share}
@@ -113,17 +133,21 @@ def predict(loops: int, analysed: int, u_kg: float, u_loops_kg: float, k: float 
     return Prediction(loops, analysed, u_loops_n, math.sqrt(other_sq + u_loops_n**2), k)
 
 
-def decide(rule: StopRule, loops: int, prediction: Prediction | None) -> StopDecision:
-    """Stop after ``loops`` loops? ``prediction``: the budget for them (None: nothing analysed yet)."""
-    if loops >= rule.max_loops:
-        return StopDecision(True, MAX_LOOPS, prediction)
-    if loops < rule.min_loops or prediction is None or rule.fixed:
-        return StopDecision(False, CONTINUE, prediction)
+def decide(rule: StopRule, loops: int, prediction: Prediction | None, kept: int | None = None) -> StopDecision:
+    """Stop after ``loops`` loops measured, ``kept`` of them kept by the integrity check (None: all)?
+    ``prediction``: the budget for the kept loops (None: nothing analysed yet)."""
+    n = loops if kept is None else kept
+    if loops >= rule.max_loops + rule.replacements and (n < rule.needed and rule.replacements > 0):
+        return StopDecision(True, REPLACEMENTS_SPENT, prediction, kept)
+    if loops >= rule.max_loops and (n >= rule.needed or rule.replacements == 0):
+        return StopDecision(True, MAX_LOOPS, prediction, kept)
+    if n < rule.min_loops or prediction is None or rule.fixed:
+        return StopDecision(False, CONTINUE, prediction, kept)
     if rule.target_U_kg is not None and prediction.U_kg <= rule.target_U_kg:
-        return StopDecision(True, TARGET_MET, prediction)
+        return StopDecision(True, TARGET_MET, prediction, kept)
     if rule.loop_share > 0.0 and prediction.loop_share <= rule.loop_share:
-        return StopDecision(True, LOOP_SHARE, prediction)
-    return StopDecision(False, CONTINUE, prediction)
+        return StopDecision(True, LOOP_SHARE, prediction, kept)
+    return StopDecision(False, CONTINUE, prediction, kept)
 
 
 def point_loop_term_nm(loops: Sequence[tuple[np.ndarray, np.ndarray, float]],

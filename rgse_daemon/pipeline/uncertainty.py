@@ -373,6 +373,26 @@ def model_spread_kg(mass_kg: float, alternative_mass_kg: np.ndarray) -> float:
     return float(np.max(np.abs(alt - mass_kg))) if alt.size else 0.0
 
 
+def extrapolation_kg_per_distance(heldout_residual_kg: np.ndarray, distance: np.ndarray,
+                                  interior: np.ndarray) -> float:
+    """How the held-out error grows with the distance to the calibrated configurations (kg per unit of
+    :meth:`Envelope.nearest <rgse_daemon.pipeline.envelope.Envelope.nearest>`'s distance), from the calibration's own
+    held-out residuals (each loaded configuration predicted by the fit on the others, eq. 21 in kg) at their distance
+    to the nearest other configuration: r_i² ≈ s² + (c·d_i)², with s² the mean square of the interior configurations'
+    residuals (the reproducibility, already in U); c² by least squares in d_i² (0 if the data show no growth).
+    The widening of U for a DuT outside the envelope is c·d at its distance: out of sample, and only as large as the
+    calibration's own extrapolations were wrong (NaN if fewer than three configurations give a residual)."""
+    r = np.asarray(heldout_residual_kg, float)
+    d = np.asarray(distance, float)
+    ok = np.isfinite(r) & np.isfinite(d) & (d > 0)
+    inner = ok & np.asarray(interior, bool)
+    if ok.sum() < 3 or inner.sum() < 2:
+        return float("nan")
+    s2 = float(np.mean(r[inner] ** 2))
+    c2 = float(np.sum(d[ok] ** 2 * (r[ok] ** 2 - s2)) / np.sum(d[ok] ** 4))
+    return float(np.sqrt(max(c2, 0.0)))
+
+
 def model_kg(mass_kg: float, loo_rms_rel: float, alternative_mass_kg: np.ndarray) -> float:
     """The ``model`` component: leave-one-out lack of fit and model-form spread in quadrature."""
     return float(np.hypot(abs(mass_kg) * loo_rms_rel, model_form_kg(mass_kg, alternative_mass_kg)))

@@ -22,6 +22,7 @@ import json
 import math
 import time
 from collections.abc import Callable, Generator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,8 @@ from rgse_daemon.config import Config
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
 from rgse_daemon.io.topics import Topics
+from rgse_daemon.pipeline import integrity
+from rgse_daemon.pipeline.envelope import OperatingPointError
 from rgse_daemon.pipeline.stopping import StopDecision, decide, predict
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
@@ -43,7 +46,7 @@ from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import prepare
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import RunKind, Store
-from rgse_daemon.verdict import with_status
+from rgse_daemon.verdict import REFUSED, refusal, with_status
 
 CALIBRATION_FILE = "CAL.json"
 
@@ -62,9 +65,26 @@ def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_
     write_atomic(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
 
 
+#: What the pipeline refuses a measurement for: too few loops left after setting the disturbed ones aside, an
+#: operating point far outside the calibration. A result with status ``refused`` and its reason, not a failed run.
+REFUSALS = (integrity.TooFewLoops, OperatingPointError)
+
+
+def refused_result(exc: DataError, cal_doc: dict[str, Any]) -> dict[str, Any]:
+    """The result object of a refused measurement (rgse_daemon.verdict): the reason, the kind of refusal and the loops
+    it judged (those kept, those set aside with their reasons)."""
+    return refusal(str(exc), error=type(exc).__name__, calibration_id=cal_doc.get("calibration_id"),
+                   loops=len(getattr(exc, "used", ())), loops_used=list(getattr(exc, "used", ())),
+                   loops_set_aside=[a.to_dict() for a in getattr(exc, "set_aside", ())])
+
+
 def _finish(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> dict[str, Any]:
+    """The result (``rgse mass --json``) of the run's loops, or its refusal object (:data:`REFUSALS`)."""
     write_measurement_dir(run_dir, s, traces, cal_doc)
-    return compute_mass(run_dir, run_dir / CALIBRATION_FILE, s.fixture_mass_kg)
+    try:
+        return compute_mass(run_dir, run_dir / CALIBRATION_FILE, s.fixture_mass_kg)
+    except REFUSALS as exc:
+        return refused_result(exc, cal_doc)
 
 
 def result_line(result: dict[str, Any], figure: str) -> str:
@@ -93,58 +113,92 @@ def timing_summary(outcomes: list[LoopOutcome], compute_s: float, loops_wall_s: 
     return out
 
 
-def interim_budget(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]
-                   ) -> tuple[float, float] | None:
-    """(u, its loop term) in kg from the loops ``traces`` archived so far, with the run's calibration (written as
-    ``CAL.json`` beside the traces, as the result's); None if the loops do not give a budget (the final
-    computation says why)."""
+@dataclass(frozen=True)
+class Screened:
+    """The integrity check of the loops archived so far (:mod:`rgse_daemon.pipeline.integrity`): the loops kept and
+    those set aside (trace names), and (u, its loop term) in kg from the kept ones (None: no budget)."""
+
+    used: list[str]
+    set_aside: list[str]
+    budget: tuple[float, float] | None
+
+
+def screen_loops(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> Screened | None:
+    """The loops ``traces`` archived so far, with the run's calibration (written as ``CAL.json`` beside the traces, as
+    the result's), through the same :func:`~rgse_daemon.analysis.mass.measure` as the result: which are kept, and the
+    budget they give. None if they cannot be judged (e.g. far outside the envelope: the final computation says why)."""
     path = run_dir / CALIBRATION_FILE
     if not path.exists():
         write_atomic(path, json.dumps(cal_doc, indent=2) + "\n")
     try:
         r = mass_analysis.budget(run_dir, traces, path, s.fixture_mass_kg, s.g_m_s2)
+    except integrity.TooFewLoops as exc:
+        return Screened(list(exc.used), [a.loop for a in exc.set_aside], None)
     except (DataError, ValueError):
         return None
     u_loops = r.u_components_kg.get("loops")
-    if u_loops is None or not (math.isfinite(r.u_kg) and math.isfinite(u_loops)):
-        return None
-    return r.u_kg, u_loops
+    ok = u_loops is not None and math.isfinite(r.u_kg) and math.isfinite(u_loops)
+    return Screened(list(r.loops_used), [a["loop"] for a in r.loops_set_aside], (r.u_kg, u_loops) if ok else None)
+
+
+def interim_budget(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]
+                   ) -> tuple[float, float] | None:
+    """(u, its loop term) in kg from the loops ``traces`` archived so far (:func:`screen_loops`); None if they do
+    not give a budget."""
+    got = screen_loops(run_dir, s, traces, cal_doc)
+    return None if got is None else got.budget
 
 
 def measurement_loops(run: d.RunContext, s: RunSettings, cal_doc: dict[str, Any] | None, name: Callable[[int], str],
                       first_index: int = 1, *, event_data: dict[str, Any] | None = None,
                       label: str = "loop") -> Generator[m.Msg, Any, tuple[list[LoopOutcome], StopDecision]]:
     """The mass loops in the measurement pose under the stop rule (pipeline/stopping.py): each loop's files are
-    pulled while the next loop settles and records; from ``s.min_loops`` loops on, U is predicted from the loops
-    archived so far with ``cal_doc`` (none: the configured ``loops``). Returns the loops (all archived) and why they
-    stopped."""
+    pulled while the next loop settles and records; from ``s.min_loops`` loops on, the loops archived so far are
+    screened (pipeline/integrity.py) and U predicted from the kept ones with ``cal_doc`` (none: the configured
+    ``loops``). The rule counts only kept loops: from the configured ``loops`` on, every loop is screened as soon as
+    it is archived, and while fewer than the rule needs are kept, replacement loops follow (at most
+    ``s.replacement_loops``). Returns the loops (all archived, those set aside included) and why they stopped."""
     rule = s.stop_rule
     outcomes: list[LoopOutcome] = []
     previous: LoopOutcome | None = None
     decision = StopDecision(False, "")
-    for i in range(1, s.loops + 1):
+    aside: list[str] = []
+    i = 0
+    while not decision.stop:
+        i += 1
+        count = max(i, s.loops)
+        text = (f"{label} {i}/{s.loops}" if i <= s.loops else
+                f"replacement {label} {i} ({i - s.loops} of at most {rule.replacements}; set aside: "
+                f"{', '.join(aside)})")
         yield m.Checkpoint(f"{label} {i}")
-        yield m.Emit(Event("step", f"{label} {i}/{s.loops}", step="loop", loop_index=i, loop_count=s.loops,
-                           data=dict(event_data or {})))
+        yield m.Emit(Event("step", text, step="loop", loop_index=i, loop_count=count,
+                           data={**(event_data or {}), "replacement": i > s.loops}))
         out = yield from loop(first_index + i - 1, name(i), run, s, previous=previous, defer=True)
         outcomes.append(out)
         previous = out
-        prediction = None
+        final = i >= s.loops  # a stop at the configured loops, or a replacement: judge every loop, this one too
+        if final and cal_doc is not None:
+            yield from collect(out, run, s)
         analysed = [o.trace for o in outcomes if not o.pending]
-        if cal_doc is not None and analysed and rule.min_loops <= i < rule.max_loops and not rule.fixed:
+        screened = None
+        if cal_doc is not None and analysed and (final or (rule.min_loops <= i and not rule.fixed)):
             t0 = time.monotonic()
-            got = yield m.Process("predict U", interim_budget, (run.run_dir, s, analysed, cal_doc))
+            screened = yield m.Process("screen loops, predict U", screen_loops, (run.run_dir, s, analysed, cal_doc))
             out.timing.predict_s = time.monotonic() - t0
-            if got is not None:
-                prediction = predict(i, len(analysed), got[0], got[1])
-        decision = decide(rule, i, prediction)
+        kept, prediction = None, None
+        if screened is not None:
+            aside = screened.set_aside
+            kept = i - len(aside)
+            if screened.budget is not None and not rule.fixed:
+                prediction = predict(kept, len(analysed) - len(aside), *screened.budget)
+        decision = decide(rule, i, prediction, kept)
         per_loop_s = sum(o.timing.robot_s + o.timing.overhead_s for o in outcomes) / len(outcomes)
-        left = 0 if decision.stop else s.loops - i
-        yield m.Emit(Event("loop", f"{label} {i}/{s.loops} done" + (f" ({decision.reason})" if decision.stop else ""),
-                           step="loop", loop_index=i, loop_count=s.loops, eta_s=per_loop_s * left,
-                           data={**(event_data or {}), **out.timing.to_json(), **decision.to_json()}))
-        if decision.stop:
-            break
+        left = 0 if decision.stop else max(s.loops - i, 1)
+        yield m.Emit(Event("loop", f"{label} {i}/{count} done" + (f" ({decision.reason})" if decision.stop else "")
+                           + (f"; set aside: {', '.join(aside)}" if aside else ""),
+                           step="loop", loop_index=i, loop_count=count, eta_s=per_loop_s * left,
+                           data={**(event_data or {}), **out.timing.to_json(), **decision.to_json(),
+                                 "loops_set_aside": list(aside)}))
     if previous is not None:
         yield from collect(previous, run, s)
     return outcomes, decision
@@ -184,8 +238,9 @@ def measurement_plan(
     }
     result = with_status(result)
     yield d.Result(result, shas)
-    yield m.Emit(Event("result", result_line(result, f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg "
-                                                     f"(k = 2)"), step="result", data=result))
+    figure = (str(result["reason"]) if result["status"] == REFUSED else
+              f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg (k = 2)")
+    yield m.Emit(Event("result", result_line(result, figure), step="result", data=result))
     return result
 
 

@@ -36,6 +36,8 @@ class RunSettings:
     stop_loop_share: float = 0.0
     """0 (with no ``stop_target_U_kg``): always ``loops`` loops; the config's default is 0.2."""
     stop_target_U_kg: float | None = None
+    replacement_loops: int = 0
+    """Loops beyond ``loops`` that may replace loops set aside (the config's default is 3)."""
     g_m_s2: float = kin.G_PAPER_M_S2
     lever_difference_m: float = field(default_factory=lambda: robots.active().lever_difference_m)
     meas_pose_deg: tuple[float, ...] = field(default_factory=lambda: tuple(float(v) for v in kin.measurement_pose()))
@@ -71,6 +73,7 @@ class RunSettings:
             min_loops=ms.min_loops,
             stop_loop_share=ms.stop_loop_share,
             stop_target_U_kg=ms.stop_target_U_kg,
+            replacement_loops=ms.replacement_loops,
             lever_difference_m=cfg.robot_model.lever_difference_m,
             meas_pose_deg=tuple(float(v) for v in kin.measurement_pose(robot=cfg.robot_model)),
             time_scale=scale,
@@ -79,7 +82,8 @@ class RunSettings:
 
     @property
     def stop_rule(self) -> StopRule:
-        return StopRule(self.loops, max(self.min_loops, MIN_LOOPS), self.stop_loop_share, self.stop_target_U_kg)
+        return StopRule(self.loops, max(self.min_loops, MIN_LOOPS), self.stop_loop_share, self.stop_target_U_kg,
+                        replacements=self.replacement_loops)
 
     @property
     def trace_time_s(self) -> float:

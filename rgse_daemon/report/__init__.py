@@ -60,9 +60,11 @@ def build_report(repo: Repository, data_dir: Path, out_dir: Path, *, run_id: str
             else []
         if made:  # a campaign's run id: the report of the calibration it made
             return build_report(repo, data_dir, out_dir, calibration_id=made[-1].id)
-        if not repo.results(run_id):  # failed, aborted, interrupted: what it recorded and why it ended
+        results = repo.results(run_id)
+        refused = results[-1].result if results and results[-1].status == "refused" else None
+        if not results or refused is not None:  # failed, aborted, interrupted or refused: what it recorded and why
             text = render_run_record(run, repo.loops(run_id), repo.trace_files(run_id),
-                                     repo.events(run_id=run_id), m)
+                                     repo.events(run_id=run_id), m, refused)
         else:
             text = render_measurement(load_measurement(repo, Path(data_dir), run_id), m)
         name = f"report-{run_id}.html"

@@ -499,12 +499,17 @@ def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
 
 
 def render_run_record(run: RunRecord, loops: Sequence[LoopRecord], files: Sequence[TraceFileRecord],
-                      events: Sequence[Any], meta: ReportMeta) -> str:
-    """The report of a run that has no result (failed, aborted, interrupted): why it ended, what it recorded, and
-    its archived raw files; nothing is computed."""
+                      events: Sequence[Any], meta: ReportMeta, refused: dict[str, Any] | None = None) -> str:
+    """The report of a run that has no figure (failed, aborted, interrupted, or completed with a ``refused`` result):
+    why it ended or was refused, what it recorded (the loops set aside with their reasons), and its archived raw
+    files; nothing is computed."""
     reason = run.detail or "no reason recorded"
-    body = [status_head({"status": "refused", "reason": f"run {run.state.value}: {reason}", "warnings": []},
-                        (run.config.get("settings") or {}).get("identity")),
+    head = refused if refused is not None else {"status": "refused", "reason": f"run {run.state.value}: {reason}",
+                                                "warnings": []}
+    if refused is not None:
+        reason = str(refused.get("reason") or "no reason given")
+    aside = (refused or {}).get("loops_set_aside") or []
+    body = [status_head(head, (run.config.get("settings") or {}).get("identity")),
             "<h2>Run</h2>",
             kv([("run id", code(run.id, "run_id")), ("kind / state", t(f"{run.kind.value} / {run.state.value}")),
                 ("why it ended", t(reason)), ("robot", code(run.robot, "robot")), ("created", when(run.created_utc)),
@@ -515,6 +520,9 @@ def render_run_record(run: RunRecord, loops: Sequence[LoopRecord], files: Sequen
                   [(num(i, "d", "loop.number"), code(lp.trace_name, "loop.trace"), t(lp.state.value),
                     when(lp.robot_start_utc), when(lp.record_end_utc)) for i, lp in enumerate(loops, 1)],
                   right=(0,)) if loops else "<p>No loop was recorded.</p>"]
+    if aside:
+        body += ["<h2>Loops set aside</h2>", table(("loop", "reason"), [(code(str(a.get("loop")), "loop.trace"),
+                                                                          t(str(a.get("reason")))) for a in aside])]
     if events:
         body += ["<h2>Events</h2>", table(("time", "level", "kind", "message"),
                                           [(when(e.time_utc), t(e.level.value), code(e.kind), t(e.message))
@@ -522,5 +530,6 @@ def render_run_record(run: RunRecord, loops: Sequence[LoopRecord], files: Sequen
     body += ["<h2>Run configuration</h2>", f"<pre>{t(json.dumps(run.config, indent=2, sort_keys=True))}</pre>",
              "<h2>Appendix: archived raw files</h2>",
              _files_table(files, "file") if files else "<p>No file was archived.</p>"]
-    subtitle = f"robot {code(run.robot)} · run {code(run.id)} · {t(run.state.value)} · no result"
+    subtitle = (f"robot {code(run.robot)} · run {code(run.id)} · {t(run.state.value)} · "
+                + ("result refused" if refused is not None else "no result"))
     return page(f"Run record, {run.kind.value} run {run.id}", subtitle, "".join(body), meta)

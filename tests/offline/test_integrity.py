@@ -197,6 +197,9 @@ def test_a_dut_in_the_gap_between_mass_stack_and_torque_rows_is_outside(plain, t
     res = mass_json(capsys, mass_argv(tmp_path / "dut", plain / "CAL.json"), "warning")
     assert res["operating_point"] == "outside"
     assert any("from the nearest calibrated configuration" in w for w in res["warnings"]), res["warnings"]
+    # the widening comes from the calibration's own held-out configurations at their distance (out of sample)
+    assert any("U widened by what the calibration's own held-out configurations erred at that distance" in w
+               for w in res["warnings"]), res["warnings"]
     assert abs(res["mass_kg"] - 150.0) <= res["U_kg"]
     doc = calfile.read(plain / "CAL.json")
     assert len(doc.fit.envelope.points_nm) == 14

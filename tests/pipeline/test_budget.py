@@ -493,3 +493,25 @@ def test_loops_disagree_more_edges():
     m = np.array([0.0, 3.0, 6.0])  # Σ((m − m̄)/se)² = 18/se², over n − 1 = 2
     assert not unc.loops_disagree(m, np.full(3, 1.5 * 1.001), factor=2.0)
     assert unc.loops_disagree(m, np.full(3, 1.5 * 0.999), factor=2.0)
+
+
+def test_the_widening_outside_the_envelope_is_what_held_out_configurations_erred_at_their_distance():
+    """Issue 33: U outside the envelope grows with the distance to the calibrated configurations as the calibration's
+    own held-out residuals grew with theirs: r² = s² + (c·d)² recovers c; no growth gives 0; too few gives NaN."""
+    d = np.array([0.06, 0.06, 0.06, 0.06, 0.15, 0.2, 0.3])
+    interior = np.array([True, True, True, True, True, False, False])
+    s, c = 0.3, 4.0
+    r = np.sqrt(s**2 + (c * d) ** 2) * np.where(np.arange(d.size) % 2, 1.0, -1.0)
+    # the interior's mean square holds a little of the growth too: c is recovered to within that
+    assert unc.extrapolation_kg_per_distance(r, d, interior) == pytest.approx(c, rel=0.1)
+    assert unc.extrapolation_kg_per_distance(np.full(d.size, s), d, interior) == 0.0
+    assert np.isnan(unc.extrapolation_kg_per_distance(r[:2], d[:2], interior[:2]))
+    # from a calibration: its held-out residuals (Nm) in kg by eq. 21, its points' distances; mismatched: None
+    env = E.Envelope.from_torques(np.array([0.0, -500.0, -1000.0, -1500.0, -3000.0]),
+                                  np.array([0.0, -150.0, -300.0, -450.0, -2000.0]))
+    np.testing.assert_allclose(env.neighbour_distances()[:2], [np.hypot(500 / 3000, 150 / 2000)] * 2)
+    resid = np.array([[0.0, 0.0], [3.0, -2.0], [-2.0, 3.0], [4.0, -1.0], [60.0, -40.0]])
+    slope = inline.extrapolation_slope_kg(env, resid, 9.81, 0.5)
+    assert slope is not None and slope > 0
+    assert inline.extrapolation_slope_kg(env, resid[:3], 9.81, 0.5) is None
+    assert inline.extrapolation_slope_kg(None, resid, 9.81, 0.5) is None

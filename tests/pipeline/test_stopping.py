@@ -126,3 +126,23 @@ def test_point_loop_term_is_the_standard_error_of_the_mean_torque():
         [unc.batch_means_se(pp.kept_samples(a, 0.012)) for a, _, _ in loops])))
     assert lt3 == pytest.approx(means3.std(ddof=1) / math.sqrt(3), rel=1e-6)  # the between-loop error wins
     assert 0 < lt5 < 0.1 * lt3
+
+
+def test_the_rule_counts_only_kept_loops_and_replaces_those_set_aside():
+    """Issue 33: loops the integrity check set aside do not count towards ``min_loops``; at ``max_loops`` with too
+    few kept, replacement loops follow within the budget, then the rule stops ("replacements spent")."""
+    rule = StopRule(10, 3, loop_share=0.2, replacements=2)
+    met = predict(3, 3, *budget(3, 0.001))  # a loop term far below the share
+    assert decide(rule, 3, met).reason == st.LOOP_SHARE
+    assert not decide(rule, 3, met, kept=2).stop  # one of three set aside: 2 kept, below min_loops
+    assert decide(rule, 4, met, kept=3).reason == st.LOOP_SHARE
+    short = StopRule(3, 3, loop_share=0.0, replacements=2)
+    assert decide(short, 3, None, kept=3).reason == st.MAX_LOOPS
+    assert not decide(short, 3, None, kept=2).stop  # a replacement loop
+    assert decide(short, 4, None, kept=3).reason == st.MAX_LOOPS
+    spent = decide(short, 5, None, kept=1)
+    assert spent.stop and spent.reason == st.REPLACEMENTS_SPENT and spent.to_json()["loops_kept"] == 1
+    none = StopRule(3, 3, loop_share=0.0)  # no budget: the configured loops, whatever was kept
+    assert decide(none, 3, None, kept=1).reason == st.MAX_LOOPS
+    with pytest.raises(ValueError, match="replacements"):
+        StopRule(3, replacements=-1)
