@@ -38,7 +38,8 @@ OPTIONS = {
     "rgse run measure": "--config --dry-run --dut-name --fixture-mass --json --loops --note --on-prompt --operator "
                         "--part-number --project --report --serial-number --timeout",
     "rgse run properties": "--config --dry-run --dut-abc --dut-name --dut-origin --fixture-cog --fixture-mass "
-                           "--inertia --json --loops --loops-per-pose --no-inertia --note --on-prompt --operator "
+                           "--inertia --json --loops --loops-per-pose --mass-method --no-inertia --note --on-prompt "
+                           "--operator "
                            "--part-number --project --report --scheme --serial-number --timeout",
     "rgse runs": "--config --csv --dut --json --kind --out --robot --since --state --status --until",
     "rgse safety": "",

@@ -242,7 +242,8 @@ def test_campaign_point_unknown_key_is_refused(tmp_path, capsys, dirs):
 
 
 @pytest.mark.parametrize(("old", "new", "expected"), [
-    ('scheme = "paper"', 'scheme = "bogus"', "[torsional]: scheme must be one of paper, full, custom, got 'bogus'"),
+    ('scheme = "paper"', 'scheme = "bogus"',
+     "[torsional]: scheme must be one of paper, full, lever, custom, got 'bogus'"),
     ('scheme = "paper"', 'scheme = "paper"\nposes = 2', "[torsional]: unknown key 'poses' (did you mean 'pose'?)"),
     ('name = "meas"', 'name = "meas"\nq = 1', "[torsional] pose #1: unknown key 'q'"),
     ('cog_flange_m', 'cog_flange = 1\ncog_flange_m',
@@ -258,7 +259,8 @@ def test_torsional_unknown_key_or_scheme_is_refused(tmp_path, capsys, dirs, old,
 
 
 @pytest.mark.parametrize(("old", "new", "expected"), [
-    ('scheme = "paper"', 'scheme = "bogus"', "[properties]: scheme must be one of paper, full, custom, got 'bogus'"),
+    ('scheme = "paper"', 'scheme = "bogus"',
+     "[properties]: scheme must be one of paper, full, lever, custom, got 'bogus'"),
     ("u_mass_kg", "u_mass_kgs", "[properties]: unknown key 'u_mass_kgs' (did you mean 'u_mass_kg'?)"),
     ("cog_flange_m = [0.0, 0.0, 0.005]", "cog_flange_m = [0.0, 0.0, 0.005]\ndut_abc = [0.0, 0.0, 0.0]",
      "[properties] fixture: unknown key 'dut_abc' (did you mean 'dut_abc_deg'?)"),
