@@ -1,9 +1,10 @@
 """Loops set aside during a run, and a refusal by the daemon (issue 33 items 1 and 5): through the daemon on the
 simulated KR C4 over TCP, a real Mosquitto and a real store.
 
-* (The end-to-end test of a disturbed loop set aside and replaced was taken out on merge: on a quiet machine the
-  simulated lean was never set aside, the warm DuT's loop-to-loop thermal allowance explaining it; the replacement
-  rule itself is tested in tests/pipeline/test_stopping.py. See the closing note of issue 33.)
+* A loop disturbed while it records (the test's fault hook leans on the load for exactly that loop's trace: the
+  simulator's reading offsets shift while it records and shift back after) is set aside with its reason; with fewer
+  loops kept than the stop rule needs, the daemon measures a replacement loop and the result rests on the kept ones;
+  the set-aside loop's raw files stay archived. Without a replacement budget the result rests on the loops kept.
 * A DuT far outside the calibration is refused by the pipeline: the run completes with a result whose status is
   ``refused`` and its reason, published, stored, raised by the client as :class:`ResultRefused`, printed by
   ``rgse run --json`` as one object (exit 2, as ``rgse mass``), shown by the console in Chromium (visible text), and
@@ -15,12 +16,15 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
+from rgse_daemon import calfile
 from rgse_daemon.client import ResultRefused, RgseClient, Run
 from rgse_daemon.config import Config, config_from_mapping
+from rgse_daemon.procedures import documents as d
 from rgse_daemon.report import build_report
-from rgse_daemon.store import Repository, RunState, Store
+from rgse_daemon.store import LoopState, Repository, RunState, Store, archive_root, verify_file
 from simulators.krc4.physics import dut_payload
 from simulators.krc4.sim import SimulatedKrc4
 from tests.app.test_client_cli import rgse_run
@@ -34,6 +38,69 @@ from tests.support.polling import wait_until
 DUT = dut_payload(95.0, (0.0, 0.05, 0.25), fixture_mass_kg=10.288)
 #: Far beyond the calibration's loads (its heaviest points carry about 230 kg, 4.5 kNm on A3): refused.
 HEAVY = dut_payload(480.0, (0.0, 0.05, 0.65), fixture_mass_kg=10.288)
+#: The lean on the load during one loop (A3, A5; Nm): some tens of Nm, as the issue's knock.
+LEAN_NM = (30.0, -30.0)
+
+
+def lean_during(sim: SimulatedKrc4, loop_index: int):
+    """The fault hook: while loop ``loop_index`` records (from its LoopRecording to its LoopRecorded document),
+    someone leans on the load: the simulator's reading offsets of A3 and A5 shift by :data:`LEAN_NM`, then back."""
+    offset = [0.0, 0.0, LEAN_NM[0], 0.0, LEAN_NM[1], 0.0]
+
+    def on_document(doc: d.Document) -> None:
+        if isinstance(doc, d.LoopRecording) and doc.index == loop_index:
+            sim.model.knock(offset)
+        elif isinstance(doc, d.LoopRecorded) and doc.index == loop_index:
+            sim.model.knock([-v for v in offset])
+
+    return on_document
+
+
+@pytest.mark.parametrize("replacements", [2, 0])
+async def test_a_disturbed_loop_is_set_aside_named_and_replaced(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, calibration_doc: dict[str, Any], tmp_path: Path,
+        replacements: int) -> None:
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
+                        broker_port=private_broker.port, loops=3, stop_loop_share=0.0,
+                        replacement_loops=replacements)
+    # a lab warms the robot up until its motors are steady (measurement.warmup_until_steady), and calibrated at that
+    # temperature: the simulated motors start at the temperature they hold with the brakes released, the campaign's
+    # thermal state is the same (the short test configuration does one warm-up cycle only)
+    model = sim.model
+    model.state.motor_temp_k = model.ambient_k + np.array([a.hold_temperature_rise_k for a in model._axes])
+    steady = {"A3": float(model.state.motor_temp_k[2]), "A5": float(model.state.motor_temp_k[4])}
+    await seed_calibration(cfg, calfile.seal({**calibration_doc, "thermal_state_k": steady}))
+    sim.mount(DUT)
+    async with running_daemon(cfg) as rd, RgseClient.of(cfg) as client:
+        rd.daemon.engine.subscribe_documents(lean_during(sim, 2))
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        run = await client.measure()
+        result = await run.wait(180)
+    raw = result.raw
+    tag = raw["loops_used"][0].rsplit("_l", 1)[0]
+    # the disturbed loop is named, with why
+    (aside,) = raw["loops_set_aside"]
+    assert aside["loop"] == f"{tag}_l02" and "disagrees with the other loops" in aside["reason"], aside
+    assert f"loop {tag}_l02 set aside: disagrees" in " ".join(result.warnings)
+    if replacements:  # 2 kept of 3: one replacement loop, and the mass rests on 3 kept loops
+        assert raw["loops_used"] == [f"{tag}_l01", f"{tag}_l03", f"{tag}_l04"], raw["loops_used"]
+        assert raw["stop_rule"]["stop_reason"] == "max loops" and raw["stop_rule"]["loops_kept"] == 3
+    else:  # no budget: the mass rests on the 2 loops kept
+        assert raw["loops_used"] == [f"{tag}_l01", f"{tag}_l03"], raw["loops_used"]
+    assert result.status == "warning" and result.loops == len(raw["loops_used"])
+    assert abs(result.mass_kg - DUT.mass_kg + 10.288) <= result.U_kg, (result.mass_kg, result.U_kg)
+    async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
+        loops = await store.loops(run.run_id)
+        files = await store.trace_files(run.run_id)
+        rec = await store.get_run(run.run_id)
+    n = 4 if replacements else 3
+    assert [lp.trace_name for lp in loops] == [f"{tag}_l{i:02d}" for i in range(1, n + 1)]
+    assert all(lp.state == LoopState.ARCHIVED for lp in loops) and rec.state == RunState.COMPLETED
+    # the set-aside loop's raw files stay archived as they were, with the hashes recorded
+    aside_files = [f for f in files if f.loop_index == 2]
+    assert aside_files
+    for f in aside_files:
+        verify_file(archive_root(cfg.paths.data_dir) / f.path, f.sha256, f.size_bytes)
 
 
 def refusal_config(tmp_path: Path, sim: SimulatedKrc4, broker: MosquittoProcess, store_url: str) -> Config:
