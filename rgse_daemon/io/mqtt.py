@@ -376,10 +376,15 @@ class MqttBridge:
         urgent, self._urgent_task = self._urgent_task, None
         self._stopping.set()
         if urgent is not None:  # it ends on _stopping (a clean disconnect; the main connection says offline)
-            try:
-                await within(asyncio.shield(urgent), self._stop_timeout_s)
-            except TimeoutError:
+            if not self._urgent_up:
+                # waiting for the main connection, or its own connect/subscribe in flight: nothing to close cleanly,
+                # and a connect in flight would hold the stop for its whole timeout (seen: 15 s, the daemon's bound)
                 urgent.cancel()
+            else:
+                try:
+                    await within(asyncio.shield(urgent), self._stop_timeout_s)
+                except TimeoutError:
+                    urgent.cancel()
             await asyncio.gather(urgent, return_exceptions=True)  # bounded: a cancelled connect closes by deadline
         connecting = task is not None and self._state is ConnectionState.CONNECTING
         if connecting:
