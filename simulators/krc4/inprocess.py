@@ -93,11 +93,12 @@ class _Pipe(asyncio.Transport):
     def is_reading(self) -> bool:
         return not self._closing
 
-    def pause_reading(self) -> None:  # never needed: the reader's buffer limit is not reached by one reply
-        pass
+    def pause_reading(self) -> None:
+        """Flow control is a no-op here: the pipe hands each reply over whole, and one reply stays far below the
+        stream reader's buffer limit, so there is nothing to hold back."""
 
     def resume_reading(self) -> None:
-        pass
+        """The other half of :meth:`pause_reading`: nothing was held back, so nothing resumes."""
 
 
 def open_pipe(server: KrcServer) -> tuple[asyncio.StreamReader, asyncio.StreamWriter]:

@@ -125,8 +125,8 @@ async def test_file_work_takes_its_time_and_status_reads_wait_behind_it(sim: Sim
 async def test_a_closed_simulator_is_a_refused_link(sim: SimulatedKrc4, tmp_path: Path) -> None:
     await sim.close()
     with pytest.raises(LinkClosed):
-        async with in_process_controller(sim.server, _config(sim, tmp_path).controller):
-            pass
+        async with in_process_controller(sim.server, _config(sim, tmp_path).controller) as krc:
+            raise AssertionError(f"a closed simulator gave a link: {krc!r}")
 
 
 async def test_the_torque_reading_follows_pose_load_and_mounting(sim: SimulatedKrc4) -> None:
