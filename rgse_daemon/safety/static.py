@@ -668,7 +668,7 @@ def check_program(src_text: str, dat_text: str | None, ctx: CheckContext, file: 
     try:
         forbidden = _forbidden_tokens(src_text, file, deadline)
         if dat_text is not None:
-            forbidden += _forbidden_tokens(dat_text, file, deadline, FORBIDDEN_IN_DATA)
+            forbidden += _forbidden_tokens(dat_text, _dat_name(file), deadline, FORBIDDEN_IN_DATA)
         try:
             module = parse_src(src_text, file, deadline)
             data = parse_dat(dat_text, _dat_name(file), deadline) if dat_text is not None else None
