@@ -610,3 +610,72 @@ def test_a_partial_write_keeps_the_other_fields_of_a_target(write: str) -> None:
     v = found(src)
     assert [(x.line, x.rule) for x in v] == [(FIRST + 5, "JOINT_LIMIT")]
     assert v[0].message == "A3 target 150 deg outside the axis range -100..144 deg"
+
+
+# --- the last survivors of the seed-31 sample (session 17) ------------------------------------------------------------
+def test_a_vel_axis_of_an_unknown_index_counts_as_100_percent_on_every_axis() -> None:
+    """``$VEL_AXIS[7] = 2`` is refused (no such axis) and, as any axis may have been meant, every axis counts at 100 %
+    from there: A6 turned by 10 deg at 100 % moves a payload point 0.1 m off the flange axis at 246.7 mm/s, at 101 %
+    at 249.1 mm/s. With the T1 speed between the two, the A6 motion after the write is allowed at 100 % (101 %
+    would refuse it)."""
+    from rgse_daemon.kinematics import max_point_speed_mm_s
+
+    target = pose(A6=10.0)
+    point = (0.1, 0.0, 0.0)
+
+    def bound_mm_s(pct: float) -> float:
+        return max_point_speed_mm_s(MEAS, target, tuple(pct / 100.0 * s for s in SPEEDS), [point, (0.0, 0.0, 0.0)],
+                                    robot=CTX.robot).bound_mm_s
+
+    at_100, at_101 = bound_mm_s(100.0), bound_mm_s(101.0)
+    assert 246.0 < at_100 < 247.0 < 249.0 < at_101 < 249.5
+    limit_mm_s = (at_100 + at_101) / 2.0
+    ctx = CheckContext(start_axes_deg=MEAS, payload_points_flange_m=(point,),
+                       limits=LimitsConfig(t1_speed_mm_s=limit_mm_s))
+    v = found(program("  $VEL_AXIS[7] = 2\n  PTP {A6 10}"), ctx)
+    assert [(x.line, x.column, x.rule) for x in v] == [(FIRST, 3, "VELOCITY")]
+    assert v[0].message == "$VEL_AXIS must be set per axis with a constant index 1..6"
+    # the same limit refuses the motion at 100 % a hair faster (the T1 speed just below the 100 % bound)
+    slower = CheckContext(start_axes_deg=MEAS, payload_points_flange_m=(point,),
+                          limits=LimitsConfig(t1_speed_mm_s=at_100 - 0.5))
+    assert [x.rule for x in found(program("  $VEL_AXIS[7] = 2\n  PTP {A6 10}"), slower)] == ["VELOCITY", "SPEED"]
+
+
+def test_a_payload_under_1_kg_has_its_a5_torque() -> None:
+    """0.5 kg with its CoG 0.5 m out on the flange axis, held with the flange axis level (A5 = 0): its A5 torque is
+    m·g·(d6 + 0.5 m) = 0.5 · 9.81 · 0.79 = 3.87 Nm, above a 3 Nm limit."""
+    ctx = CheckContext(start_axes_deg=MEAS, payload_mass_kg=0.5, payload_cog_flange_m=(0.0, 0.0, 0.5),
+                       limits=LimitsConfig(max_a5_torque_nm=3.0))
+    torque_nm = 0.5 * G_PAPER_M_S2 * (D6_M + 0.5)
+    assert f"{torque_nm:.2f}" == "3.87"
+    v = found(program("  PTP {A1 0}"), ctx)
+    assert [(x.line, x.column, x.rule, x.message) for x in v] == [
+        (FIRST, 3, "A5_TORQUE", f"static A5 torque of the payload reaches {torque_nm:.1f} Nm on this motion, above "
+                                "the load diagram's 3 Nm")]
+    assert found(program("  PTP {A1 0}"), CheckContext(start_axes_deg=MEAS, payload_mass_kg=0.5,
+                                                       payload_cog_flange_m=(0.0, 0.0, 0.5),
+                                                       limits=LimitsConfig(max_a5_torque_nm=3.9))) == []
+
+
+def test_the_a5_torque_is_the_checked_robots() -> None:
+    """2 kg 0.1 m out on the flange axis of a KR 10 (d6 0.1 m), held at A5 = 60 deg: the CoG is 0.2 m from the wrist
+    centre (the bound, 3.92 Nm, is above a 3 Nm limit, so the pose is worked out) and its A5 torque is
+    m·g·0.2 m·cos 60° = 1.96 Nm, allowed. The KR 500's longer d6 (0.29 m) would give 3.83 Nm at the same axes."""
+    from rgse_daemon import robots
+    from rgse_daemon.kinematics import gravity_torques_nm
+
+    kr10 = robots.get("kr10r1440")
+    held = pose(A5=60.0)
+    body = [(2.0, (0.0, 0.0, 0.1))]
+    assert abs(float(gravity_torques_nm(held, body, robot=kr10)[4])) == pytest.approx(2.0 * G_PAPER_M_S2 * 0.1)
+    assert abs(float(gravity_torques_nm(held, body, robot=robots.get("kr500r2830"))[4])) == pytest.approx(
+        2.0 * G_PAPER_M_S2 * 0.39 / 2.0)
+    assert 2.0 * G_PAPER_M_S2 * 0.2 > 3.0
+    ctx = CheckContext(start_axes_deg=held, payload_mass_kg=2.0, payload_cog_flange_m=(0.0, 0.0, 0.1),
+                       limits=LimitsConfig(max_a5_torque_nm=3.0), robot=kr10)
+    assert found(program("  PTP {A5 60}"), ctx) == []
+    v = found(program("  PTP {A5 60}"), CheckContext(start_axes_deg=held, payload_mass_kg=2.0,
+                                                     payload_cog_flange_m=(0.0, 0.0, 0.1),
+                                                     limits=LimitsConfig(max_a5_torque_nm=1.9), robot=kr10))
+    assert [(x.rule, x.message) for x in v] == [
+        ("A5_TORQUE", "static A5 torque of the payload reaches 2.0 Nm on this motion, above the load diagram's 1.9 Nm")]
