@@ -34,6 +34,7 @@ import numpy as np
 from rgse_daemon import __version__, calfile
 from rgse_daemon.analysis import cog as cog_analysis
 from rgse_daemon.analysis import inertia as inertia_analysis
+from rgse_daemon.analysis import multipose as multipose_analysis
 from rgse_daemon.analysis import reference as ref
 from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.manifest import TORSIONAL_KIND, Loop, read_loop
@@ -394,7 +395,13 @@ def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> Measureme
     # it is shown as stored, not recomputed. Everything that follows from raw files and calibration is checked.
     again = {"gross_mass_kg": gross, "mass_kg": gross - fixture, "loops": len(t3), "samples_used": used,
              "samples_total": total, "calibration_id": cal_id, "method": cal.method}
+    multipose = res.get("mass_method") == "multipose"
+    single = (res.get("mass_methods") or {}).get("single") if multipose else None
     for key, value in again.items():
+        if multipose and key in ("gross_mass_kg", "mass_kg"):  # the result's mass is the multi-pose one (below)
+            if key == "mass_kg" and isinstance(single, dict) and "mass_kg" in single:
+                _check(checks, "result mass_methods.single.mass_kg", single["mass_kg"], value)
+            continue
         if key in res:
             _check(checks, f"result {key}", res[key], value)
     cog = None
@@ -478,6 +485,12 @@ def _recompute_cog(root: Path, run: RunRecord, loops: list[LoopRecord], files: l
         cal_path = directory / "CAL.json"
         cal_path.write_text(json.dumps(cal_doc), encoding="utf-8")
         again = cog_analysis.compute_cog_dir(directory, cal_path).to_json()
+        if res.get("mass_method") == "multipose":  # the mass from the lever poses' torque differences (MP1-MP3)
+            mp = multipose_analysis.compute_multipose_dir(directory, cal_path,
+                                                          float(res.get("fixture_mass_kg", 0.0))).to_json()
+            for key in ("mass_kg", "gross_mass_kg", "U_kg"):
+                if key in res:
+                    _check(checks, f"result {key} (multi-pose)", res[key], mp[key])
     for key in ("cog_flange_m", "U_cog_flange_m", "cog_dut_m", "U_cog_dut_m"):
         for axis, (a, b) in enumerate(zip(stored[key], again[key], strict=True)):
             _check(checks, f"result cog {key}[{axis}]", a, b)

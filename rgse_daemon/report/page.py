@@ -18,6 +18,7 @@ from typing import Any
 
 from rgse_daemon.analysis import reference as ref
 from rgse_daemon.analysis.inertia import ECSS_REL
+from rgse_daemon.massmethod import mass_method_text
 from rgse_daemon.report import plots
 from rgse_daemon.report.data import (
     BAND_K,
@@ -277,6 +278,7 @@ def _result_summary(view: MeasurementView) -> str:
     rows = [
         ("net mass of the DuT ± U (k = " + t(res.get("k", 2)) + ")",
          f"<strong>{num(m, '.3f', 'mass_kg')} ± {num(big_u, '.3f', 'U_kg', 'kg')}</strong>"),
+        *([("mass method", t(mass_method_text(res)))] if mass_method_text(res) is not None else []),
         ("standard uncertainty u", num(res.get("u_kg"), ".4f", "u_kg", "kg")),
         *[(f"  u component: {name}", num(v if isinstance(v, int | float) else None, ".4f", f"u_component.{name}", "kg"))
           for name, v in sorted((res.get("u_components_kg") or {}).items())],
@@ -434,6 +436,9 @@ def status_head(result: dict[str, Any], identity: dict[str, Any] | None) -> str:
         out += f'<p class="warn">warning: <span data-field="warning" data-value="{t(w)}">{t(w)}</span></p>'
     if result.get("reason"):
         out += f'<p class="warn">refused: {t(result["reason"])}</p>'
+    method = mass_method_text(result)
+    if method is not None:
+        out += f'<p>mass: <span data-field="mass_method" data-value="{t(method)}">{t(method)}</span></p>'
     who = identity or {}
     rows = [(label, f'<span data-field="identity.{key}" data-value="{t(who[key])}">{t(who[key])}</span>')
             for key, label in IDENTITY_FIELDS if who.get(key)]
@@ -459,7 +464,9 @@ def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
         "<h2>Loop by loop</h2>", _loops_table(view),
         figure(plots.loop_masses(view), "net mass of each loop", "loop_masses"),
         "<p>A loop's mass is eq. 21 on that loop's pre-processed means alone; the result uses the double average of "
-        "eq. 16 over all loops.</p>",
+        "eq. 16 over all loops"
+        + (" for its single-pose estimate; the mass it gives is the multi-pose one (above)"
+           if view.result.result.get("mass_method") == "multipose" else "") + ".</p>",
         "<h2>Torque traces per loop (Fig. 22)</h2>",
         f"<p>Pre-processing {code(json.dumps(view.calibration.preprocessing.to_dict(), sort_keys=True), wrap=True)}"
         ": raw samples, "
