@@ -135,6 +135,8 @@ class CalibrationView:
     points: list[PointView] = field(default_factory=list)
     files: list[TraceFileRecord] = field(default_factory=list)
     checks: list[str] = field(default_factory=list)
+    result: ResultRecord | None = None
+    """The campaign run's (newest) result: its status and warnings (None: fitted offline, or none stored)."""
 
 
 @dataclass(frozen=True)
@@ -272,25 +274,31 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     if rec.run_id is None:
         return CalibrationView(rec, doc, calf, cal, cfg, None, [], [], checks)
     run = repo.get_run(rec.run_id)
+    results = repo.results(run.id)
+    result = results[-1] if results else None
     # the torsional points (CoG, measured in several poses) are not mass points: the mass calibration ignores them
     # (as analysis.calibration does), and so does this recomputation; CAL.json's torsional section is shown as stored
     specs = [p for p in repo.points(run.id) if p.spec.get("kind") != TORSIONAL_KIND]
     loops = repo.loops(run.id)
     files = repo.trace_files(run.id)
     if not specs:
-        return CalibrationView(rec, doc, calf, cal, cfg, run, [], files, checks)
+        return CalibrationView(rec, doc, calf, cal, cfg, run, [], files, checks, result)
     root = archive_root(data_dir)
     _verify_files(root, files, checks, f"calibration run {run.id}")
     raw3, raw5, loop_idx = [], [], []
+    # the loops the campaign set aside (fit.set_aside: a gap, a step, a loop far from its point's others) are not
+    # in its points; their files stay archived and are verified above
+    aside = {a.loop for a in calf.fit.set_aside or ()}  # (a trace's name is unique in its run)
     for p in specs:
-        mine = [lp for lp in loops if lp.point_index == p.index]
+        mine = [lp for lp in loops if lp.point_index == p.index and lp.trace_name not in aside]
         if not mine:
             raise DataError(f"calibration run {run.id} point {p.index}: no loops recorded")
         l3, l5 = [], []
         for lp in mine:
             loop = read_loop(_loop_directory(root, lp, files), lp.trace_name)
-            l3.append(pp.process_loop(loop.torque_a3_nm, loop.period_s, cfg).torque_nm)
-            l5.append(pp.process_loop(loop.torque_a5_nm, loop.period_s, cfg).torque_nm)
+            ok = integrity.valid_mask(loop.torque_a3_nm, loop.torque_a5_nm)  # missing in one channel: in both
+            l3.append(pp.process_loop(np.where(ok, loop.torque_a3_nm, np.nan), loop.period_s, cfg).torque_nm)
+            l5.append(pp.process_loop(np.where(ok, loop.torque_a5_nm, np.nan), loop.period_s, cfg).torque_nm)
         raw3.append(pp.double_average_nm(l3))
         raw5.append(pp.double_average_nm(l5))
         loop_idx.append(tuple(lp.index for lp in mine))
@@ -316,7 +324,7 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     views = [PointView(p.index, p.spec, loop_idx[i], float(n3[i]), float(n5[i]), float(e3[i]), float(e5[i]),
                        float(calc[i]), mass_sigma_cal_kg(cal, float(n3[i]), float(n5[i])))
              for i, p in enumerate(specs)]
-    return CalibrationView(rec, doc, calf, cal, cfg, run, views, files, checks)
+    return CalibrationView(rec, doc, calf, cal, cfg, run, views, files, checks, result)
 
 
 # ------------------------------------------------------------------------------------------------------------
