@@ -225,6 +225,12 @@ def certificate_pdf(data: CertificateData) -> bytes:
     pair("Calibration model", str(doc.get("method") or (cal.method if cal else "-")))
     pair("Calibration", f"{cal.id} of {_time(cal.created_utc)}" if cal is not None else
          str(doc.get("calibration_id") or "-"))
+    applied = doc.get("thermal_applied")
+    if isinstance(applied, dict) and applied:  # whether the campaign's β corrected the loops, per axis
+        pair("Thermal correction", ", ".join(f"{ax} {'applied' if on else 'not applied (U carries the drift)'}"
+                                             for ax, on in sorted(applied.items())))
+    if doc.get("operating_point") == "outside":
+        pair("Operating point", "outside the calibrated envelope: U widened (see the warnings)")
     loops = doc.get("loops")
     pair("Loops", f"{loops}" + (f" ({doc.get('stop_reason')})" if doc.get("stop_reason") else "")
          if loops is not None else "-")

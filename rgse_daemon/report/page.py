@@ -327,6 +327,10 @@ def _result_summary(view: MeasurementView) -> str:
          + code(res.get("method"), "result_method")),
         *_thermal_rows(res.get("motor_temp_k"), view.calibration.cal_file.provenance.thermal_state_k),
         *_thermal_applied_rows(res.get("thermal_applied")),
+        *([("operating point", f'<span data-field="operating_point" data-value="{t(res["operating_point"])}">'
+            f'{t(res["operating_point"])} the calibrated envelope</span>'
+            + (" (U widened; see the warnings)" if res["operating_point"] == "outside" else ""))]
+          if res.get("operating_point") in ("inside", "outside") else []),
         ("ECSS-E-10-03C mass accuracy ± 0.05 %",
          f"{badge(ecss_ok, 'met', 'not met')} U / m = {num(100 * rel, '.3f', 'U_rel_pct', '%')} "
          f"(requirement {num(100 * ECSS_MASS_REL, '.2f', 'ecss_pct', '%')} = "

@@ -3,14 +3,18 @@ one loop of one point lost to missing samples (DIAdem's no-value marker in every
 its third loop, calibrated and measured by the offline commands and recorded in a real store. The calibration's
 report (before: it refitted K from every loop, the gapped one included, and refused as inconsistent) names the loop
 set aside and why, and β per axis with its span and whether a measurement applies it; the measurement's report marks
-each loop it left out, with its reason, in the loop table, and says per axis whether β corrected the loops. Read
-back from Chromium's DOM."""
+each loop it left out, with its reason, in the loop table, and says per axis whether β corrected the loops and
+that the DuT lies inside the calibrated envelope. Read back from Chromium's DOM; the certificate's text says the
+same."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from pypdf import PdfReader
+
 from rgse_daemon.report import build_report
+from rgse_daemon.report.certificate import certificate_pdf, load
 from rgse_daemon.store import Repository
 from tests.support.chromium import Dom, dump_dom
 from tests.support.simcampaign import Knock, simulate_campaign, simulate_measurement, with_gap, write_dirs
@@ -31,6 +35,8 @@ def test_reports_name_the_loops_set_aside_and_the_thermal_state(tmp_path: Path) 
         assert [a["loop"] for a in filled.cal_doc["fit"]["set_aside"]] == ["cal05_l02"]
         cal_page = build_report(repo, data, tmp_path / "reports", calibration_id=filled.calibration_id)
         run_page = build_report(repo, data, tmp_path / "reports", run_id=filled.run_id)
+        cert = tmp_path / "cert.pdf"
+        cert.write_bytes(certificate_pdf(load(repo, filled.run_id)))
 
     cal = Dom(dump_dom(cal_page))
     assert cal.fields["set_aside.loop"] == ["cal05_l02"]
@@ -49,3 +55,10 @@ def test_reports_name_the_loops_set_aside_and_the_thermal_state(tmp_path: Path) 
     (applied,) = run.fields["thermal_applied"]
     assert applied.startswith("A3 ") and ", A5 " in applied, applied
     assert "set aside: " in html and "in the result" in html
+    assert run.fields["operating_point"] == ["inside"]
+
+    # the certificate: the warnings (the loops set aside) and whether β corrected the loops, per axis
+    (page,) = PdfReader(cert).pages
+    text = " ".join(page.extract_text().split())
+    assert "STATUS: WARNING" in text and "loop dut_l03 set aside: " in text, text
+    assert "Thermal correction A3 " in text and ", A5 " in text and "Operating point" not in text, text
