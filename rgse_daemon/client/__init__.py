@@ -9,6 +9,7 @@ from rgse_daemon.client.types import (
     DaemonState,
     FixtureFrame,
     Identity,
+    MassEstimate,
     MeasurementResult,
     ProgressEvent,
     Prompt,
@@ -23,7 +24,8 @@ from rgse_daemon.client.types import (
 from rgse_daemon.runkind import RunKind
 
 __all__ = [
-    "CalibrationResult", "CampaignPoint", "DaemonState", "FixtureFrame", "Identity", "MeasurementResult",
-    "ProgressEvent", "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result", "ResultRefused",
-    "RgseClient", "Run", "RunFailed", "RunKind", "SyncClient", "SyncRun", "WaitTimeout", "load_points",
+    "CalibrationResult", "CampaignPoint", "DaemonState", "FixtureFrame", "Identity", "MassEstimate",
+    "MeasurementResult", "ProgressEvent", "Prompt", "PromptHandler", "PropertiesResult", "Refused", "Result",
+    "ResultRefused", "RgseClient", "Run", "RunFailed", "RunKind", "SyncClient", "SyncRun", "WaitTimeout",
+    "load_points",
 ]

@@ -280,6 +280,30 @@ Matrix3 = tuple[Vector3, Vector3, Vector3]
 
 
 @dataclass(frozen=True)
+class MassEstimate:
+    """One mass method's estimate in a properties result (§4.2 ``mass_methods``): the DuT's mass and its U (k = 2),
+    kg, and the robot time of that method's loops, s."""
+
+    method: str
+    """``single`` (the paper's pose, eq. 21) or ``multipose`` (torque differences between the lever poses)."""
+    mass_kg: float
+    U_kg: float
+    robot_time_s: float | None
+
+    @classmethod
+    def all_of(cls, doc: dict[str, Any]) -> tuple[MassEstimate, ...]:
+        methods = doc.get("mass_methods")
+        if not isinstance(methods, dict):
+            return ()
+        out = []
+        for name, m in methods.items():
+            mass, u = (_f(m, "mass_kg"), _f(m, "U_kg")) if isinstance(m, dict) else (None, None)
+            if mass is not None and u is not None:
+                out.append(cls(str(name), mass, u, _f(m, "robot_time_s")))
+        return tuple(out)
+
+
+@dataclass(frozen=True)
 class PropertiesResult:
     """The result of a mass-properties run: the measurement's mass and the CoG, flange and DuT frame (m), each with
     its U (k = 2); ``raw["cog"]`` holds the whole CoG result (scheme, poses, budget). A run with the inertia also
@@ -305,6 +329,12 @@ class PropertiesResult:
     U_inertia_cog_dut_kgm2: Matrix3 | None = None
     status: Status = "ok"
     identity: Identity | None = None
+    mass_method: str | None = None
+    """Where :attr:`mass_kg` comes from: ``single`` or ``multipose`` (None: a daemon before the multi-pose mass)."""
+    mass_method_requested: str | None = None
+    """What the run was asked for: ``single``, ``multipose`` or ``auto`` (``auto`` chose :attr:`mass_method`)."""
+    mass_methods: tuple[MassEstimate, ...] = ()
+    """Every method's estimate the run computed (both with ``multipose`` and ``auto``)."""
 
     @classmethod
     def of(cls, run_id: str, doc: dict[str, Any]) -> PropertiesResult:
@@ -321,7 +351,8 @@ class PropertiesResult:
                    principal_axes_dut=_matrix(doc, "principal_axes_dut"),
                    inertia_cog_dut_kgm2=_matrix(doc, "inertia_cog_dut_kgm2"),
                    U_inertia_cog_dut_kgm2=_matrix(doc, "U_inertia_cog_dut_kgm2"), status=_status(doc),
-                   identity=Identity.of(doc.get("identity")))
+                   identity=Identity.of(doc.get("identity")), mass_method=_s(doc, "mass_method"),
+                   mass_method_requested=_s(doc, "mass_method_requested"), mass_methods=MassEstimate.all_of(doc))
 
 
 Result = MeasurementResult | CalibrationResult | PropertiesResult

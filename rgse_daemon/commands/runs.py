@@ -3,7 +3,10 @@ for a spreadsheet, a test report or a PDM system (the fields: :data:`FIELDS`, do
 
 One row per run: its kind, robot, state and times, why it failed or was aborted, the DuT's identity as the run was
 given it, and its result (status, mass and CoG with U at k = 2, calibration, warnings). A run without a result
-(failed, aborted, interrupted) has empty result fields and its reason in ``detail``.
+(failed, aborted, interrupted) has empty result fields and its reason in ``detail``. ``reason`` is why there is no
+figure, whichever way: a refused result's reason, else the reason a run failed, was aborted or interrupted; the table
+shows it shortened (:data:`REASON_CHARS`), the CSV and JSON in full. A properties run also says where its mass came
+from (``mass_method``, :mod:`rgse_daemon.massmethod`).
 """
 
 from __future__ import annotations
@@ -21,20 +24,26 @@ from typing import Any
 from rgse_daemon.commands import absent_store, add_json
 from rgse_daemon.config import load_config
 from rgse_daemon.errors import EXIT_OK, ConfigError, DataError
+from rgse_daemon.massmethod import mass_method_text
 from rgse_daemon.store import RunKind, RunState, Store
 from rgse_daemon.store.records import ResultRecord, RunRecord
-from rgse_daemon.verdict import STATUSES
+from rgse_daemon.verdict import REFUSED, STATUSES
 
 #: The columns, in order (docs/interfaces.md §1.4). Times are ISO 8601 UTC; masses kg, CoG m, U at k = 2.
 FIELDS = (
     "run_id", "kind", "robot", "state", "created_utc", "started_utc", "ended_utc", "detail",
     "dut_name", "serial_number", "part_number", "project", "operator", "note",
-    "result_id", "status", "mass_kg", "U_kg", "cog_x_m", "cog_y_m", "cog_z_m", "U_cog_x_m", "U_cog_y_m", "U_cog_z_m",
-    "calibration_id", "method", "robot_time_s", "warnings",
+    "result_id", "status", "reason",
+    "mass_kg", "U_kg", "cog_x_m", "cog_y_m", "cog_z_m", "U_cog_x_m", "U_cog_y_m", "U_cog_z_m",
+    "calibration_id", "method", "mass_method", "robot_time_s", "warnings",
 )
 IDENTITY = ("dut_name", "serial_number", "part_number", "project", "operator", "note")
 #: Separator of the warnings in one CSV cell.
 WARNING_SEPARATOR = " | "
+#: Longest reason in the table (characters); CSV and JSON carry it whole.
+REASON_CHARS = 72
+#: Run states that end without a result, for a reason (``detail``).
+ENDED_WITHOUT_RESULT = (RunState.FAILED, RunState.ABORTED, RunState.INTERRUPTED)
 
 
 def _time(value: datetime | None) -> str | None:
@@ -46,13 +55,15 @@ def row(run: RunRecord, result: ResultRecord | None) -> dict[str, Any]:
     out: dict[str, Any] = dict.fromkeys(FIELDS)
     out.update(run_id=run.id, kind=run.kind.value, robot=run.robot, state=run.state.value,
                created_utc=_time(run.created_utc), started_utc=_time(run.started_utc), ended_utc=_time(run.ended_utc),
-               detail=run.detail)
+               detail=run.detail, reason=run.detail if run.state in ENDED_WITHOUT_RESULT else None)
+    settings = run.config.get("settings") if isinstance(run.config, dict) else None
+    given = settings.get("identity") if isinstance(settings, dict) else None  # a run without a result: as it was given
+    doc = result.result if result is not None else {}
+    identity = doc.get("identity") if isinstance(doc.get("identity"), dict) else given or {}
+    for key in IDENTITY:
+        out[key] = identity.get(key) if isinstance(identity, dict) else None
     if result is None:
         return out
-    doc = result.result
-    identity = doc.get("identity") if isinstance(doc.get("identity"), dict) else {}
-    for key in IDENTITY:
-        out[key] = identity.get(key)
     cog = doc.get("cog_dut_m") or doc.get("cog_m")  # the DuT frame where the run knew it, else the flange frame
     u_cog = doc.get("U_cog_dut_m") or doc.get("U_cog_m")
     cog = cog if isinstance(cog, list) else None
@@ -63,7 +74,10 @@ def row(run: RunRecord, result: ResultRecord | None) -> dict[str, Any]:
     warnings = doc.get("warnings") if isinstance(doc.get("warnings"), list) else []
     out.update(result_id=result.id, status=result.status, mass_kg=doc.get("mass_kg"), U_kg=doc.get("U_kg"),
                calibration_id=result.calibration_id or doc.get("calibration_id"), method=doc.get("method"),
-               robot_time_s=doc.get("robot_time_s"), warnings=[str(w) for w in warnings])
+               mass_method=mass_method_text(doc), robot_time_s=doc.get("robot_time_s"),
+               warnings=[str(w) for w in warnings])
+    if result.status == REFUSED:
+        out["reason"] = str(doc.get("reason") or "no reason given")
     return out
 
 
@@ -122,6 +136,11 @@ def as_csv(rows: list[dict[str, Any]]) -> str:
     return buf.getvalue()
 
 
+def _short(text: str) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= REASON_CHARS else text[:REASON_CHARS - 1] + "…"
+
+
 def as_table(rows: list[dict[str, Any]]) -> str:
     if not rows:
         return "no runs match"
@@ -132,6 +151,8 @@ def as_table(rows: list[dict[str, Any]]) -> str:
             figure = f"{r['mass_kg']:.3f} ± {r['U_kg']:.3f} kg" if r["U_kg"] is not None else f"{r['mass_kg']:.3f} kg"
         elif r["kind"] == "calibration" and r["calibration_id"]:
             figure = f"calibration {r['calibration_id']} ({r['method']})"
+        elif r["reason"]:
+            figure = ("refused: " if r["status"] == REFUSED else f"{r['state']}: ") + _short(r["reason"])
         else:
             figure = r["detail"] or "-"
         warn = f" ({len(r['warnings'])} warning(s))" if r["warnings"] else ""

@@ -383,8 +383,11 @@ def campaign_plan(
     doc, summary = fitted
     used_idx = {lp.index for lp in used}
     shas = sorted({f.sha256 for f in progress.trace_files if f.loop_index in used_idx})
+    # a loop the fit left out of its point is the operator's to know (the console, the report): a warning
+    aside = [f"campaign point {a['point']} loop {a['loop']} set aside: {a['reason']}"
+             for a in summary.get("set_aside") or ()]
     summary = with_status({
-        **summary, "run_id": run.run_id, "robot": s.robot, "trace_sha256": shas, "warnings": warnings,
+        **summary, "run_id": run.run_id, "robot": s.robot, "trace_sha256": shas, "warnings": [*warnings, *aside],
         "compute_s": time.monotonic() - t0, "points_stop": stops,
         "robot_time_s": robot_s, "robot_time_note": "loops (motion, settling, recording) of this session",
         "stop_rule": {"max_loops": s.loops, "min_loops": s.stop_rule.min_loops, "loop_share": s.stop_loop_share,

@@ -166,7 +166,8 @@ def compute_properties(run_dir: Path, mass_method: str = "single",
     from rgse_daemon.procedures.measurement import compute_mass
 
     cal = run_dir / CALIBRATION_FILE
-    mass = _chosen_mass(run_dir, compute_mass(run_dir, cal), mass_method, robot_time_s or {})
+    mass = {**_chosen_mass(run_dir, compute_mass(run_dir, cal), mass_method, robot_time_s or {}),
+            "mass_method_requested": mass_method}  # what was asked for: the surfaces say when auto chose
     cog = compute_cog_dir(run_dir, cal, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
     c = cog.to_json()
     return {**mass, "cog_m": c["cog_flange_m"], "U_cog_m": c["U_cog_flange_m"], "cog_dut_m": c["cog_dut_m"],

@@ -20,6 +20,7 @@ from fpdf import FPDF
 
 from rgse_daemon import __version__
 from rgse_daemon.errors import DataError
+from rgse_daemon.massmethod import mass_method_text
 from rgse_daemon.store import NotFound, Repository
 from rgse_daemon.store.records import CalibrationRecord, ResultRecord, RunRecord
 
@@ -218,9 +219,18 @@ def certificate_pdf(data: CertificateData) -> bytes:
     section("Method and calibration")
     cal = data.calibration
     pair("Method", "in-line mass from the drive torques of A3 and A5 (Kottmeier et al., Aerospace 11, 279, 2024)")
+    method = mass_method_text(doc)
+    if method is not None:  # a properties run: which mass it gives, whether auto chose it, both estimates
+        pair("Mass method", method)
     pair("Calibration model", str(doc.get("method") or (cal.method if cal else "-")))
     pair("Calibration", f"{cal.id} of {_time(cal.created_utc)}" if cal is not None else
          str(doc.get("calibration_id") or "-"))
+    applied = doc.get("thermal_applied")
+    if isinstance(applied, dict) and applied:  # whether the campaign's β corrected the loops, per axis
+        pair("Thermal correction", ", ".join(f"{ax} {'applied' if on else 'not applied (U carries the drift)'}"
+                                             for ax, on in sorted(applied.items())))
+    if doc.get("operating_point") == "outside":
+        pair("Operating point", "outside the calibrated envelope: U widened (see the warnings)")
     loops = doc.get("loops")
     pair("Loops", f"{loops}" + (f" ({doc.get('stop_reason')})" if doc.get("stop_reason") else "")
          if loops is not None else "-")

@@ -34,6 +34,7 @@ import numpy as np
 from rgse_daemon import __version__, calfile
 from rgse_daemon.analysis import cog as cog_analysis
 from rgse_daemon.analysis import inertia as inertia_analysis
+from rgse_daemon.analysis import multipose as multipose_analysis
 from rgse_daemon.analysis import reference as ref
 from rgse_daemon.errors import DataError, RgseError
 from rgse_daemon.manifest import TORSIONAL_KIND, Loop, read_loop
@@ -134,6 +135,8 @@ class CalibrationView:
     points: list[PointView] = field(default_factory=list)
     files: list[TraceFileRecord] = field(default_factory=list)
     checks: list[str] = field(default_factory=list)
+    result: ResultRecord | None = None
+    """The campaign run's (newest) result: its status and warnings (None: fitted offline, or none stored)."""
 
 
 @dataclass(frozen=True)
@@ -271,25 +274,31 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     if rec.run_id is None:
         return CalibrationView(rec, doc, calf, cal, cfg, None, [], [], checks)
     run = repo.get_run(rec.run_id)
+    results = repo.results(run.id)
+    result = results[-1] if results else None
     # the torsional points (CoG, measured in several poses) are not mass points: the mass calibration ignores them
     # (as analysis.calibration does), and so does this recomputation; CAL.json's torsional section is shown as stored
     specs = [p for p in repo.points(run.id) if p.spec.get("kind") != TORSIONAL_KIND]
     loops = repo.loops(run.id)
     files = repo.trace_files(run.id)
     if not specs:
-        return CalibrationView(rec, doc, calf, cal, cfg, run, [], files, checks)
+        return CalibrationView(rec, doc, calf, cal, cfg, run, [], files, checks, result)
     root = archive_root(data_dir)
     _verify_files(root, files, checks, f"calibration run {run.id}")
     raw3, raw5, loop_idx = [], [], []
+    # the loops the campaign set aside (fit.set_aside: a gap, a step, a loop far from its point's others) are not
+    # in its points; their files stay archived and are verified above
+    aside = {a.loop for a in calf.fit.set_aside or ()}  # (a trace's name is unique in its run)
     for p in specs:
-        mine = [lp for lp in loops if lp.point_index == p.index]
+        mine = [lp for lp in loops if lp.point_index == p.index and lp.trace_name not in aside]
         if not mine:
             raise DataError(f"calibration run {run.id} point {p.index}: no loops recorded")
         l3, l5 = [], []
         for lp in mine:
             loop = read_loop(_loop_directory(root, lp, files), lp.trace_name)
-            l3.append(pp.process_loop(loop.torque_a3_nm, loop.period_s, cfg).torque_nm)
-            l5.append(pp.process_loop(loop.torque_a5_nm, loop.period_s, cfg).torque_nm)
+            ok = integrity.valid_mask(loop.torque_a3_nm, loop.torque_a5_nm)  # missing in one channel: in both
+            l3.append(pp.process_loop(np.where(ok, loop.torque_a3_nm, np.nan), loop.period_s, cfg).torque_nm)
+            l5.append(pp.process_loop(np.where(ok, loop.torque_a5_nm, np.nan), loop.period_s, cfg).torque_nm)
         raw3.append(pp.double_average_nm(l3))
         raw5.append(pp.double_average_nm(l5))
         loop_idx.append(tuple(lp.index for lp in mine))
@@ -315,7 +324,7 @@ def load_calibration(repo: Repository, data_dir: Path, calibration_id: str) -> C
     views = [PointView(p.index, p.spec, loop_idx[i], float(n3[i]), float(n5[i]), float(e3[i]), float(e5[i]),
                        float(calc[i]), mass_sigma_cal_kg(cal, float(n3[i]), float(n5[i])))
              for i, p in enumerate(specs)]
-    return CalibrationView(rec, doc, calf, cal, cfg, run, views, files, checks)
+    return CalibrationView(rec, doc, calf, cal, cfg, run, views, files, checks, result)
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -394,7 +403,13 @@ def load_measurement(repo: Repository, data_dir: Path, run_id: str) -> Measureme
     # it is shown as stored, not recomputed. Everything that follows from raw files and calibration is checked.
     again = {"gross_mass_kg": gross, "mass_kg": gross - fixture, "loops": len(t3), "samples_used": used,
              "samples_total": total, "calibration_id": cal_id, "method": cal.method}
+    multipose = res.get("mass_method") == "multipose"
+    single = (res.get("mass_methods") or {}).get("single") if multipose else None
     for key, value in again.items():
+        if multipose and key in ("gross_mass_kg", "mass_kg"):  # the result's mass is the multi-pose one (below)
+            if key == "mass_kg" and isinstance(single, dict) and "mass_kg" in single:
+                _check(checks, "result mass_methods.single.mass_kg", single["mass_kg"], value)
+            continue
         if key in res:
             _check(checks, f"result {key}", res[key], value)
     cog = None
@@ -478,6 +493,12 @@ def _recompute_cog(root: Path, run: RunRecord, loops: list[LoopRecord], files: l
         cal_path = directory / "CAL.json"
         cal_path.write_text(json.dumps(cal_doc), encoding="utf-8")
         again = cog_analysis.compute_cog_dir(directory, cal_path).to_json()
+        if res.get("mass_method") == "multipose":  # the mass from the lever poses' torque differences (MP1-MP3)
+            mp = multipose_analysis.compute_multipose_dir(directory, cal_path,
+                                                          float(res.get("fixture_mass_kg", 0.0))).to_json()
+            for key in ("mass_kg", "gross_mass_kg", "U_kg"):
+                if key in res:
+                    _check(checks, f"result {key} (multi-pose)", res[key], mp[key])
     for key in ("cog_flange_m", "U_cog_flange_m", "cog_dut_m", "U_cog_dut_m"):
         for axis, (a, b) in enumerate(zip(stored[key], again[key], strict=True)):
             _check(checks, f"result cog {key}[{axis}]", a, b)

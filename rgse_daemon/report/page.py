@@ -18,6 +18,7 @@ from typing import Any
 
 from rgse_daemon.analysis import reference as ref
 from rgse_daemon.analysis.inertia import ECSS_REL
+from rgse_daemon.massmethod import mass_method_text
 from rgse_daemon.report import plots
 from rgse_daemon.report.data import (
     BAND_K,
@@ -208,8 +209,32 @@ def _calibration_points_table(calv: CalibrationView) -> str:
                  right=tuple(range(0, 14)))
 
 
+def _campaign_screen(calv: CalibrationView) -> str:
+    """What the campaign's data resolve and what it left out: β per axis with its uncertainty and span and whether
+    a measurement applies it (CAL.json ``fit.thermal``), and the loops set aside with their reasons
+    (``fit.set_aside``)."""
+    fit = calv.cal_file.fit
+    out = "<h3>Thermal drift β</h3>"
+    if fit.thermal is None:
+        out += "<p>none fitted (the campaign's traces had no motor temperatures): no thermal correction</p>"
+    else:
+        out += kv([(f"{ax}", f'<span data-field="thermal.{ax}" data-value="{t(fit.thermal.describe(ax))}">'
+                    f"{t(fit.thermal.describe(ax))}</span>") for ax in ("A3", "A5")])
+    out += "<h3>Campaign loops set aside</h3>"
+    if not fit.set_aside:
+        out += "<p>none: every loop is in its point</p>"
+    else:
+        out += ('<p class="warn">' + f"{len(fit.set_aside)} loop(s) left out of their points (files archived as "
+                "recorded):</p>" + table(("point", "loop", "reason"), [
+                    (num(a.point, "d", "set_aside.point"), code(a.loop, "set_aside.loop"),
+                     f'<span data-field="set_aside.reason" data-value="{t(a.reason)}">{t(a.reason)}</span>')
+                    for a in fit.set_aside], right=(0,)))
+    return out
+
+
 def calibration_section(calv: CalibrationView, working: tuple[float, float] | None) -> str:
-    parts = [_calibration_summary(calv), "<h3>Calibration functions K</h3>", _model_table(calv)]
+    parts = [_calibration_summary(calv), _campaign_screen(calv), "<h3>Calibration functions K</h3>",
+             _model_table(calv)]
     if calv.points:
         parts += ["<h3>Calibration curves (Fig. 25)</h3>",
                   figure(plots.calibration_curves(calv), "measured against expected torque, A3 and A5",
@@ -243,6 +268,8 @@ def _calibration_provenance(calv: CalibrationView) -> str:
 def render_calibration(calv: CalibrationView, meta: ReportMeta) -> str:
     rec = calv.record
     body = [
+        status_lines(calv.result.result) if calv.result is not None else
+        "<p>No campaign result is stored for this calibration (fitted offline): its status is not recorded.</p>",
         f"<p>{badge(True, f'{len(calv.checks)} consistency checks passed', '')}</p>",
         "<h2>Calibration</h2>", calibration_section(calv, None),
         "<h2>Provenance</h2>", _calibration_provenance(calv),
@@ -269,6 +296,16 @@ def _thermal_rows(measured: object, calibration: object) -> list[tuple[str, str]
     return rows
 
 
+def _thermal_applied_rows(applied: object) -> list[tuple[str, str]]:
+    """Per axis whether the campaign's β corrected the loops (result ``thermal_applied``); where not, U carries the
+    drift (the warnings say why when it matters)."""
+    if not isinstance(applied, dict) or not applied:
+        return []
+    text = ", ".join(f"{ax} {'applied' if on else 'not applied (U carries the drift)'}"
+                     for ax, on in sorted(applied.items()))
+    return [("thermal correction β", f'<span data-field="thermal_applied" data-value="{t(text)}">{t(text)}</span>')]
+
+
 def _result_summary(view: MeasurementView) -> str:
     res = view.result.result
     m, big_u = float(res["mass_kg"]), float(res["U_kg"])
@@ -277,6 +314,7 @@ def _result_summary(view: MeasurementView) -> str:
     rows = [
         ("net mass of the DuT ± U (k = " + t(res.get("k", 2)) + ")",
          f"<strong>{num(m, '.3f', 'mass_kg')} ± {num(big_u, '.3f', 'U_kg', 'kg')}</strong>"),
+        *([("mass method", t(mass_method_text(res)))] if mass_method_text(res) is not None else []),
         ("standard uncertainty u", num(res.get("u_kg"), ".4f", "u_kg", "kg")),
         *[(f"  u component: {name}", num(v if isinstance(v, int | float) else None, ".4f", f"u_component.{name}", "kg"))
           for name, v in sorted((res.get("u_components_kg") or {}).items())],
@@ -288,6 +326,11 @@ def _result_summary(view: MeasurementView) -> str:
         ("calibration", code(res.get("calibration_id"), "result_calibration_id") + " "
          + code(res.get("method"), "result_method")),
         *_thermal_rows(res.get("motor_temp_k"), view.calibration.cal_file.provenance.thermal_state_k),
+        *_thermal_applied_rows(res.get("thermal_applied")),
+        *([("operating point", f'<span data-field="operating_point" data-value="{t(res["operating_point"])}">'
+            f'{t(res["operating_point"])} the calibrated envelope</span>'
+            + (" (U widened; see the warnings)" if res["operating_point"] == "outside" else ""))]
+          if res.get("operating_point") in ("inside", "outside") else []),
         ("ECSS-E-10-03C mass accuracy ± 0.05 %",
          f"{badge(ecss_ok, 'met', 'not met')} U / m = {num(100 * rel, '.3f', 'U_rel_pct', '%')} "
          f"(requirement {num(100 * ECSS_MASS_REL, '.2f', 'ecss_pct', '%')} = "
@@ -330,11 +373,17 @@ def _reference_section(view: MeasurementView) -> str:
 
 
 def _loops_table(view: MeasurementView) -> str:
-    fixture = float(view.result.result.get("fixture_mass_kg", 0.0))
+    res = view.result.result
+    fixture = float(res.get("fixture_mass_kg", 0.0))
+    aside = {str(a.get("loop")): str(a.get("reason")) for a in res.get("loops_set_aside") or ()
+             if isinstance(a, dict)}
     rows = []
     for number, lp in enumerate(view.loops, 1):  # numbered 1..n as in the loop plot, whatever the stored index
         r = lp.record
-        rows.append((num(number, "d", "loop.number"), code(r.trace_name, "loop.trace"), t(r.state.value),
+        used = ("yes" if r.trace_name not in aside else
+                f'<span class="warn" data-field="loop.set_aside" data-value="{t(aside[r.trace_name])}">set aside: '
+                f"{t(aside[r.trace_name])}</span>")
+        rows.append((num(number, "d", "loop.number"), code(r.trace_name, "loop.trace"), t(r.state.value), used,
                      num(lp.a3.loop_mean_nm, ".3f", "loop.a3_mean_nm"),
                      num(lp.a5.loop_mean_nm, ".3f", "loop.a5_mean_nm"),
                      '<span class="t">' + num(lp.a3.n_used, "d", "loop.a3_used") + " / "
@@ -344,8 +393,8 @@ def _loops_table(view: MeasurementView) -> str:
                      num(lp.gross_mass_kg - fixture if lp.gross_mass_kg is not None else None, ".3f",
                          "loop.net_mass_kg"),
                      when(r.robot_start_utc), when(r.record_end_utc)))
-    return table(("loop", "trace", "state", "A3 mean Nm", "A5 mean Nm", "A3 used", "A5 used", "net mass kg",
-                  "robot start", "recording end"), rows, right=(0, 3, 4, 5, 6, 7))
+    return table(("loop", "trace", "state", "in the result", "A3 mean Nm", "A5 mean Nm", "A3 used", "A5 used",
+                  "net mass kg", "robot start", "recording end"), rows, right=(0, 4, 5, 6, 7, 8))
 
 
 def _cog_section(cog: dict[str, Any]) -> str:
@@ -422,9 +471,9 @@ IDENTITY_FIELDS = (("dut_name", "DuT"), ("serial_number", "serial number"), ("pa
                    ("project", "project"), ("operator", "operator"), ("note", "note"))
 
 
-def status_head(result: dict[str, Any], identity: dict[str, Any] | None) -> str:
-    """The top of a run's report: the result's status (``ok``, ``warning``, ``refused``), every warning, and who
-    and what was measured (the run's identity)."""
+def status_lines(result: dict[str, Any]) -> str:
+    """A result's status (``ok``, ``warning``, ``refused``), every warning, a refusal's reason and, for a properties
+    run, where its mass came from."""
     status = status_of(result)
     warnings = result.get("warnings") or []
     out = (f'<p>status <span class="status {status}" data-field="status" data-value="{t(status)}">{t(status)}</span> '
@@ -434,6 +483,16 @@ def status_head(result: dict[str, Any], identity: dict[str, Any] | None) -> str:
         out += f'<p class="warn">warning: <span data-field="warning" data-value="{t(w)}">{t(w)}</span></p>'
     if result.get("reason"):
         out += f'<p class="warn">refused: {t(result["reason"])}</p>'
+    method = mass_method_text(result)
+    if method is not None:
+        out += f'<p>mass: <span data-field="mass_method" data-value="{t(method)}">{t(method)}</span></p>'
+    return out
+
+
+def status_head(result: dict[str, Any], identity: dict[str, Any] | None) -> str:
+    """The top of a run's report: the result's status (``ok``, ``warning``, ``refused``), every warning, and who
+    and what was measured (the run's identity)."""
+    out = status_lines(result)
     who = identity or {}
     rows = [(label, f'<span data-field="identity.{key}" data-value="{t(who[key])}">{t(who[key])}</span>')
             for key, label in IDENTITY_FIELDS if who.get(key)]
@@ -459,7 +518,9 @@ def render_measurement(view: MeasurementView, meta: ReportMeta) -> str:
         "<h2>Loop by loop</h2>", _loops_table(view),
         figure(plots.loop_masses(view), "net mass of each loop", "loop_masses"),
         "<p>A loop's mass is eq. 21 on that loop's pre-processed means alone; the result uses the double average of "
-        "eq. 16 over all loops.</p>",
+        "eq. 16 over all loops"
+        + (" for its single-pose estimate; the mass it gives is the multi-pose one (above)"
+           if view.result.result.get("mass_method") == "multipose" else "") + ".</p>",
         "<h2>Torque traces per loop (Fig. 22)</h2>",
         f"<p>Pre-processing {code(json.dumps(view.calibration.preprocessing.to_dict(), sort_keys=True), wrap=True)}"
         ": raw samples, "

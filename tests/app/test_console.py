@@ -7,6 +7,7 @@ the middle of the run that finds its place again, an abort by clicking, every ac
 from __future__ import annotations
 
 import asyncio
+import html
 import json
 import os
 import shutil
@@ -27,9 +28,9 @@ from tests.support.daemon import COMMAND_TOKEN, Events, daemon_config, running_d
 POINTS = SHORT_CAMPAIGN
 
 
-def console_config(tmp_path: Path, sim: SimulatedKrc4, **extra: Any) -> Config:
+def console_config(tmp_path: Path, sim: SimulatedKrc4, loops: int = 1, **extra: Any) -> Config:
     doc = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
-                        loops=1).model_dump(mode="json")
+                        loops=loops).model_dump(mode="json")
     doc["console"] = {"enabled": True, "host": "127.0.0.1", "port": 0}
     doc["mqtt"].update(extra)
     return config_from_mapping({k: v for k, v in doc.items() if v is not None}, "<console test>")
@@ -45,7 +46,7 @@ async def wait_prompt(page: Page, index: int) -> None:
 
 
 async def test_a_campaign_confirmed_by_clicking_with_a_reload_mid_run(sim: SimulatedKrc4, tmp_path: Path) -> None:
-    cfg = console_config(tmp_path, sim)
+    cfg = console_config(tmp_path, sim, loops=2)  # two loops a point: the campaign fits its thermal drift β
     events = Events()
     async with running_daemon(cfg, on_event=events) as rd, browser() as page:
         console = rd.daemon.console
@@ -97,7 +98,18 @@ async def test_a_campaign_confirmed_by_clicking_with_a_reload_mid_run(sim: Simul
             f"[...document.querySelectorAll('#history a')].map(a => a.href).find(h => h.includes("
             f"'{summary['calibration_id']}'))", "the calibration's report link in the history")
         async with aiohttp.ClientSession() as http, http.get(link) as resp:
-            assert resp.status == 200 and summary["calibration_id"] in await resp.text()
+            report = await resp.text()
+            assert resp.status == 200 and summary["calibration_id"] in report
+        # the campaign's result as the operator reads it: β per axis, its span and whether it will be applied, in the
+        # console and the report (with the campaign result's status at the report's top)
+        assert summary["thermal"] is not None
+        shown = str(await page.evaluate("document.getElementById('result').innerText"))  # as shown
+        for ax in ("A3", "A5"):
+            described = summary["thermal"][ax]["description"]
+            assert f"thermal drift {described}" in shown, (described, shown)
+            assert html.escape(described, quote=True) in report
+        assert f'data-field="status" data-value="{summary["status"]}"' in report
+        assert "Campaign loops set aside" in report
     async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
         evs = await store.events(run_id=run_id)
     actions = [e for e in evs if e.kind == "console_action"]

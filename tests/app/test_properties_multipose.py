@@ -1,19 +1,34 @@
 """The multi-pose mass end to end (issue #35): an MQTT ``properties`` command with scheme ``lever`` and mass method
 ``auto`` → the daemon → the simulated KR C4 on a real socket (the mass loops, the paper's CoG poses and the lever
 pose with the forearm raised, every motion through the interlock's static check) → a result that records both
-masses, their robot time and the method it chose; and the refusal of ``multipose`` without the lever poses."""
+masses, their robot time and the method it chose; and the refusal of ``multipose`` without the lever poses.
+
+Where the operator looks (issue #33 item 5): which method gave the mass, that auto chose it, and both estimates with
+their U, in the client's result, the console (real Chromium, visible text: the result and the history row), the HTML
+report opened from the console's link (visible text; the stored multi-pose mass recomputed from the archived files),
+the PDF certificate (its text) and ``rgse runs --json``."""
 
 from __future__ import annotations
 
+import asyncio
+import json
 from pathlib import Path
 from typing import Any
 
 import pytest
+from pypdf import PdfReader
 
+from rgse_daemon.cli import main
+from rgse_daemon.client import PropertiesResult, RgseClient
+from rgse_daemon.config import config_from_mapping
+from rgse_daemon.report.certificate import certificate_pdf, load
+from rgse_daemon.store import Repository
 from simulators.krc4 import physics as ph
 from simulators.krc4.sim import SimulatedKrc4
 from tests.app.test_properties_run import _config, peer
+from tests.support.cdp import browser
 from tests.support.cogcal import fit_sim_cog_calibration
+from tests.support.configfile import write_config
 from tests.support.daemon import Events, command, run_end, running_daemon, seed_calibration
 from tests.support.mqtt import MosquittoProcess
 from tests.support.polling import wait_until
@@ -31,29 +46,103 @@ def lever_calibration_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str,
 async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_the_choice(
         sim: SimulatedKrc4, private_broker: MosquittoProcess, lever_calibration_doc: dict[str, Any],
         tmp_path: Path) -> None:
-    cfg = _config(sim, private_broker, tmp_path / "data", scheme="lever", loops_per_pose=2, mass_method="auto")
+    data = _config(sim, private_broker, tmp_path / "data", scheme="lever", loops_per_pose=2,
+                   mass_method="auto").model_dump(mode="json")
+    data["console"] = {"enabled": True, "host": "127.0.0.1", "port": 0}
+    cfg = config_from_mapping({k: v for k, v in data.items() if v is not None}, "<multipose test>")
     await seed_calibration(cfg, lever_calibration_doc)
     sim.mount(WING_BOX.payload())
     events = Events()
     fixture = {"cog_flange_m": list(ph.fixture_cog_flange_m()),
                "dut_origin_flange_m": list(WING_BOX.dut_origin_flange_m), "dut_abc_deg": list(WING_BOX.dut_abc_deg)}
-    async with running_daemon(cfg, on_event=events) as rd, peer(private_broker) as op:
+    async with running_daemon(cfg, on_event=events) as rd, peer(private_broker) as op, browser() as page:
         await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        console = rd.daemon.console
+        assert console is not None and console.port
+        await page.goto(console.url)
+        await page.wait_for("document.getElementById('engine').textContent === 'idle'", "the idle engine")
         reply = await command(op, "properties", {"fixture": fixture})
         assert reply["ok"] is True and reply["scheme"] == "lever" and reply["mass_method"] == "auto"
         result = await run_end(rd, timeout_s=300.0)
-    assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["meas", "A6+90", "A3-80"]
-    methods = result["mass_methods"]
-    assert set(methods) == {"single", "multipose"} and result["mass_method"] in methods
-    assert methods["multipose"]["visits"] == {"meas": 2, "A3-80": 2}
-    assert methods["single"]["robot_time_s"] > 0 and methods["multipose"]["robot_time_s"] > 0
-    chosen = methods[result["mass_method"]]
-    assert result["mass_kg"] == pytest.approx(chosen["mass_kg"]) and result["U_kg"] == pytest.approx(chosen["U_kg"])
-    # auto: the least U² per robot minute
-    score = {k: v["U_kg"] ** 2 * v["robot_time_s"] for k, v in methods.items()}
-    assert result["mass_method"] == min(score, key=score.get)
-    for name, m in methods.items():
-        assert abs(m["mass_kg"] - WING_BOX.mass_kg) <= m["U_kg"], (name, m)
+        run_id = result["run_id"]
+        assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["meas", "A6+90", "A3-80"]
+        methods = result["mass_methods"]
+        assert set(methods) == {"single", "multipose"} and result["mass_method"] in methods
+        assert result["mass_method_requested"] == "auto"
+        assert methods["multipose"]["visits"] == {"meas": 2, "A3-80": 2}
+        assert methods["single"]["robot_time_s"] > 0 and methods["multipose"]["robot_time_s"] > 0
+        chosen = methods[result["mass_method"]]
+        assert result["mass_kg"] == pytest.approx(chosen["mass_kg"])
+        assert result["U_kg"] == pytest.approx(chosen["U_kg"])
+        # auto: the least U² per robot minute
+        score = {k: v["U_kg"] ** 2 * v["robot_time_s"] for k, v in methods.items()}
+        assert result["mass_method"] == min(score, key=score.get)
+        for name, m in methods.items():
+            assert abs(m["mass_kg"] - WING_BOX.mass_kg) <= m["U_kg"], (name, m)
+
+        # what every surface must say: the method, that auto chose it, and both estimates with their U
+        names = {"single": "single pose", "multipose": "multi-pose"}
+        other = next(k for k in methods if k != result["mass_method"])
+        said = [f"{names[result['mass_method']]}, chosen by auto",
+                *(f"{names[k]} {methods[k]['mass_kg']:.3f} ± {methods[k]['U_kg']:.3f} kg"
+                  for k in (result["mass_method"], other))]
+        print(f"auto chose {result['mass_method']}: {methods}")
+
+        # the client, over the broker
+        async with RgseClient.of(cfg) as client:
+            typed = await client.result(run_id, "properties", timeout_s=10)
+        assert isinstance(typed, PropertiesResult)
+        assert typed.mass_method == result["mass_method"] and typed.mass_method_requested == "auto"
+        assert {e.method: (e.mass_kg, e.U_kg) for e in typed.mass_methods} == {
+            k: (pytest.approx(v["mass_kg"]), pytest.approx(v["U_kg"])) for k, v in methods.items()}
+
+        # the console, as the operator reads it: the result and the history row
+        await page.wait_for("!document.getElementById('result-mass-method').hidden", "the mass method shown")
+        shown = str(await page.evaluate("document.getElementById('result').innerText"))
+        for text in said:
+            assert text in shown, (text, shown)
+        await page.wait_for(f"[...document.querySelectorAll('#history tr')].some(r => r.innerText.includes("
+                            f"'{run_id}') && r.innerText.includes('chosen by auto'))", "the mass method in the history")
+        row = str(await page.evaluate(f"[...document.querySelectorAll('#history tr')].find(r => "
+                                      f"r.innerText.includes('{run_id}')).innerText"))
+        for text in said:
+            assert text in row, (text, row)
+
+        # the report, from the console's link: recomputed from the archived files (the multi-pose mass included)
+        link = str(await page.evaluate(f"[...document.querySelectorAll('#history tr')].find(r => "
+                                       f"r.innerText.includes('{run_id}')).querySelector('a').href"))
+        got = await page.evaluate(f"fetch({json.dumps(link)}).then(async r => [r.status, await r.text()])", 120)
+        assert got[0] == 200, got[1][:2000]
+        saved = tmp_path / "report.html"
+        saved.write_text(got[1], encoding="utf-8")
+        await page.goto(saved.as_uri())
+        report = str(await page.evaluate("document.body.innerText"))
+        top = report[:report.index("Result\n")]  # above the first section
+        for text in said:
+            assert text in top and text in report[report.index("Result\n"):], (text, report[:3000])
+        assert "consistency checks passed" in report
+
+    # the certificate
+    def certificate_text() -> str:
+        with Repository.open(cfg.store.url, cfg.paths.data_dir) as repo:
+            pdf = certificate_pdf(load(repo, run_id))
+        out = tmp_path / "cert.pdf"
+        out.write_bytes(pdf)
+        reader = PdfReader(out)
+        assert len(reader.pages) == 1
+        return " ".join(reader.pages[0].extract_text().split())
+
+    cert = await asyncio.to_thread(certificate_text)
+    for text in said:
+        assert text.replace("±", "+/-") in cert or text in cert, (text, cert)
+
+    # rgse runs --json: the mass method beside the figure
+    out = tmp_path / "runs.json"
+    config = write_config(cfg, tmp_path / "rgse.toml")
+    assert await asyncio.to_thread(main, ["runs", "--config", str(config), "--json", "--out", str(out)]) == 0
+    (listed,) = json.loads(out.read_text())["runs"]
+    for text in said:
+        assert text in listed["mass_method"], (text, listed)
 
 
 async def test_multipose_refused_without_the_lever_poses(

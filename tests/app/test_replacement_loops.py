@@ -12,6 +12,9 @@ simulated KR C4 over TCP, a real Mosquitto and a real store.
 
 from __future__ import annotations
 
+import asyncio
+import csv
+import io
 import json
 from pathlib import Path
 from typing import Any
@@ -20,6 +23,7 @@ import numpy as np
 import pytest
 
 from rgse_daemon import calfile
+from rgse_daemon.cli import main
 from rgse_daemon.client import ResultRefused, RgseClient, Run
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.procedures import documents as d
@@ -161,6 +165,18 @@ async def test_a_refusal_by_the_daemon_is_a_result_everywhere_the_operator_looks
             rec = await store.get_run(run_id)
         assert stored.status == "refused" and "far outside" in stored.result["reason"]
         assert rec.state == RunState.COMPLETED, (rec.state, rec.detail)
+        # rgse runs over the same store: the status and the reason, short in the table, whole in JSON and CSV
+        table_out, json_out, csv_out = tmp_path / "runs.txt", tmp_path / "runs.json", tmp_path / "runs.csv"
+        for fmt, out in (([], table_out), (["--json", "--status", "refused"], json_out), (["--csv"], csv_out)):
+            assert await asyncio.to_thread(main, ["runs", "--config", str(config), *fmt, "--out", str(out)]) == 0
+        (line,) = [x for x in table_out.read_text().splitlines() if x.startswith(run_id[:16])]
+        assert " refused " in line and "refused: measurement refused: the DuT lies far outside" in line, line
+        assert len(line) < 200 and line.endswith("…"), line  # shortened: the reason is longer than the table's 72
+        (listed,) = json.loads(json_out.read_text())["runs"]
+        assert listed["run_id"] == run_id and listed["status"] == "refused" and listed["state"] == "completed"
+        assert listed["reason"] == stored.result["reason"] and listed["mass_kg"] is None
+        (row,) = csv.DictReader(io.StringIO(csv_out.read_text()))
+        assert row["status"] == "refused" and row["reason"] == stored.result["reason"]
         # the report: the refusal at its top, as a run record (nothing to compute)
         repo = Repository.open(cfg.store.url, cfg.paths.data_dir)
         try:

@@ -125,6 +125,10 @@ async def test_a_named_dut_with_a_warning_everywhere_the_operator_looks(
         shown = str(await page.evaluate("document.getElementById('result').innerText"))
         assert "Refex wing box" in shown and "S/N SN-0042" in shown
         assert "warning: motor temperatures differ from the calibration campaign's" in shown, shown
+        # per axis whether β corrected the loops, as the result says it (thermal_applied)
+        applied = ", ".join(f"{ax} {'applied' if on else 'not applied (U carries the drift)'}"
+                            for ax, on in sorted(result.raw["thermal_applied"].items()))
+        assert applied and f"thermal correction β: {applied}" in shown, (applied, shown)
         where = str(await page.evaluate("document.getElementById('run-where').innerText"))
         assert where.endswith("run done"), where
         row = str(await page.evaluate(f"[...document.querySelectorAll('#history tr')].find(r => r.innerText.includes("

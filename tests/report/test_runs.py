@@ -54,7 +54,8 @@ def test_runs_lists_exports_and_filters_the_history(world: World, tmp_path: Path
 
     assert main(["runs", "--config", str(config)]) == 0
     table = capsys.readouterr().out
-    assert "ReFEx wing box SN-0042" in table and "(2 warning(s))" in table and "interlock trip [mode]" in table
+    assert "ReFEx wing box SN-0042" in table and "(2 warning(s))" in table
+    assert "failed: interlock trip [mode]: $MODE_OP changed to #AUT" in table
     assert f"calibration {world.filled.calibration_id}" in table
 
     assert main(["runs", "--config", str(config), "--csv"]) == 0
@@ -67,6 +68,7 @@ def test_runs_lists_exports_and_filters_the_history(world: World, tmp_path: Path
     assert named["warnings"] == "loop 2 set aside: a step of 31 Nm in A5 | outside the calibrated envelope"
     failed = next(r for r in rows if r["run_id"] == ids["failed"])
     assert failed["state"] == "failed" and failed["mass_kg"] == "" and "interlock trip" in failed["detail"]
+    assert failed["reason"] == failed["detail"] and named["reason"] == "" and failed["status"] == ""
 
     # filters: status, DuT text, kind, state, dates; JSON carries the same fields
     assert main(["runs", "--config", str(config), "--json", "--status", "warning"]) == 0
