@@ -1,5 +1,5 @@
-"""Common test fixtures: the paper's tables shipped in ``data/paper/``, and a guard that fails tests leaking asyncio
-tasks."""
+"""Common test fixtures: the paper's tables shipped in ``data/paper/``, a guard that fails tests leaking asyncio
+tasks, and the order in which ``make test``'s workers get the tests (the whole stories first: support/schedule.py)."""
 
 from __future__ import annotations
 
@@ -10,11 +10,26 @@ from pathlib import Path
 import pytest
 
 from tests.support.mqtt import MosquittoProcess
+from tests.support.schedule import DEFAULT_EXPECTED_S, stories_first
 
 pytest_plugins = ["pytester"]
 
 REPO = Path(__file__).resolve().parent.parent
 PAPER = REPO / "data" / "paper"
+
+
+@pytest.hookimpl(trylast=True)  # after -k/-m have deselected: the shares are cut from what runs
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Under pytest-xdist (``make test``): the tests marked ``slow`` start first, spread over the workers."""
+    workers = int(getattr(config, "workerinput", {}).get("workercount", 1))
+    items[:] = stories_first(items, workers, _expected_s)
+
+
+def _expected_s(item: pytest.Item) -> float | None:
+    """A ``slow`` test's wall time on a quiet 2-core machine under ``make test`` (s), where the scheduler puts it
+    (not a check of it); None for the other tests."""
+    marker = item.get_closest_marker("slow")
+    return None if marker is None else float(marker.kwargs.get("expected_s", DEFAULT_EXPECTED_S))
 
 
 @pytest.fixture

@@ -59,7 +59,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from rgse_daemon import kinematics as kin
 from rgse_daemon import robots
@@ -393,7 +392,7 @@ class AsymmetricDut:
     @property
     def rotation(self) -> np.ndarray:
         # intrinsic Z-Y-X = Rz(A)·Ry(B)·Rx(C), KUKA's convention (scipy, not the daemon's own helper)
-        return Rotation.from_euler("ZYX", self.dut_abc_deg, degrees=True).as_matrix()
+        return _zyx_matrix(self.dut_abc_deg)
 
     @property
     def cog_flange_m(self) -> np.ndarray:
@@ -404,9 +403,18 @@ class AsymmetricDut:
         return dut_payload(self.mass_kg, self.cog_flange_m, self.inertia_flange_kgm2, fixture_mass_kg, with_mpa)
 
 
+def _zyx_matrix(abc_deg: Sequence[float]) -> np.ndarray:
+    """Rz(A)·Ry(B)·Rx(C) by scipy's ``Rotation``, imported here: scipy.spatial costs a simulator process (``rgse
+    sim``, each test's :class:`~simulators.krc4.process.SimProcess`) about a second of start-up on a loaded machine,
+    and only a DuT turned on its fixture needs it."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_euler("ZYX", abc_deg, degrees=True).as_matrix()
+
+
 def _rotated_tensor(principal_kgm2: Sequence[float], abc_deg: Sequence[float]) -> np.ndarray:
     """R · diag(principal) · Rᵀ with R = Rz(A)·Ry(B)·Rx(C): a tensor whose principal axes are turned by A, B, C."""
-    r = Rotation.from_euler("ZYX", abc_deg, degrees=True).as_matrix()
+    r = _zyx_matrix(abc_deg)
     return r @ np.diag(np.asarray(principal_kgm2, dtype=float)) @ r.T
 
 

@@ -14,6 +14,7 @@ from simulators.krc4.sim import SimulatedKrc4
 from simulators.modbus_io import ModbusIoSim
 from tests.support.cogcal import fit_sim_cog_calibration
 from tests.support.daemon import fit_sim_calibration
+from tests.support.sessioncache import once_per_run
 
 SIM_SEED = 7
 TIME_SCALE = 100.0
@@ -41,11 +42,11 @@ async def modbus_sim() -> AsyncIterator[ModbusIoSim]:
 
 @pytest.fixture(scope="session")
 def calibration_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """CAL.json of the simulated robot, fitted once per session."""
-    return fit_sim_calibration(tmp_path_factory.mktemp("sim-calibration"))
+    """CAL.json of the simulated robot, fitted once per run (tests/faults' is the same document)."""
+    return once_per_run(tmp_path_factory, "sim-calibration", fit_sim_calibration)
 
 
 @pytest.fixture(scope="session")
 def cog_calibration_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """CAL.json of the simulated robot with its torsional (CoG) section, paper scheme, fitted once per session."""
-    return fit_sim_cog_calibration(tmp_path_factory.mktemp("cog-calibration"), "paper")
+    """CAL.json of the simulated robot with its torsional (CoG) section, paper scheme, fitted once per run."""
+    return once_per_run(tmp_path_factory, "cog-calibration-paper", lambda d: fit_sim_cog_calibration(d, "paper"))

@@ -17,6 +17,7 @@ from simulators.krc4.process import SimProcess
 from simulators.krc4.sim import SimulatedKrc4
 from tests.support.daemon import fit_sim_calibration
 from tests.support.faults import PG_URL
+from tests.support.sessioncache import once_per_run
 
 
 @pytest.fixture
@@ -41,8 +42,8 @@ async def sim(tmp_path: Path) -> AsyncIterator[SimulatedKrc4]:
 
 @pytest.fixture(scope="session")
 def calibration_doc(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """CAL.json of the simulated robot, fitted once per session."""
-    return fit_sim_calibration(tmp_path_factory.mktemp("sim-calibration"))
+    """CAL.json of the simulated robot, fitted once per run (tests/app's is the same document)."""
+    return once_per_run(tmp_path_factory, "sim-calibration", fit_sim_calibration)
 
 
 @pytest.fixture

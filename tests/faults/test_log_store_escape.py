@@ -21,7 +21,6 @@ from tests.support.daemon import (
     command,
     daemon_config,
     first_of,
-    fit_sim_calibration,
     run_end,
     running_daemon,
     seed_calibration,
@@ -41,12 +40,12 @@ async def sim(tmp_path: Path) -> AsyncIterator[SimulatedKrc4]:
 
 
 async def test_abort_reason_with_control_characters_is_stored_and_logged_escaped(sim, private_broker, tmp_path,
-                                                                                caplog):
+                                                                                caplog, calibration_doc):
     broker = private_broker
     caplog.set_level(logging.INFO)
     cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
                         broker_port=broker.port)
-    await seed_calibration(cfg, fit_sim_calibration(tmp_path / "cal"))
+    await seed_calibration(cfg, calibration_doc)
     sim.mount(dut_payload(95.0, (0.0, 0.05, 0.25), fixture_mass_kg=10.288))
     events = Events()
     running = asyncio.Event()

@@ -65,6 +65,7 @@ def steady(cfg, **kw) -> RunSettings:
                  warmup_max_s=2400.0 / TIME_SCALE, **kw)
 
 
+@pytest.mark.slow(expected_s=48)
 @pytest.mark.timeout(360)  # two campaign fits (with the nested validation) and the simulator in one process
 async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store: Store, engine: RunEngine):
     seen: list[int] = []

@@ -16,6 +16,7 @@ import pytest
 DEMO_TIMEOUT_S = 900
 
 
+@pytest.mark.slow(expected_s=183)
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 20)
 def test_kr10_demo_agrees_with_truth_within_u() -> None:
     proc = subprocess.run(
