@@ -82,6 +82,10 @@ class MassCalibration:
     """How the calibration's held-out error grows with the distance to its configurations
     (:func:`extrapolation_slope_kg`, kg per unit distance); a DuT outside the envelope gets U widened by it times its
     distance (None or NaN: by the spread of the admissible models there)."""
+    interpolation_kg: float | None = None
+    """The same from the configurations whose held-out prediction was an interpolation (inside the others' box,
+    ``extrapolation_slope_kg(..., interpolating=True)``): the widening of a DuT inside the box but far from every
+    configuration (the gap between the mass stack and the torque rows). None: ``extrapolation_kg`` serves."""
 
 
 def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre: pp.Preprocessing, *,
@@ -157,6 +161,8 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
                                               f"envelope: {check.detail}; calibrate with loads that cover it")
         if check.status == "outside":
             where = "outside"
+            if check.in_box and _resolved(c.interpolation_kg, envelope):  # between the points: interpolated
+                extrapolation_kg = c.interpolation_kg
             how = ("the spread of the admissible models there" if not _resolved(extrapolation_kg, envelope) else
                    f"what the calibration's own held-out configurations erred at that distance "
                    f"({extrapolation_kg * envelope.nearest(m3, m5):.3g} kg)")
@@ -222,11 +228,14 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
 
 
 def extrapolation_slope_kg(envelope: env_mod.Envelope | None, heldout_residual_nm: np.ndarray | None,
-                           g_m_s2: float, lever_difference_m: float) -> float | None:
+                           g_m_s2: float, lever_difference_m: float, interpolating: bool = False) -> float | None:
     """:func:`~rgse_daemon.pipeline.uncertainty.extrapolation_kg_per_distance` of a calibration: its held-out per-axis
     residuals (n, 2; Nm, CAL.json ``fit.validation.heldout_residual_nm``) in kg by eq. 21 (∂m/∂(K·M)_A3 = 1/(g·Δr),
     A5 −1/(g·Δr)), the loaded configurations' distances to their nearest other one (``envelope.points_nm``, same
-    order), the interior ones as the reproducibility's. None without points or residuals, or if they do not match."""
+    order), the interior ones as the reproducibility's. None without points or residuals, or if they do not match.
+    ``interpolating``: only the interior configurations' residuals (below the largest torque on both axes, so the fit
+    without one interpolated it), for a DuT that is interpolated too: a held-out top configuration was extrapolated,
+    and an extrapolation errs more at the same distance than an interpolation."""
     if envelope is None or not envelope.points_nm or heldout_residual_nm is None:
         return None
     r = np.asarray(heldout_residual_nm, float)
@@ -236,7 +245,8 @@ def extrapolation_slope_kg(envelope: env_mod.Envelope | None, heldout_residual_n
     loaded = p[:, 0] > 0
     interior = loaded & (p[:, 0] < p[:, 0].max()) & (p[:, 1] < p[:, 1].max())
     r_kg = (r[:, 0] - r[:, 1]) / abs(g_m_s2 * lever_difference_m)
-    c = unc.extrapolation_kg_per_distance(np.where(loaded, r_kg, np.nan), envelope.neighbour_distances(), interior)
+    c = unc.extrapolation_kg_per_distance(np.where(interior if interpolating else loaded, r_kg, np.nan),
+                                          envelope.neighbour_distances(), interior)
     return c if np.isfinite(c) else None
 
 
