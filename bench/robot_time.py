@@ -55,7 +55,7 @@ from rgse_daemon.procedures.recorder import StoreRecorder
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import prepare
 from rgse_daemon.safety.monitor import DEFAULT_POLL_PERIOD_S, Monitor
-from rgse_daemon.store import RunKind, Store
+from rgse_daemon.store import RunKind, Store, archive_root
 from rgse_daemon.trace import read_trace_set
 from simulators.krc4 import physics as ph
 from simulators.krc4.tracefiles import write_trace_set
@@ -88,6 +88,8 @@ def _run_row(name: str, result: dict[str, Any], scale: float, true_kg: float) ->
     if name == "properties":
         row["mass_min"] = float(t["mass_robot_time_s"]) * scale / 60.0
         row["cog_min"] = float(t["cog_robot_time_s"]) * scale / 60.0
+        row["loops_all"] = len(per)  # the mass loops (those set aside too), the CoG poses' own loops
+        row["mass_loops_all"] = len(result.get("mass_traces", []))
     return row
 
 
@@ -110,8 +112,15 @@ async def robot_runs(scale: float, seed: int) -> dict[str, Any]:
             demo.COG_SCHEME, demo.PROPERTIES_LOOPS_PER_POSE, ph.fixture_cog_flange_m(),
             demo.DUT.dut_origin_flange_m, demo.DUT.dut_abc_deg, False)))
         rows.append(_run_row("properties", props, scale, demo.DUT_MASS_KG))
+        archive = archive_root(cfg.paths.data_dir)
+        volume = {"mass loop (measurement run)": sum(file_volume(archive, [lp["trace"] for lp in
+                                                                           rule["timing"]["per_loop"]]).values()),
+                  "mass loop (properties run)": sum(file_volume(archive, props["mass_traces"]).values()),
+                  "CoG pose loop": sum(file_volume(archive, [lp["trace"] for lp in props["timing"]["per_loop"]
+                                                             if lp["trace"] not in props["mass_traces"]]).values())}
     return {"rows": rows, "campaign_robot_min": float(cal.get("robot_time_s", 0.0)) * scale / 60.0,
-            "campaign_wall_s": cal_wall, "campaign_points_stop": cal.get("points_stop", [])}
+            "campaign_wall_s": cal_wall, "campaign_points_stop": cal.get("points_stop", []),
+            "bytes_per_loop": volume}
 
 
 #: Where the loops' wall time goes, by the message the engine executed (bench/robot_time.py's breakdown). The robot's
@@ -218,6 +227,7 @@ async def overhead_run(scale: float, seed: int, loops: int) -> dict[str, Any]:
 
             outcomes = await engine.execute(
                 d.OpenRun(RunKind.MEASUREMENT, s.robot, {"settings": s.to_json()}), plan, recorder)
+            volume = file_volume(archive_root(cfg.paths.data_dir), [o.trace for o in outcomes])
     wall = window[1] - window[0]
     parts = breakdown(engine.spans, window[0], window[1], s.settle_s, [o.timing.overrun_s for o in outcomes])
     robot = sum(parts.get(p, 0.0) for p in ROBOT_PARTS)
@@ -228,7 +238,19 @@ async def overhead_run(scale: float, seed: int, loops: int) -> dict[str, Any]:
             "parts_pct": {k: 100.0 * v / robot for k, v in parts.items() if k not in ROBOT_PARTS},
             "pull_total_s_real": [o.timing.pull_total_s * scale for o in outcomes],
             "pull_wait_s_real": [o.timing.pull_s * scale for o in outcomes],
-            "settle_record_s_real": [(o.timing.settle_s + o.timing.record_s) * scale for o in outcomes]}
+            "settle_record_s_real": [(o.timing.settle_s + o.timing.record_s) * scale for o in outcomes],
+            "bytes_per_loop": volume}
+
+
+def file_volume(archive: Path, traces: list[str]) -> dict[str, float]:
+    """Bytes of a loop's archived files by kind (mean over the loops): each module's ``.dat``/``.r64``/``.trc`` and
+    ``PROG.TXT``; what the last loop's pull moves at the controller's file rate."""
+    out: dict[str, float] = {}
+    for t in traces:
+        for f in archive.rglob(f"{t}_*"):
+            kind = f.name[len(t) + 1:]
+            out[kind] = out.get(kind, 0.0) + f.stat().st_size / len(traces)
+    return dict(sorted(out.items()))
 
 
 def _best_s(fn: Callable[[], object], runs: int) -> float:
@@ -312,7 +334,9 @@ def goal_rows(out: dict[str, Any]) -> list[tuple[str, str, str, bool | None]]:
                      f"{o['last_pull_pct']:.2f} %)", o["overhead_pct"] <= 1.0))
     if props is not None:
         rows.append(("properties run (mass and CoG)", "<= 8 min", f"{props['robot_min']:.2f} min (mass "
-                     f"{props['mass_min']:.2f} + CoG {props['cog_min']:.2f}), U {props['U_kg']:.2f} kg",
+                     f"{props['mass_min']:.2f} + CoG {props['cog_min']:.2f}; {props.get('mass_loops_all', '?')} "
+                     f"mass loops + {props.get('loops_all', 0) - props.get('mass_loops_all', 0)} CoG loops), U "
+                     f"{props['U_kg']:.2f} kg",
                      props["robot_min"] <= 8.0))
     t = out.get("campaign_plan")
     if t is not None:
@@ -351,6 +375,7 @@ def _print_table(out: dict[str, Any]) -> None:
               f"overhead {rule['overhead_pct_upper']:.2f} % (<= 1 %, upper bound at x{out['time_scale']:g}); "
               f"properties {props['robot_min']:.2f} min (<= 8; mass {props['mass_min']:.2f} + CoG "
               f"{props['cog_min']:.2f}; today {TODAY_PROPERTIES_MIN})")
+        print("a loop's files (kB): " + ", ".join(f"{k} {v / 1e3:.1f}" for k, v in out["bytes_per_loop"].items()))
         print(f"campaign (demo's 16 points x 2 loops): robot time {out['campaign_robot_min']:.1f} min of loops "
               f"(warm-ups and load changes not counted); paper 480 min")
         print(f"pull per loop at x{out['time_scale']:g} (real s): its own time "
@@ -365,6 +390,12 @@ def _print_table(out: dict[str, Any]) -> None:
         print(f"  pulls (real s): their own time {[round(v, 1) for v in o['pull_total_s_real']]}, waited "
               f"{[round(v, 1) for v in o['pull_wait_s_real']]}, next loop's settling + recording "
               f"{[round(v, 1) for v in o['settle_record_s_real']]}")
+        vol = o.get("bytes_per_loop", {})
+        if vol:
+            total = sum(vol.values())
+            print(f"  a loop's files: {total / 1e3:.1f} kB, {total / FILE_RATE_BYTES_S:.2f} s at "
+                  f"{FILE_RATE_BYTES_S / 1e3:g} kB/s (" + ", ".join(f"{k} {v / 1e3:.1f}" for k, v in vol.items())
+                  + " kB)")
         print(f"  where the loops' wall time goes (s real = wall x{o['scale']:g}; % of robot time):")
         for part, v in o["parts_s_real"].items():
             pct = o["parts_pct"].get(part)

@@ -244,11 +244,13 @@ def _toml_list(values: Sequence[float]) -> str:
 
 def properties_manifest_toml(scheme: str, fixture: FixtureFrame,
                              poses: Sequence[tuple[str, Sequence[float], Sequence[str]]], *,
-                             mass_kg: float | None = None, u_mass_kg: float | None = None) -> str:
+                             mass_kg: float | None = None, u_mass_kg: float | None = None,
+                             shared_pose: str | None = None) -> str:
     """The ``[properties]`` tables of a properties run's ``manifest.toml`` (after ``[setup]`` and, usually, the
     ``[measurement]`` of the mass loops): the scheme, the fixture frame and one ``[[properties.pose]]`` per pose
     (name, A1..A6 in deg, its trace names). ``mass_kg``/``u_mass_kg`` (standard uncertainty): the DuT's mass when it
-    does not come from the directory's own ``[measurement]`` loops."""
+    does not come from the directory's own ``[measurement]`` loops. ``shared_pose``: the pose whose loops include
+    ``[measurement]`` loops, recorded in that very pose (``shares_measurement_loops = true``)."""
     for name, q, traces in poses:
         if len(q) != 6 or not traces:
             raise DataError(f"properties manifest: pose {name!r} needs six angles and at least one trace")
@@ -264,6 +266,8 @@ def properties_manifest_toml(scheme: str, fixture: FixtureFrame,
     for name, q, traces in poses:
         lines += ["", "[[properties.pose]]", f"name = {_toml_str(name)}", f"q_deg = {_toml_list(q)}",
                   "traces = [" + ", ".join(_toml_str(t) for t in traces) + "]"]
+        if name == shared_pose:
+            lines.append("shares_measurement_loops = true")
     return "\n".join(lines) + "\n"
 
 
@@ -349,7 +353,10 @@ def thermal_mismatch(measured_k: dict[str, float] | None, calibration_k: Any) ->
 #: The keys of ``[properties]``, ``[properties.fixture]`` and ``[[properties.pose]]``; others are refused.
 PROPERTIES_KEYS = ("scheme", "mass_kg", "u_mass_kg", "fixture", "pose")
 FIXTURE_KEYS = ("mass_kg", "cog_flange_m", "dut_origin_flange_m", "dut_abc_deg")
-PROPERTIES_POSE_KEYS = ("name", "q_deg", "traces")
+#: A ``[[properties.pose]]`` key: the pose's traces may include the ``[measurement]`` loops, which were recorded in
+#: this very pose (same axes, same approach, same load, the A3..A6 trace); at most one pose has it.
+SHARES_MEASUREMENT_LOOPS = "shares_measurement_loops"
+PROPERTIES_POSE_KEYS = ("name", "q_deg", "traces", SHARES_MEASUREMENT_LOOPS)
 
 
 def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER) -> PropertiesRun:
@@ -381,6 +388,7 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
     if not isinstance(poses, list) or not poses:
         raise DataError(f"{where}: needs [[properties.pose]] entries")
     specs = []
+    sharing: int | None = None
     for i, p in enumerate(poses):
         pw = f"{where} pose #{i + 1}"
         if not isinstance(p, dict) or not isinstance(p.get("name"), str):
@@ -395,7 +403,21 @@ def read_properties_dir(directory: Path | str, pre: pp.Preprocessing = pp.PAPER)
             raise DataError(f"{pw}: traces must be a non-empty list of trace names")
         for t in traces:
             plain_name(t, f"{pw}: traces")
-        man.claim_traces(traces, f"[[properties.pose]] #{i + 1}")
+        shares = p.get(SHARES_MEASUREMENT_LOOPS, False)
+        if not isinstance(shares, bool):
+            raise DataError(f"{pw}: {SHARES_MEASUREMENT_LOOPS} must be true or false, got {shares!r}")
+        if shares:
+            if sharing is not None:
+                raise DataError(f"{pw}: {SHARES_MEASUREMENT_LOOPS} already holds for pose #{sharing}; the mass "
+                                f"loops were recorded in one pose")
+            sharing = i + 1
+        # the mass loops recorded in this very pose serve as its loops too: such a pose may list a [measurement]
+        # trace (once); every other trace appears once in the manifest
+        for t in traces:
+            if shares and man.trace_places.get(t) == "[measurement]":
+                man.trace_places[t] = f"[measurement] and [[properties.pose]] #{i + 1}"
+            else:
+                man.claim_traces([t], f"[[properties.pose]] #{i + 1}")
         specs.append((p["name"], tuple(float(v) for v in q), traces))
     periods: list[tuple[str, float]] = []
     readings = [_pose_reading(directory, name, q, traces, pre, periods) for name, q, traces in specs]

@@ -41,6 +41,7 @@ from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.procedures.loop import LoopOutcome, collect, loop
 from rgse_daemon.procedures.preconditions import PreconditionError
+from rgse_daemon.procedures.programs import TRACE_CONFIG_NAME
 from rgse_daemon.procedures.recorder import StoreRecorder
 from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import prepare
@@ -153,13 +154,16 @@ def interim_budget(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: di
 
 def measurement_loops(run: d.RunContext, s: RunSettings, cal_doc: dict[str, Any] | None, name: Callable[[int], str],
                       first_index: int = 1, *, event_data: dict[str, Any] | None = None,
-                      label: str = "loop") -> Generator[m.Msg, Any, tuple[list[LoopOutcome], StopDecision]]:
+                      label: str = "loop", trace_config: str = TRACE_CONFIG_NAME
+                      ) -> Generator[m.Msg, Any, tuple[list[LoopOutcome], StopDecision]]:
     """The mass loops in the measurement pose under the stop rule (pipeline/stopping.py): each loop's files are
     pulled while the next loop settles and records; from ``s.min_loops`` loops on, the loops archived so far are
     screened (pipeline/integrity.py) and U predicted from the kept ones with ``cal_doc`` (none: the configured
     ``loops``). The rule counts only kept loops: from the configured ``loops`` on, every loop is screened as soon as
     it is archived, and while fewer than the rule needs are kept, replacement loops follow (at most
-    ``s.replacement_loops``). Returns the loops (all archived, those set aside included) and why they stopped."""
+    ``s.replacement_loops``). ``trace_config``: the trace configuration the loops record with (a properties run's
+    mass loops: the CoG poses' A3..A6). Returns the loops (all archived, those set aside included) and why they
+    stopped."""
     rule = s.stop_rule
     outcomes: list[LoopOutcome] = []
     previous: LoopOutcome | None = None
@@ -175,7 +179,8 @@ def measurement_loops(run: d.RunContext, s: RunSettings, cal_doc: dict[str, Any]
         yield m.Checkpoint(f"{label} {i}")
         yield m.Emit(Event("step", text, step="loop", loop_index=i, loop_count=count,
                            data={**(event_data or {}), "replacement": i > s.loops}))
-        out = yield from loop(first_index + i - 1, name(i), run, s, previous=previous, defer=True)
+        out = yield from loop(first_index + i - 1, name(i), run, s, trace_config=trace_config, previous=previous,
+                              defer=True)
         outcomes.append(out)
         previous = out
         final = i >= s.loops  # a stop at the configured loops, or a replacement: judge every loop, this one too

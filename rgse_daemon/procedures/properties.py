@@ -3,17 +3,24 @@
 Steps, in this order::
 
     prepare      verify the controller (T1 …), push the trace configuration, warm up, measurement pose
-    mass         ``loops`` × (brake-release move → settle → trace of A3/A5 → pull, archive) — as the measurement run
-    cog poses    for every pose of the scheme (:func:`~rgse_daemon.pipeline.cog.cog_poses`): PTP to its approach
-                 (A4/A6 from below, as in the torsional calibration), PTP into it, ``loops_per_pose`` ×
-                 (brake-release move about the pose → settle → trace of the A3..A6 drives → pull, archive); back to
-                 the measurement pose
+    mass         the measurement pose approached as the scheme's CoG pose ``meas`` (A4/A6 from below, as in the
+                 torsional calibration), then the measurement run's loops (brake-release move → settle → trace →
+                 pull, archive) under its stop rule, recorded with the CoG poses' A3..A6 trace: they are that pose's
+                 loops too (:func:`shared_pose`; a scheme without it: the A3/A5 trace, no approach)
+    cog poses    for every other pose of the scheme (:func:`~rgse_daemon.pipeline.cog.cog_poses`): PTP to its
+                 approach, PTP into it, ``loops_per_pose`` × (brake-release move about the pose → settle → trace of
+                 the A3..A6 drives → pull, archive); in the shared pose only the loops the mass kept fewer than
+                 ``loops_per_pose``; back to the measurement pose
     compute      write the properties run directory (``manifest.toml`` with ``[measurement]`` and ``[properties]``,
                  the calibration as ``CAL.json``) and compute mass and CoG **by the same code as** ``rgse cog
                  --traces DIR --calibration DIR/CAL.json`` (:func:`~rgse_daemon.analysis.cog.compute_cog_dir`)
     inertia      only with ``inertia`` (``[properties] inertia``, the command's ``inertia``): the DuT's excitation
                  designed from that mass and CoG, the tare's after the operator took the DuT off, and the inertia by
                  the same code as ``rgse inertia`` (:mod:`rgse_daemon.procedures.inertia`)
+
+A mass the pipeline refuses (too few loops kept, far outside the calibration: ``measurement.REFUSALS``) ends the
+run with a result whose status is ``refused`` and its reason, as the measurement run's: the CoG (and the inertia)
+need the mass and are not computed; the run directory still lists every loop.
 
 Every motion is a program pushed through the engine, so the interlock's static check sees it before a byte reaches
 the controller, and the runtime monitor watches it. The result is the measurement's result plus ``cog_m`` /
@@ -58,15 +65,20 @@ from rgse_daemon.procedures.inertia import REPEATS, check_feasible, inertia_step
 from rgse_daemon.procedures.loop import LoopOutcome, loop
 from rgse_daemon.procedures.measurement import (
     CALIBRATION_FILE,
+    REFUSALS,
+    compute_mass,
     measurement_loops,
+    refused_result,
     result_line,
     stop_json,
     timing_summary,
+    write_measurement_dir,
 )
 from rgse_daemon.procedures.preconditions import PreconditionError
 from rgse_daemon.procedures.programs import (
     COG_TRACE_CONFIG_NAME,
     COG_TRACE_MODULES,
+    TRACE_CONFIG_NAME,
     move_to,
     trace_config_xml,
 )
@@ -76,7 +88,7 @@ from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.procedures.warmup import prepare
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import RunKind, Store
-from rgse_daemon.verdict import with_status
+from rgse_daemon.verdict import REFUSED, with_status
 
 
 @dataclass(frozen=True)
@@ -146,27 +158,29 @@ def pose_trace_name(tag: str, pose_number: int, loop_number: int) -> str:
 
 def write_properties_dir(run_dir: Path, s: RunSettings, mass_traces: Sequence[str], scheme: str,
                          fixture: FixtureFrame, poses: Sequence[tuple[CogPose, Sequence[str]]],
-                         cal_doc: dict[str, Any]) -> None:
+                         cal_doc: dict[str, Any], shared: str | None = None) -> None:
     """The properties run directory (interfaces §2): ``[setup]``, the mass loops as ``[measurement]``, the CoG
-    poses as ``[properties]`` (:func:`~rgse_daemon.analysis.cog.properties_manifest_toml`), and ``CAL.json``."""
+    poses as ``[properties]`` (:func:`~rgse_daemon.analysis.cog.properties_manifest_toml`), and ``CAL.json``.
+    ``shared``: the pose the mass loops were recorded in, whose traces may list them (a pose without traces is
+    left out: no loop of it is usable)."""
     run_dir.mkdir(parents=True, exist_ok=True)
     lines = [*setup_toml(s), "[measurement]", f"fixture_mass_kg = {float(s.fixture_mass_kg)!r}",
              traces_toml(mass_traces), ""]
     text = "\n".join(lines) + "\n" + properties_manifest_toml(
-        scheme, fixture, [(p.name, p.q_deg, traces) for p, traces in poses])
+        scheme, fixture, [(p.name, p.q_deg, traces) for p, traces in poses if traces], shared_pose=shared)
     write_atomic(run_dir / "manifest.toml", text)
     write_atomic(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
 
 
 def compute_properties(run_dir: Path, mass_method: str = "single",
-                       robot_time_s: Mapping[str, float] | None = None) -> dict[str, Any]:
+                       robot_time_s: Mapping[str, float] | None = None,
+                       single: dict[str, Any] | None = None) -> dict[str, Any]:
     """Mass and CoG of a properties run directory, as ``rgse mass`` and ``rgse cog`` compute them from its files;
     the mass by ``mass_method`` (:class:`PropertiesSettings`), ``robot_time_s``: the robot seconds each method's
-    loops took (``single``, ``multipose``) for ``auto``."""
-    from rgse_daemon.procedures.measurement import compute_mass
-
+    loops took (``single``, ``multipose``) for ``auto``; ``single``: the single pose's mass of this directory if
+    already computed (:func:`~rgse_daemon.procedures.measurement.compute_mass`)."""
     cal = run_dir / CALIBRATION_FILE
-    mass = {**_chosen_mass(run_dir, compute_mass(run_dir, cal), mass_method, robot_time_s or {}),
+    mass = {**_chosen_mass(run_dir, single or compute_mass(run_dir, cal), mass_method, robot_time_s or {}),
             "mass_method_requested": mass_method}  # what was asked for: the surfaces say when auto chose
     cog = compute_cog_dir(run_dir, cal, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
     c = cog.to_json()
@@ -212,37 +226,81 @@ def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_
 
 def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, fixture: FixtureFrame,
             poses: list[tuple[CogPose, list[str]]], cal_doc: dict[str, Any], mass_method: str = "single",
-            robot_time_s: Mapping[str, float] | None = None) -> dict[str, Any]:
-    write_properties_dir(run_dir, s, mass_traces, scheme, fixture, poses, cal_doc)
-    return {**compute_properties(run_dir, mass_method, robot_time_s), "mass_traces": list(mass_traces),
-            "cog_poses": [{"name": p.name, "q_deg": list(p.q_deg), "traces": list(t)} for p, t in poses]}
+            robot_time_s: Mapping[str, float] | None = None, shared: str | None = None) -> dict[str, Any]:
+    """The run directory and its result: the mass of the mass loops first; the pose ``shared`` (the mass loops were
+    recorded in it) keeps of them the loops the mass kept (a loop the integrity check set aside as disturbed is
+    not read for the CoG either); then the CoG. A refused mass: the refusal, the CoG not computed."""
+    write_measurement_dir(run_dir, s, mass_traces, cal_doc)
+    try:
+        single: dict[str, Any] | None = compute_mass(run_dir, run_dir / CALIBRATION_FILE)
+        refusal: DataError | None = None
+        kept = set(single["loops_used"]) if single is not None else set(mass_traces)
+    except REFUSALS as exc:
+        single, refusal = None, exc
+        kept = set(getattr(exc, "used", mass_traces))
+    poses = [(p, [t for t in traces if t in kept or t not in mass_traces] if p.name == shared else traces)
+             for p, traces in poses]
+    write_properties_dir(run_dir, s, mass_traces, scheme, fixture, poses, cal_doc, shared)
+    listing = {"mass_traces": list(mass_traces),
+               "cog_poses": [{"name": p.name, "q_deg": list(p.q_deg), "traces": list(t)} for p, t in poses]}
+    if refusal is not None:
+        refused = refused_result(refusal, cal_doc)
+        return {**refused, "reason": f"{refused['reason']}; the CoG is not computed: it needs the DuT's mass",
+                **listing}
+    return {**compute_properties(run_dir, mass_method, robot_time_s, single), **listing}
+
+
+def shared_pose(s: RunSettings, scheme: str) -> CogPose | None:
+    """The CoG pose the mass loops are recorded in, when ``scheme`` has it: ``meas``, whose axes are the
+    measurement pose's (checked, not assumed). Approached as every CoG pose is (A4/A6 from below) and traced with
+    A3..A6, the mass loops are then that pose's loops exactly as :func:`cog_step` would record them: the same
+    axes, the same brake-release move about them, the same load, the same trace. (The A4/A6 approach cannot move
+    the mass: a joint's friction is held in that joint, and the static A3/A5 torques are the gravity moments of
+    what lies beyond them.)"""
+    for pose in cog_poses(s.meas_pose_deg, scheme):
+        if pose.name == "meas" and pose.q_approach_deg and max(
+                abs(a - b) for a, b in zip(pose.q_deg, s.meas_pose_deg, strict=True)) <= 1e-9:
+            return pose
+    return None
 
 
 # --- the steps ----------------------------------------------------------------------------------------------------
-def mass_step(run: d.RunContext, s: RunSettings, tag: str, first_index: int, cal_doc: dict[str, Any] | None = None
+def mass_step(run: d.RunContext, s: RunSettings, tag: str, first_index: int, cal_doc: dict[str, Any] | None = None,
+              trace_config: str = TRACE_CONFIG_NAME
               ) -> Generator[m.Msg, Any, tuple[list[LoopOutcome], StopDecision]]:
-    """The mass loops in the measurement pose (as the measurement run's, under the same stop rule)."""
+    """The mass loops in the measurement pose (as the measurement run's, under the same stop rule), recorded with
+    ``trace_config``."""
     return (yield from measurement_loops(run, s, cal_doc, lambda i: f"dut_{tag}_l{i:02d}", first_index,
-                                         event_data={"phase": "mass"}, label="mass loop"))
+                                         event_data={"phase": "mass"}, label="mass loop", trace_config=trace_config))
 
 
-def cog_step(run: d.RunContext, s: RunSettings, p: PropertiesSettings, tag: str, first_index: int
+def cog_step(run: d.RunContext, s: RunSettings, p: PropertiesSettings, tag: str, first_index: int,
+             shared: CogPose | None = None, shared_loops: int = 0
              ) -> Generator[m.Msg, Any, tuple[list[tuple[CogPose, list[str]]], list[LoopOutcome]]]:
     """The CoG poses: every pose of the scheme, approached as :func:`cog_poses` prescribes, ``loops_per_pose``
-    loops each with the A3..A6 trace; then back to the measurement pose."""
-    yield m.PutFile(TRACE_DIR + COG_TRACE_CONFIG_NAME, trace_config_xml(s, COG_TRACE_MODULES).encode("utf-8"))
+    loops each with the A3..A6 trace; then back to the measurement pose. ``shared``: the pose the mass loops were
+    just recorded in (the robot stands in it, the A3..A6 trace configuration is on the controller): only
+    ``shared_loops`` more loops there, without a move."""
+    if shared is None:
+        yield m.PutFile(TRACE_DIR + COG_TRACE_CONFIG_NAME, trace_config_xml(s, COG_TRACE_MODULES).encode("utf-8"))
     poses = cog_poses(s.meas_pose_deg, p.scheme)
     index = first_index
     measured: list[tuple[CogPose, list[str]]] = []
     outcomes: list[LoopOutcome] = []
-    n = p.loops_per_pose
     for k, pose in enumerate(poses, 1):
+        in_shared = shared is not None and pose.name == shared.name
+        n = shared_loops if in_shared else p.loops_per_pose
+        if n == 0:
+            measured.append((pose, []))
+            continue
         yield m.Checkpoint(f"CoG pose {pose.name}")
-        yield m.Emit(Event("step", f"CoG pose {k}/{len(poses)} ({pose.name})", step="pose",
+        yield m.Emit(Event("step", f"CoG pose {k}/{len(poses)} ({pose.name})"
+                           + (f": {n} loop(s) beyond the mass loops" if in_shared else ""), step="pose",
                            data={"phase": "cog", "pose": pose.name, "pose_index": k, "pose_count": len(poses),
                                  "q_deg": list(pose.q_deg)}))
-        yield from move_to(pose.q_approach_deg, s)
-        yield from move_to(pose.q_deg, s)
+        if not in_shared:
+            yield from move_to(pose.q_approach_deg, s)
+            yield from move_to(pose.q_deg, s)
         at_pose = replace(s, meas_pose_deg=pose.q_deg)  # the brake-release move turns A3/A5 about this pose
         traces = []
         previous: LoopOutcome | None = None
@@ -274,23 +332,38 @@ def properties_plan(
     fixture = p.fixture(s.fixture_mass_kg)
     warnings = yield from prepare(s, inputs)
     tag = run.run_id.rsplit("-", 1)[-1][:8].lower()
-    yield m.Emit(Event("step", f"mass: {s.loops} loops in the measurement pose", step="mass",
-                       data={"phase": "mass", "loops": s.loops}))
-    mass_loops, decision = yield from mass_step(run, s, tag, 1, cal_doc)
+    shared = shared_pose(s, p.scheme)
+    if shared is None:
+        yield m.Emit(Event("step", f"mass: {s.loops} loops in the measurement pose", step="mass",
+                           data={"phase": "mass", "loops": s.loops}))
+        mass_loops, decision = yield from mass_step(run, s, tag, 1, cal_doc)
+        more = 0
+    else:  # the mass loops are the shared pose's loops too: approached and traced as that pose
+        yield m.Emit(Event("step", f"mass: {s.loops} loops in the measurement pose, approached and traced (A3..A6) "
+                                   f"as CoG pose {shared.name}, whose loops they are too", step="mass",
+                           data={"phase": "mass", "loops": s.loops, "pose": shared.name}))
+        yield m.PutFile(TRACE_DIR + COG_TRACE_CONFIG_NAME, trace_config_xml(s, COG_TRACE_MODULES).encode("utf-8"))
+        yield from move_to(shared.q_approach_deg, s)
+        yield from move_to(shared.q_deg, s)
+        mass_loops, decision = yield from mass_step(run, s, tag, 1, cal_doc, COG_TRACE_CONFIG_NAME)
+        more = max(0, p.loops_per_pose - (len(mass_loops) if decision.kept is None else decision.kept))
     yield m.Emit(Event("step", f"CoG: {len(cog_poses(s.meas_pose_deg, p.scheme))} poses ({p.scheme}) x "
                                f"{p.loops_per_pose} loops", step="cog", data={"phase": "cog", "scheme": p.scheme}))
-    poses, pose_loops = yield from cog_step(run, s, p, tag, 1 + len(mass_loops))
+    poses, pose_loops = yield from cog_step(run, s, p, tag, 1 + len(mass_loops), shared, more)
+    if shared is not None:
+        poses = [(q, [*(o.trace for o in mass_loops), *t] if q.name == shared.name else t) for q, t in poses]
     yield m.Emit(Event("step", "computing mass and CoG (offline path)", step="compute"))
     t0 = time.monotonic()
     lever = {t for pose, traces in poses or [] if pose.name == "meas" or pose.name.startswith("A3") for t in traces}
     robot_s = {"single": sum(o.timing.robot_s for o in mass_loops),
-               "multipose": sum(o.timing.robot_s for o in pose_loops if o.trace in lever)}
+               "multipose": sum(o.timing.robot_s for o in [*mass_loops, *pose_loops] if o.trace in lever)}
     result = yield m.Process("compute mass and CoG", _finish,
                              (run.run_dir, s, [o.trace for o in mass_loops], p.scheme, fixture, poses, cal_doc,
-                              p.mass_method, robot_s))
+                              p.mass_method, robot_s, None if shared is None else shared.name))
     compute_s = time.monotonic() - t0
     inertia_loops: list[LoopOutcome] = []
-    if p.inertia:
+    refused = result is not None and result.get("status") == REFUSED
+    if p.inertia and not refused:  # (the excitation is designed from the mass and CoG)
         yield m.Emit(Event("step", "inertia: DuT and tare excitation", step="inertia-start",
                            data={"phase": "inertia"}))
         inertia, inertia_loops = yield from inertia_step(run, s, fixture, p.dut_abc_deg, result, tag,
@@ -325,6 +398,9 @@ def properties_plan(
     yield d.Result(result, shas)
     for w in result["warnings"]:  # e.g. payload torques beyond what the torsional calibration covered
         yield m.Emit(Event("log", f"warning: {w}", step="result", data={"warning": w}))
+    if refused:
+        yield m.Emit(Event("result", result_line(result, str(result["reason"])), step="result", data=result))
+        return result
     mm = [1000.0 * v for v in result["cog_m"]]
     umm = [1000.0 * v for v in result["U_cog_m"]]
     yield m.Emit(Event("result", result_line(result, f"mass {result['mass_kg']:.3f} kg ± {result['U_kg']:.3f} kg, "

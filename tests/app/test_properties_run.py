@@ -71,10 +71,12 @@ async def test_properties_command_measures_mass_and_cog_to_a_retained_result_and
                        rd.task, "the retained result")
     truth = sim.truth
     assert truth is not None
-    # the steps in order: mass loops in the measurement pose, then the scheme's poses, each with its loop
+    # the steps in order: mass loops in the measurement pose, which are the CoG pose meas's loops too (issue #35),
+    # then the scheme's other pose with its loop
     steps = [e.step for e in events.events if e.step in ("mass", "cog", "pose", "compute")]
-    assert steps == ["mass", "cog", "pose", "pose", "compute"]
-    assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["meas", "A6+90"]
+    assert steps == ["mass", "cog", "pose", "compute"]
+    assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["A6+90"]
+    assert result["cog_poses"][0]["name"] == "meas" and result["cog_poses"][0]["traces"] == result["mass_traces"]
 
     # the retained result, as a fresh subscriber gets it
     (msg,) = await retained("127.0.0.1", private_broker.port, f"{PREFIX}/run/{run_id}/result")

@@ -7,6 +7,7 @@ import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from rgse_daemon.cli import main
@@ -215,6 +216,54 @@ def test_properties_pose_with_traces_of_another_place_is_refused(tmp_path, capsy
     m.write_text(properties_manifest(d, meas, tilted))
     err = one_line_error(capsys, ["cog", "--traces", str(d), "--calibration", str(dirs / "CAL.json")])
     assert str(m) in err and f"trace {trace!r} appears {places}" in err, err
+
+
+def shared_properties_dir(dirs: Path, tmp_path: Path, meas: str, tilted: str, flag: str = "true",
+                          second: str = "") -> tuple[Path, Path]:
+    """The measurement directory as a properties run whose pose ``meas`` shares the mass loops (issue #35: they
+    were recorded in it): ``flag`` its ``shares_measurement_loops``, ``second`` that of the tilted pose."""
+    d, m = copy(dirs, tmp_path, "dut")
+    for f in d.glob("dut_l0[12]_*"):  # the tilted pose's loops and the copies: loops 1 and 2 under other names
+        shutil.copy(f, d / f.name.replace("dut_l0", "cog_l0"))
+    text = properties_manifest(d, meas, tilted).replace(
+        'traces = [' + meas + ']', 'traces = [' + meas + ']\nshares_measurement_loops = ' + flag, 1)
+    if second:
+        text += f"shares_measurement_loops = {second}\n"
+    m.write_text(text)
+    return d, m
+
+
+def test_a_pose_that_shares_the_mass_loops_reads_them_as_copies_of_them_would_read(tmp_path, dirs):
+    from rgse_daemon.analysis.cog import read_properties_dir
+
+    shared, _ = shared_properties_dir(dirs, tmp_path / "a", '"dut_l01", "dut_l02"', '"cog_l03"')
+    for f in shared.glob("dut_l03_*"):
+        shutil.copy(f, shared / f.name.replace("dut_l0", "cog_l0"))
+    copies, m = copy(dirs, tmp_path / "b", "dut")
+    for f in copies.glob("dut_l0[123]_*"):
+        shutil.copy(f, copies / f.name.replace("dut_l0", "cog_l0"))
+    m.write_text(properties_manifest(copies, '"cog_l01", "cog_l02"', '"cog_l03"'))
+    a, b = read_properties_dir(shared), read_properties_dir(copies)
+    assert [r.pose for r in a.readings] == ["meas", "A6+90"]
+    for ra, rb in zip(a.readings, b.readings, strict=True):  # the same files, read for the mass and for the pose
+        for field in ("q_deg", "torque_nm", "sigma_nm", "motor_temp_k"):  # (NaN: an axis not traced)
+            np.testing.assert_array_equal(getattr(ra, field), getattr(rb, field))
+    assert "shares_measurement_loops = true" in (shared / "manifest.toml").read_text()
+
+
+@pytest.mark.parametrize(("meas", "tilted", "flag", "second", "error"), [
+    ('"dut_l01"', '"dut_l01"', "true", "", "trace 'dut_l01' appears in [measurement] and [[properties.pose]] #1 "
+                                             "and in [[properties.pose]] #2"),  # a shared loop taken again
+    ('"dut_l01", "dut_l01"', '"cog_l02"', "true", "", "trace 'dut_l01' appears in [measurement] and "
+                                                      "[[properties.pose]] #1 and in [[properties.pose]] #1"),
+    ('"dut_l01"', '"dut_l02"', "true", "true", "shares_measurement_loops already holds for pose #1"),
+    ('"dut_l01"', '"cog_l02"', '"yes"', "", "shares_measurement_loops must be true or false, got 'yes'"),
+])
+def test_a_pose_that_shares_the_mass_loops_shares_them_once(tmp_path, capsys, dirs, meas, tilted, flag, second,
+                                                            error):
+    d, m = shared_properties_dir(dirs, tmp_path, meas, tilted, flag, second)
+    err = one_line_error(capsys, ["cog", "--traces", str(d), "--calibration", str(dirs / "CAL.json")])
+    assert str(m) in err and error in err, err
 
 
 # --- unknown keys and values ---------------------------------------------------------------------------------------
