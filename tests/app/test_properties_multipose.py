@@ -65,7 +65,8 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
         assert reply["ok"] is True and reply["scheme"] == "lever" and reply["mass_method"] == "auto"
         result = await run_end(rd, timeout_s=300.0)
         run_id = result["run_id"]
-        assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["A6+90", "A3-80"]  # the mass loops are the pose meas's loops (#35)
+        # the mass loops are the pose meas's loops (#35)
+        assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["A6+90", "A3-80"]
         methods = result["mass_methods"]
         assert set(methods) == {"single", "multipose"} and result["mass_method"] in methods
         assert result["mass_method_requested"] == "auto"
