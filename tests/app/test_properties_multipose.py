@@ -1,7 +1,8 @@
 """The multi-pose mass end to end (issue #35): an MQTT ``properties`` command with scheme ``lever`` and mass method
 ``auto`` → the daemon → the simulated KR C4 on a real socket (the mass loops, the paper's CoG poses and the lever
 pose with the forearm raised, every motion through the interlock's static check) → a result that records both
-masses, their robot time and the method it chose; and the refusal of ``multipose`` without the lever poses."""
+masses, their robot time and the method it chose before the run by prediction; and the refusal of ``multipose``
+without the lever poses."""
 
 from __future__ import annotations
 
@@ -42,16 +43,26 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
         reply = await command(op, "properties", {"fixture": fixture})
         assert reply["ok"] is True and reply["scheme"] == "lever" and reply["mass_method"] == "auto"
         result = await run_end(rd, timeout_s=300.0)
+    # auto chose before anything moved, by the U each method was predicted to give per robot minute (CAL.json
+    # alone): the single pose's reproducibility (a new mounting's scatter) against MP1-MP3's predicted U
+    choice = result["mass_choice"]
+    said = [k for k, e in enumerate(events.events) if "mass_choice" in (e.data or {})]
+    first_pose = next(k for k, e in enumerate(events.events) if e.step == "pose")
+    assert said and said[0] < first_pose
+    predicted = choice["predicted"]
+    score = {k: v["U_kg"] ** 2 * v["robot_min"] for k, v in predicted.items()}
+    assert choice["method"] == min(score, key=score.get) == result["mass_method"] == "multipose"
+    assert predicted["multipose"]["U_kg"] < 0.5 * predicted["single"]["U_kg"]
+    # its poses measured (the raised one with them), the single pose's loops beside it
     assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["meas", "A6+90", "A3-80"]
     methods = result["mass_methods"]
-    assert set(methods) == {"single", "multipose"} and result["mass_method"] in methods
+    assert set(methods) == {"single", "multipose"}
     assert methods["multipose"]["visits"] == {"meas": 2, "A3-80": 2}
     assert methods["single"]["robot_time_s"] > 0 and methods["multipose"]["robot_time_s"] > 0
-    chosen = methods[result["mass_method"]]
+    chosen = methods["multipose"]
     assert result["mass_kg"] == pytest.approx(chosen["mass_kg"]) and result["U_kg"] == pytest.approx(chosen["U_kg"])
-    # auto: the least U² per robot minute
-    score = {k: v["U_kg"] ** 2 * v["robot_time_s"] for k, v in methods.items()}
-    assert result["mass_method"] == min(score, key=score.get)
+    # the prediction was of the right size: the U measured is within a factor 2 of it
+    assert 0.5 < chosen["U_kg"] / predicted["multipose"]["U_kg"] < 2.0, (chosen, predicted)
     for name, m in methods.items():
         assert abs(m["mass_kg"] - WING_BOX.mass_kg) <= m["U_kg"], (name, m)
 
