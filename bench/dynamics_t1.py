@@ -70,7 +70,7 @@ def swing_history(q0: np.ndarray, axis: int, swing_deg: float, speed_deg_s: floa
 def measure(dut: ph.AsymmetricDut, axis: int, limit_mm_s: float, seed: int,
             friction_scale: float = 1.0) -> dict[str, float]:
     model = ph.RobotModel(seed=seed)
-    dyn = RobotDynamics(model.scenario, friction_scale=friction_scale)
+    dyn = RobotDynamics(model.scenario, friction_scale=friction_scale, robot=model.robot)
     payload = dut.payload()
     q0 = kin.measurement_pose()
     corners = np.vstack([dut.box_corners_flange_m(), np.zeros((1, 3))])

@@ -145,7 +145,7 @@ def one(dut_name: str, seed: int, factor: float, repeats: int = ex.REPEATS, off:
     dut = DUTS[dut_name]()
     design = design_of(dut_name, factor, repeats)
     model = ph.RobotModel(scenario_without(off) if off else None, seed=seed)
-    dyn = RobotDynamics(model.scenario)
+    dyn = RobotDynamics(model.scenario, robot=model.robot)
     t1 = T1_LIMIT_MM_S * factor
     tare = simulate(design, ph.dut_payload(0.0, (0.0, 0.0, 0.0)), model, dyn, t1)
     loaded = simulate(design, dut.payload(), model, dyn, t1)

@@ -147,7 +147,7 @@ def repetition_files(seed: int) -> dict:
         with (d / "campaign" / "manifest.toml").open("a", encoding="utf-8") as f:
             f.write("\n" + "\n".join(lines))
         doc, _ = fit_campaign(d / "campaign", "auto")
-        (d / "CAL.json").write_text(json.dumps(doc), encoding="utf-8")
+        (d / "CAL.json").write_text(json.dumps(doc.to_dict()), encoding="utf-8")
         run = cc.simulate_properties(model, wing, "lever")
         cc.write_properties_dir(d / "prop", run, robot=sc.ROBOT, scheme="lever", measurement_pose_traces=True)
         multi = compute_multipose_dir(d / "prop", d / "CAL.json")

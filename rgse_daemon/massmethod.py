@@ -16,7 +16,7 @@ from typing import Any
 #: The methods' names as the operator reads them.
 NAMES = {"single": "single pose", "multipose": "multi-pose"}
 #: How ``auto`` chooses (procedures.properties, pipeline.multipose.choose_method).
-AUTO_RULE = "least U² per robot minute"
+AUTO_RULE = "least predicted U² per robot minute"
 
 
 def _number(value: Any) -> float | None:
@@ -49,8 +49,8 @@ def mass_method_text(result: Mapping[str, Any]) -> str | None:
     text = NAMES[str(chosen)]
     both = estimates(result)
     if requested == "auto":
-        text += f", chosen by auto ({AUTO_RULE})" if len(both) > 1 else \
-            ", auto: the multi-pose mass was not available"
+        chose = len(both) > 1 or isinstance(result.get("mass_choice"), Mapping)  # (chosen before the run)
+        text += f", chosen by auto ({AUTO_RULE})" if chose else ", auto: the multi-pose mass was not available"
     if len(both) > 1:
         text += ": " + "; ".join(
             f"{NAMES[name]} {mass:.3f} ± {u:.3f} kg" + (f" in {t / 60.0:.1f} min" if t is not None else "")

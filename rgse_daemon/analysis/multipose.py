@@ -43,6 +43,51 @@ def _visits(directory: Path, pose: str, traces: list[str], pre: pp.Preprocessing
     return mp.PoseVisits(pose, np.array(means), np.array(levers))
 
 
+def _calibration(calf: calfile.CalFile, where: str, poses_q: dict[str, tuple[float, ...]], g_m_s2: float
+                 ) -> mp.MultiPoseCalibration:
+    """The multi-pose section of CAL.json for the poses ``poses_q`` (name → A1..A6): their bare readings and K_A3."""
+    tors = calf.torsional
+    if tors is None or 3 not in tors.gains:
+        raise DataError(f"{where}: no torsional section with A3's gain: the multi-pose mass needs a CoG calibration "
+                        f"in scheme 'lever'")
+    poses, bias = [], {}
+    for n, q in poses_q.items():
+        cal_pose = tors.poses.get(n)
+        if cal_pose is None:
+            raise DataError(f"{where}: torsional section has no bare reading in pose {n}")
+        if max(abs(a - b) for a, b in zip(cal_pose.q_deg, q, strict=True)) > 0.5:
+            raise DataError(f"{where}: pose {n} {list(q)} is not the calibration's {list(cal_pose.q_deg)}")
+        poses.append(mp.LeverPose(n, q, mp.flange_lever_a3_m(q)))
+        bias[n] = mp.PoseBias(cal_pose.bias_nm[2], cal_pose.u_bias_nm[2])
+    return mp.MultiPoseCalibration(tuple(poses), bias, 0.0, 0, tors.gains[3], 0.0, mp.LEVER_DRIFT_U_REL, g_m_s2)
+
+
+def predict_methods(calf: calfile.CalFile, meas_pose_deg: tuple[float, ...], single_loops: int,
+                    visits_per_pose: int, loop_robot_s: float, where: str = "CAL.json"
+                    ) -> dict[str, dict[str, float]]:
+    """Before a properties run: each mass method's predicted U (kg, k = 2) and the robot minutes of its own loops,
+    from CAL.json alone. The single pose: its reproducibility term (:func:`mp.predict_single_U_kg`), ``single_loops``
+    loops. The multi-pose mass: MP1–MP3 on the readings K_A3 predicts (:func:`mp.predict_multipose_U_kg`) for the
+    heaviest load the torsional calibration covered (the largest A3 payload torque it saw, in the measurement pose:
+    its U grows with the mass, the single pose's does not, so a lighter DuT only favours it more),
+    ``visits_per_pose`` loops in each lever pose. DataError (naming the file) where the multi-pose section is
+    missing."""
+    cu = calf.fit.uncertainty
+    if cu is None:
+        raise DataError(f"{where}: fit.uncertainty missing: the single pose's U cannot be predicted")
+    cal = calf.calibration
+    out = {"single": {"U_kg": mp.predict_single_U_kg(cu.reproducibility.u_kg(cal.g_m_s2, cal.lever_difference_m)),
+                      "robot_min": single_loops * loop_robot_s / 60.0, "loops": single_loops}}
+    poses = mp.lever_poses(meas_pose_deg)
+    mcal = _calibration(calf, where, {p.name: p.q_deg for p in poses}, cal.g_m_s2)
+    x_max = max(abs(t) for t in mcal.gain_a3.torque_range_nm)
+    mass = x_max / (cal.g_m_s2 * max(p.lever_a3_m for p in mcal.poses))
+    out["multipose"] = {"U_kg": mp.predict_multipose_U_kg(mcal, mass, visits_per_pose),
+                        "robot_min": len(poses) * visits_per_pose * loop_robot_s / 60.0,
+                        "loops": len(poses) * visits_per_pose, "at_gross_mass_kg": mass}
+    return out
+
+
 def compute_multipose_dir(directory: Path | str, calibration_path: Path | str,
                           fixture_mass_kg: float | None = None) -> mp.MultiPoseMass:
     """MP1–MP3 for a properties run directory measured in the ``lever`` scheme. DataError naming the file when the
@@ -68,19 +113,9 @@ def compute_multipose_dir(directory: Path | str, calibration_path: Path | str,
         thermal = None
     if thermal is not None:
         thermal = dataclasses.replace(thermal, reference_k={**thermal.reference_k, "A3": float(t_state)})
-    poses, bias = [], {}
-    for n in names:
-        q, _ = specs[n]
-        cal_pose = tors.poses.get(n)
-        if cal_pose is None:
-            raise DataError(f"{calibration_path}: torsional section has no bare reading in pose {n}")
-        if max(abs(a - b) for a, b in zip(cal_pose.q_deg, q, strict=True)) > 0.5:
-            raise DataError(f"{man.path}: pose {n} {list(q)} is not the calibration's {list(cal_pose.q_deg)}")
-        poses.append(mp.LeverPose(n, q, mp.flange_lever_a3_m(q)))
-        bias[n] = mp.PoseBias(cal_pose.bias_nm[2], cal_pose.u_bias_nm[2])
-    cal = mp.MultiPoseCalibration(tuple(poses), bias, 0.0, 0, tors.gains[3],
-                                  0.0 if thermal is None else thermal.u_coeff_per_k["A3"], mp.LEVER_U_M,
-                                  man.setup.g_m_s2)
+    cal = dataclasses.replace(_calibration(calf, str(calibration_path), {n: specs[n][0] for n in names},
+                                           man.setup.g_m_s2),
+                              u_beta_per_k=0.0 if thermal is None else thermal.u_coeff_per_k["A3"])
     visits = [_visits(directory, n, specs[n][1], pre or pp.PAPER, thermal) for n in names]
     m_f = man.fixture_mass_kg if fixture_mass_kg is None else fixture_mass_kg
     return mp.multipose_mass(visits, cal, 0.0 if m_f is None else m_f)

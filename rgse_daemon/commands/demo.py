@@ -12,8 +12,10 @@ outbox) then
    scheme) that calibrate A3..A6 for torque;
 2. measures a DuT in line in a mass-properties run: a ReFEx-like wing box (107.3 kg, its CoG off the flange axis;
    on a 10.288 kg fixture), first its mass (10 loops in the measurement pose), then its centre of gravity in the
-   CoG poses of the ``paper`` scheme (the ``full`` scheme's eight poses would take four times the robot time in the
-   campaign and the run, see README "Centre of gravity"); with ``--inertia`` then its inertia tensor: the DuT's
+   CoG poses of the ``lever`` scheme on the KR 500 (the paper's poses and the multi-pose mass's raised pose; the mass
+   method ``auto`` chosen before the run by predicted U per robot minute; the KR 10 has no lever poses: ``paper``;
+   the ``full`` scheme's eight poses would take four times the robot time in the campaign and the run, see README
+   "Centre of gravity"); with ``--inertia`` then its inertia tensor: the DuT's
    excitation, the simulated operator takes the DuT off when asked, the tare's excitation.
 
 It prints true vs measured mass and CoG with the expanded uncertainty U (k = 2), and timings: robot time (what the
@@ -69,8 +71,21 @@ log = logging.getLogger(__name__)
 SEED = 2024
 #: Simulated seconds per wall second: a ~20 simulated minutes campaign + run in well under two minutes.
 TIME_SCALE = 200.0
-#: The CoG poses of the demo's properties run (and of its torsional calibration points).
-COG_SCHEME = "paper"
+#: The CoG poses of the KR 500 demo's properties run (and of its torsional calibration points): the paper's poses and
+#: the multi-pose mass's raised lever pose (issue #35), so that the run offers both masses; a robot without lever poses
+#: (the KR 10) measures the paper's (:func:`cog_scheme`).
+COG_SCHEME = "lever"
+
+
+def cog_scheme(robot: RobotModel) -> str:
+    """The demo's CoG scheme on ``robot``: ``lever`` where it has the multi-pose mass's lever poses, else ``paper``."""
+    return COG_SCHEME if robot.multipose_a3_deg else "paper"
+
+
+def mass_method(robot: RobotModel) -> str:
+    """The demo's mass method: ``auto`` (chosen before the run by predicted U per robot minute) where the robot has
+    lever poses, else the paper's ``single`` pose."""
+    return "auto" if robot.multipose_a3_deg else "single"
 #: The stacks of the shortened Table 1 campaign, and which of the robot's torsional points it measures (two to six
 #: bodies at both signs of x and y, so that the A3..A6 payload torques span the DuT's in both poses).
 CAMPAIGN_BODIES = (0, 1, 2, 3, 5, 7, 8, 10)
@@ -123,7 +138,7 @@ def demo_setup(robot_key: str = robots.DEFAULT_KEY) -> DemoSetup:
         bodies = DEMO_TORQUE_BODIES.get(robot.key, (None,) * len(loads.torque_levers_a5_m))
         torque = [torque_point(lever, n) for lever, n in zip(loads.torque_levers_a5_m, bodies, strict=True)]
         campaign = [*table1_points(n_bodies=CAMPAIGN_BODIES, torque_levers_a5_m=()), *torque,
-                    *torsional_points(COG_SCHEME, torsional)]
+                    *torsional_points(cog_scheme(robot), torsional)]
         return DemoSetup(robot, f"{robot.title.replace(' ', '')}-SIM", make_dut(), loads.fixture_mass_kg, lever_m,
                          campaign)
     finally:
@@ -282,7 +297,7 @@ def demo_view(*, quiet: bool, bars: bool, setup: DemoSetup = _KR500_DEMO) -> Vie
 
 def campaign_loops(setup: DemoSetup = _KR500_DEMO) -> int:
     """The campaign's loops: ``CAMPAIGN_LOOPS`` per point, in every CoG pose for a torsional point."""
-    poses = len(cog_poses(kin.measurement_pose(robot=setup.robot), COG_SCHEME))
+    poses = len(cog_poses(kin.measurement_pose(robot=setup.robot), cog_scheme(setup.robot)))
     return sum(CAMPAIGN_LOOPS * (poses if p.kind == "torsional" else 1) for p in setup.campaign)
 
 
@@ -376,11 +391,13 @@ async def _run_demo(setup: DemoSetup, *, quiet: bool, report_dir: Path | None, m
                 t_cal = time.monotonic() - t0
                 await sim.mount(dut.payload())
                 view.note(f"in-line mass properties: {MEASUREMENT_LOOPS} mass loops, then the CoG poses "
-                          f"({COG_SCHEME}) x {PROPERTIES_LOOPS_PER_POSE} loops")
+                          f"({cog_scheme(setup.robot)}) x {PROPERTIES_LOOPS_PER_POSE} loops, mass method "
+                          f"{mass_method(setup.robot)}")
                 t0 = time.monotonic()
                 result = await _wait(await daemon.start_properties(
-                    props=PropertiesSettings(COG_SCHEME, PROPERTIES_LOOPS_PER_POSE, ph.fixture_cog_flange_m(),
-                                             dut.dut_origin_flange_m, dut.dut_abc_deg, inertia)),
+                    props=PropertiesSettings(cog_scheme(setup.robot), PROPERTIES_LOOPS_PER_POSE,
+                                             ph.fixture_cog_flange_m(), dut.dut_origin_flange_m, dut.dut_abc_deg,
+                                             inertia, mass_method=mass_method(setup.robot))),
                     "the properties run")
                 t_meas = time.monotonic() - t0
                 # the DuT as mounted for the run: with --inertia its truth from before the tare took it off
@@ -434,7 +451,15 @@ async def _run_demo(setup: DemoSetup, *, quiet: bool, report_dir: Path | None, m
                                                                 strict=True)),
         "cog_dut_m": result["cog_dut_m"],
         "U_cog_dut_m": result["U_cog_dut_m"],
-        "cog_scheme": COG_SCHEME,
+        "cog_scheme": cog_scheme(setup.robot),
+        # the mass methods the run measured, side by side (issue #35): each one's mass, U (k = 2), error against the
+        # truth and the robot time of its own loops (real-time equivalent); which one the result reports and why
+        "mass_method": result.get("mass_method", "single"),
+        "mass_choice": result.get("mass_choice"),
+        "mass_methods": {k: {"mass_kg": v["mass_kg"], "U_kg": v["U_kg"], "error_kg": v["mass_kg"] - true_mass_kg,
+                             "within_U": abs(v["mass_kg"] - true_mass_kg) <= v["U_kg"],
+                             "robot_time_s": float(v.get("robot_time_s") or 0.0) * TIME_SCALE}
+                         for k, v in (result.get("mass_methods") or {}).items()},
         "mass_robot_time_s": float(timing["mass_robot_time_s"]) * TIME_SCALE,
         "cog_robot_time_s": float(timing["cog_robot_time_s"]) * TIME_SCALE,
         # why the mass loops stopped (pipeline/stopping.py: loop term below share, target U met, max loops)
@@ -516,7 +541,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"robot          {summary['robot']}")
     print(f"true mass      {summary['true_mass_kg']:9.3f} kg")
     print(f"measured mass  {summary['mass_kg']:9.3f} kg ± {summary['U_kg']:.3f} kg (U, k = 2)   "
-          f"error {summary['error_kg']:+.3f} kg  {'within' if summary['within_U'] else 'OUTSIDE'} U")
+          f"error {summary['error_kg']:+.3f} kg  {'within' if summary['within_U'] else 'OUTSIDE'} U   "
+          f"({summary['mass_method']})")
+    for name, mm_ in summary["mass_methods"].items():
+        print(f"  {name:11s}  {mm_['mass_kg']:9.3f} kg ± {mm_['U_kg']:.3f} kg   error {mm_['error_kg']:+.3f} kg  "
+              f"{'within' if mm_['within_U'] else 'OUTSIDE'} U   robot time {mm_['robot_time_s'] / 60:.1f} min")
     mm = [1000.0 * v for v in summary["cog_m"]]
     umm = [1000.0 * v for v in summary["U_cog_m"]]
     tmm = [1000.0 * v for v in summary["true_cog_m"]]

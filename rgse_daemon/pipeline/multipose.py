@@ -18,8 +18,9 @@ the slope. Least squares over the poses (weights w_k = 1 / var x_k):
 
 What remains in U (standard uncertainties, :class:`MultiPoseUncertainty`): the visits' repeatability (a visit is one
 loop in a pose: its noise, the seating of the wrist after the move, the drift left after the thermal correction), the
-bare readings' means, K_A3's slope (its parameters and its model form), the lever change (the DH lengths), β of the
-thermal correction, g.
+bare readings' means, K_A3's slope (its parameters and its model form; it holds the DH lengths' error of the lever
+change, since K_A3 is calibrated in these poses with the same levers), the lever change's drift since the
+calibration, β of the thermal correction, g.
 """
 
 from __future__ import annotations
@@ -40,9 +41,14 @@ from rgse_daemon.robots.model import RobotModel
 
 #: Level of the F test that finds a DuT's visits scattering more than the calibration's visits did.
 VISIT_F_LEVEL = 0.99
-#: Standard uncertainty (m) of the lever change between the poses as the DH rows give it: a catalogue's DH lengths
-#: are good to about 1 mm (an assumption; a lab that measured its arm's lengths may state less).
-LEVER_U_M = 1e-3
+#: Relative standard uncertainty of the lever change between the poses *as it was when K_A3 was calibrated*. The DH
+#: rows' own error (a catalogue's lengths and mastering are good to about a millimetre and a few hundredths of a
+#: degree: ~1 mm of the 0.79 m lever change) does not enter here: K_A3 is calibrated on loads of known mass in these
+#: poses of this arm, with the same catalogue levers, so its secant reads g·ΔL·K as one product and the DH error is
+#: part of it (and of the gain term's uncertainty). What K_A3 cannot hold is the lever change changing between the
+#: calibration and the run: the arm's thermal expansion, 2.3e-5/K for an aluminium casting (half that for steel) over
+#: 10 K, 2.3e-4 (docs/accuracy.md, "Multi-pose mass").
+LEVER_DRIFT_U_REL = 2.3e-4
 #: The smallest lever change (m) between the poses that the mass may rest on.
 MIN_LEVER_CHANGE_M = 0.3
 
@@ -138,7 +144,8 @@ class PoseBias:
 class MultiPoseCalibration:
     """What the multi-pose mass needs from the calibration: the poses, their bare readings, the repeatability of one
     visit (pooled standard deviation of visit means about their pose's mean, Nm, with its degrees of freedom), A3's
-    gain, β's standard uncertainty (1/K; 0 where not applied), the lever change's standard uncertainty (m), g."""
+    gain, β's standard uncertainty (1/K; 0 where not applied), the lever change's relative standard uncertainty
+    (:data:`LEVER_DRIFT_U_REL` where K_A3 was calibrated in these poses of this arm), g."""
 
     poses: tuple[LeverPose, ...]
     bias: Mapping[str, PoseBias]
@@ -146,7 +153,7 @@ class MultiPoseCalibration:
     visit_dof: int
     gain_a3: AxisGain
     u_beta_per_k: float
-    lever_u_m: float
+    lever_u_rel: float
     g_m_s2: float
 
 
@@ -271,14 +278,13 @@ def multipose_mass(visits: Sequence[PoseVisits], cal: MultiPoseCalibration, fixt
     m = float(coef @ x)
     resid = x - (float(np.sum(w * x) / np.sum(w)) - g * m * (lever - lbar))
     u_gain = gain_u_kg(cal.gain_a3, n_norm, coef)
-    d_lever = float(lever.max() - lever.min())
     th_dut = np.array([float(np.mean(v.thermal_lever_nm_k)) for v in seen])
     th_bias = np.array([b.thermal_lever_nm_k for b in bias])
     u = MultiPoseUncertainty(
         u_visits_kg=float(math.sqrt(np.sum(coef**2 * var_visits))),
         u_bias_kg=float(math.sqrt(np.sum(coef**2 * var_bias))),
         u_gain_kg=u_gain,
-        u_lever_kg=abs(m) * cal.lever_u_m / d_lever,
+        u_lever_kg=abs(m) * cal.lever_u_rel,
         u_thermal_kg=abs(float(np.sum(coef * (th_dut - th_bias) / slope))) * cal.u_beta_per_k,
         u_g_kg=abs(m) * u_g_m_s2 / g,
         student_factor=_student(dof),
@@ -333,9 +339,45 @@ def gain_u_kg(gain: AxisGain, n_norm_nm: np.ndarray, coef: np.ndarray) -> float:
     return u
 
 
+def predict_multipose_U_kg(cal: MultiPoseCalibration, gross_mass_kg: float, visits_per_pose: int) -> float:
+    """The U (kg, k = 2) MP1–MP3 will give a load of ``gross_mass_kg`` (everything beyond the MPA) visited
+    ``visits_per_pose`` times in each of the calibration's poses, before anything is measured: MP1–MP3 run on the
+    readings K_A3 predicts in each pose (reading = bias + K_A3(−g·m·L_k)), each pose's visits scattering by exactly
+    one visit's repeatability — the calibration's where it has one, else K_A3's in-point scatter (``u_fit_nm``).
+    DataError when neither is known."""
+    sigma, dof = cal.visit_sigma_nm, cal.visit_dof
+    if dof < 1:
+        sigma = cal.gain_a3.u_fit_nm
+    if not (sigma > 0.0 and math.isfinite(sigma)):
+        raise DataError("multi-pose prediction: no repeatability of a visit in the calibration (neither visits nor "
+                        "K_A3's in-point scatter u_fit_nm)")
+    n = max(int(visits_per_pose), 1)
+    pattern = np.resize([1.0, -1.0], n)
+    pattern = pattern - pattern.mean()
+    spread = pattern / np.std(pattern, ddof=1) * sigma if n > 1 else np.zeros(1)
+    visits = []
+    for p in cal.poses:
+        x = -cal.g_m_s2 * gross_mass_kg * p.lever_a3_m
+        reading = cal.bias[p.name].torque_a3_nm + float(cal.gain_a3.reading_nm(np.array([x]))[0])
+        visits.append(PoseVisits(p.name, reading + spread, np.zeros(n)))
+    if dof < 1 and n < 2:
+        raise DataError("multi-pose prediction: one visit per pose and no repeatability in the calibration")
+    planned = replace(cal, visit_sigma_nm=sigma, visit_dof=dof) if dof >= 1 else cal
+    return multipose_mass(visits, planned).uncertainty.expanded_kg
+
+
+def predict_single_U_kg(reproducibility_u_kg: float) -> float:
+    """The single pose's U (kg, k = 2) before the run: k times the calibration's reproducibility term (eq. 21's
+    propagation of the held-out per-axis scatter of a new mounting, :meth:`Reproducibility.u_kg`). The loops' and the
+    curve's terms are left out: a lower bound, so the prediction never favours the multi-pose mass by them (they
+    were 0.2 kg of the wing box's 1.26 kg of u, docs/accuracy.md)."""
+    return COVERAGE_K * float(reproducibility_u_kg)
+
+
 def choose_method(predicted: Mapping[str, tuple[float, float]]) -> str:
     """``auto``: the method with the least U² × robot minutes (what a lab gets for its robot time: U shrinks as
-    1/√time under repetition, so U²·t is the time to a given U). ``predicted``: method → (U kg, robot minutes)."""
+    1/√time under repetition, so U²·t is the time to a given U). ``predicted``: method → (U kg, robot minutes),
+    predicted before the run (:func:`predict_multipose_U_kg`, :func:`predict_single_U_kg`); a tie goes to the first."""
     if not predicted:
         raise DataError("method choice: no method predicted")
     return min(predicted, key=lambda k: predicted[k][0] ** 2 * predicted[k][1])

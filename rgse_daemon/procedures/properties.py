@@ -48,7 +48,7 @@ from typing import Any
 
 from rgse_daemon import calfile
 from rgse_daemon.analysis.cog import FixtureFrame, compute_cog_dir, properties_manifest_toml
-from rgse_daemon.analysis.multipose import compute_multipose_dir
+from rgse_daemon.analysis.multipose import compute_multipose_dir, predict_methods
 from rgse_daemon.config import Config
 from rgse_daemon.durable import write_atomic
 from rgse_daemon.errors import DataError
@@ -107,8 +107,9 @@ class PropertiesSettings:
     """Swings of each wrist axis per orientation in the excitation (``[properties] inertia_repeats``)."""
     mass_method: str = "single"
     """Where the mass comes from (``[properties] mass_method``): ``single`` (the paper's pose, eq. 21), ``multipose``
-    (the lever poses of scheme ``lever``, :mod:`rgse_daemon.pipeline.multipose`) or ``auto`` (both computed, the one
-    with the least U² per robot minute reported)."""
+    (the lever poses of scheme ``lever``, :mod:`rgse_daemon.pipeline.multipose`; the single pose's beside it) or
+    ``auto`` (chosen before the run by predicted U² × robot minutes, :func:`choose_mass_method`; with ``single``
+    chosen the raised lever pose is not measured)."""
 
     @classmethod
     def from_config(cls, cfg: Config, **overrides: Any) -> PropertiesSettings:
@@ -224,6 +225,24 @@ def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_
             "mass_methods": methods, "warnings": [*single["warnings"], *(f"multi-pose: {w}" for w in multi.warnings)]}
 
 
+def choose_mass_method(cal_doc: dict[str, Any], s: RunSettings, p: PropertiesSettings) -> dict[str, Any]:
+    """``auto``'s choice before the run (:func:`choose_method` on :func:`predict_methods`): the predicted U and robot
+    minutes of each method from CAL.json, the stop rule's loops for the single pose, ``loops_per_pose`` in each lever
+    pose for the multi-pose mass. Where the multi-pose mass cannot be predicted, the single pose, with the reason."""
+    rule = s.stop_rule
+    single_loops = rule.min_loops if (rule.loop_share > 0 or rule.target_U_kg is not None) else rule.max_loops
+    loop_s = s.trace_time_s + s.settle_s * s.time_scale  # the same kind of loop in every pose
+    try:
+        predicted = predict_methods(calfile.load(cal_doc, "the active calibration"), s.meas_pose_deg, single_loops,
+                                    p.loops_per_pose, loop_s)
+    except DataError as exc:
+        return {"method": "single", "predicted": {}, "reason": f"the multi-pose mass cannot be predicted ({exc})"}
+    method = choose_method({k: (v["U_kg"], v["robot_min"]) for k, v in predicted.items()})
+    text = ", ".join(f"{k} U {v['U_kg']:.2f} kg in {v['loops']} loops" for k, v in predicted.items())
+    return {"method": method, "predicted": predicted,
+            "reason": f"least predicted U² × robot time ({text}; k = 2)"}
+
+
 def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, fixture: FixtureFrame,
             poses: list[tuple[CogPose, list[str]]], cal_doc: dict[str, Any], mass_method: str = "single",
             robot_time_s: Mapping[str, float] | None = None, shared: str | None = None) -> dict[str, Any]:
@@ -332,6 +351,14 @@ def properties_plan(
     fixture = p.fixture(s.fixture_mass_kg)
     warnings = yield from prepare(s, inputs)
     tag = run.run_id.rsplit("-", 1)[-1][:8].lower()
+    mass_method, choice = p.mass_method, None
+    if p.mass_method == "auto":  # chosen by prediction before anything moves: only its poses are measured
+        choice = choose_mass_method(cal_doc, s, p)
+        mass_method = choice["method"]
+        if mass_method == "single":  # the CoG from the paper's poses: the raised lever pose is not measured
+            p = replace(p, scheme="paper")
+        yield m.Emit(Event("log", f"mass method {mass_method}: {choice['reason']}", step="mass",
+                           data={"phase": "mass", "mass_choice": choice}))
     shared = shared_pose(s, p.scheme)
     if shared is None:
         yield m.Emit(Event("step", f"mass: {s.loops} loops in the measurement pose", step="mass",
@@ -359,7 +386,9 @@ def properties_plan(
                "multipose": sum(o.timing.robot_s for o in [*mass_loops, *pose_loops] if o.trace in lever)}
     result = yield m.Process("compute mass and CoG", _finish,
                              (run.run_dir, s, [o.trace for o in mass_loops], p.scheme, fixture, poses, cal_doc,
-                              p.mass_method, robot_s, None if shared is None else shared.name))
+                              mass_method, robot_s, None if shared is None else shared.name))
+    if result is not None and choice is not None:  # auto chose before the run: what was asked for, and why
+        result = {**result, "mass_choice": choice, "mass_method_requested": "auto"}
     compute_s = time.monotonic() - t0
     inertia_loops: list[LoopOutcome] = []
     refused = result is not None and result.get("status") == REFUSED

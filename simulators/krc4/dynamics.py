@@ -195,12 +195,15 @@ class RobotDynamics:
     """Inverse dynamics of the scenario's arm (default the KR 500 R2830) with a payload (module docstring).
 
     ``friction_scale`` multiplies the friction levels (1: the documented sizes). A simulator with other friction:
-    ``sim.dynamics = RobotDynamics(sim.model.scenario, friction_scale=3.0)``."""
+    ``sim.dynamics = RobotDynamics(sim.model.scenario, friction_scale=3.0, robot=sim.model.robot)``."""
 
     def __init__(self, scenario: Scenario | None = None, g_m_s2: float | None = None, *,
-                 friction_scale: float = 1.0) -> None:
+                 friction_scale: float = 1.0, robot: robots.RobotModel | None = None) -> None:
         sc = scenario if scenario is not None else default_scenario()
         self.scenario = sc
+        self.robot = robot
+        """The arm whose DH rows the dynamics use (the simulator passes its arm as built, ``RobotModel.robot`` of
+        physics.py); None: the active robot's catalogue."""
         self.g_m_s2 = sc.g_m_s2 if g_m_s2 is None else float(g_m_s2)
         per_link: dict[int, list[tuple[float, np.ndarray, np.ndarray]]] = {j: [] for j in range(1, 7)}
         per_link[1].append((sc.arm.column_mass_kg, np.array(sc.arm.column_cog_m), np.zeros((3, 3))))
@@ -242,7 +245,7 @@ class RobotDynamics:
             pay = _payload_link(payload, shift_z_m)
             l6 = links[5]
             links[5] = _combine([(l6.mass_kg, l6.cog_m, l6.inertia_kgm2), (pay.mass_kg, pay.cog_m, pay.inertia_kgm2)])
-        tau = _rnea(q, qd, qdd, links, self.g_m_s2 if gravity else 0.0)
+        tau = _rnea(q, qd, qdd, links, self.g_m_s2 if gravity else 0.0, self.robot)
         if armature:
             tau = tau + self.armature_kgm2[None, :] * np.deg2rad(qdd)
         return tau[0] if single else tau
@@ -297,16 +300,17 @@ def _payload_link(payload: Payload, shift_z_m: float) -> _Link:
 
 
 def _rnea(q_deg: np.ndarray, qd_deg_s: np.ndarray, qdd_deg_s2: np.ndarray, links: list[_Link],
-          g_m_s2: float) -> np.ndarray:
+          g_m_s2: float, robot: robots.RobotModel | None = None) -> np.ndarray:
     """Recursive Newton–Euler (Craig, modified DH), batched over n states; torques (n, 6) in KUKA directions."""
     n = len(q_deg)
-    sign = kin.robot_arrays().axis_sign
-    theta = sign * np.deg2rad(q_deg) + kin.robot_arrays().theta_offset_rad
+    arrays = kin.robot_arrays(robot)
+    sign = arrays.axis_sign
+    theta = sign * np.deg2rad(q_deg) + arrays.theta_offset_rad
     th_d = sign * np.deg2rad(qd_deg_s)
     th_dd = sign * np.deg2rad(qdd_deg_s2)
     rots, offsets = [], []
     for i in range(6):
-        alpha, a, d = kin.robot_arrays().mdh[i]
+        alpha, a, d = arrays.mdh[i]
         ca, sa = np.cos(alpha), np.sin(alpha)
         ct, st = np.cos(theta[:, i]), np.sin(theta[:, i])
         r = np.zeros((n, 3, 3))  # rotation of frame i in frame i−1

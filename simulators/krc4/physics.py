@@ -45,6 +45,15 @@ at 0.290 m, not 0.255 m: the paper's levers are 35 mm shorter than the data-shee
 the paper's levers (they define Table 1's expected torques and the campaign manifests): the simulated chain starts at
 flange z = ``CHAIN_ORIGIN_Z_M`` = −0.035 m. A modelling choice, not a physical claim.
 
+The arm as built (``[kinematics]`` of the scenario): a real arm is not its catalogue. Each simulated robot (each seed,
+its own random stream) draws its DH lengths, twists and zero offsets about the catalogue's once (:func:`as_built_robot`;
+default KR 500: σ 0.5 mm per length, 0.01° per twist, 0.02° per zero offset) and keeps them. Every torque (the
+static ``arm_torques_nm`` / ``payload_torques_nm`` and the dynamics, ``RobotDynamics(robot=model.robot)``) uses the arm
+as built; the axis angles the controller reports and plans with, and everything the daemon computes, use the
+catalogue. So a lever the daemon takes from the DH rows is off by what this arm's lengths and mastering are off, as on
+a real KR C4 without KUKA's absolute-accuracy option. ``model.robot`` is the arm as built,
+``model.kinematics_deviation`` the draws.
+
 Test adapter (torque-based calibration, Fig. 18): 19.20 kg (Table 1: 228.51 kg − 10 × 20.93 kg) with its CoG
 placed so that its A5 torque in the measurement pose is Table A1's 217.95 Nm (lever 1.157 m). Its A3 torque is then
 217.95 + g·19.20·d4 = 411.0 Nm, not Table A1's 646.79 Nm: that value would need a 42.65 kg adapter and contradicts
@@ -55,16 +64,17 @@ three torque rows reproduce Table 1's expected A5 torques exactly and A3 within 
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from rgse_daemon import kinematics as kin
 from rgse_daemon import robots
-from rgse_daemon.robots import CalibrationLoads
+from rgse_daemon.robots import CalibrationLoads, DhRow
+from rgse_daemon.robots import RobotModel as ArmKinematics
 from rgse_daemon.trace.channels import DRIVE_CHANNEL_UNITS
-from simulators.krc4.scenario import AXIS_KEYS, Scenario, default_scenario
+from simulators.krc4.scenario import AXIS_KEYS, Kinematics, Scenario, default_scenario
 
 #: The drive channels a trace holds, with their units: the daemon's table (one list for both sides of the link).
 CHANNEL_UNITS = DRIVE_CHANNEL_UNITS
@@ -534,6 +544,33 @@ def gain_curve(
     return gain0 + gain_sat * (1.0 - np.exp(-x / tau_sat_nm)) + slope_per_knm * xk + quad_per_knm2 * xk**2
 
 
+@dataclass(frozen=True)
+class KinematicsDeviation:
+    """What one arm as built differs from its catalogue by: per DH row (A1..A6) Δa_{i-1}, Δd_i (m), Δalpha_{i-1} and
+    the zero offset Δθ_i (deg)."""
+
+    da_m: np.ndarray
+    dd_m: np.ndarray
+    dalpha_deg: np.ndarray
+    dtheta_deg: np.ndarray
+
+
+def as_built_robot(catalogue: ArmKinematics, spread: Kinematics,
+                   rng: np.random.Generator) -> tuple[ArmKinematics, KinematicsDeviation]:
+    """One arm as built: the catalogue's DH lengths, twists and zero offsets each moved by a normal draw of the
+    scenario's σ (``[kinematics]``), but for A1's twist (the A1 axis stays plumb). The draws come in a fixed order, so
+    one seed gives one arm whatever the σ."""
+    z = rng.normal(0.0, 1.0, (4, 6))
+    z[2, 0] = 0.0  # A1's axis stays plumb: its tilt is the installation's (the floor), not the arm's build
+    dev = KinematicsDeviation(z[0] * spread.length_sigma_m, z[1] * spread.length_sigma_m,
+                              z[2] * spread.twist_sigma_deg, z[3] * spread.zero_offset_sigma_deg)
+    dh = tuple(DhRow(alpha_deg=row.alpha_deg + float(dev.dalpha_deg[i]), a_m=row.a_m + float(dev.da_m[i]),
+                     d_m=row.d_m + float(dev.dd_m[i])) for i, row in enumerate(catalogue.dh))
+    offsets = tuple(float(o + dt) for o, dt in zip(catalogue.theta_offset_deg, dev.dtheta_deg, strict=True))
+    built = replace(catalogue, dh=dh, theta_offset_deg=offsets, lever_difference_m=dh[3].d_m)
+    return built, dev
+
+
 class RobotModel:
     """The simulated KR 500 R2830's statics and torque estimate; see the module docstring."""
 
@@ -543,6 +580,10 @@ class RobotModel:
         self.g_m_s2 = self.scenario.g_m_s2
         self._axes = [self.scenario.axis(i) for i in range(1, 7)]
         self._links = [(link, mass, cog) for link, mass, cog in self.scenario.arm.links]
+        # the arm as built: its own stream, so the noise of every trace stays what it was for a seed
+        self.robot, self.kinematics_deviation = as_built_robot(
+            robots.get(self.scenario.robot), self.scenario.kinematics,
+            np.random.default_rng(None if seed is None else [seed, 0x6B696E]))
         self.residual_nm = np.zeros(6)
         pinned = self.scenario.arm.bias_measurement_pose_nm
         if pinned:
@@ -573,13 +614,14 @@ class RobotModel:
 
     # --- statics -------------------------------------------------------------------------------------------------
     def arm_torques_nm(self, q_deg: Sequence[float]) -> np.ndarray:
-        """Gravity holding torques of the robot's own links (Nm)."""
-        return kin.link_gravity_torques_nm(q_deg, self._links, self.g_m_s2)
+        """Gravity holding torques of the robot's own links (Nm), on the arm as built."""
+        return kin.link_gravity_torques_nm(q_deg, self._links, self.g_m_s2, self.robot)
 
     def payload_torques_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
-        """Gravity holding torques of the payload as mounted now (its CoG shifted by this mounting's shift, Nm)."""
+        """Gravity holding torques of the payload as mounted now (its CoG shifted by this mounting's shift, Nm), on the
+        arm as built."""
         theta = payload.theta + np.array([0.0, 0.0, 0.0, payload.mass_kg * self.mount_cog_shift_m])
-        return kin.gravity_regressor(q_deg, self.g_m_s2) @ theta
+        return kin.gravity_regressor(q_deg, self.g_m_s2, self.robot) @ theta
 
     def true_torques_nm(self, q_deg: Sequence[float], payload: Payload) -> np.ndarray:
         """Static gravity holding torques of arm plus payload at every axis (Nm, A1..A6)."""

@@ -134,6 +134,20 @@ class Mounting(_Model):
     on A3 and A5 (it cancels in eq. 3/4's mass, not in the per-axis torques of eq. 17/18)."""
 
 
+class Kinematics(_Model):
+    """How this arm as built differs from its catalogue DH rows (``[kinematics]``), drawn once per simulated robot
+    (per seed): every DH length (a_{i-1}, d_i, the catalogue's zeros included) by N(0, ``length_sigma_m``), every twist
+    alpha_{i-1} but A1's (the A1 axis stays plumb) by N(0, ``twist_sigma_deg``) and every zero offset (mastering) by
+    N(0, ``zero_offset_sigma_deg``).
+    The physics (static and dynamic torques) uses the arm as built; the controller's positions, its motion planning
+    and the daemon use the catalogue, as on a real KR C4 without KUKA's absolute-accuracy option. 0: the catalogue's
+    exact arm (a test's world, not a real one)."""
+
+    length_sigma_m: float = Field(0.0, ge=0.0, le=0.01)
+    twist_sigma_deg: float = Field(0.0, ge=0.0, le=0.5)
+    zero_offset_sigma_deg: float = Field(0.0, ge=0.0, le=0.5)
+
+
 class ServerBehaviour(_Model):
     """How the controller's C3 Bridge server behaves where the real one is slow or unknown (``[server]``); a key
     left out takes the server's default (``simulators.krc4.server.ServerConfig``, the environment variables
@@ -157,6 +171,7 @@ class Scenario(_Model):
     settle: Settle = Settle()
     spikes: Spikes = Spikes()
     mounting: Mounting = Mounting()
+    kinematics: Kinematics = Kinematics()
     server: ServerBehaviour = ServerBehaviour()
     g_m_s2: float = Field(9.81, ge=9.7, le=9.9)
     """Gravity of the simulated world (the paper uses 9.81; Bremen is 9.8134)."""

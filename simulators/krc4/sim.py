@@ -165,7 +165,7 @@ class SimulatedKrc4:
             resolved = scenario_for(robots.active().key)
         robots.activate(resolved.robot)
         self.model = RobotModel(resolved, seed=seed)
-        self.dynamics = RobotDynamics(self.model.scenario)
+        self.dynamics = RobotDynamics(self.model.scenario, robot=self.model.robot)
         self.history = MotionHistory()
         """The planned motions in the simulator's clock (what the dynamics of a moving trace follow)."""
         self.clock = SimClock(time_scale)

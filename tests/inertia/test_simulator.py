@@ -39,7 +39,7 @@ def sim_runs() -> tuple[ph.AsymmetricDut, ph.RobotModel, list, list, tuple[float
     dut = ph.refex_wing_box()
     design = ex.design(bench.payload_of(dut), limit_mm_s=bench.LIMIT_MM_S, optimise=False)
     model = ph.RobotModel(seed=5)
-    dyn = RobotDynamics(model.scenario)
+    dyn = RobotDynamics(model.scenario, robot=model.robot)
     tare = bench.simulate(design, ph.dut_payload(0.0, (0.0, 0.0, 0.0)), model, dyn, 250.0)
     loaded = bench.simulate(design, dut.payload(), model, dyn, 250.0)
     cog = tuple(float(c) for c in np.asarray(dut.cog_flange_m) + np.array([0.0, 0.0, model.mount_cog_shift_m]))

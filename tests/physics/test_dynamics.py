@@ -76,9 +76,10 @@ def test_pure_rotation_about_the_flange_axis(dyn: dy.RobotDynamics, products: bo
             assert no_gravity[k, j] == pytest.approx(dirs[j] @ rot @ n_flange[k], abs=1e-8)
 
 
-def test_static_case_equals_the_gravity_torques(dyn: dy.RobotDynamics) -> None:
+def test_static_case_equals_the_gravity_torques() -> None:
     model = ph.RobotModel(seed=2)
     model.new_mounting()
+    dyn = dy.RobotDynamics(model.scenario, robot=model.robot)  # both on the arm as built
     rng = np.random.default_rng(9)
     for payload in (ph.refex_wing_box().payload(), ph.mass_calibration_payload(7), ph.compact_cube().payload()):
         for _ in range(10):
@@ -209,11 +210,12 @@ def test_motion_history_follows_the_planned_profile() -> None:
     np.testing.assert_allclose(peak[5], 0.2 * kin.MAX_AXIS_SPEED_DEG_S[5], rtol=1e-9)  # A6 leads the PTP
 
 
-def test_motion_trace_carries_inertial_torque_and_reads_static_at_rest(dyn: dy.RobotDynamics) -> None:
+def test_motion_trace_carries_inertial_torque_and_reads_static_at_rest() -> None:
     """The moving estimate: without noise the A6 reading follows I q̈ + friction; standing still it is the static
     model's reading."""
     scenario = ph.RobotModel().scenario
     model = ph.RobotModel(scenario, seed=4)
+    dyn = dy.RobotDynamics(scenario, robot=model.robot)  # the arm as built, as the simulator's
     wing = ph.refex_wing_box()
     payload = wing.payload()
     q0 = kin.measurement_pose()

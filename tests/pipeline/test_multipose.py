@@ -122,7 +122,7 @@ def _synthetic(mass_kg: float, offset_nm: float, gain: float = 0.92):
     c = 0.05 * mass_kg * G  # the CoG's part of x, the same in every pose
     visits = [mp.PoseVisits(p.name, bias[p.name].torque_a3_nm + gain * (-G * mass_kg * p.lever_a3_m + c) + offset_nm
                             + np.array([-0.2, 0.0, 0.2]), np.zeros(3)) for p in poses]
-    cal = mp.MultiPoseCalibration(tuple(poses), bias, 0.2, 12, k, 0.0, mp.LEVER_U_M, G)
+    cal = mp.MultiPoseCalibration(tuple(poses), bias, 0.2, 12, k, 0.0, mp.LEVER_DRIFT_U_REL, G)
     return visits, cal
 
 
@@ -133,18 +133,19 @@ def test_mp2_recovers_the_mass_of_a_linear_drive_whatever_its_offset():
         assert r.gross_mass_kg == pytest.approx(107.3, abs=1e-6) and r.mass_kg == pytest.approx(97.3, abs=1e-6)
         parts = r.uncertainty.components()
         assert set(parts) == {"visits", "bias", "gain", "lever", "thermal", "g"}
-        assert parts["lever"] == pytest.approx(107.3 * mp.LEVER_U_M / (1.315 - 0.522), rel=1e-2)
+        assert parts["lever"] == pytest.approx(107.3 * mp.LEVER_DRIFT_U_REL, rel=1e-6)
 
 
 def test_multipose_mass_names_what_is_missing():
     visits, cal = _synthetic(50.0, 0.0)
     with pytest.raises(DataError, match="at least two"):
         mp.multipose_mass(visits[:1], cal)
-    bare = mp.MultiPoseCalibration(cal.poses, {"meas": cal.bias["meas"]}, 0.2, 12, cal.gain_a3, 0.0, mp.LEVER_U_M, G)
+    bare = mp.MultiPoseCalibration(cal.poses, {"meas": cal.bias["meas"]}, 0.2, 12, cal.gain_a3, 0.0,
+                                   mp.LEVER_DRIFT_U_REL, G)
     with pytest.raises(DataError, match="no bare reading in pose A3-80"):
         mp.multipose_mass(visits, bare)
     once = [mp.PoseVisits(v.pose, v.torque_a3_nm[:1], v.thermal_lever_nm_k[:1]) for v in visits]
-    no_rep = mp.MultiPoseCalibration(cal.poses, cal.bias, 0.0, 0, cal.gain_a3, 0.0, mp.LEVER_U_M, G)
+    no_rep = mp.MultiPoseCalibration(cal.poses, cal.bias, 0.0, 0, cal.gain_a3, 0.0, mp.LEVER_DRIFT_U_REL, G)
     with pytest.raises(DataError, match="no repeatability"):
         mp.multipose_mass(once, no_rep)
 
@@ -156,3 +157,34 @@ def test_visits_scattering_beyond_the_calibration_widen_u_and_warn():
     r = mp.multipose_mass(loud, cal)
     assert r.warnings and "more than the calibration's" in r.warnings[0]
     assert r.uncertainty.components()["visits"] > 5 * quiet.uncertainty.components()["visits"]
+
+
+def test_prediction_before_the_run_matches_the_u_the_run_then_gives():
+    """Predicted from the calibration alone (no reading of the DuT), U equals what MP1–MP3 give the same load's
+    readings when they scatter as the calibration's visits did; it grows with the visits' repeatability and shrinks
+    with more visits."""
+    visits, cal = _synthetic(107.3, 0.0)  # three visits per pose scattering by 0.2 Nm, the calibration's σ
+    measured = mp.multipose_mass(visits, cal).uncertainty.expanded_kg
+    assert mp.predict_multipose_U_kg(cal, 107.3, 3) == pytest.approx(measured, rel=0.02)
+    noisy = mp.MultiPoseCalibration(cal.poses, cal.bias, 2.0, 12, cal.gain_a3, 0.0, mp.LEVER_DRIFT_U_REL, G)
+    assert mp.predict_multipose_U_kg(noisy, 107.3, 1) > mp.predict_multipose_U_kg(noisy, 107.3, 4)
+    assert mp.predict_multipose_U_kg(noisy, 107.3, 1) > mp.predict_multipose_U_kg(cal, 107.3, 1)
+    # no repeatability anywhere: nothing to predict with
+    from dataclasses import replace
+
+    blind = mp.MultiPoseCalibration(cal.poses, cal.bias, 0.0, 0, replace(cal.gain_a3, u_fit_nm=0.0), 0.0,
+                                    mp.LEVER_DRIFT_U_REL, G)
+    with pytest.raises(DataError, match="no repeatability"):
+        mp.predict_multipose_U_kg(blind, 107.3, 2)
+
+
+def test_auto_chooses_by_prediction_per_robot_minute():
+    """The choice before the run: the single pose's reproducibility (a new mounting's scatter, ~1.2 kg of u for the
+    demo's calibration) against the multi-pose mass's predicted U, each with the robot minutes of its own loops."""
+    _, cal = _synthetic(107.3, 0.0)
+    multi = mp.predict_multipose_U_kg(cal, 107.3, 2)
+    single = mp.predict_single_U_kg(1.24)
+    assert single == pytest.approx(2.48)
+    assert mp.choose_method({"single": (single, 3.5), "multipose": (multi, 4.6)}) == "multipose"
+    # a calibration whose mountings hardly scatter: the single pose's fewer minutes win
+    assert mp.choose_method({"single": (mp.predict_single_U_kg(0.05), 3.5), "multipose": (multi, 4.6)}) == "single"

@@ -92,12 +92,13 @@ def test_the_simulated_dynamics_are_the_robot_s_and_reduce_to_its_statics_at_res
 
     robots.activate(robot)
     scenario = scenario_for(robot.key)
-    dyn, arm = RobotDynamics(scenario), SimArm(scenario)
+    arm = SimArm(scenario)
+    dyn = RobotDynamics(scenario, robot=arm.robot)  # the arm as built, as the simulator's statics
     payload = mass_calibration_payload(3)
     q = kin.measurement_pose()
     at_rest = dyn.torques_nm(q, [0.0] * 6, [0.0] * 6, payload, armature=False)
     statics = arm.arm_torques_nm(q) + kin.gravity_torques_nm(q, [(payload.mass_kg, payload.cog_flange_m)],
-                                                             scenario.g_m_s2)
+                                                             scenario.g_m_s2, arm.robot)
     assert at_rest == pytest.approx(statics, abs=1e-6 * max(1.0, float(abs(statics).max())))
     # accelerating A1 at 100 deg/s² takes a torque of the arm's size: the KR 10's is 50-200 times smaller
     inertial = dyn.torques_nm(q, [0.0] * 6, [100.0, 0, 0, 0, 0, 0], None, gravity=False)[0]

@@ -55,6 +55,15 @@ def test_demo_json_agrees_with_truth_within_u(tmp_path: Path) -> None:
     # Table 1 does (about ±1 kg around any smooth K); an 11-point campaign supports U ≈ 2.5-4 kg (k = 2), the
     # paper's own 1σ of 0.7 kg gives 1.4 kg
     assert 0.0 < out["U_kg"] < 0.05 * out["true_mass_kg"]
+    # the multi-pose mass beside the single pose (issue #35): auto chose it before the run by predicted U per robot
+    # minute, both were measured on the one mounting, each with its U, error and the robot time of its own loops
+    assert out["cog_scheme"] == "lever" and out["mass_method"] == "multipose" == out["mass_choice"]["method"]
+    methods = out["mass_methods"]
+    assert set(methods) == {"single", "multipose"}
+    for name, m in methods.items():
+        assert m["within_U"] is True and m["robot_time_s"] > 0, (name, m)
+    assert methods["multipose"]["U_kg"] < 0.5 * methods["single"]["U_kg"]
+    assert out["mass_kg"] == methods["multipose"]["mass_kg"] and out["U_kg"] == methods["multipose"]["U_kg"]
     # the campaign warmed the robot to a steady thermal state, so nothing was flagged
     assert out["warnings"] == []
     assert out["overhead_s"] > 0 and out["robot_time_s"] > out["overhead_s"]

@@ -127,5 +127,5 @@ def simulate_multipose_campaign(seed: int, bias_visits: int = 4, scenario=None, 
     else:
         gain = a3_gain(data)
     cal = mp.MultiPoseCalibration(tuple(poses), bias, sigma, dof, gain,
-                                  drift.u_coeff_per_k["A3"] if applied else 0.0, mp.LEVER_U_M, G)
+                                  drift.u_coeff_per_k["A3"] if applied else 0.0, mp.LEVER_DRIFT_U_REL, G)
     return MultiPoseCampaign(camp, model, data, cal, drift, applied)
