@@ -1,7 +1,8 @@
 """The multi-pose mass end to end (issue #35): an MQTT ``properties`` command with scheme ``lever`` and mass method
 ``auto`` → the daemon → the simulated KR C4 on a real socket (the mass loops, the paper's CoG poses and the lever
 pose with the forearm raised, every motion through the interlock's static check) → a result that records both
-masses, their robot time and the method auto chose before the run by prediction; and the refusal of ``multipose`` without the lever poses.
+masses, their robot time and the method auto chose before the run by prediction; and the refusal of
+``multipose`` without the lever poses.
 
 Where the operator looks (issue #33 item 5): which method gave the mass, that auto chose it, and both estimates with
 their U, in the client's result, the console (real Chromium, visible text: the result and the history row), the HTML
