@@ -259,19 +259,6 @@ def _through_files(camp, meas, gap, rng, root: Path):
 _FITS: dict[tuple, tuple] = {}
 
 
-def _fit_file(key: tuple) -> Path | None:
-    """Where the fit of ``key`` is kept between runs (``RGSE_BENCH_FIT_CACHE`` names a directory; unset: nowhere). A
-    kept fit is the calibration code's at the time it was made: clear the directory after changing that code."""
-    import hashlib
-    import os
-
-    root = os.environ.get("RGSE_BENCH_FIT_CACHE")
-    if not root:
-        return None
-    Path(root).mkdir(parents=True, exist_ok=True)
-    return Path(root) / (hashlib.sha256(repr(key).encode()).hexdigest()[:24] + ".pickle")
-
-
 def _campaign_fit(seed: int, beta0: bool, campaign: dict, data=None, camp=None, model=None) -> tuple:
     """The campaign of ``seed`` (screened like ``rgse calibrate``), ``auto`` and everything the DuT's mass needs; from
     ``data`` (read back from trace files) if given, else simulated in memory and cached. Raises DataError if the
@@ -282,9 +269,6 @@ def _campaign_fit(seed: int, beta0: bool, campaign: dict, data=None, camp=None, 
     from rgse_daemon.analysis.calibration import screen_campaign
 
     key = (seed, beta0, tuple(sorted(campaign.items())))
-    disk = _fit_file(key) if data is None else None
-    if disk is not None and disk.exists() and key not in _FITS:
-        _FITS[key] = pickle.loads(disk.read_bytes())
     if data is None and key in _FITS:
         blob, fitted = _FITS[key]
         camp, model = pickle.loads(blob)
@@ -314,12 +298,9 @@ def _campaign_fit(seed: int, beta0: bool, campaign: dict, data=None, camp=None, 
     env = Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm)
     extrapolation = inline.extrapolation_slope_kg(env, by[chosen.method].heldout_residual_nm, G, dr)
     set_aside = [f"point {p} loop {a.loop}: {a.reason}" for p, a in data.set_aside]
-    fitted = (set_aside, chosen.method, alts, fits, bias3, bias5, drift, env, extrapolation,
-              by[chosen.method].heldout_residual_nm)
+    fitted = (set_aside, chosen.method, alts, fits, bias3, bias5, drift, env, extrapolation)
     if blob is not None:
         _FITS[key] = (blob, fitted)
-        if disk is not None:
-            disk.write_bytes(pickle.dumps(_FITS[key]))
         camp, model = pickle.loads(blob)
     return (camp, copy.deepcopy(model) if blob is None else model, *fitted)
 
@@ -361,11 +342,7 @@ def repetition33(name: str, seed: int) -> dict:
             return {**out, "auto": None, "auto refused": f"campaign: {exc}"}
     else:
         dut_loops = meas.loops
-    set_aside, chosen, alts, fits, bias3, bias5, drift, env, _, heldout = fitted
-    # the envelope's widening from the held-out residuals, at story time (a kept fit need not be refitted for it)
-    extrapolation = inline.extrapolation_slope_kg(env, heldout, G, camp.manifest.setup.lever_difference_m)
-    interpolation = inline.extrapolation_slope_kg(env, heldout, G, camp.manifest.setup.lever_difference_m,
-                                                  interpolating=True)
+    set_aside, chosen, alts, fits, bias3, bias5, drift, env, extrapolation = fitted
     out["cal set aside"] = set_aside
     loops = [(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in dut_loops]
     temps = [(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in dut_loops]
@@ -378,8 +355,7 @@ def repetition33(name: str, seed: int) -> dict:
             r = inline.in_line_mass(loops, inline.MassCalibration(
                 fits[chosen][0], bias3, bias5, alternatives=[fits[a][0] for a in alts],
                 uncertainty=fits[chosen][1], alternative_uncertainty=[fits[a][1] for a in alts], envelope=env,
-                thermal=thermal, extrapolation_kg=extrapolation, interpolation_kg=interpolation), pp.PAPER,
-                fixture_mass_kg=meas.fixture_mass_kg,
+                thermal=thermal, extrapolation_kg=extrapolation), pp.PAPER, fixture_mass_kg=meas.fixture_mass_kg,
                 loop_temps_k=temps)
         except DataError as exc:
             out[row], out[f"{row} refused"] = None, str(exc)
@@ -387,8 +363,7 @@ def repetition33(name: str, seed: int) -> dict:
         out[row] = {"err_kg": r.mass_kg - dut_kg, "U_kg": r.uncertainty.expanded_kg,
                     "u_loops_kg": r.uncertainty.u_loops_kg, "set_aside": [f"{a.loop}: {a.reason}"
                                                                           for a in r.loops_set_aside],
-                    "outside": r.operating_point == "outside", "thermal_applied": r.thermal_applied,
-                    "u_components_kg": r.uncertainty.components(), "torque_nm": (r.torque_a3_nm, r.torque_a5_nm)}
+                    "outside": r.operating_point == "outside", "thermal_applied": r.thermal_applied}
     return out
 
 

@@ -293,11 +293,6 @@ class MeasurementConfig(_Section):
     step inside the loop, a loop far from the others; rgse_daemon/pipeline/integrity.py) when fewer than
     ``min_loops`` (or ``loops``, if smaller) are kept. Once spent, the mass rests on the loops kept, or the result is
     refused (too few). 0: never measure more than ``loops``."""
-    drift_prior_per_k: float = Field(0.003, ge=0.0, le=0.1)
-    """The outer bound on the thermal drift coefficient |β| (1/K) where the active calibration's campaign does not
-    resolve β at the DuT's motor temperature: U carries the campaign's estimate within ±this (a uniform prior;
-    rgse_daemon/pipeline/thermal.py, docs/accuracy.md "issue 33"). Written to the run's manifest, so ``rgse mass``
-    recomputes the same result."""
     settle_s: float = Field(4.0, ge=0.0, le=120.0)
     """Waiting time after the brake-release move before recording (paper: 2 × 2 s)."""
     trace_period_s: Literal[0.001, 0.004, 0.012] = 0.012

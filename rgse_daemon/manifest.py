@@ -45,10 +45,8 @@ TOP_KEYS = ("setup", "point", "measurement", "torsional", "properties")
 SETUP_KEYS = ("robot", "g", "lever_difference_m", "body_mass_u_kg", "reference_correlation", "g_u_m_s2")
 POINT_KEYS = ("kind", "mass_kg", "lever_a3_m", "lever_a5_m", "traces", "bodies", "mass_u_kg")
 TORSIONAL_POINT_KEYS = ("kind", "mass_kg", "cog_flange_m", "poses", "bodies", "mass_u_kg")
-MEASUREMENT_KEYS = ("traces", "fixture_mass_kg", "drift_prior_per_k")
+MEASUREMENT_KEYS = ("traces", "fixture_mass_kg")
 TORSIONAL_KEYS = ("scheme", "pose")
-#: The largest bound on the thermal drift coefficient |β| a manifest, the configuration or ``rgse mass`` may give (1/K).
-MAX_DRIFT_PRIOR_PER_K = 0.1
 POSE_KEYS = ("name", "q_deg")
 
 
@@ -128,9 +126,6 @@ class Manifest:
     points: list[PointSpec] = field(default_factory=list)
     measurement_traces: tuple[str, ...] = ()
     fixture_mass_kg: float | None = None
-    drift_prior_per_k: float | None = None
-    """The bound on |β| U carries where the campaign does not resolve the thermal drift (the daemon's
-    ``measurement.drift_prior_per_k``); None: the pipeline's default."""
     torsional_points: list[TorsionalPointSpec] = field(default_factory=list)
     torsional_poses: list[TorsionalPose] = field(default_factory=list)
     torsional_scheme: str | None = None
@@ -272,11 +267,6 @@ def load_manifest(directory: Path | str) -> Manifest:
         man.claim_traces(man.measurement_traces, "[measurement]")
         if "fixture_mass_kg" in meas:
             man.fixture_mass_kg = _num(meas, "fixture_mass_kg", f"{path} [measurement]", minimum=0.0)
-        if "drift_prior_per_k" in meas:
-            man.drift_prior_per_k = _num(meas, "drift_prior_per_k", f"{path} [measurement]", minimum=0.0)
-            if man.drift_prior_per_k > MAX_DRIFT_PRIOR_PER_K:
-                raise DataError(f"{path} [measurement]: drift_prior_per_k {man.drift_prior_per_k} is no bound on a "
-                                f"drift coefficient (at most {MAX_DRIFT_PRIOR_PER_K} per K)")
     return man
 
 

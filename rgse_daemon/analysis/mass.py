@@ -97,7 +97,7 @@ def check_pose(where: Path, lever_difference_m: float, g_m_s2: float, cal: Calib
 
 def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None,
             envelope_limit: float = inline.env_mod.DEFAULT_LIMIT,
-            drift_prior_per_k: float | None = None):
+            drift_prior_per_k: float = inline.DRIFT_PRIOR_PER_K):
     """The in-line mass of a measurement directory (interfaces §2) with a calibration file: what ``rgse mass`` prints,
     and what the daemon stores — one code path, so a stored result is always reproducible from its raw files."""
     man = load_manifest(directory)
@@ -111,8 +111,6 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
     if not np.isfinite(fixture) or fixture < 0:
         raise DataError(f"fixture mass must be a finite mass >= 0 kg, got {fixture}")
     loops = read_loops(directory, man.measurement_traces)
-    if drift_prior_per_k is None:  # the manifest's (the daemon's configuration when it measured), else the default
-        drift_prior_per_k = inline.DRIFT_PRIOR_PER_K if man.drift_prior_per_k is None else man.drift_prior_per_k
     result = measure(loops, calf, pre or pp.PAPER, fixture, man.setup.g_m_s2, man.setup.g_u_m_s2 or 0.0,
                      envelope_limit, drift_prior_per_k)
     rate = period_mismatch(loops[0].period_s, calf.fit.sample_period_s, pre or pp.PAPER)
@@ -129,14 +127,12 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
 
 
 def budget(directory: Path, traces: Sequence[str], calibration_path: Path, fixture_mass_kg: float,
-           g_m_s2: float | None = None, g_u_m_s2: float = 0.0,
-           drift_prior_per_k: float = inline.DRIFT_PRIOR_PER_K) -> MassResult:
+           g_m_s2: float | None = None, g_u_m_s2: float = 0.0) -> MassResult:
     """The mass and its U budget from the loops ``traces`` of ``directory`` so far, by the same :func:`measure` as
     :func:`compute` (no manifest needed): what the stop rule (pipeline/stopping.py) predicts from during a run."""
     calf = calfile.read(calibration_path)
     loops = read_loops(directory, tuple(traces))
-    return measure(loops, calf, calf.preprocessing or pp.PAPER, fixture_mass_kg, g_m_s2, g_u_m_s2,
-                   drift_prior_per_k=drift_prior_per_k)
+    return measure(loops, calf, calf.preprocessing or pp.PAPER, fixture_mass_kg, g_m_s2, g_u_m_s2)
 
 
 def _ms(period_s: float) -> str:

@@ -169,11 +169,7 @@ class CalFile:
                                envelope=self.fit.envelope, thermal=self.fit.thermal,
                                extrapolation_kg=extrapolation_slope_kg(self.fit.envelope, self.heldout_residual_nm(),
                                                                        self.calibration.g_m_s2,
-                                                                       self.calibration.lever_difference_m),
-                               interpolation_kg=extrapolation_slope_kg(self.fit.envelope, self.heldout_residual_nm(),
-                                                                       self.calibration.g_m_s2,
-                                                                       self.calibration.lever_difference_m,
-                                                                       interpolating=True))
+                                                                       self.calibration.lever_difference_m))
 
     def heldout_residual_nm(self) -> np.ndarray | None:
         """``fit.validation.heldout_residual_nm`` as (n, 2) A3/A5 (Nm); None if the file has none (U outside the

@@ -127,9 +127,6 @@ class EnvelopeCheck:
     excess: float
     """The largest excess over the three coordinates, as a fraction of the campaign's span."""
     detail: str
-    in_box: bool = True
-    """The box coordinates (per-axis torques, their ratio) lie inside: only the distance to the nearest calibrated
-    configuration put the DuT outside (between the campaign's points, an interpolation)."""
 
 
 def check(env: Envelope, torque_a3_nm: float, torque_a5_nm: float, limit: float = DEFAULT_LIMIT) -> EnvelopeCheck:
@@ -156,10 +153,9 @@ def check(env: Envelope, torque_a3_nm: float, torque_a5_nm: float, limit: float 
         parts.append(f"(M_A3, M_A5) = ({float(torque_a3_nm):.4g}, {float(torque_a5_nm):.4g}) Nm is "
                      f"{100 * gap:.0f} % of the torque range from the nearest calibrated configuration (inside: "
                      f"{100 * POINT_INSIDE:.0f} %): between the calibration's points, not at one")
-    in_box = worst <= INSIDE_TOLERANCE
-    if in_box and gap <= POINT_INSIDE:
+    if worst <= INSIDE_TOLERANCE and gap <= POINT_INSIDE:
         return EnvelopeCheck("inside", max(worst, gap), "")
     worst = max(worst, gap)
     status = "refused" if worst > limit else "outside"
-    return EnvelopeCheck(status, worst, "; ".join(parts) + f" (limit {100 * limit:.0f} %)", in_box)
+    return EnvelopeCheck(status, worst, "; ".join(parts) + f" (limit {100 * limit:.0f} %)")
 

@@ -82,10 +82,6 @@ class MassCalibration:
     """How the calibration's held-out error grows with the distance to its configurations
     (:func:`extrapolation_slope_kg`, kg per unit distance); a DuT outside the envelope gets U widened by it times its
     distance (None or NaN: by the spread of the admissible models there)."""
-    interpolation_kg: float | None = None
-    """The same from the configurations whose held-out prediction was an interpolation (inside the others' box,
-    ``extrapolation_slope_kg(..., interpolating=True)``): the widening of a DuT inside the box but far from every
-    configuration (the gap between the mass stack and the torque rows). None: ``extrapolation_kg`` serves."""
 
 
 def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre: pp.Preprocessing, *,
@@ -161,8 +157,6 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
                                               f"envelope: {check.detail}; calibrate with loads that cover it")
         if check.status == "outside":
             where = "outside"
-            if check.in_box and _resolved(c.interpolation_kg, envelope):  # between the points: interpolated
-                extrapolation_kg = c.interpolation_kg
             how = ("the spread of the admissible models there" if not _resolved(extrapolation_kg, envelope) else
                    f"what the calibration's own held-out configurations erred at that distance "
                    f"({extrapolation_kg * envelope.nearest(m3, m5):.3g} kg)")
@@ -188,8 +182,9 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     alt_mass = np.array([float(a.mass_kg(m3, m5)) for a in alternatives])
     u_loops = unc.loop_spread_kg(loop_mass, loop_se)
     u_g = unc.g_kg(gross, cal.g_m_s2, c.g_u_m_s2, g_meas, g_u_measurement_m_s2)
-    u_thermal = None if temps is None else _u_thermal_kg(thermal, (s3, s5), (raw3, raw5), temps, drift_used,
-                                                          drift_prior_per_k)
+    u_thermal = None if temps is None else float(np.hypot(  # β3 and β5 estimated independently
+        s3 * _u_thermal_nm(thermal, "A3", raw3, temps[:, 0], drift_used["A3"], drift_prior_per_k),
+        s5 * _u_thermal_nm(thermal, "A5", raw5, temps[:, 1], drift_used["A5"], drift_prior_per_k)))
     if uncertainty is None:  # a calibration file without held-out residuals: the former budget
         u = unc.MassUncertainty(
             u_loops_kg=u_loops,
@@ -228,14 +223,11 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
 
 
 def extrapolation_slope_kg(envelope: env_mod.Envelope | None, heldout_residual_nm: np.ndarray | None,
-                           g_m_s2: float, lever_difference_m: float, interpolating: bool = False) -> float | None:
+                           g_m_s2: float, lever_difference_m: float) -> float | None:
     """:func:`~rgse_daemon.pipeline.uncertainty.extrapolation_kg_per_distance` of a calibration: its held-out per-axis
     residuals (n, 2; Nm, CAL.json ``fit.validation.heldout_residual_nm``) in kg by eq. 21 (∂m/∂(K·M)_A3 = 1/(g·Δr),
     A5 −1/(g·Δr)), the loaded configurations' distances to their nearest other one (``envelope.points_nm``, same
-    order), the interior ones as the reproducibility's. None without points or residuals, or if they do not match.
-    ``interpolating``: only the interior configurations' residuals (below the largest torque on both axes, so the fit
-    without one interpolated it), for a DuT that is interpolated too: a held-out top configuration was extrapolated,
-    and an extrapolation errs more at the same distance than an interpolation."""
+    order), the interior ones as the reproducibility's. None without points or residuals, or if they do not match."""
     if envelope is None or not envelope.points_nm or heldout_residual_nm is None:
         return None
     r = np.asarray(heldout_residual_nm, float)
@@ -245,8 +237,7 @@ def extrapolation_slope_kg(envelope: env_mod.Envelope | None, heldout_residual_n
     loaded = p[:, 0] > 0
     interior = loaded & (p[:, 0] < p[:, 0].max()) & (p[:, 1] < p[:, 1].max())
     r_kg = (r[:, 0] - r[:, 1]) / abs(g_m_s2 * lever_difference_m)
-    c = unc.extrapolation_kg_per_distance(np.where(interior if interpolating else loaded, r_kg, np.nan),
-                                          envelope.neighbour_distances(), interior)
+    c = unc.extrapolation_kg_per_distance(np.where(loaded, r_kg, np.nan), envelope.neighbour_distances(), interior)
     return c if np.isfinite(c) else None
 
 
@@ -311,49 +302,30 @@ def _drift_applied(thermal: ThermalDrift | None, temps: np.ndarray | None, warni
         why = thermal.not_applicable(ax, offset)
         out[ax] = why is None
         if why is not None and abs(offset) > THERMAL_NOTE_K:
-            mean, sd = thermal.uncorrected_per_k(ax, offset, drift_prior_per_k)
             warnings.append(f"thermal drift of {ax} not corrected: β = {100 * thermal.coeff_per_k[ax]:+.3f} ± "
                             f"{100 * thermal.u_coeff_per_k[ax]:.3f} %/K is not resolved for this DuT ({why}); U "
-                            f"carries the drift of a β of {100 * mean:+.3f} ± {100 * sd:.3f} %/K (the campaign's "
-                            f"estimate within the prior bound ±{100 * drift_prior_per_k:.3g} %/K) over the "
-                            f"{offset:+.1f} K offset. Measure the DuT at the campaign's motor temperature "
+                            f"carries a drift of up to {100 * thermal.drift_bound_per_k(ax, drift_prior_per_k):.3g} "
+                            f"%/K over the {offset:+.1f} K offset. Measure the DuT at the campaign's motor temperature "
                             f"({thermal.reference_k[ax]:.1f} K), or calibrate over a temperature span that covers it")
     return out
 
 
-def _u_thermal_kg(thermal: ThermalDrift, slopes: tuple[float, float], raw: tuple[np.ndarray, np.ndarray],
-                  temps: np.ndarray, applied: dict[str, bool], drift_prior_per_k: float) -> float:
-    """The thermal term (kg, :mod:`rgse_daemon.pipeline.thermal`): per axis the drift β·M̄·ΔT through eq. 21's
-    sensitivity. Where β is applied, its uncertainty at the DuT's offset; where not, the root mean square of the
-    drift left in the mass over what is known of β (:meth:`ThermalDrift.uncorrected_per_k`): the axes' expected
-    drifts add with their signs (they partly cancel in eq. 21), their spreads in quadrature (β3 and β5 are
-    estimated independently)."""
-    left, var = 0.0, 0.0
-    for i, ax in enumerate(("A3", "A5")):
-        dt = np.asarray(temps[:, i], float) - thermal.reference_k[ax]
-        lever = slopes[i] * float(np.mean(np.asarray(raw[i], float) * dt))  # kg per unit β
-        offset = float(np.mean(dt))
-        if applied[ax]:
-            var += (lever * thermal.u_at_per_k(ax, offset)) ** 2
-        else:
-            mean, sd = thermal.uncorrected_per_k(ax, offset, drift_prior_per_k)
-            left += lever * mean
-            var += (lever * sd) ** 2
-    return float(np.sqrt(left**2 + var))
+def _u_thermal_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: np.ndarray, applied: bool,
+                  drift_prior_per_k: float) -> float:
+    """The thermal term (Nm): β's uncertainty over the correction where applied, else the bound on the uncorrected
+    drift (:meth:`ThermalDrift.drift_bound_per_k`, rectangular: standard uncertainty bound/√3)."""
+    if applied:
+        return thermal.u_correction_nm(axis, raw_nm, temp_k)
+    lever = np.mean(np.asarray(raw_nm, float) * (np.asarray(temp_k, float) - thermal.reference_k[axis]))
+    return float(abs(lever) * thermal.drift_bound_per_k(axis, drift_prior_per_k) / np.sqrt(3.0))
 
 
 def _loop_allowance_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: np.ndarray, applied: bool,
                        drift_prior_per_k: float) -> np.ndarray:
-    """Per loop, the standard deviation the thermal model leaves about the loops' mean temperature (Nm): β's
-    uncertainty where applied, else the root mean square of what is known of β."""
-    t = np.asarray(temp_k, float)
-    dt = t - np.mean(t)
-    offset = float(np.mean(t) - thermal.reference_k[axis])
-    if applied:
-        beta_u = thermal.u_at_per_k(axis, offset)
-    else:
-        mean, sd = thermal.uncorrected_per_k(axis, offset, drift_prior_per_k)
-        beta_u = float(np.hypot(mean, sd))
+    """Per loop, the standard deviation the thermal model leaves about the loops' mean temperature (Nm)."""
+    dt = np.asarray(temp_k, float) - np.mean(temp_k)
+    bound = thermal.drift_bound_per_k(axis, drift_prior_per_k)
+    beta_u = thermal.u_coeff_per_k[axis] if applied else bound / np.sqrt(3.0)
     return np.abs(np.asarray(raw_nm, float) * dt) * beta_u
 
 

@@ -11,17 +11,6 @@ At measurement time each loop's reading is brought to the campaign's mean motor 
 ``thermal_state_k``, the temperature the calibration points hold): ``M_corr = M·(1 − β·(T − T_ref))`` (first order
 in β·ΔT; the second order is below 0.01 % for 40 K at β = 0.002/K). The uncertainty of β gives the ``thermal``
 component ``u(δ) = u_β·|M̄·(T − T_ref)|`` per axis, through eq. 21's sensitivities.
-
-What the campaign resolves (issue 33): β rests on loops whose temperatures spanned ``span`` within a point. Within
-:data:`MAX_EXTRAPOLATION` × span of the reference its standard uncertainty is the regression's u(β); beyond that the
-campaign cannot tell a straight drift from one that bends, so u(β) is taken to grow in proportion to the distance
-(:meth:`ThermalDrift.u_at_per_k`: a bend that changes the slope by one u(β) over the supported range). β is applied
-where the span is at least :data:`MIN_SPAN_K` and β is :data:`MIN_SIGNIFICANCE` of these grown uncertainties from 0
-at the DuT's offset. Where it is not applied, the mass keeps the drift β·M̄·ΔT it did not correct, and U carries its
-root mean square over what is known of β (:meth:`ThermalDrift.uncorrected_per_k`): the campaign's estimate with its
-grown uncertainty, within the prior bound |β| ≤ ``drift_prior_per_k`` (a uniform prior: the estimate's normal
-truncated to it). A campaign that resolves nothing there gives the prior's β²/3; one that resolves β gives β̂² + u².
-The two axes' uncorrected drifts enter eq. 21 with their signs, so drifts of the same sign partly cancel in the mass.
 """
 
 from __future__ import annotations
@@ -31,24 +20,20 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from rgse_daemon.errors import DataError
 
 AXES = ("A3", "A5")
-#: β is applied only where the data resolve it (issue 33): at least this many standard uncertainties from 0 (its
-#: uncertainty grown with the extrapolation to the DuT, :meth:`ThermalDrift.u_at_per_k`) ...
+#: β is applied only where the data resolve it (issue 33): at least this many standard uncertainties from 0 ...
 MIN_SIGNIFICANCE = 3.0
-#: ... fitted on loops whose temperatures spanned at least this much within a point (K; the channel reads 0.1 K) ...
+#: ... fitted on loops whose temperatures spanned at least this much within a point (K) ...
 MIN_SPAN_K = 1.0
-#: ... and its regression's u(β) holds within this multiple of that span from the reference; beyond it u(β) grows in
-#: proportion to the distance.
+#: ... and with the DuT's temperature offset from the reference at most this multiple of that span.
 MAX_EXTRAPOLATION = 3.0
-#: The outer bound on |β| (1/K) where the campaign does not resolve it (a uniform prior, :meth:`uncorrected_per_k`).
+#: Where β is not applied, U carries the drift a coefficient up to this bound (1/K, rectangular prior) could cause
+#: over the DuT's temperature offset (or up to |β| + 2 u(β) where the campaign's span resolves β as insignificant).
 #: 0.3 %/K bounds the simulated KR C4's 0.08 (A3) and 0.17 %/K (A5) and the thermal_coeff_per_k a drive's torque
-#: estimate plausibly has after warm-up (a magnet's remanence drops ~0.1 %/K, ferrite ~0.2 %/K, so the current for a
-#: torque rises by as much; the paper's 14-30 % to equilibrium from a cold start is more, and is what the warm-up is
-#: for). Configurable: ``[measurement] drift_prior_per_k``, ``rgse mass --drift-prior``.
+#: estimate plausibly has after warm-up; ``rgse mass --drift-prior`` sets it.
 DRIFT_PRIOR_PER_K = 0.003
 
 
@@ -68,11 +53,9 @@ class ThermalDrift:
         return float(reading_nm) * (1.0 - self.coeff_per_k[axis] * (float(temp_k) - self.reference_k[axis]))
 
     def u_correction_nm(self, axis: str, reading_nm: np.ndarray, temp_k: np.ndarray) -> float:
-        """Standard uncertainty of the correction of the mean over the loops (β's error is common to all loops; its
-        u at the loops' mean offset, :meth:`u_at_per_k`)."""
-        dt = np.asarray(temp_k, float) - self.reference_k[axis]
-        lever = np.mean(np.asarray(reading_nm, float) * dt)
-        return float(abs(lever) * self.u_at_per_k(axis, float(np.mean(dt))))
+        """Standard uncertainty of the correction of the mean over the loops (β's error is common to all loops)."""
+        lever = np.mean(np.asarray(reading_nm, float) * (np.asarray(temp_k, float) - self.reference_k[axis]))
+        return float(abs(lever) * self.u_coeff_per_k[axis])
 
     def unresolved(self, axis: str) -> str | None:
         """Why the campaign does not resolve β of ``axis`` (too small a temperature span, not significant); None if
@@ -85,59 +68,27 @@ class ThermalDrift:
                    f"{MIN_SIGNIFICANCE:g}"
         return None
 
-    def reach_k(self, axis: str) -> float:
-        """How far from the reference (K) the regression's u(β) holds: :data:`MAX_EXTRAPOLATION` × the span."""
-        return MAX_EXTRAPOLATION * self.span_k[axis]
-
-    def u_at_per_k(self, axis: str, offset_k: float) -> float:
-        """u(β) for a DuT ``offset_k`` from the reference: the regression's within :meth:`reach_k`, growing in
-        proportion to the distance beyond it (infinite for a campaign whose loops did not warm at all)."""
-        reach, u = self.reach_k(axis), self.u_coeff_per_k[axis]
-        if reach <= 0.0:
-            return float("inf")
-        return float(u * max(1.0, abs(float(offset_k)) / reach))
-
     def not_applicable(self, axis: str, offset_k: float) -> str | None:
         """Why β of ``axis`` is not applied to a DuT ``offset_k`` from the reference temperature; None if it is."""
         why = self.unresolved(axis)
-        if why is None and abs(offset_k) > self.reach_k(axis):
-            u = self.u_at_per_k(axis, offset_k)
-            if not abs(self.coeff_per_k[axis]) >= MIN_SIGNIFICANCE * u:
-                why = (f"the DuT is {offset_k:+.1f} K from the campaign's temperature, beyond {MAX_EXTRAPOLATION:g} × "
-                       f"the {self.span_k[axis]:.2g} K span β was fitted on: extrapolated there, u(β) grows to "
-                       f"{100 * u:.3f} %/K and β is {abs(self.coeff_per_k[axis]) / u:.1f} of it from 0, less than "
-                       f"{MIN_SIGNIFICANCE:g}")
+        if why is None and abs(offset_k) > MAX_EXTRAPOLATION * self.span_k[axis]:
+            why = (f"the DuT is {offset_k:+.1f} K from the campaign's temperature, beyond {MAX_EXTRAPOLATION:g} × the "
+                   f"{self.span_k[axis]:.2g} K span β was fitted on")
         return why
 
-    def uncorrected_per_k(self, axis: str, offset_k: float, prior_per_k: float) -> tuple[float, float]:
-        """Mean and standard deviation of β of ``axis`` where it is not applied to a DuT ``offset_k`` from the
-        reference: the campaign's estimate with its uncertainty there (:meth:`u_at_per_k`) under a uniform prior on
-        ±``prior_per_k`` (the normal truncated to it). The prior gives way where the data put β beyond it."""
-        if not (np.isfinite(prior_per_k) and prior_per_k >= 0):
-            raise DataError(f"the thermal drift prior must be a finite bound >= 0 per K, got {prior_per_k}")
-        beta, u = self.coeff_per_k[axis], self.u_at_per_k(axis, offset_k)
-        if np.isfinite(u) and abs(beta) - MIN_SIGNIFICANCE * u > prior_per_k:  # the data put β beyond the prior
-            return beta, u
-        if not np.isfinite(u):  # the campaign's loops did not warm: nothing but the prior
-            return 0.0, prior_per_k / np.sqrt(3.0)
-        if prior_per_k == 0.0 or u <= 0.0:
-            return float(np.clip(beta, -prior_per_k, prior_per_k)), 0.0
-        post = stats.truncnorm((-prior_per_k - beta) / u, (prior_per_k - beta) / u, loc=beta, scale=u)
-        mean, sd = float(post.mean()), float(post.std())
-        if not (np.isfinite(mean) and np.isfinite(sd)):  # the estimate deep in a tail of the prior: at its edge
-            return float(np.clip(beta, -prior_per_k, prior_per_k)), 0.0
-        return mean, sd
+    def drift_bound_per_k(self, axis: str, prior_per_k: float) -> float:
+        """The bound on |β| of ``axis`` that U carries where β is not applied: what the campaign shows,
+        |β| + 2 u(β), where its span resolves the drift and it came out insignificant; else the prior."""
+        beta, u = abs(self.coeff_per_k[axis]), self.u_coeff_per_k[axis]
+        if self.span_k[axis] >= MIN_SPAN_K and beta < MIN_SIGNIFICANCE * u:
+            return min(prior_per_k, beta + 2.0 * u)
+        return prior_per_k
 
     def describe(self, axis: str) -> str:
         """β with its uncertainty and span, for ``rgse calibrate``."""
         why = self.unresolved(axis)
-        if why is None:
-            beta, u, reach = abs(self.coeff_per_k[axis]), self.u_coeff_per_k[axis], self.reach_k(axis)
-            up_to = reach * beta / (MIN_SIGNIFICANCE * u) if u > 0 else float("inf")
-            state = (f"resolved: applied to a DuT within {max(reach, up_to):.2g} K of {self.reference_k[axis]:.2f} K "
-                     f"(its uncertainty growing beyond {reach:.2g} K)")
-        else:
-            state = f"not resolved ({why}): not applied"
+        state = "resolved: applied to a DuT within " + f"{MAX_EXTRAPOLATION * self.span_k[axis]:.2g} K of " + \
+            f"{self.reference_k[axis]:.2f} K" if why is None else f"not resolved ({why}): not applied"
         return (f"{axis} β = {100 * self.coeff_per_k[axis]:+.3f} ± {100 * self.u_coeff_per_k[axis]:.3f} %/K over a "
                 f"{self.span_k[axis]:.2g} K span, {state}")
 

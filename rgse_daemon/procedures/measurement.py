@@ -61,8 +61,7 @@ def compute_mass(directory: Path, calibration_path: Path, fixture_mass_kg: float
 def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> None:
     """manifest.toml (contract §2, ``[measurement]``) and the calibration used, as ``CAL.json``."""
     run_dir.mkdir(parents=True, exist_ok=True)
-    lines = [*setup_toml(s), "[measurement]", f"fixture_mass_kg = {float(s.fixture_mass_kg)!r}",
-             f"drift_prior_per_k = {float(s.drift_prior_per_k)!r}", traces_toml(traces)]
+    lines = [*setup_toml(s), "[measurement]", f"fixture_mass_kg = {float(s.fixture_mass_kg)!r}", traces_toml(traces)]
     write_atomic(run_dir / "manifest.toml", "\n".join(lines) + "\n")
     write_atomic(run_dir / CALIBRATION_FILE, json.dumps(cal_doc, indent=2) + "\n")
 
@@ -133,8 +132,7 @@ def screen_loops(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict
     if not path.exists():
         write_atomic(path, json.dumps(cal_doc, indent=2) + "\n")
     try:
-        r = mass_analysis.budget(run_dir, traces, path, s.fixture_mass_kg, s.g_m_s2,
-                                 drift_prior_per_k=s.drift_prior_per_k)
+        r = mass_analysis.budget(run_dir, traces, path, s.fixture_mass_kg, s.g_m_s2)
     except integrity.TooFewLoops as exc:
         return Screened(list(exc.used), [a.loop for a in exc.set_aside], None)
     except (DataError, ValueError):

@@ -185,17 +185,6 @@ def test_beta_fitted_on_a_small_span_is_not_applied_and_u_carries_the_drift(tmp_
                "temperature" in w for w in res["warnings"]), res["warnings"]
     assert res["u_components_kg"]["thermal"] > 0
     assert abs(res["mass_kg"] - DUT_KG) <= res["U_kg"]
-    # the prior bound comes from the manifest (the daemon writes its measurement.drift_prior_per_k there) unless
-    # --drift-prior overrides it: a narrower bound, a smaller thermal term; the mass itself is the same
-    manifest = tmp_path / "dut" / "manifest.toml"
-    manifest.write_text(manifest.read_text().replace("[measurement]\n", "[measurement]\ndrift_prior_per_k = 0.001\n"))
-    narrow = mass_json(capsys, mass_argv(tmp_path / "dut", cal), "warning")
-    assert narrow["mass_kg"] == res["mass_kg"]
-    assert 0 < narrow["u_components_kg"]["thermal"] < 0.6 * res["u_components_kg"]["thermal"]
-    wide = mass_json(capsys, [*mass_argv(tmp_path / "dut", cal), "--drift-prior", "0.003"], "warning")
-    assert wide["u_components_kg"] == res["u_components_kg"]
-    manifest.write_text(manifest.read_text().replace("drift_prior_per_k = 0.001", "drift_prior_per_k = 0.5"))
-    assert "drift_prior_per_k 0.5 is no bound" in refused(capsys, mass_argv(tmp_path / "dut", cal))
 
 
 def test_a_dut_in_the_gap_between_mass_stack_and_torque_rows_is_outside(plain, tmp_path, capsys):

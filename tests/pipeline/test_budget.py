@@ -515,34 +515,3 @@ def test_the_widening_outside_the_envelope_is_what_held_out_configurations_erred
     assert slope is not None and slope > 0
     assert inline.extrapolation_slope_kg(env, resid[:3], 9.81, 0.5) is None
     assert inline.extrapolation_slope_kg(None, resid, 9.81, 0.5) is None
-
-
-def test_a_dut_between_the_points_is_widened_by_what_interpolations_erred_not_extrapolations():
-    """Issue 33: the widening of a DuT inside the box but far from every calibrated configuration (the gap between
-    the mass stack and the torque rows) comes from the held-out configurations that were themselves interpolated
-    (below the largest torque on both axes); a held-out top configuration was extrapolated and errs more at the same
-    distance. A DuT beyond the box still gets the widening of all of them."""
-    stack3, stack5 = 300.0 * np.arange(1, 11), 90.0 * np.arange(1, 11)
-    env = E.Envelope.from_torques(np.r_[0.0, stack3, 3500.0, 4000.0, 4500.0],
-                                  np.r_[0.0, stack5, 1800.0, 2400.0, 3000.0])
-    sign = np.where(np.arange(10) % 2, 1.0, -1.0)
-    resid = np.r_[[[0.0, 0.0]], np.c_[3.0 * sign, -2.0 * sign], [[20.0, -10.0], [-15.0, 12.0], [200.0, -150.0]]]
-    c_all = inline.extrapolation_slope_kg(env, resid, G, DR)
-    c_int = inline.extrapolation_slope_kg(env, resid, G, DR, interpolating=True)
-    assert c_all is not None and c_int is not None and 0.0 < c_int < 0.3 * c_all
-    cu = unc.CalibrationUncertainty(unc.Reproducibility(10.0, 10.0, 0.0), np.array([[1.1, 0.85], [1.1, 0.85]]),
-                                    np.zeros((0, 2)))
-    mc = inline.MassCalibration(linear_cal(), 0.0, 0.0, uncertainty=cu, envelope=env, extrapolation_kg=c_all,
-                                interpolation_kg=c_int)
-    for (a3, a5), c in (((3300.0, 1400.0), c_int), ((4800.0, 3100.0), c_all)):
-        check = E.check(env, a3, a5)
-        assert check.status == "outside" and check.in_box == (c == c_int)
-        loops = [(np.full(20, a3), np.full(20, a5), 0.012, f"l{k}") for k in range(2)]
-        r = inline.in_line_mass(loops, mc, RAW)
-        assert r.operating_point == "outside"
-        assert r.uncertainty.u_model_kg == pytest.approx(c * env.nearest(a3, a5))
-        assert any("U widened by what the calibration's own held-out configurations erred" in w for w in r.warnings)
-    # a file-less calibration (no interpolation slope) keeps the one slope
-    r = inline.in_line_mass([(np.full(20, 3300.0), np.full(20, 1400.0), 0.012, f"l{k}") for k in range(2)],
-                            dataclasses.replace(mc, interpolation_kg=None), RAW)
-    assert r.uncertainty.u_model_kg == pytest.approx(c_all * env.nearest(3300.0, 1400.0))
