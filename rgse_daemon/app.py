@@ -210,7 +210,8 @@ class Daemon:
             if self.cfg.mqtt.enabled:
                 from rgse_daemon.io.mqtt import MqttBridge
 
-                self.mqtt = MqttBridge(self.cfg.mqtt, self.robot, self.store, self, __version__)
+                self.mqtt = MqttBridge(self.cfg.mqtt, self.robot, self.store, self, __version__,
+                                       stop_timeout_s=STOP_TIMEOUT_S * 2 / 3)  # within the bound below
                 await self.mqtt.start()
                 stack.push_async_callback(self._bounded, "mqtt", self.mqtt.stop)
                 self.mqtt.publish_prompt(None)  # a prompt retained by a daemon that died while it waited is void

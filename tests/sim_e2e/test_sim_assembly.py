@@ -34,7 +34,7 @@ async def axes_deg(krc: Controller) -> np.ndarray:
 async def test_mount_changes_torques_as_the_physics_says(sim: SimulatedKrc4, krc: Controller) -> None:
     sim.set_enabling_switch(True)  # T1: drives on while the switch is held
     assert await krc.read("$PERI_RDY") is True and await krc.read_raw("$BRAKE_SIG") == "B111111"
-    reference = RobotModel(SCENARIO)
+    reference = RobotModel(SCENARIO, seed=7)  # the fixture's simulated robot: the same arm as built
     kt_ratio = np.array([SCENARIO.axis(i).torque_constant_nm_a * SCENARIO.axis(i).gear_ratio for i in range(1, 7)])
     snapshots = {}
     for label, payload in (
