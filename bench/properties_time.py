@@ -61,7 +61,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=demo.SEED)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="rgse-properties-time-cal-") as tmp:
-        cal_doc = fit_sim_cog_calibration(Path(tmp), "paper")
+        cal_doc = fit_sim_cog_calibration(Path(tmp), demo.COG_SCHEME, seed=args.seed)  # the demo's scheme, its arm
     out = asyncio.run(properties_run(args.time_scale, args.seed, cal_doc))
     print(f"properties run: {out['robot_min']:.2f} min of robot time (mass {out['mass_min']:.2f} min, "
           f"{out['mass_loops']} loops; CoG {out['cog_min']:.2f} min, {out['cog_loops']} loops; poses "
