@@ -18,7 +18,6 @@ from typing import Any
 import pytest
 
 from rgse_daemon.cli import main
-from rgse_daemon.client import ResultRefused, RgseClient
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.store import RunState, Store, archive_root
 from simulators.krc4 import physics as ph
@@ -27,9 +26,10 @@ from tests.app.test_client_cli import rgse_run
 from tests.app.test_properties_run import _config, peer
 from tests.app.test_replacement_loops import HEAVY
 from tests.support.configfile import write_config
-from tests.support.daemon import PREFIX, Events, command, run_end, running_daemon, seed_calibration
-from tests.support.mqtt import MosquittoProcess, retained
+from tests.support.daemon import Events, command, run_end, running_daemon, seed_calibration
+from tests.support.mqtt import MosquittoProcess
 from tests.support.polling import wait_until
+from tests.support.refusal import refused_over_mqtt_and_client
 
 WING_BOX = ph.refex_wing_box()
 FIXTURE = {"cog_flange_m": list(ph.fixture_cog_flange_m()),
@@ -114,13 +114,8 @@ async def test_a_refused_mass_ends_the_properties_run_with_a_refused_result(
         assert obj["reason"].endswith("; the CoG is not computed: it needs the DuT's mass"), obj["reason"]
         assert "mass_kg" not in obj and "cog_m" not in obj and obj["run_kind"] == "properties"
         assert "result refused: measurement refused" in ran.err
-        (msg,) = await retained("127.0.0.1", private_broker.port, f"{PREFIX}/run/{run_id}/result")
-        published = json.loads(msg.payload)  # type: ignore[arg-type]
-        assert published["status"] == "refused" and published["reason"] == obj["reason"]
-        async with RgseClient.of(cfg) as client:
-            with pytest.raises(ResultRefused, match="the CoG is not computed") as exc:
-                await client.result(run_id, "properties", timeout_s=10)
-            assert exc.value.state == "refused"
+        await refused_over_mqtt_and_client(cfg, private_broker.port, run_id, "properties", obj["reason"],
+                                           "the CoG is not computed")
     async with await Store.open(cfg.store.url, cfg.paths.data_dir) as store:
         (stored,) = await store.results(run_id)
         rec = await store.get_run(run_id)

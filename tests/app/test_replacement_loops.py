@@ -24,7 +24,7 @@ import pytest
 
 from rgse_daemon import calfile
 from rgse_daemon.cli import main
-from rgse_daemon.client import ResultRefused, RgseClient, Run
+from rgse_daemon.client import RgseClient
 from rgse_daemon.config import Config, config_from_mapping
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.report import build_report
@@ -34,10 +34,11 @@ from simulators.krc4.sim import SimulatedKrc4
 from tests.app.test_client_cli import rgse_run
 from tests.support.cdp import browser
 from tests.support.configfile import write_config
-from tests.support.daemon import PREFIX, daemon_config, running_daemon, seed_calibration
-from tests.support.mqtt import MosquittoProcess, retained
+from tests.support.daemon import daemon_config, running_daemon, seed_calibration
+from tests.support.mqtt import MosquittoProcess
 from tests.support.pg import PgSchemas
 from tests.support.polling import wait_until
+from tests.support.refusal import refused_over_mqtt_and_client
 
 DUT = dut_payload(95.0, (0.0, 0.05, 0.25), fixture_mass_kg=10.288)
 #: Far beyond the calibration's loads (its heaviest points carry about 230 kg, 4.5 kNm on A3): refused.
@@ -140,15 +141,10 @@ async def test_a_refusal_by_the_daemon_is_a_result_everywhere_the_operator_looks
             run_id = obj["run_id"]
             assert "result refused: measurement refused: the DuT lies far outside" in ran.err
             # the MQTT result, retained: status refused with its reason
-            (msg,) = await retained("127.0.0.1", private_broker.port, f"{PREFIX}/run/{run_id}/result")
-            published = json.loads(msg.payload)  # type: ignore[arg-type]
-            assert published["status"] == "refused" and published["reason"] == obj["reason"]
-            # the client: a refused result, with the result object
-            async with RgseClient.of(cfg) as client:
-                with pytest.raises(ResultRefused, match="far outside") as exc:
-                    await client.result(run_id, "measurement", timeout_s=10)
-                assert exc.value.state == "refused" and exc.value.result["error"] == "OperatingPointError"
-                assert isinstance(Run(client, run_id, "measurement"), Run)
+            # and the client: a refused result, with the result object
+            refused = await refused_over_mqtt_and_client(cfg, private_broker.port, run_id, "measurement",
+                                                         obj["reason"], "far outside")
+            assert refused.result["error"] == "OperatingPointError"
             # the console, as the operator reads it
             await page.wait_for("document.getElementById('result-status').textContent === 'refused'",
                                 "the refused status shown")
