@@ -136,33 +136,42 @@ def _as_q(q_deg: Sequence[float] | np.ndarray) -> np.ndarray:
     return q
 
 
-def _mdh(alpha: float, a: float, theta: float, d: float) -> np.ndarray:
-    ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
-    return np.array(
-        [
-            [ct, -st, 0.0, a],
-            [st * ca, ct * ca, -sa, -sa * d],
-            [st * sa, ct * sa, ca, ca * d],
-            [0.0, 0.0, 0.0, 1.0],
-        ]
-    )
-
-
 def joint_frames(q_deg: Sequence[float] | np.ndarray, robot: RobotModel | None = None) -> np.ndarray:
     """Homogeneous transforms base → frame i for i = 1..6, shape (6, 4, 4), translations in m.
 
     Frame i's origin lies on axis Ai (frames 4 and 5 at the wrist centre, frame 6 at the flange) and its z axis is
     ``AXIS_SIGN[i]`` times the KUKA-positive direction of Ai.
     """
-    q = _as_q(q_deg)
+    return joint_frames_path(_as_q(q_deg)[None, :], robot)[0]
+
+
+def joint_frames_path(
+    q_path_deg: Sequence[Sequence[float]] | np.ndarray, robot: RobotModel | None = None
+) -> np.ndarray:
+    """:func:`joint_frames` of every sample of a path at once: (N, 6) axis angles in deg → (N, 6, 4, 4).
+
+    The same products as one sample at a time, in one numpy pass over the samples: the interlock samples every PTP
+    motion a quarter degree apart, and one pose at a time cost it 65 µs a sample in Python (``joint_frames`` is this
+    with N = 1, so both give the same numbers)."""
+    q = np.asarray(q_path_deg, dtype=float)
+    if q.ndim != 2 or q.shape[1] != 6:
+        raise ValueError(f"expected (N, 6) axis angles A1..A6 in deg, got shape {q.shape}")
+    if not np.all(np.isfinite(q)):
+        raise ValueError("axis angles must be finite")
     arr = _arr(robot)
-    theta = arr.axis_sign * np.deg2rad(q) + arr.theta_offset_rad
-    frames = np.empty((6, 4, 4))
-    t = np.eye(4)
-    for i in range(6):
-        alpha, a, d = arr.mdh[i]
-        t = t @ _mdh(alpha, a, theta[i], d)
-        frames[i] = t
+    theta = arr.axis_sign * np.deg2rad(q) + arr.theta_offset_rad  # (N, 6)
+    alpha, a, d = arr.mdh[:, 0], arr.mdh[:, 1], arr.mdh[:, 2]
+    ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
+    # the link transforms Rx(alpha) · Tx(a) · Rz(theta) · Tz(d) (modified DH), (N, 6, 4, 4)
+    link = np.zeros((*q.shape, 4, 4))
+    link[..., 0, 0], link[..., 0, 1], link[..., 0, 3] = ct, -st, a
+    link[..., 1, 0], link[..., 1, 1], link[..., 1, 2], link[..., 1, 3] = st * ca, ct * ca, -sa, -sa * d
+    link[..., 2, 0], link[..., 2, 1], link[..., 2, 2], link[..., 2, 3] = st * sa, ct * sa, ca, ca * d
+    link[..., 3, 3] = 1.0
+    frames = np.empty_like(link)
+    frames[:, 0] = link[:, 0]
+    for i in range(1, 6):
+        frames[:, i] = frames[:, i - 1] @ link[:, i]
     return frames
 
 
@@ -247,8 +256,9 @@ def point_jacobian(
 
     Column i is u_i × (p − o_i) with u_i the KUKA-positive axis direction and o_i a point on axis Ai.
     """
-    origins, dirs = axis_lines(q_deg, robot)
-    p = flange_point_m(q_deg, point_flange_m, robot)
+    frames = joint_frames(q_deg, robot)
+    origins, dirs = frames[:, :3, 3], frames[:, :3, 2] * _arr(robot).axis_sign[:, None]
+    p = frames[5, :3, :3] @ np.asarray(point_flange_m, dtype=float) + frames[5, :3, 3]
     return np.cross(dirs, p - origins).T
 
 
@@ -261,23 +271,6 @@ def point_velocity_mm_s(
     """Cartesian velocity (mm/s, base frame) of a flange-fixed point for joint speeds ``qdot_deg_s`` (deg/s)."""
     qdot = np.deg2rad(np.asarray(qdot_deg_s, dtype=float))
     return point_jacobian(q_deg, point_flange_m, robot) @ qdot * 1000.0
-
-
-def _chain_points_base(
-    q_deg: np.ndarray, points_flange_m: np.ndarray, robot: RobotModel | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Base positions of the tracked points and, per point, the index of the last axis that moves it.
-
-    Tracked: the A3 axis point (elbow, moved by A1, A2), the wrist centre (moved by A1..A3), the flange origin and
-    every given flange-fixed point (moved by A1..A6).
-    """
-    frames = joint_frames(q_deg, robot)
-    pts = [frames[2, :3, 3], frames[4, :3, 3], frames[5, :3, 3]]
-    last = [2, 3, 6]
-    for p in points_flange_m:
-        pts.append(frames[5, :3, :3] @ p + frames[5, :3, 3])
-        last.append(6)
-    return np.array(pts), np.array(last)
 
 
 @dataclass(frozen=True)
@@ -317,24 +310,23 @@ def path_speeds(
     qdot = np.asarray(qdot_path_deg_s, dtype=float)
     qdot = np.broadcast_to(qdot, q_path.shape)
     pts_f = np.array([np.asarray(p, dtype=float) for p in points_flange_m]).reshape(-1, 3)
-    w = np.deg2rad(qdot)
-    speeds = []
-    radius_sums = []
-    r_max = 0.0
-    for q, wk in zip(q_path, w, strict=True):
-        origins, dirs = axis_lines(q, robot)
-        pts, last = _chain_points_base(q, pts_f, robot)
-        rel = pts[:, None, :] - origins[None, :, :]  # (P, 6, 3)
-        moving = np.arange(6)[None, :] < last[:, None]  # axis i moves point p only if i is proximal to it
-        vel = np.einsum("pi,pij->pj", wk[None, :] * moving, np.cross(dirs[None, :, :], rel))
-        speeds.append(np.linalg.norm(vel, axis=1))
-        # distance of each point from each axis line (lever r_i)
-        along = np.einsum("pij,ij->pi", rel, dirs)
-        r = np.sqrt(np.maximum(np.einsum("pij,pij->pi", rel, rel) - along**2, 0.0)) * moving
-        radius_sums.append(np.abs(wk) @ r.T)
-        r_max = max(r_max, float(r.max(initial=0.0)))
-    speeds_arr = np.array(speeds)  # (N, P) m/s
-    bound_pts = np.array(radius_sums)  # (N, P) m/s, Σ|ω_i| r_i ≥ |v|
+    w = np.deg2rad(qdot)  # (N, 6) rad/s
+    frames = joint_frames_path(q_path, robot)  # (N, 6, 4, 4)
+    origins = frames[:, :, :3, 3]  # (N, 6, 3)
+    dirs = frames[:, :, :3, 2] * _arr(robot).axis_sign[None, :, None]
+    # the tracked points (elbow, wrist centre, flange, then the flange-fixed ones) and the last axis moving each
+    pts = np.concatenate([frames[:, [2, 4, 5], :3][..., 3],
+                          np.einsum("nij,pj->npi", frames[:, 5, :3, :3], pts_f) + frames[:, None, 5, :3, 3]], axis=1)
+    last = np.array([2, 3, 6] + [6] * len(pts_f))
+    rel = pts[:, :, None, :] - origins[:, None, :, :]  # (N, P, 6, 3)
+    moving = np.arange(6)[None, :] < last[:, None]  # (P, 6): axis i moves point p only if i is proximal to it
+    vel = np.einsum("npi,npij->npj", w[:, None, :] * moving[None], np.cross(dirs[:, None, :, :], rel))
+    speeds_arr = np.linalg.norm(vel, axis=2)  # (N, P) m/s
+    # distance of each point from each axis line (lever r_i)
+    along = np.einsum("npij,nij->npi", rel, dirs)
+    r = np.sqrt(np.maximum(np.einsum("npij,npij->npi", rel, rel) - along**2, 0.0)) * moving[None]
+    bound_pts = np.einsum("ni,npi->np", np.abs(w), r)  # (N, P) m/s, Σ|ω_i| r_i ≥ |v|
+    r_max = float(r.max(initial=0.0))
     # Between samples k and k+1 every point moves at most ||Δq||₁·r_max and the axis lines move no more, so each
     # lever r_i can grow by at most 2·||Δq||₁·r_max (Δq in rad); the margin covers the unsampled stretch.
     if len(q_path) > 1:

@@ -70,7 +70,7 @@ from rgse_daemon.errors import InterlockError, KrlSyntaxError
 from rgse_daemon.kinematics import (
     G_PAPER_M_S2,
     gravity_torques_nm,
-    joint_frames,
+    joint_frames_path,
     max_point_speed_mm_s,
 )
 from rgse_daemon.krl import ast as k
@@ -455,9 +455,8 @@ class _Checker(AbstractInterpreter):
         corners = self.box_points[1:9]
         samples = []
         r_max = 0.0
-        for s in np.linspace(0.0, 1.0, n):
-            q = q0 + s * (q1 - q0)
-            frames = joint_frames(q, robot=self.ctx.robot)
+        qs = q0[None, :] + np.linspace(0.0, 1.0, n)[:, None] * (q1 - q0)[None, :]
+        for q, frames in zip(qs, joint_frames_path(qs, robot=self.ctx.robot), strict=True):
             origins = frames[:, :3, 3]  # frame i's origin lies on axis Ai (kinematics.joint_frames)
             rot, o6 = frames[5, :3, :3], frames[5, :3, 3]
             pts = np.vstack([corners @ rot.T + o6, o6, frames[4, :3, 3], frames[2, :3, 3]])

@@ -192,3 +192,31 @@ def test_limits_and_input_checks():
         kin.joint_frames([0, 0, 0])
     with pytest.raises(ValueError):
         kin.joint_frames([0, 0, 0, 0, 0, np.nan])
+
+
+@pytest.mark.parametrize("robot_key", ["kr500r2830", "kr10r1440"])
+def test_a_path_at_once_gives_each_sample_s_frames_and_speeds(robot_key):
+    """The interlock's sampled path in one numpy pass (joint_frames_path, path_speeds) gives exactly the frames of
+    one pose at a time, and per sample and point the speed of the point's own Jacobian."""
+    from rgse_daemon import robots
+
+    robot = robots.get(robot_key)
+    rng = np.random.default_rng(5)
+    q0, q1 = rng.uniform(-120, 120, 6), rng.uniform(-120, 120, 6)
+    path = q0[None, :] + np.linspace(0.0, 1.0, 41)[:, None] * (q1 - q0)[None, :]
+    frames = kin.joint_frames_path(path, robot)
+    assert frames.shape == (41, 6, 4, 4)
+    for k in (0, 17, 40):
+        np.testing.assert_array_equal(frames[k], kin.joint_frames(path[k], robot))
+    qdot = kin.ptp_joint_speeds_deg_s(q0, q1, 20.0)
+    corners = [(0.2, -0.1, 0.6), (-0.3, 0.2, 0.1)]
+    res = kin.path_speeds(path, qdot, corners, robot)
+    per_sample = np.array([[np.linalg.norm(kin.point_velocity_mm_s(q, qdot, c, robot)) for c in corners]
+                           for q in path])
+    np.testing.assert_allclose(res.per_point_max_mm_s[3:], per_sample.max(axis=0), rtol=1e-12)
+    flange = max(np.linalg.norm(kin.point_velocity_mm_s(q, qdot, (0.0, 0.0, 0.0), robot)) for q in path)
+    assert res.per_point_max_mm_s[2] == pytest.approx(flange, rel=1e-12)
+    with pytest.raises(ValueError, match=r"\(N, 6\)"):
+        kin.joint_frames_path(path[:, :5], robot)
+    with pytest.raises(ValueError, match="finite"):
+        kin.joint_frames_path(np.where(np.arange(6) == 2, np.inf, path), robot)
