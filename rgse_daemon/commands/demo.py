@@ -158,9 +158,11 @@ MEASUREMENT_LOOPS = 10
 #: Loops in each CoG pose of the properties run (after its MEASUREMENT_LOOPS mass loops).
 PROPERTIES_LOOPS_PER_POSE = 2
 DEADLINE_S = 600.0
-#: The controller's file work with ``--inertia`` (bytes per wall second): a real C3 Bridge's ~100 kB/s scaled like
-#: the robot's time, else pulling the excitation's 4 ms traces (~6 MB each) would dominate the demo's wall time.
-INERTIA_FILE_RATE_BYTES_S = 100e3 * TIME_SCALE
+#: The simulated controller's file work (bytes per wall second): a real C3 Bridge's ~100 kB/s scaled like the
+#: robot's time, as everything the controller does. At the unscaled rate a loop's pull (3.3 s) outlasted its trace
+#: (12 s of robot time, 0.06 s at 200x): the demo waited on pulls that a real recording hides, and called them
+#: overhead. bench/robot_time.py measures the daemon's overhead at a real file rate.
+FILE_RATE_BYTES_S = 100e3 * TIME_SCALE
 
 
 def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_port: int | None = None,
@@ -179,7 +181,10 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
     return config_from_mapping(
         {
             "robot": {"name": setup.name, "model": setup.robot.key},
-            "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge",
+            # the simulated controller's clock runs time_scale times faster than the daemon's wall clock: the
+            # daemon divides the robot's durations by it (the paper's 2 x 2 s of settling after each brake-release
+            # move, the warm-up's windows, a trace's recording: a loop's robot time is then its real-time equivalent)
+            "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge", "time_scale": time_scale,
                            "share_dir": str(sim.share_dir),
                            **({} if file_rate_bytes_s is None else {"file_rate_bytes_s": file_rate_bytes_s})},
             "paths": {"data_dir": str(data_dir)},
@@ -187,12 +192,10 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
             # run): a scheduling hiccup of the daemon's event loop > 0.1 s is a stale snapshot and trips the
             # interlock. A dedicated measurement PC keeps the 0.1 s default; the simulated robot moves in T1.
             "limits": {"snapshot_stale_s": 0.5},
-            # the daemon waits in wall time; the simulated controller's clock runs TIME_SCALE times faster, so the
-            # paper's 2 x 2 s of settling after each brake-release move is 4 s / TIME_SCALE here
-            "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S / time_scale, "trace_period_s": 0.012,
+            "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S, "trace_period_s": 0.012,
                             "trace_samples": 1000, "warmup_cycles": 2, "fixture_mass_kg": setup.fixture_mass_kg,
                             "payload_lever_max_m": setup.payload_lever_max_m, "warmup_until_steady": True,
-                            "warmup_steady_window_s": 300.0 / time_scale, "warmup_max_s": 2400.0 / time_scale},
+                            "warmup_steady_window_s": 300.0, "warmup_max_s": 2400.0},
             "mqtt": mqtt,
             "console": {"enabled": console_port is not None, "port": 8080 if console_port is None else console_port},
         },
@@ -365,7 +368,7 @@ async def _run_demo(setup: DemoSetup, *, quiet: bool, report_dir: Path | None, m
         # the simulated controller in its own process, as a real KR C4 is its own machine: its CPU work must not
         # stall the daemon's event loop and its 20 Hz interlock monitor
         sim = SimProcess(root / "share", seed=seed, time_scale=TIME_SCALE, globals_dat=globals_dat_text(),
-                         file_rate_bytes_s=INERTIA_FILE_RATE_BYTES_S if inertia else None, robot=setup.robot.key)
+                         file_rate_bytes_s=FILE_RATE_BYTES_S, robot=setup.robot.key)
         await asyncio.to_thread(sim.start)
         try:
             cfg = demo_config(sim, root / "data", mqtt_url, console_port, setup=setup)

@@ -11,12 +11,12 @@ import sys
 
 import pytest
 
-#: About six minutes on a 2-core machine (the campaign's 16 points with the torsional ones), 11.4 min measured while
+#: About a minute on a 2-core machine (the campaign's 16 points with the torsional ones), 11.4 min measured while
 #: seven other test runs shared it; a hang guard, not a timing check.
 DEMO_TIMEOUT_S = 900
 
 
-@pytest.mark.slow(expected_s=183)
+@pytest.mark.slow(expected_s=66)
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 20)
 def test_kr10_demo_agrees_with_truth_within_u() -> None:
     proc = subprocess.run(
