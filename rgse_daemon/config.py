@@ -39,6 +39,10 @@ T1_CONTROLLER_LIMIT_MM_S = 250.0
 
 Seconds = Annotated[float, Field(gt=0.0, le=3600.0)]
 
+#: The largest ``measurement.drift_prior_per_k`` (1/K): 5 %/K, over ten times any drift a warmed-up drive's torque
+#: estimate is known to have; beyond it the bound is a typo, not a prior.
+MAX_DRIFT_PRIOR_PER_K = 0.05
+
 
 T = TypeVar("T")
 
@@ -316,6 +320,10 @@ class MeasurementConfig(_Section):
     """Give up waiting for a steady state after this much warm-up motion; the run goes on with a warning."""
     fixture_mass_kg: float = Field(0.0, ge=0.0)
     """m_f: mass of the DuT fixture, subtracted from the gross mass (eq. 21)."""
+    drift_prior_per_k: float = Field(0.003, gt=0.0, le=MAX_DRIFT_PRIOR_PER_K)
+    """The outer bound on the thermal drift coefficient |β| (1/K) that U carries where the calibration's β is not
+    applied (``pipeline.thermal.DRIFT_PRIOR_PER_K``, 0.3 %/K; ``rgse mass --drift-prior`` offline): alone where the
+    campaign's temperature span is too small to resolve β, else over the campaign's |β| + 2 u(β)."""
     payload_lever_max_m: float = Field(default_factory=lambda: _default_robot().payload_lever_max_m, gt=0.0, le=3.0)
     """Farthest point of fixture + DuT from the flange: sets the worst-case Cartesian speed."""
     program_timeout_s: Seconds = 600.0

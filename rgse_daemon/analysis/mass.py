@@ -127,12 +127,14 @@ def compute(directory: Path, calibration_path: Path, fixture_mass_kg: float | No
 
 
 def budget(directory: Path, traces: Sequence[str], calibration_path: Path, fixture_mass_kg: float,
-           g_m_s2: float | None = None, g_u_m_s2: float = 0.0) -> MassResult:
+           g_m_s2: float | None = None, g_u_m_s2: float = 0.0,
+           drift_prior_per_k: float = inline.DRIFT_PRIOR_PER_K) -> MassResult:
     """The mass and its U budget from the loops ``traces`` of ``directory`` so far, by the same :func:`measure` as
     :func:`compute` (no manifest needed): what the stop rule (pipeline/stopping.py) predicts from during a run."""
     calf = calfile.read(calibration_path)
     loops = read_loops(directory, tuple(traces))
-    return measure(loops, calf, calf.preprocessing or pp.PAPER, fixture_mass_kg, g_m_s2, g_u_m_s2)
+    return measure(loops, calf, calf.preprocessing or pp.PAPER, fixture_mass_kg, g_m_s2, g_u_m_s2,
+                   drift_prior_per_k=drift_prior_per_k)
 
 
 def _ms(period_s: float) -> str:

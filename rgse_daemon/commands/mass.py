@@ -23,8 +23,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="refuse a DuT further outside the calibrated loads than this fraction of their span "
                         "(default 0.5)")
     p.add_argument("--drift-prior", type=finite, default=DRIFT_PRIOR_PER_K, metavar="PER_K",
-                   help="bound on the thermal drift coefficient |β| (1/K) that U carries where the campaign does not "
-                        "resolve β (default 0.003, i.e. 0.3 %%/K)")
+                   help="outer bound on the thermal drift coefficient |β| (1/K) that U carries where β is not "
+                        "applied: alone where the campaign's span does not resolve β, else over its |β| + 2 u(β) "
+                        "(default 0.003, i.e. 0.3 %%/K; the daemon's measurement.drift_prior_per_k)")
     add_json(p)
 
 

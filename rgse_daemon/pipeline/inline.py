@@ -16,7 +16,7 @@ from rgse_daemon.pipeline import integrity
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import Calibration
-from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K, ThermalDrift
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K, ThermalDrift, combine_axes
 
 #: Fewer valid samples per loop than this draws a warning.
 MIN_SAMPLES_PER_LOOP = 100
@@ -95,7 +95,9 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     Far outside the calibration's envelope (beyond ``envelope_limit``) raises
     :class:`~rgse_daemon.pipeline.envelope.OperatingPointError`. With the calibration's ``thermal`` drift and
     ``loop_temps_k`` (A3, A5 per loop, K) every loop is brought to the campaign's temperature
-    (:mod:`rgse_daemon.pipeline.thermal`) and U gets its ``thermal`` term. An ``uncertainty`` (or an alternative's)
+    (:mod:`rgse_daemon.pipeline.thermal`) and U gets its ``thermal`` term; where β is not applied the loops stay
+    uncorrected and the term bounds their drift (:meth:`ThermalDrift.drift_bound_per_k`, ``drift_prior_per_k`` its
+    outer bound, 1/K). An ``uncertainty`` (or an alternative's)
     from a file written before ``refit_basis`` whose model has a ``sat`` term draws a warning
     (:func:`stale_refits_warning`): its refits are in another basis.
     """
@@ -127,9 +129,11 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     drift_used = _drift_applied(thermal, loop_temps, warnings, drift_prior_per_k)
     first = _loop_readings(clean, pre, thermal, loop_temps, drift_used, bias_a3_nm, bias_a5_nm)
     s3, s5 = slope_kg_per_nm(cal, first.m3, first.m5)
-    allowance = None if loop_temps is None else np.hypot(
-        s3 * _loop_allowance_nm(thermal, "A3", first.raw3, loop_temps[:, 0], drift_used["A3"], drift_prior_per_k),
-        s5 * _loop_allowance_nm(thermal, "A5", first.raw5, loop_temps[:, 1], drift_used["A5"], drift_prior_per_k))
+    allowance = None if loop_temps is None else combine_axes([
+        (s3 * _loop_allowance_nm(thermal, "A3", first.raw3, loop_temps[:, 0], drift_used["A3"], drift_prior_per_k),
+         drift_used["A3"]),
+        (s5 * _loop_allowance_nm(thermal, "A5", first.raw5, loop_temps[:, 1], drift_used["A5"], drift_prior_per_k),
+         drift_used["A5"])])
     skip = [round(pre.settle_s / p) for _, _, p, _ in clean]
     series = [(s3 * a3 + s5 * a5)[k:] for (a3, a5, _, _), k in zip(clean, skip, strict=True)]
     loop_mass0 = np.asarray(cal.mass_kg(first.n3, first.n5), float)
@@ -182,9 +186,9 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     alt_mass = np.array([float(a.mass_kg(m3, m5)) for a in alternatives])
     u_loops = unc.loop_spread_kg(loop_mass, loop_se)
     u_g = unc.g_kg(gross, cal.g_m_s2, c.g_u_m_s2, g_meas, g_u_measurement_m_s2)
-    u_thermal = None if temps is None else float(np.hypot(  # β3 and β5 estimated independently
-        s3 * _u_thermal_nm(thermal, "A3", raw3, temps[:, 0], drift_used["A3"], drift_prior_per_k),
-        s5 * _u_thermal_nm(thermal, "A5", raw5, temps[:, 1], drift_used["A5"], drift_prior_per_k)))
+    u_thermal = None if temps is None else float(combine_axes([
+        (s3 * _u_thermal_nm(thermal, "A3", raw3, temps[:, 0], drift_used["A3"], drift_prior_per_k), drift_used["A3"]),
+        (s5 * _u_thermal_nm(thermal, "A5", raw5, temps[:, 1], drift_used["A5"], drift_prior_per_k), drift_used["A5"])]))
     if uncertainty is None:  # a calibration file without held-out residuals: the former budget
         u = unc.MassUncertainty(
             u_loops_kg=u_loops,
@@ -302,18 +306,22 @@ def _drift_applied(thermal: ThermalDrift | None, temps: np.ndarray | None, warni
         why = thermal.not_applicable(ax, offset)
         out[ax] = why is None
         if why is not None and abs(offset) > THERMAL_NOTE_K:
+            bound = thermal.drift_bound_per_k(ax, drift_prior_per_k)
+            source = (f"the prior {100 * drift_prior_per_k:.3g} %/K" if bound >= drift_prior_per_k else
+                      "the campaign's |β| + 2 u(β)")
             warnings.append(f"thermal drift of {ax} not corrected: β = {100 * thermal.coeff_per_k[ax]:+.3f} ± "
-                            f"{100 * thermal.u_coeff_per_k[ax]:.3f} %/K is not resolved for this DuT ({why}); U "
-                            f"carries a drift of up to {100 * thermal.drift_bound_per_k(ax, drift_prior_per_k):.3g} "
-                            f"%/K over the {offset:+.1f} K offset. Measure the DuT at the campaign's motor temperature "
+                            f"{100 * thermal.u_coeff_per_k[ax]:.3f} %/K is not applied to this DuT ({why}); U "
+                            f"carries a drift of up to {100 * bound:.3g} %/K ({source}) over the {offset:+.1f} K "
+                            f"offset. Measure the DuT at the campaign's motor temperature "
                             f"({thermal.reference_k[ax]:.1f} K), or calibrate over a temperature span that covers it")
     return out
 
 
 def _u_thermal_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: np.ndarray, applied: bool,
                   drift_prior_per_k: float) -> float:
-    """The thermal term (Nm): β's uncertainty over the correction where applied, else the bound on the uncorrected
-    drift (:meth:`ThermalDrift.drift_bound_per_k`, rectangular: standard uncertainty bound/√3)."""
+    """The thermal term of one axis (Nm): β's uncertainty over the correction where applied, else the bound on the
+    uncorrected drift (:meth:`ThermalDrift.drift_bound_per_k`, rectangular: standard uncertainty bound/√3); the axes
+    combine by :func:`~rgse_daemon.pipeline.thermal.combine_axes`."""
     if applied:
         return thermal.u_correction_nm(axis, raw_nm, temp_k)
     lever = np.mean(np.asarray(raw_nm, float) * (np.asarray(temp_k, float) - thermal.reference_k[axis]))

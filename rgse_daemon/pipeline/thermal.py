@@ -11,6 +11,10 @@ At measurement time each loop's reading is brought to the campaign's mean motor 
 ``thermal_state_k``, the temperature the calibration points hold): ``M_corr = M·(1 − β·(T − T_ref))`` (first order
 in β·ΔT; the second order is below 0.01 % for 40 K at β = 0.002/K). The uncertainty of β gives the ``thermal``
 component ``u(δ) = u_β·|M̄·(T − T_ref)|`` per axis, through eq. 21's sensitivities.
+
+Where β is not applied (issue 33: :meth:`ThermalDrift.not_applicable`) the loops stay uncorrected and the ``thermal``
+component is the drift a coefficient up to :meth:`ThermalDrift.drift_bound_per_k` could cause over the DuT's offset
+(rectangular); :func:`combine_axes` adds the two axes' terms.
 """
 
 from __future__ import annotations
@@ -30,10 +34,11 @@ MIN_SIGNIFICANCE = 3.0
 MIN_SPAN_K = 1.0
 #: ... and with the DuT's temperature offset from the reference at most this multiple of that span.
 MAX_EXTRAPOLATION = 3.0
-#: Where β is not applied, U carries the drift a coefficient up to this bound (1/K, rectangular prior) could cause
-#: over the DuT's temperature offset (or up to |β| + 2 u(β) where the campaign's span resolves β as insignificant).
-#: 0.3 %/K bounds the simulated KR C4's 0.08 (A3) and 0.17 %/K (A5) and the thermal_coeff_per_k a drive's torque
-#: estimate plausibly has after warm-up; ``rgse mass --drift-prior`` sets it.
+#: Where β is not applied, U carries the drift a coefficient up to a bound could cause over the DuT's temperature
+#: offset (rectangular): |β| + 2 u(β) where the campaign's span resolves β, at most this prior (1/K), which alone
+#: bounds it where the span is too small. 0.3 %/K bounds the simulated KR C4's 0.08 (A3) and 0.17 %/K (A5) and the
+#: thermal_coeff_per_k a drive's torque estimate plausibly has after warm-up; ``rgse mass --drift-prior`` and the
+#: daemon's ``measurement.drift_prior_per_k`` set it.
 DRIFT_PRIOR_PER_K = 0.003
 
 
@@ -77,20 +82,29 @@ class ThermalDrift:
         return why
 
     def drift_bound_per_k(self, axis: str, prior_per_k: float) -> float:
-        """The bound on |β| of ``axis`` that U carries where β is not applied: what the campaign shows,
-        |β| + 2 u(β), where its span resolves the drift and it came out insignificant; else the prior."""
+        """The bound on |β| of ``axis`` that U carries where β is not applied (1/K).
+
+        Where the campaign's span (≥ :data:`MIN_SPAN_K`) resolves β, significant or not: what it shows,
+        |β| + 2 u(β), with the prior as the outer bound; where the span is too small: the prior. A β resolved but not
+        applied because the DuT lies beyond :data:`MAX_EXTRAPOLATION` × the span is bounded this way too: the
+        correction would extrapolate the fit (its sign and offset), the bound only its size over the offset, and
+        it never exceeds the prior, which assumes no more about the drift's linearity than before."""
         beta, u = abs(self.coeff_per_k[axis]), self.u_coeff_per_k[axis]
-        if self.span_k[axis] >= MIN_SPAN_K and beta < MIN_SIGNIFICANCE * u:
+        if self.span_k[axis] >= MIN_SPAN_K:
             return min(prior_per_k, beta + 2.0 * u)
         return prior_per_k
 
-    def describe(self, axis: str) -> str:
-        """β with its uncertainty and span, for ``rgse calibrate``."""
+    def describe(self, axis: str, prior_per_k: float = DRIFT_PRIOR_PER_K) -> str:
+        """β with its uncertainty and span, where it is applied, and the bound U carries where not, for
+        ``rgse calibrate``."""
         why = self.unresolved(axis)
         state = "resolved: applied to a DuT within " + f"{MAX_EXTRAPOLATION * self.span_k[axis]:.2g} K of " + \
             f"{self.reference_k[axis]:.2f} K" if why is None else f"not resolved ({why}): not applied"
+        bound = self.drift_bound_per_k(axis, prior_per_k)
+        source = "the prior" if bound >= prior_per_k else "|β| + 2 u(β)"
         return (f"{axis} β = {100 * self.coeff_per_k[axis]:+.3f} ± {100 * self.u_coeff_per_k[axis]:.3f} %/K over a "
-                f"{self.span_k[axis]:.2g} K span, {state}")
+                f"{self.span_k[axis]:.2g} K span, {state}; where not applied, U carries a drift of up to "
+                f"{100 * bound:.3g} %/K ({source})")
 
     def to_dict(self) -> dict[str, Any]:
         return {"coeff_per_k": dict(self.coeff_per_k), "u_coeff_per_k": dict(self.u_coeff_per_k),
@@ -108,6 +122,18 @@ class ThermalDrift:
                 v < 0 for v in vals["u_coeff_per_k"].values()):
             raise DataError(f"fit.thermal: needs finite values and u_coeff_per_k >= 0, got {d!r}")
         return cls(vals["coeff_per_k"], vals["u_coeff_per_k"], vals["reference_k"], n, vals["span_k"])
+
+
+def combine_axes(terms: Sequence[tuple[Any, bool]]) -> Any:
+    """The ``thermal`` component from the axes' terms (in kg, each ``(term, applied)``; floats or arrays alike).
+
+    Where β is applied a term is β's own uncertainty: the two regressions rest on each axis's own noise, so their
+    errors are independent and add in quadrature. Where β is not applied a term bounds the uncorrected drift, and
+    the two drifts are not independent: one mechanism (the drives' torque estimate with motor temperature) over the
+    same warming, with signs the data need not resolve, so they may add in eq. 21 as well as cancel. Their bounds add
+    linearly (the worst case, at most √2 above quadrature), and that sum in quadrature with any applied axis's."""
+    bound = sum((np.abs(t) for t, applied in terms if not applied), start=np.float64(0.0))
+    return np.sqrt(bound**2 + sum((np.square(t) for t, applied in terms if applied), start=np.float64(0.0)))
 
 
 def fit_axis(readings_nm: Sequence[np.ndarray], temps_k: Sequence[np.ndarray]) -> tuple[float, float, float]:

@@ -34,6 +34,7 @@ from rgse_daemon.io.topics import Topics
 from rgse_daemon.pipeline import integrity
 from rgse_daemon.pipeline.envelope import OperatingPointError
 from rgse_daemon.pipeline.stopping import StopDecision, decide, predict
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.directory import setup_toml, traces_toml
@@ -52,10 +53,12 @@ from rgse_daemon.verdict import REFUSED, refusal, with_status
 CALIBRATION_FILE = "CAL.json"
 
 
-def compute_mass(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None) -> dict[str, Any]:
-    """``rgse mass --traces DIR --calibration CAL --json`` as a function (the same :func:`analysis.mass.compute`).
-    Returns the contract-§1 JSON object."""
-    return mass_analysis.compute(directory, calibration_path, fixture_mass_kg).to_json()
+def compute_mass(directory: Path, calibration_path: Path, fixture_mass_kg: float | None = None,
+                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> dict[str, Any]:
+    """``rgse mass --traces DIR --calibration CAL [--drift-prior P] --json`` as a function (the same
+    :func:`analysis.mass.compute`). Returns the contract-§1 JSON object."""
+    return mass_analysis.compute(directory, calibration_path, fixture_mass_kg,
+                                 drift_prior_per_k=drift_prior_per_k).to_json()
 
 
 def write_measurement_dir(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str, Any]) -> None:
@@ -83,7 +86,7 @@ def _finish(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict[str,
     """The result (``rgse mass --json``) of the run's loops, or its refusal object (:data:`REFUSALS`)."""
     write_measurement_dir(run_dir, s, traces, cal_doc)
     try:
-        return compute_mass(run_dir, run_dir / CALIBRATION_FILE, s.fixture_mass_kg)
+        return compute_mass(run_dir, run_dir / CALIBRATION_FILE, s.fixture_mass_kg, s.drift_prior_per_k)
     except REFUSALS as exc:
         return refused_result(exc, cal_doc)
 
@@ -132,7 +135,8 @@ def screen_loops(run_dir: Path, s: RunSettings, traces: list[str], cal_doc: dict
     if not path.exists():
         write_atomic(path, json.dumps(cal_doc, indent=2) + "\n")
     try:
-        r = mass_analysis.budget(run_dir, traces, path, s.fixture_mass_kg, s.g_m_s2)
+        r = mass_analysis.budget(run_dir, traces, path, s.fixture_mass_kg, s.g_m_s2,
+                                 drift_prior_per_k=s.drift_prior_per_k)
     except integrity.TooFewLoops as exc:
         return Screened(list(exc.used), [a.loop for a in exc.set_aside], None)
     except (DataError, ValueError):

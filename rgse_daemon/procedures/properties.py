@@ -56,6 +56,7 @@ from rgse_daemon.io.topics import Topics
 from rgse_daemon.pipeline.cog import SCHEMES, CogPose, cog_poses
 from rgse_daemon.pipeline.multipose import choose_method, lever_poses
 from rgse_daemon.pipeline.stopping import StopDecision
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.directory import setup_toml, traces_toml
@@ -175,13 +176,16 @@ def write_properties_dir(run_dir: Path, s: RunSettings, mass_traces: Sequence[st
 
 def compute_properties(run_dir: Path, mass_method: str = "single",
                        robot_time_s: Mapping[str, float] | None = None,
-                       single: dict[str, Any] | None = None) -> dict[str, Any]:
+                       single: dict[str, Any] | None = None,
+                       drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> dict[str, Any]:
     """Mass and CoG of a properties run directory, as ``rgse mass`` and ``rgse cog`` compute them from its files;
     the mass by ``mass_method`` (:class:`PropertiesSettings`), ``robot_time_s``: the robot seconds each method's
     loops took (``single``, ``multipose``) for ``auto``; ``single``: the single pose's mass of this directory if
-    already computed (:func:`~rgse_daemon.procedures.measurement.compute_mass`)."""
+    already computed (:func:`~rgse_daemon.procedures.measurement.compute_mass`), else computed with
+    ``drift_prior_per_k`` (``measurement.drift_prior_per_k``)."""
     cal = run_dir / CALIBRATION_FILE
-    mass = {**_chosen_mass(run_dir, single or compute_mass(run_dir, cal), mass_method, robot_time_s or {}),
+    mass = {**_chosen_mass(run_dir, single or compute_mass(run_dir, cal, drift_prior_per_k=drift_prior_per_k),
+                           mass_method, robot_time_s or {}),
             "mass_method_requested": mass_method}  # what was asked for: the surfaces say when auto chose
     cog = compute_cog_dir(run_dir, cal, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
     c = cog.to_json()
@@ -251,7 +255,8 @@ def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, 
     not read for the CoG either); then the CoG. A refused mass: the refusal, the CoG not computed."""
     write_measurement_dir(run_dir, s, mass_traces, cal_doc)
     try:
-        single: dict[str, Any] | None = compute_mass(run_dir, run_dir / CALIBRATION_FILE)
+        single: dict[str, Any] | None = compute_mass(run_dir, run_dir / CALIBRATION_FILE,
+                                                     drift_prior_per_k=s.drift_prior_per_k)
         refusal: DataError | None = None
         kept = set(single["loops_used"]) if single is not None else set(mass_traces)
     except REFUSALS as exc:
@@ -266,7 +271,7 @@ def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, 
         refused = refused_result(refusal, cal_doc)
         return {**refused, "reason": f"{refused['reason']}; the CoG is not computed: it needs the DuT's mass",
                 **listing}
-    return {**compute_properties(run_dir, mass_method, robot_time_s, single), **listing}
+    return {**compute_properties(run_dir, mass_method, robot_time_s, single, s.drift_prior_per_k), **listing}
 
 
 def shared_pose(s: RunSettings, scheme: str) -> CogPose | None:

@@ -9,6 +9,7 @@ from rgse_daemon import kinematics as kin
 from rgse_daemon import robots
 from rgse_daemon.config import Config
 from rgse_daemon.pipeline.stopping import MIN_LOOPS, StopRule
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,9 @@ class RunSettings:
     stop_target_U_kg: float | None = None
     replacement_loops: int = 0
     """Loops beyond ``loops`` that may replace loops set aside (the config's default is 3)."""
+    drift_prior_per_k: float = DRIFT_PRIOR_PER_K
+    """``measurement.drift_prior_per_k``: the outer bound on |β| (1/K) U carries where β is not applied (the offline
+    ``rgse mass --drift-prior`` reproduces a result with it)."""
     g_m_s2: float = kin.G_PAPER_M_S2
     lever_difference_m: float = field(default_factory=lambda: robots.active().lever_difference_m)
     meas_pose_deg: tuple[float, ...] = field(default_factory=lambda: tuple(float(v) for v in kin.measurement_pose()))
@@ -74,6 +78,7 @@ class RunSettings:
             stop_loop_share=ms.stop_loop_share,
             stop_target_U_kg=ms.stop_target_U_kg,
             replacement_loops=ms.replacement_loops,
+            drift_prior_per_k=ms.drift_prior_per_k,
             lever_difference_m=cfg.robot_model.lever_difference_m,
             meas_pose_deg=tuple(float(v) for v in kin.measurement_pose(robot=cfg.robot_model)),
             time_scale=scale,

@@ -55,6 +55,8 @@ ENV_CASES = [
     ("RGSE_MQTT__COMMAND_TOKEN", '["x"]', "command_token (from environment RGSE_MQTT__COMMAND_TOKEN): unknown key"),
     ("rgse_mqtt__tls", "maybe", "mqtt.tls (from environment rgse_mqtt__tls)"),
     ("RGSE_MQQT__HOST", "broker", "RGSE_MQQT__HOST: no config section 'mqqt'"),
+    ("RGSE_MEASUREMENT__DRIFT_PRIOR_PER_K", "-0.001", "measurement.drift_prior_per_k (from environment "
+     "RGSE_MEASUREMENT__DRIFT_PRIOR_PER_K): Input should be greater than 0"),
 ]
 
 
@@ -73,6 +75,11 @@ FILE_CASES = [
     ('[scale]\nport = "/dev/ttyUSB0"\ndefault_timeout_s = inf\n', "Input should be a finite number"),
     ("[measurement]\nsettle_s = 1e999\n", "Input should be a finite number"),
     ("[measurement\n", "not valid TOML"),
+    ("[measurement]\ndrift_prior_per_k = 0\n", "measurement.drift_prior_per_k: Input should be greater than 0"),
+    ("[measurement]\ndrift_prior_per_k = 0.3\n", "measurement.drift_prior_per_k: Input should be less than or equal "
+                                                  "to 0.05"),
+    ("[measurement]\ndrift_prior_per_k = nan\n", "measurement.drift_prior_per_k: Input should be a finite number"),
+    ('[measurement]\ndrift_prior_per_k = "0.003"\n', "measurement.drift_prior_per_k: Input should be a valid number"),
 ]
 
 

@@ -5,6 +5,7 @@ gapped loop that still calibrates, and the thermal drift left uncorrected where 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,12 @@ import pytest
 
 from rgse_daemon import calfile
 from rgse_daemon.cli import main
+from rgse_daemon.config import config_from_mapping
 from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS
+from rgse_daemon.manifest import load_manifest
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
+from rgse_daemon.procedures import measurement
+from rgse_daemon.procedures.settings import RunSettings
 from rgse_daemon.trace import read_trace_file
 from tests.support.simcampaign import Knock, simulate_campaign, simulate_measurement, with_gap, write_dirs
 
@@ -185,6 +191,28 @@ def test_beta_fitted_on_a_small_span_is_not_applied_and_u_carries_the_drift(tmp_
                "temperature" in w for w in res["warnings"]), res["warnings"]
     assert res["u_components_kg"]["thermal"] > 0
     assert abs(res["mass_kg"] - DUT_KG) <= res["U_kg"]
+    # the daemon's path: the config's measurement.drift_prior_per_k → the run's settings → its result and the stop
+    # rule's budget, the same computation as `rgse mass --drift-prior` (the span resolves nothing: U carries the prior)
+    assert config_from_mapping({}).measurement.drift_prior_per_k == DRIFT_PRIOR_PER_K
+    cfg = config_from_mapping({"measurement": {"drift_prior_per_k": DRIFT_PRIOR_PER_K / 2}}, "<drift prior>")
+    man = load_manifest(tmp_path / "dut")
+    s = RunSettings.from_config(cfg, robot=man.setup.robot, g_m_s2=man.setup.g_m_s2,
+                                lever_difference_m=man.setup.lever_difference_m,
+                                fixture_mass_kg=man.fixture_mass_kg or 0.0)
+    assert s.drift_prior_per_k == DRIFT_PRIOR_PER_K / 2
+    run_dir = tmp_path / "run"
+    shutil.copytree(tmp_path / "dut", run_dir)
+    traces, cal_doc = list(man.measurement_traces), json.loads(cal.read_text())
+    daemon = measurement._finish(run_dir, s, traces, cal_doc)
+    assert daemon["loops_used"] == res["loops_used"] and daemon["mass_kg"] == res["mass_kg"]
+    assert daemon["u_components_kg"]["thermal"] == pytest.approx(res["u_components_kg"]["thermal"] / 2)
+    assert daemon["U_kg"] < res["U_kg"]
+    again = mass_json(capsys, [*mass_argv(run_dir, run_dir / "CAL.json"), "--drift-prior",
+                               str(DRIFT_PRIOR_PER_K / 2)], "warning")
+    assert again["U_kg"] == pytest.approx(daemon["U_kg"])  # reproducible offline with the run's prior
+    screened = measurement.screen_loops(run_dir, s, traces, cal_doc)
+    assert screened is not None and screened.budget is not None
+    assert screened.budget[0] == pytest.approx(daemon["u_kg"])
 
 
 def test_a_dut_in_the_gap_between_mass_stack_and_torque_rows_is_outside(plain, tmp_path, capsys):

@@ -115,14 +115,32 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
     assert c["thermal"] == pytest.approx(np.hypot(s3 * u3, s5 * u5)) and c["thermal"] > 0
     assert abs(fixed.mass_kg - want) < 2 * c["thermal"] + 0.05
     assert fixed.thermal_applied == {"A3": True, "A5": True}
-    # far beyond the span β was fitted on (issue 33): not extrapolated; U carries the prior's bound, a warning says so
+    # far beyond the span β was fitted on (issue 33): not extrapolated; U carries the campaign's own bound on the drift,
+    # |β| + 2 u(β) per axis (not the prior: the span resolves β), the axes' bounds summed; a warning says so
     far = [(ref3 + d, ref5 + d) for d in (35.0, 22.0, 15.0)]
     hot = [(np.full(50, at(true3 + bias3, BETA["A3"], t3, ref3)), np.full(50, at(true5 + bias5, BETA["A5"], t5, ref5)),
             0.012, f"l{k}") for k, (t3, t5) in enumerate(far)]
     out = inline.in_line_mass(hot, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW, loop_temps_k=far)
     assert out.thermal_applied == {"A3": False, "A5": False}
-    assert any("thermal drift of A5 not corrected" in w and "beyond 3 × the" in w for w in out.warnings), out.warnings
+    assert any("thermal drift of A5 not corrected" in w and "beyond 3 × the" in w and "|β| + 2 u(β)" in w
+               for w in out.warnings), out.warnings
     assert abs(out.mass_kg - want) < out.uncertainty.expanded_kg
+    s3, s5 = inline.slope_kg_per_nm(cal, out.torque_a3_nm, out.torque_a5_nm)
+    hot3, hot5 = np.array([lp[0][0] for lp in hot]), np.array([lp[1][0] for lp in hot])
+    lever3 = abs(np.mean(hot3 * (np.array(far)[:, 0] - ref3)))
+    lever5 = abs(np.mean(hot5 * (np.array(far)[:, 1] - ref5)))
+    bound3 = abs(drift.coeff_per_k["A3"]) + 2 * drift.u_coeff_per_k["A3"]
+    bound5 = abs(drift.coeff_per_k["A5"]) + 2 * drift.u_coeff_per_k["A5"]
+    assert bound3 < T.DRIFT_PRIOR_PER_K and bound5 < T.DRIFT_PRIOR_PER_K
+    assert out.uncertainty.components()["thermal"] == pytest.approx(
+        (abs(s3) * lever3 * bound3 + abs(s5) * lever5 * bound5) / np.sqrt(3.0))
+    # a smaller prior is the outer bound: then it is what U carries
+    tight = inline.in_line_mass(hot, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW, loop_temps_k=far,
+                                drift_prior_per_k=0.0005)
+    assert tight.uncertainty.components()["thermal"] == pytest.approx(
+        (abs(s3) * lever3 * 0.0005 + abs(s5) * lever5 * 0.0005) / np.sqrt(3.0))
+    assert any("thermal drift of A5 not corrected" in w and "the prior 0.05 %/K" in w for w in tight.warnings)
+    assert tight.mass_kg == out.mass_kg  # the bound changes U, never the mass
     # loops without a temperature: no correction, no thermal term
     none = inline.in_line_mass(loops, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW,
                                loop_temps_k=[(None, None)] * 3)
@@ -156,7 +174,7 @@ def test_excess_counts_only_what_the_reproducibility_does_not_hold():
 
 def test_what_is_applied_and_what_u_carries_follows_what_the_campaign_resolves():
     """Issue 33: β is applied only on a span ≥ 1 K, 3 u(β) from 0, the DuT within 3 × the span; where not, U carries
-    |β| + 2 u(β) if the span resolved β as insignificant, else the prior."""
+    |β| + 2 u(β) (at most the prior) if the span resolved β, significant or not, else the prior."""
     def drift(beta, u, span):
         return T.ThermalDrift({"A3": beta, "A5": beta}, {"A3": u, "A5": u}, {"A3": 300.0, "A5": 300.0}, 42,
                               {"A3": span, "A5": span})
@@ -167,6 +185,28 @@ def test_what_is_applied_and_what_u_carries_follows_what_the_campaign_resolves()
         "A5", 1.0)
     assert drift(1e-5, 1e-4, 3.0).drift_bound_per_k("A5", 0.003) == pytest.approx(2.1e-4)
     assert drift(1e-5, 1e-4, 0.2).drift_bound_per_k("A5", 0.003) == 0.003  # the span resolves nothing: the prior
-    assert drift(0.002, 1e-4, 3.0).drift_bound_per_k("A5", 0.003) == 0.003  # resolved, not applied (extrapolation)
+    # resolved and significant, not applied beyond 3 × the span: the campaign's bound, not the prior ...
+    assert drift(0.002, 1e-4, 3.0).not_applicable("A5", 16.4) is not None
+    assert drift(0.002, 1e-4, 3.0).drift_bound_per_k("A5", 0.003) == pytest.approx(2.2e-3)
+    assert drift(-0.002, 1e-4, 1.0).drift_bound_per_k("A3", 0.003) == pytest.approx(2.2e-3)  # |β|; the span's edge
+    # ... with the prior as the outer bound
+    assert drift(0.0029, 1e-4, 3.0).drift_bound_per_k("A5", 0.003) == 0.003
+    assert drift(0.002, 1e-4, 3.0).drift_bound_per_k("A5", 0.001) == 0.001
+    # too small a span: the prior, however significant β came out
+    assert drift(0.002, 1e-5, 0.99).drift_bound_per_k("A5", 0.003) == 0.003
+    assert drift(0.002, 1e-5, 0.99).drift_bound_per_k("A5", 0.004) == 0.004
     assert "not resolved (its loops spanned 0.2 K" in drift(0.002, 1e-4, 0.2).describe("A5")
+    assert "U carries a drift of up to 0.3 %/K (the prior)" in drift(0.002, 1e-4, 0.2).describe("A5")
     assert "resolved: applied to a DuT within 9 K" in drift(0.002, 1e-4, 3.0).describe("A5")
+    assert "U carries a drift of up to 0.22 %/K (|β| + 2 u(β))" in drift(0.002, 1e-4, 3.0).describe("A5")
+
+
+def test_the_axes_bounds_add_linearly_and_beta_s_own_uncertainties_in_quadrature():
+    """Uncorrected, both axes drift with one mechanism over the same warming: their bounds may add in eq. 21, so
+    they add linearly; where β is applied its two regressions' errors are independent (quadrature)."""
+    assert T.combine_axes([(3.0, False), (-4.0, False)]) == pytest.approx(7.0)
+    assert T.combine_axes([(3.0, True), (-4.0, True)]) == pytest.approx(5.0)
+    assert T.combine_axes([(3.0, True), (4.0, False)]) == pytest.approx(5.0)
+    assert T.combine_axes([(0.0, True), (0.0, False)]) == 0.0
+    per_loop = T.combine_axes([(np.array([1.0, -2.0]), False), (np.array([2.0, 2.0]), False)])
+    assert per_loop == pytest.approx([3.0, 4.0])
