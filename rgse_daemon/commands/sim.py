@@ -25,11 +25,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rgse_daemon import robots
 from rgse_daemon.config import Config, load_config
 from rgse_daemon.doctor import GLOBALS_FILE, PROGRAM_DIR, RESIDENT, krl_bytes
 from rgse_daemon.errors import ConfigError, LinkError
 from rgse_daemon.krl.render import default_params, globals_dat_text, render
+from simulators.krc4 import scenario as sim_scenario
 from simulators.krc4.control import ControlServer
+from simulators.krc4.server import DEFAULT_FILE_RATE_BYTES_S
 from simulators.krc4.sim import SimulatedKrc4
 
 log = logging.getLogger(__name__)
@@ -137,11 +140,24 @@ def build_simulator(options: SimOptions) -> SimulatedKrc4:
     interpreter, physics of the scenario and KUKA Trace, in the requested time scale."""
     return SimulatedKrc4(
         options.share_dir,
-        options.scenario_path,  # the path: no scenario means scenarios/default.toml, not the model's bare defaults
+        scenario_in_time_scale(options.scenario_path, options.time_scale),
         time_scale=options.time_scale,
         host=options.host,
         port=options.port,
     )
+
+
+def scenario_in_time_scale(path: Path | None, time_scale: float) -> sim_scenario.Scenario:
+    """The scenario ``rgse sim`` runs (``path``; None: the active robot's own, ``scenarios/default.toml`` for the
+    KR 500) with the controller's file work in the same time scale as its motions and traces: a scenario without
+    ``[server] file_rate_bytes_s`` gets the server's default (a real C3 Bridge's guessed 100 kB/s) times
+    ``time_scale``. Unscaled, a loop's pull (3.3 s) outlasts its 12 s trace at 100x and the rehearsal waits on it;
+    a scenario that sets the rate keeps it (``rgse doctor`` measures what the simulator serves either way)."""
+    scenario = sim_scenario.load_scenario(path) if path is not None else sim_scenario.scenario_for(robots.active().key)
+    if scenario.server.file_rate_bytes_s is not None:
+        return scenario
+    rate = DEFAULT_FILE_RATE_BYTES_S * time_scale
+    return scenario.model_copy(update={"server": scenario.server.model_copy(update={"file_rate_bytes_s": rate})})
 
 
 async def serve(options: SimOptions, stop: asyncio.Event) -> None:
