@@ -149,14 +149,12 @@ def build_simulator(options: SimOptions) -> SimulatedKrc4:
 
 def scenario_in_time_scale(path: Path | None, time_scale: float) -> sim_scenario.Scenario:
     """The scenario ``rgse sim`` runs (``path``; None: the active robot's own, ``scenarios/default.toml`` for the
-    KR 500) with the controller's file work in the same time scale as its motions and traces: a scenario without
-    ``[server] file_rate_bytes_s`` gets the server's default (a real C3 Bridge's guessed 100 kB/s) times
-    ``time_scale``. Unscaled, a loop's pull (3.3 s) outlasts its 12 s trace at 100x and the rehearsal waits on it;
-    a scenario that sets the rate keeps it (``rgse doctor`` measures what the simulator serves either way)."""
+    KR 500) with the controller's file work in the same time scale as its motions and traces: the scenario's
+    ``[server] file_rate_bytes_s`` (a real C3 Bridge's, 100 kB/s guessed; the server's default where it sets none)
+    times ``time_scale``. Unscaled, a loop's pull (3.3 s) outlasts its 12 s trace at 100x and the rehearsal waits on
+    it; ``rgse doctor`` measures what the simulator serves either way."""
     scenario = sim_scenario.load_scenario(path) if path is not None else sim_scenario.scenario_for(robots.active().key)
-    if scenario.server.file_rate_bytes_s is not None:
-        return scenario
-    rate = DEFAULT_FILE_RATE_BYTES_S * time_scale
+    rate = (scenario.server.file_rate_bytes_s or DEFAULT_FILE_RATE_BYTES_S) * time_scale
     return scenario.model_copy(update={"server": scenario.server.model_copy(update={"file_rate_bytes_s": rate})})
 
 

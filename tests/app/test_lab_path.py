@@ -71,7 +71,7 @@ async def stop(proc: asyncio.subprocess.Process) -> None:
             await proc.wait()
 
 
-@pytest.mark.slow(expected_s=127)
+@pytest.mark.slow(expected_s=77)
 @pytest.mark.timeout(STEP_S * 4 + CAMPAIGN_S * 3)  # the sum of its steps' deadlines
 async def test_the_readme_lab_path_on_the_simulator(tmp_path: Path, private_broker: MosquittoProcess) -> None:
     port, control_port = free_port(), free_port()

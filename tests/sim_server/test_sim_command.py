@@ -117,3 +117,21 @@ async def test_port_in_use_fails_with_exit_1(tmp_path: Path) -> None:
         await blocker.wait_closed()
     assert proc.returncode == 1
     assert f"cannot listen on 127.0.0.1:{port}" in err.decode()
+
+
+def test_the_file_work_runs_in_the_time_scale(tmp_path: Path) -> None:
+    """``rgse sim --time-scale X``: the controller's file work X times faster, as its motions: the scenario's rate
+    (a real C3 Bridge's) times X, the server's default where the scenario sets none."""
+    from rgse_daemon.commands.sim import scenario_in_time_scale
+    from simulators.krc4.server import DEFAULT_FILE_RATE_BYTES_S
+
+    scaled = scenario_in_time_scale(None, 100.0).server.file_rate_bytes_s
+    assert scaled == pytest.approx(100 * DEFAULT_FILE_RATE_BYTES_S)
+    assert scenario_in_time_scale(DEFAULT_SCENARIO, 1.0).server.file_rate_bytes_s == DEFAULT_FILE_RATE_BYTES_S
+    own = tmp_path / "own.toml"
+    text = DEFAULT_SCENARIO.read_text()
+    own.write_text(text.replace("file_rate_bytes_s = 100000.0", "file_rate_bytes_s = 40000.0"))
+    assert scenario_in_time_scale(own, 10.0).server.file_rate_bytes_s == pytest.approx(400000.0)
+    unset = tmp_path / "unset.toml"
+    unset.write_text(text.replace("file_rate_bytes_s = 100000.0", ""))
+    assert scenario_in_time_scale(unset, 2.0).server.file_rate_bytes_s == pytest.approx(2 * DEFAULT_FILE_RATE_BYTES_S)
