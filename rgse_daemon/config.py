@@ -227,7 +227,8 @@ class ControllerConfig(_Section):
     time_scale: float = Field(1.0, ge=1.0, le=1000.0)
     """Controller seconds per wall-clock second: 1 for a real KR C4 (the default). A simulated one (``rgse sim
     --time-scale X``) runs X times faster; the run's waits in the robot's time (``measurement.settle_s``,
-    ``warmup_steady_window_s``, ``warmup_max_s``) are then divided by X, as ``rgse demo`` does."""
+    ``warmup_steady_window_s``, ``warmup_max_s``) are then divided by X, and a trace's wall time is its configured
+    time divided by X (``rgse demo`` sets it to its simulator's scale)."""
 
     @model_validator(mode="after")
     def _backoff_ordered(self) -> ControllerConfig:

@@ -181,18 +181,23 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
             "robot": {"name": setup.name, "model": setup.robot.key},
             "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge",
                            "share_dir": str(sim.share_dir),
+                           # the simulated controller's clock runs time_scale times faster than the wall clock: the
+                           # run's waits in the robot's time (settling, the warm-up's windows) are divided by it, and
+                           # a trace's wall time is its configured time divided by it (a loop's work past the trace's
+                           # end is then overhead, not recording: procedures/loop.py)
+                           "time_scale": time_scale,
                            **({} if file_rate_bytes_s is None else {"file_rate_bytes_s": file_rate_bytes_s})},
             "paths": {"data_dir": str(data_dir)},
             # the demo shares a 2-core machine with its simulated controller (and, under `make test`, with the test
             # run): a scheduling hiccup of the daemon's event loop > 0.1 s is a stale snapshot and trips the
             # interlock. A dedicated measurement PC keeps the 0.1 s default; the simulated robot moves in T1.
             "limits": {"snapshot_stale_s": 0.5},
-            # the daemon waits in wall time; the simulated controller's clock runs TIME_SCALE times faster, so the
-            # paper's 2 x 2 s of settling after each brake-release move is 4 s / TIME_SCALE here
-            "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S / time_scale, "trace_period_s": 0.012,
+            # in the robot's time (controller.time_scale divides them): the paper's 2 x 2 s of settling after each
+            # brake-release move, the warm-up's windows
+            "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S, "trace_period_s": 0.012,
                             "trace_samples": 1000, "warmup_cycles": 2, "fixture_mass_kg": setup.fixture_mass_kg,
                             "payload_lever_max_m": setup.payload_lever_max_m, "warmup_until_steady": True,
-                            "warmup_steady_window_s": 300.0 / time_scale, "warmup_max_s": 2400.0 / time_scale},
+                            "warmup_steady_window_s": 300.0, "warmup_max_s": 2400.0},
             "mqtt": mqtt,
             "console": {"enabled": console_port is not None, "port": 8080 if console_port is None else console_port},
         },
