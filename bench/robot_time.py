@@ -245,7 +245,7 @@ async def overhead_run(scale: float, seed: int, loops: int) -> dict[str, Any]:
     async with demo_sim("rgse-overhead-", scale, seed) as (_sim, cfg):
         s = RunSettings.from_config(cfg, loops=loops, warmup_cycles=0)
         async with (Controller.connect(cfg.controller) as krc, await Store.open(None, cfg.paths.data_dir) as store,
-                    heartbeat(cfg)):
+                    heartbeat(cfg, krc.pool.load)):
             engine = TimedEngine(krc, checker=static_checker(cfg.limits, cfg.measurement.payload_lever_max_m),
                                  monitor=Monitor(krc, stale_periods=cfg.limits.snapshot_stale_s
                                                  / DEFAULT_POLL_PERIOD_S),
