@@ -22,6 +22,7 @@ from rgse_daemon.app import Daemon
 from rgse_daemon.commands import demo
 from rgse_daemon.config import Config
 from rgse_daemon.krl.render import globals_dat_text
+from rgse_daemon.link.connection import Connection, ServerLoad
 from rgse_daemon.procedures.events import Event
 from rgse_daemon.services.heartbeat import Heartbeat
 from rgse_daemon.services.signals import Alarms, StackLight
@@ -77,10 +78,12 @@ async def running_daemon(sim: SimProcess, cfg: Config,
 
 
 @asynccontextmanager
-async def heartbeat(cfg: Config) -> AsyncIterator[None]:
+async def heartbeat(cfg: Config, load: ServerLoad | None = None) -> AsyncIterator[None]:
     """The daemon's own heartbeat of the controller-side watchdog while the block runs, for a bench that drives the
-    run engine without the whole daemon (the programs wait for a fresh beat before they move)."""
-    beat = Heartbeat(cfg.controller, Alarms(lambda _alarm: None, StackLight(None)), link_up=lambda: True)
+    run engine without the whole daemon (the programs wait for a fresh beat before they move); ``load``: the
+    controller's file work in flight (its pool's), which the daemon's heartbeat shares."""
+    beat = Heartbeat(cfg.controller, Alarms(lambda _alarm: None, StackLight(None)), link_up=lambda: True,
+                     connection=Connection.from_config(cfg.controller, name="heartbeat", load=load))
     stop = asyncio.Event()
     task = asyncio.create_task(beat.run(stop), name="rgse-bench-heartbeat")
     try:

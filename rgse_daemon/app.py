@@ -227,8 +227,11 @@ class Daemon:
             if self.safety_io is not None:
                 self._spawn(self.light.run(), "stack-light")
             stack.push_async_callback(self._cancel_tasks)
-            # the controller-side watchdog's heartbeat, on a connection of its own, while the link is up
-            self.heartbeat = Heartbeat(self.cfg.controller, self.alarms, self.link.connected.is_set)
+            # the controller-side watchdog's heartbeat, on a connection of its own, while the link is up; a beat
+            # queued behind the controller's file work (a pull: no program runs, the watchdog is not armed) gets
+            # that work's deadline added, as every other request does (link.connection.ServerLoad)
+            self.heartbeat = Heartbeat(self.cfg.controller, self.alarms, self.link.connected.is_set,
+                                       connection=self.link.heartbeat_connection())
             self._spawn(self.heartbeat.run(stop), "heartbeat")
             # before each connect counts: stop what was left running, finish interrupted runs (docs/recovery.md)
             self._controller_task = asyncio.create_task(

@@ -231,7 +231,8 @@ class ControllerConfig(_Section):
     time_scale: float = Field(1.0, ge=1.0, le=1000.0)
     """Controller seconds per wall-clock second: 1 for a real KR C4 (the default). A simulated one (``rgse sim
     --time-scale X``) runs X times faster; the run's waits in the robot's time (``measurement.settle_s``,
-    ``warmup_steady_window_s``, ``warmup_max_s``) are then divided by X, as ``rgse demo`` does."""
+    ``warmup_steady_window_s``, ``warmup_max_s``) are then divided by X, and a trace's wall time is its configured
+    time divided by X (``rgse demo`` sets it to its simulator's scale)."""
 
     @model_validator(mode="after")
     def _backoff_ordered(self) -> ControllerConfig:
@@ -422,8 +423,9 @@ class PropertiesConfig(_Section):
     ``lever`` (the paper's and the multi-pose mass's lever poses: forearm raised, A5 turned back)."""
     mass_method: Literal["single", "multipose", "auto"] = "single"
     """Where a properties run's mass comes from: ``single`` (the paper's pose), ``multipose`` (the lever poses; needs
-    scheme ``lever`` and loops_per_pose >= 2) or ``auto`` (chosen before the run by the least predicted U² per robot
-    minute)."""
+    scheme ``lever`` and loops_per_pose >= 2; the measurement pose then gets loops_per_pose loops, not the stop rule's,
+    and the single pose's figure comes from them) or ``auto`` (chosen before the run by the least predicted U² per
+    robot minute)."""
     loops_per_pose: int = Field(2, ge=1, le=20)
     """Brake-release loops (each with one trace of the A3..A6 drives) in every CoG pose."""
     when: Literal["on_request", "every_measurement"] = "on_request"

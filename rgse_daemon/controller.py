@@ -42,7 +42,7 @@ from rgse_daemon.errors import ConfigError, LinkError, LinkTimeout, NotAllowedEr
 from rgse_daemon.filelayout import TRACE_DIR_CANDIDATES, FileLayout, is_trace_name
 from rgse_daemon.krc import AXES, SNAPSHOT_VARIABLES, DirEntry, LoadData, Pose, Snapshot
 from rgse_daemon.link import frames as fr
-from rgse_daemon.link.connection import ConnectionState
+from rgse_daemon.link.connection import ConnectionState, ServerLoad
 from rgse_daemon.link.errors import CommandError, NotSupportedError
 from rgse_daemon.link.krlvalue import KrlBits, KrlEnum, KrlStruct, KrlValue, format_value, parse_value
 from rgse_daemon.link.pool import LinkPool
@@ -141,10 +141,12 @@ class Controller:
     @classmethod
     @contextlib.asynccontextmanager
     async def connect(
-        cls, cfg: ControllerConfig, *, seed: int | None = None, layout: FileLayout | None = None
+        cls, cfg: ControllerConfig, *, seed: int | None = None, layout: FileLayout | None = None,
+        load: ServerLoad | None = None,
     ) -> AsyncIterator[Controller]:
-        """Open the link (pool + protocol detection), yield the controller, close the link on exit."""
-        pool = LinkPool(cfg, seed=seed)
+        """Open the link (pool + protocol detection), yield the controller, close the link on exit. ``load``: the
+        controller's file work in flight, shared with connections outside the pool (the heartbeat's)."""
+        pool = LinkPool(cfg, seed=seed, load=load)
         await pool.start()
         try:
             yield cls(cfg, pool, layout)

@@ -181,17 +181,21 @@ def demo_config(sim: SimProcess, data_dir: Path, mqtt_url: str | None, console_p
     return config_from_mapping(
         {
             "robot": {"name": setup.name, "model": setup.robot.key},
-            # the simulated controller's clock runs time_scale times faster than the daemon's wall clock: the
-            # daemon divides the robot's durations by it (the paper's 2 x 2 s of settling after each brake-release
-            # move, the warm-up's windows, a trace's recording: a loop's robot time is then its real-time equivalent)
-            "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge", "time_scale": time_scale,
+            "controller": {"host": "127.0.0.1", "port": sim.port, "protocol": "c3bridge",
                            "share_dir": str(sim.share_dir),
+                           # the simulated controller's clock runs time_scale times faster than the wall clock: the
+                           # run's waits in the robot's time (settling, the warm-up's windows) are divided by it, and
+                           # a trace's wall time is its configured time divided by it (a loop's work past the trace's
+                           # end is then overhead, not recording: procedures/loop.py)
+                           "time_scale": time_scale,
                            **({} if file_rate_bytes_s is None else {"file_rate_bytes_s": file_rate_bytes_s})},
             "paths": {"data_dir": str(data_dir)},
             # the demo shares a 2-core machine with its simulated controller (and, under `make test`, with the test
             # run): a scheduling hiccup of the daemon's event loop > 0.1 s is a stale snapshot and trips the
             # interlock. A dedicated measurement PC keeps the 0.1 s default; the simulated robot moves in T1.
             "limits": {"snapshot_stale_s": 0.5},
+            # in the robot's time (controller.time_scale divides them): the paper's 2 x 2 s of settling after each
+            # brake-release move, the warm-up's windows
             "measurement": {"loops": MEASUREMENT_LOOPS, "settle_s": SETTLE_S, "trace_period_s": 0.012,
                             "trace_samples": 1000, "warmup_cycles": 2, "fixture_mass_kg": setup.fixture_mass_kg,
                             "payload_lever_max_m": setup.payload_lever_max_m, "warmup_until_steady": True,

@@ -52,9 +52,11 @@ _MULTI_REPLY_BUDGET_BYTES = 60000
 class LinkPool:
     """Up to ``cfg.pool_size`` connections to one controller; see the module docstring."""
 
-    def __init__(self, cfg: ControllerConfig, *, seed: int | None = None) -> None:
+    def __init__(self, cfg: ControllerConfig, *, seed: int | None = None, load: ServerLoad | None = None) -> None:
         self.cfg = cfg
-        self.load = ServerLoad()  # one controller, one single-threaded server: shared by every connection
+        # one controller, one single-threaded server: shared by every connection (``load``: also by connections
+        # outside the pool, the heartbeat's)
+        self.load = ServerLoad() if load is None else load
         self._conns = [
             Connection.from_config(cfg, name=f"link{i}", seed=None if seed is None else seed + i, load=self.load)
             for i in range(cfg.pool_size)

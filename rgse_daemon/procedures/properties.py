@@ -6,7 +6,10 @@ Steps, in this order::
     mass         the measurement pose approached as the scheme's CoG pose ``meas`` (A4/A6 from below, as in the
                  torsional calibration), then the measurement run's loops (brake-release move → settle → trace →
                  pull, archive) under its stop rule, recorded with the CoG poses' A3..A6 trace: they are that pose's
-                 loops too (:func:`shared_pose`; a scheme without it: the A3/A5 trace, no approach)
+                 loops too (:func:`shared_pose`; a scheme without it: the A3/A5 trace, no approach); when the
+                 run gives the multi-pose mass, ``loops_per_pose`` of them, its visits of that lever pose, and not
+                 the single pose's stop rule (:func:`visits_settings`): the single-pose figure beside it comes from
+                 those visits
     cog poses    for every other pose of the scheme (:func:`~rgse_daemon.pipeline.cog.cog_poses`): PTP to its
                  approach, PTP into it, ``loops_per_pose`` × (brake-release move about the pose → settle → trace of
                  the A3..A6 drives → pull, archive); in the shared pose only the loops the mass kept fewer than
@@ -108,7 +111,8 @@ class PropertiesSettings:
     """Swings of each wrist axis per orientation in the excitation (``[properties] inertia_repeats``)."""
     mass_method: str = "single"
     """Where the mass comes from (``[properties] mass_method``): ``single`` (the paper's pose, eq. 21), ``multipose``
-    (the lever poses of scheme ``lever``, :mod:`rgse_daemon.pipeline.multipose`; the single pose's beside it) or
+    (the lever poses of scheme ``lever``, :mod:`rgse_daemon.pipeline.multipose`; the single pose's figure beside it,
+    from the measurement pose's visits: :func:`visits_settings`) or
     ``auto`` (chosen before the run by predicted U² × robot minutes, :func:`choose_mass_method`; with ``single``
     chosen the raised lever pose is not measured)."""
 
@@ -288,6 +292,28 @@ def shared_pose(s: RunSettings, scheme: str) -> CogPose | None:
     return None
 
 
+def visits_settings(s: RunSettings, p: PropertiesSettings) -> RunSettings:
+    """The run settings of the mass loops when the run gives the multi-pose mass: ``loops_per_pose`` loops in the
+    measurement pose, as in every other lever pose (the prediction auto chose by counted these, ``predict_methods``).
+    They still go through :func:`~rgse_daemon.procedures.measurement.measurement_loops`: each loop is screened when
+    archived (samples missing: the step and loop-to-loop checks need three loops, so at two the visits' F test of
+    the multi-pose mass guards them, as it guards the raised pose's) and a loop set aside is replaced (at most
+    ``replacement_loops``); the stop rule then stops at ``max loops`` = ``loops_per_pose``."""
+    return replace(s, loops=p.loops_per_pose)
+
+
+def _single_from_visits(result: dict[str, Any], loops: int) -> dict[str, Any]:
+    """The result of a run that gave the multi-pose mass: its single-pose figure comes from the multi-pose mass's
+    visits of the measurement pose, not from loops of its own under its stop rule; said beside it."""
+    methods = result.get("mass_methods")
+    if not isinstance(methods, Mapping) or not isinstance(methods.get("single"), Mapping):
+        return result
+    note = (f"from the {loops} visit(s) of the multi-pose mass in the measurement pose: no loops of its own (its stop "
+            f"rule's at least three were not spent)")
+    return {**result, "mass_methods": {**methods, "single": {**methods["single"], "loops": loops,
+                                                             "loops_from": "multipose visits", "note": note}}}
+
+
 # --- the steps ----------------------------------------------------------------------------------------------------
 def mass_step(run: d.RunContext, s: RunSettings, tag: str, first_index: int, cal_doc: dict[str, Any] | None = None,
               trace_config: str = TRACE_CONFIG_NAME
@@ -365,19 +391,26 @@ def properties_plan(
         yield m.Emit(Event("log", f"mass method {mass_method}: {choice['reason']}", step="mass",
                            data={"phase": "mass", "mass_choice": choice}))
     shared = shared_pose(s, p.scheme)
+    # the multi-pose mass chosen (by auto before the run, or by the lab): the measurement pose is one of its lever
+    # poses and gets what every lever pose gets, ``loops_per_pose`` visits; the single pose's stop rule (at least
+    # three loops, up to ``loops``) would spend robot time on a mass the run does not give (:func:`visits_settings`)
+    mass_s = visits_settings(s, p) if mass_method == "multipose" and shared is not None else s
     if shared is None:
         yield m.Emit(Event("step", f"mass: {s.loops} loops in the measurement pose", step="mass",
                            data={"phase": "mass", "loops": s.loops}))
         mass_loops, decision = yield from mass_step(run, s, tag, 1, cal_doc)
         more = 0
     else:  # the mass loops are the shared pose's loops too: approached and traced as that pose
-        yield m.Emit(Event("step", f"mass: {s.loops} loops in the measurement pose, approached and traced (A3..A6) "
-                                   f"as CoG pose {shared.name}, whose loops they are too", step="mass",
-                           data={"phase": "mass", "loops": s.loops, "pose": shared.name}))
+        text = (f"{mass_s.loops} loops in the measurement pose" if mass_s is s else
+                f"{mass_s.loops} visits of the multi-pose mass in the measurement pose (loops_per_pose; the single "
+                f"pose's own stop rule is not spent, its figure comes from these visits)")
+        yield m.Emit(Event("step", f"mass: {text}, approached and traced (A3..A6) as CoG pose {shared.name}, whose "
+                                   f"loops they are too", step="mass",
+                           data={"phase": "mass", "loops": mass_s.loops, "pose": shared.name}))
         yield m.PutFile(TRACE_DIR + COG_TRACE_CONFIG_NAME, trace_config_xml(s, COG_TRACE_MODULES).encode("utf-8"))
         yield from move_to(shared.q_approach_deg, s)
         yield from move_to(shared.q_deg, s)
-        mass_loops, decision = yield from mass_step(run, s, tag, 1, cal_doc, COG_TRACE_CONFIG_NAME)
+        mass_loops, decision = yield from mass_step(run, mass_s, tag, 1, cal_doc, COG_TRACE_CONFIG_NAME)
         more = max(0, p.loops_per_pose - (len(mass_loops) if decision.kept is None else decision.kept))
     yield m.Emit(Event("step", f"CoG: {len(cog_poses(s.meas_pose_deg, p.scheme))} poses ({p.scheme}) x "
                                f"{p.loops_per_pose} loops", step="cog", data={"phase": "cog", "scheme": p.scheme}))
@@ -394,6 +427,8 @@ def properties_plan(
                               mass_method, robot_s, None if shared is None else shared.name))
     if result is not None and choice is not None:  # auto chose before the run: what was asked for, and why
         result = {**result, "mass_choice": choice, "mass_method_requested": "auto"}
+    if result is not None and mass_s is not s:
+        result = _single_from_visits(result, len(mass_loops))
     compute_s = time.monotonic() - t0
     inertia_loops: list[LoopOutcome] = []
     refused = result is not None and result.get("status") == REFUSED
@@ -421,7 +456,7 @@ def properties_plan(
         "warnings": [*result.get("warnings", []), *(warnings or [])],
         "controller_copies_deleted": all(o.deleted for o in outcomes),
         "stop_reason": decision.reason,
-        "stop_rule": stop_json(s, decision),
+        "stop_rule": stop_json(mass_s, decision),
         "timing": {**timing_summary(outcomes, compute_s),
                    "mass_robot_time_s": sum(o.timing.robot_s for o in mass_loops),
                    "cog_robot_time_s": sum(o.timing.robot_s for o in pose_loops),

@@ -23,6 +23,7 @@ from rgse_daemon.config import ControllerConfig
 from rgse_daemon.controller import Controller
 from rgse_daemon.errors import LinkError, VariableError
 from rgse_daemon.filelayout import load_layout
+from rgse_daemon.link.connection import Connection, ServerLoad
 from rgse_daemon.services.signals import Alarms
 
 log = logging.getLogger("rgse_daemon.app")
@@ -68,10 +69,21 @@ class ControllerLink:
         self.alarms = alarms
         self.busy = busy
         self.connected = asyncio.Event()
+        self.load = ServerLoad()
+        """The controller's file work in flight, one for its single-threaded server across reconnects: the pool's
+        connections and the heartbeat's share it, so a request queued behind a pull is late, not lost."""
         self.krc: Controller | None = None
         self.error: str | None = None
         self.connecting = False
         """True while a connect attempt is in flight (the only phase a shutdown may cancel)."""
+
+    def heartbeat_connection(self) -> Connection:
+        """The heartbeat's connection of its own to this controller, sharing :attr:`load`: a beat queued behind a
+        pull longer than ``watchdog_bound_s`` gets the pull's deadline added (late, not lost), as every request of
+        the pool does. The controller's bound is not touched: its timer still runs out ``watchdog_bound_s`` after
+        the last beat that arrived, and no program runs during file work (docs/file-window.md), so nothing the
+        watchdog guards moves meanwhile."""
+        return Connection.from_config(self.cfg, name="heartbeat", load=self.load)
 
     @property
     def where(self) -> str:
@@ -94,7 +106,7 @@ class ControllerLink:
             try:
                 # the TRACE path form and listing format `rgse doctor` found on this controller (probed if none)
                 layout = load_layout(self.data_dir) if self.data_dir is not None else None
-                async with Controller.connect(self.cfg, layout=layout) as krc:
+                async with Controller.connect(self.cfg, layout=layout, load=self.load) as krc:
                     self.connecting = False
                     if prepare is not None:
                         await prepare(krc)

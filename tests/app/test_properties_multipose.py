@@ -54,6 +54,9 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
     data = _config(sim, private_broker, tmp_path / "data", scheme="lever", loops_per_pose=2,
                    mass_method="auto").model_dump(mode="json")
     data["console"] = {"enabled": True, "host": "127.0.0.1", "port": 0}
+    # the daemon's own mass loops (10 at most, the stop rule: at least 3), which a run that gives the multi-pose mass
+    # must not spend: its measurement pose is a lever pose like the others (loops_per_pose visits)
+    data["measurement"] = {**data["measurement"], "loops": 10, "min_loops": 3, "stop_loop_share": 0.2}
     cfg = config_from_mapping({k: v for k, v in data.items() if v is not None}, "<multipose test>")
     await seed_calibration(cfg, lever_calibration_doc)
     sim.mount(WING_BOX.payload())
@@ -88,6 +91,19 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
         assert set(methods) == {"single", "multipose"}
         assert methods["multipose"]["visits"] == {"meas": 2, "A3-80": 2}
         assert methods["single"]["robot_time_s"] > 0 and methods["multipose"]["robot_time_s"] > 0
+        # robot time: the loops the chosen mass and the CoG need and no more. The measurement pose gets the multi-pose
+        # mass's 2 visits, not the single pose's stop rule's 3 or more: 2 + 2 (A6+90) + 2 (A3-80) loops; the single
+        # pose's figure comes from those 2 visits and says so
+        per_loop = result["timing"]["per_loop"]
+        assert len(per_loop) == 6 and len(result["mass_traces"]) == 2, [lp["trace"] for lp in per_loop]
+        assert {p["name"]: len(p["traces"]) for p in result["cog_poses"]} == {"meas": 2, "A6+90": 2, "A3-80": 2}
+        assert result["timing"]["robot_time_s"] == pytest.approx(sum(lp["robot_s"] for lp in per_loop))
+        assert result["stop_rule"]["max_loops"] == 2 and result["stop_reason"] == "max loops"
+        assert methods["single"]["robot_time_s"] == pytest.approx(result["timing"]["mass_robot_time_s"])
+        assert methods["single"]["loops"] == 2 and methods["single"]["loops_from"] == "multipose visits"
+        assert methods["multipose"]["robot_time_s"] == pytest.approx(
+            sum(lp["robot_s"] for lp in per_loop if lp["trace"] not in {t for p in result["cog_poses"]
+                                                                       if p["name"] == "A6+90" for t in p["traces"]}))
         chosen = methods["multipose"]
         assert result["mass_kg"] == pytest.approx(chosen["mass_kg"])
         assert result["U_kg"] == pytest.approx(chosen["U_kg"])

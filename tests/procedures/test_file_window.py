@@ -10,14 +10,18 @@ from pathlib import Path
 
 import pytest
 
+from rgse_daemon.controller import Controller
 from rgse_daemon.errors import InterlockError
 from rgse_daemon.manifest import MODULE_A3, MODULE_A5
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.engine import RunEngine
 from rgse_daemon.procedures.retrieval import PulledTrace
 from rgse_daemon.safety.monitor import InterlockTrip
+from rgse_daemon.services.link import ControllerLink, DaemonCounters
+from rgse_daemon.services.signals import Alarms, StackLight
 from simulators.krc4.sim import SimulatedKrc4
 from simulators.krc4.variables import e6axis
+from tests.support.heartbeat import beating
 from tests.support.polling import wait_until
 
 from .conftest import controller, heartbeat, make_engine
@@ -89,3 +93,28 @@ async def test_a_status_read_later_than_the_file_work_allows_trips(sim, cfg, tmp
         with pytest.raises(InterlockTrip) as info:
             await asyncio.wait_for(task, 40)
         assert info.value.watcher == "link"
+
+
+async def test_a_heartbeat_queued_behind_a_pull_is_late_not_lost(sim, cfg, tmp_path: Path) -> None:
+    """The daemon's heartbeat shares the controller's file work in flight (``ControllerLink.heartbeat_connection``):
+    a beat queued behind a pull's file read longer than the watchdog's bound gets that read's deadline added, as the
+    pool's requests do, so a pull at the controller's file rate raises no "heartbeat failed" alarm and drops no
+    connection. A heartbeat on a connection that does not know the pull (the daemon's before) fails at every such
+    read. The controller's bound is untouched (it counts from the last beat that arrived); no program runs during a
+    pull (the file window opens only then), so the watchdog guards no motion meanwhile."""
+    assert FILE_BYTES / sim.server.config.file_rate_bytes_s > cfg.controller.watchdog_bound_s
+    files = _big_trace(sim, "w6")
+    alarms: list[dict[str, object]] = []
+    link = ControllerLink(cfg.controller, DaemonCounters(), Alarms(alarms.append, StackLight(None)),
+                          busy=lambda: True)
+    async with (Controller.connect(cfg.controller, load=link.load) as krc,
+                beating(cfg.controller, connection=link.heartbeat_connection()) as shared,
+                beating(cfg.controller) as alone):
+        await wait_until(lambda: shared.beats >= 3 and alone.beats >= 3, "both heartbeats beating", timeout_s=10)
+        engine = make_engine(krc, cfg)
+        pulled = await asyncio.wait_for(engine.run(_pull_plan("w6", tmp_path / "run")), 60)
+        assert isinstance(pulled, PulledTrace) and len(pulled.files) == len(files)
+        beats = shared.beats
+        await wait_until(lambda: shared.beats > beats + 2, "beats after the pull", timeout_s=10)
+    assert shared.failures == 0, shared.failures
+    assert alone.failures >= 1  # the same pull, a heartbeat that does not know it: late, taken as lost
