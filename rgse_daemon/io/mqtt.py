@@ -122,6 +122,10 @@ REMEMBERED_COMMANDS = 1000
 
 #: Deadline of the retained "offline" publish when stopping, and of the flush of the queue before it (s).
 STOP_PUBLISH_TIMEOUT_S = 3.0
+#: A session's workers are cancelled when it ends; one still running this long after its cancellation is cancelled
+#: again (s): a cancellation lost inside a library (Python 3.11's ``wait_for``, see :mod:`rgse_daemon.io.mqtt_client`)
+#: must not keep the session, and with it the clean stop's "offline", from ending.
+RECANCEL_AFTER_S = 0.1
 
 
 class Inbox(asyncio.Queue[aiomqtt.Message]):
@@ -249,6 +253,10 @@ def _dumps(value: Any, what: str) -> str:
 
 def _now() -> str:
     return now_utc()
+
+
+def _names(tasks: set[asyncio.Task[Any]]) -> str:
+    return ", ".join(sorted(repr(t.get_name()) for t in tasks))
 
 
 class _LogOnce:
@@ -570,9 +578,7 @@ class MqttBridge:
                         done, _ = await asyncio.wait([*workers, stop], return_when=asyncio.FIRST_COMPLETED)
                     finally:
                         self._urgent_up = False
-                        for t in (*workers, stop):
-                            t.cancel()
-                        await asyncio.gather(*workers, stop, return_exceptions=True)
+                        await self._end_tasks([*workers, stop])
                     for t in workers:
                         if t in done:
                             t.result()
@@ -688,9 +694,7 @@ class MqttBridge:
         finally:
             self._connected = False
             self._main_online.clear()
-            for t in (*workers, stop):
-                t.cancel()
-            await asyncio.gather(*workers, stop, return_exceptions=True)
+            await self._end_tasks([*workers, stop])
         for t in workers:
             if t in done:
                 t.result()  # the connection ended: raises why (aiomqtt.MqttError)
@@ -699,6 +703,38 @@ class MqttBridge:
         offline = {"state": "offline", "version": self._version, "since": _now()}
         await self._publish(client, _Out(self.topics.status, _dumps(offline, "status"), qos=1, retain=True),
                             timeout_s=min(self._timeout_s, STOP_PUBLISH_TIMEOUT_S))
+
+    async def _end_tasks(self, tasks: list[asyncio.Task[Any]]) -> None:
+        """Cancel a session's ``tasks`` and wait until they have ended, at most ``min(timeout_s,
+        STOP_PUBLISH_TIMEOUT_S)``. One still running :data:`RECANCEL_AFTER_S` after its cancellation lost it, and is
+        cancelled again (said once). One still running at the bound is left behind, cancelled, and said so: the session
+        goes on to its end (a clean stop's "offline" and DISCONNECT) rather than wait on it."""
+        loop = asyncio.get_running_loop()
+        bound_s = min(self._timeout_s, STOP_PUBLISH_TIMEOUT_S)
+        deadline = loop.time() + bound_s
+        pending = {t for t in tasks if not t.done()}
+        try:
+            while pending:
+                for t in pending:
+                    t.cancel()
+                left_s = deadline - loop.time()
+                if left_s <= 0:
+                    self._log.problem("left behind", f"mqtt {self.prefix}: {_names(pending)} still running {bound_s:g}"
+                                      " s after being cancelled; left behind", level=logging.ERROR)
+                    return
+                _, pending = await asyncio.wait(pending, timeout=min(RECANCEL_AFTER_S, left_s))
+                if pending:
+                    self._log.problem("recancel", f"mqtt {self.prefix}: {_names(pending)} still running "
+                                      f"{RECANCEL_AFTER_S:g} s after being cancelled (a cancellation lost); cancelled "
+                                      "again")
+        except asyncio.CancelledError:
+            for t in pending:
+                t.cancel()
+            raise
+        finally:
+            for t in tasks:  # read now (asyncio would report it unread); why the connection ended is raised later
+                if t.done() and not t.cancelled():
+                    t.exception()
 
     async def _publish(self, client: aiomqtt.Client, out: _Out, timeout_s: float | None = None) -> None:
         try:

@@ -17,6 +17,13 @@ aiomqtt (2.5) has two defects that bite every user of it here:
   socket open and the misc task running, until the keepalive runs out. And a CONNACK wait cancelled by asyncio
   leaves a cancelled future that aiomqtt's disconnect callback reads later ("Exception in callback", the socket not
   closed). :func:`enter` (and :func:`connection` around it) closes such a connection, bounded.
+* **A cancellation can be lost.** Every wait of aiomqtt for the broker (the PUBACK of a publish, SUBACK, UNSUBACK,
+  CONNACK, the disconnect) goes through ``Client._wait_for``, which is ``asyncio.wait_for``. On Python 3.11, a task
+  cancelled in the loop iteration in which the awaited ack has just arrived gets the result and not the cancellation
+  (CPython issue #86296, bpo-42130; fixed in 3.12, whose ``wait_for`` is built on ``asyncio.timeout``): it runs on
+  as if never cancelled. Seen as the bridge's state sender, cancelled by a stop just as the PUBACK of its last
+  state came, waiting on for the next snapshot, so that the session never ended, its retained "offline" was never
+  published and the stop was cancelled at its deadline. :class:`Client` waits with ``asyncio.timeout`` instead.
 
 Public API::
 
@@ -30,9 +37,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
 import ssl
-from collections.abc import AsyncIterator, Callable
-from typing import Any, Self
+from collections.abc import AsyncIterator, Awaitable, Callable
+from typing import Any, Self, TypeVar
 
 import aiomqtt
 import paho.mqtt.client as paho
@@ -41,6 +49,8 @@ from rgse_daemon.config import MqttConfig
 from rgse_daemon.errors import ConfigError
 
 log = logging.getLogger(__name__)
+
+T = TypeVar("T")
 
 
 def _read_exception(fut: asyncio.Future[Any]) -> None:
@@ -64,6 +74,11 @@ def _retrieve_disconnect_reason(client: aiomqtt.Client) -> None:
 #: ``tests/mqtt/test_mqtt_connect_teardown.py`` fails on such a rename.
 _THREADED_CONNECT = "_client_connect"
 _CONNECT_RETURN_SEEN = callable(getattr(aiomqtt.Client, _THREADED_CONNECT, None))
+
+
+#: aiomqtt's method (2.5) through which all its waits for the broker go (above); :class:`Client` overrides it.
+#: ``tests/mqtt/test_mqtt_connect_teardown.py`` fails should an aiomqtt upgrade rename it.
+_WAIT_FOR = "_wait_for"
 
 
 def _set_none(fut: asyncio.Future[None]) -> None:
@@ -97,6 +112,18 @@ class Client(aiomqtt.Client):
             with contextlib.suppress(RuntimeError):  # the loop was closed meanwhile: nobody is left to tell
                 self._rgse_loop.call_soon_threadsafe(_set_none, self.connect_returned)
 
+    async def _wait_for(self, fut: Awaitable[T], timeout: float | None) -> T:  # noqa: ASYNC109 (aiomqtt's signature)
+        """aiomqtt's (2.5) ``_wait_for`` (``timeout`` None: the client's; ``math.inf``: none; past it
+        ``aiomqtt.MqttError("Operation timed out")``), with ``asyncio.timeout`` for ``asyncio.wait_for``: a cancellation
+        that arrives with the ack is raised, not lost (module docstring)."""
+        if timeout is None:
+            timeout = self.timeout
+        try:
+            async with asyncio.timeout(None if timeout == math.inf else timeout):
+                return await fut
+        except TimeoutError:
+            raise aiomqtt.MqttError("Operation timed out") from None
+
     async def __aenter__(self) -> Self:
         await super().__aenter__()
         _retrieve_disconnect_reason(self)  # aiomqtt replaces the future when it was already done
@@ -106,8 +133,8 @@ class Client(aiomqtt.Client):
         """aiomqtt's, except when the CONNACK wait was cancelled: a connect that never completed has no disconnection
         to report (aiomqtt returns early for one that failed), and aiomqtt's ``_connected.exception()`` raised
         ``CancelledError`` inside paho's callback, before paho closed the socket — which then stayed open. The wait is
-        cancelled by aiomqtt's own CONNACK timeout (its ``wait_for`` cancels the future, and replaces it only a few
-        loop iterations later) or by :func:`_close_when_returned`; when the caller gives up within a millisecond of
+        cancelled by aiomqtt's own CONNACK timeout (:meth:`_wait_for` cancels the future, and aiomqtt replaces it only
+        a loop iteration later) or by :func:`_close_when_returned`; when the caller gives up within a millisecond of
         that timeout (a deadline equal to the client's timeout, as the operator's), the DISCONNECT that closes the
         connection is written in between."""
         connected = getattr(self, "_connected", None)

@@ -121,6 +121,9 @@ def test_the_aiomqtt_internals_the_bridge_relies_on_are_there() -> None:
     silently in the field (where the guards would make a stop during a connect slow again, or leave it open)."""
     assert callable(getattr(aiomqtt.Client, "_client_connect", None))
     assert mqtt_client._CONNECT_RETURN_SEEN
+    # every wait for an ack goes through _wait_for, which Client overrides (a cancellation with the ack is not lost)
+    assert callable(getattr(aiomqtt.Client, mqtt_client._WAIT_FOR, None))
+    assert mqtt_client.Client._wait_for is not aiomqtt.Client._wait_for
 
     async def build() -> aiomqtt.Client:
         return aiomqtt.Client("127.0.0.1")
