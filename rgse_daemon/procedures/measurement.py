@@ -33,7 +33,7 @@ from rgse_daemon.errors import DataError
 from rgse_daemon.io.topics import Topics
 from rgse_daemon.pipeline import integrity
 from rgse_daemon.pipeline.envelope import OperatingPointError
-from rgse_daemon.pipeline.stopping import StopDecision, decide, predict
+from rgse_daemon.pipeline.stopping import StopDecision, StopRule, decide, predict
 from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
@@ -188,19 +188,14 @@ def measurement_loops(run: d.RunContext, s: RunSettings, cal_doc: dict[str, Any]
         final = i >= s.loops  # a stop at the configured loops, or a replacement: judge every loop, this one too
         if final and cal_doc is not None:
             yield from collect(out, run, s)
-        analysed = [o.trace for o in outcomes if not o.pending]
-        screened = None
-        if cal_doc is not None and analysed and (final or (rule.min_loops <= i and not rule.fixed)):
-            t0 = time.monotonic()
-            screened = yield m.Process("screen loops, predict U", screen_loops, (run.run_dir, s, analysed, cal_doc))
-            out.timing.predict_s = time.monotonic() - t0
-        kept, prediction = None, None
-        if screened is not None:
-            aside = screened.set_aside
-            kept = i - len(aside)
-            if screened.budget is not None and not rule.fixed:
-                prediction = predict(kept, len(analysed) - len(aside), *screened.budget)
-        decision = decide(rule, i, prediction, kept)
+        decision, aside = yield from _judge(rule, i, outcomes, run, s, cal_doc, final)
+        if decision.stop and cal_doc is not None and out.pending:
+            # the rule would stop on a loop not yet pulled (its files come after the next loop's start): it counted
+            # as kept. Judged before the stop, so that a loop the check sets aside is replaced, not found in the
+            # result with fewer loops than the rule keeps (seen under load: a result on 2 loops, "loop term below
+            # share")
+            yield from collect(out, run, s)
+            decision, aside = yield from _judge(rule, i, outcomes, run, s, cal_doc, True)
         per_loop_s = sum(o.timing.robot_s + o.timing.overhead_s for o in outcomes) / len(outcomes)
         left = 0 if decision.stop else max(s.loops - i, 1)
         yield m.Emit(Event("loop", f"{label} {i}/{count} done" + (f" ({decision.reason})" if decision.stop else "")
@@ -211,6 +206,25 @@ def measurement_loops(run: d.RunContext, s: RunSettings, cal_doc: dict[str, Any]
     if previous is not None:
         yield from collect(previous, run, s)
     return outcomes, decision
+
+
+def _judge(rule: StopRule, i: int, outcomes: list[LoopOutcome], run: d.RunContext, s: RunSettings,
+           cal_doc: dict[str, Any] | None, final: bool) -> Generator[m.Msg, Any, tuple[StopDecision, list[str]]]:
+    """The stop rule after loop ``i``: the loops pulled so far screened (on the final loop, or from the rule's
+    fewest loops on) and U predicted for those kept; the loops set aside so far."""
+    analysed = [o.trace for o in outcomes if not o.pending]
+    screened = None
+    if cal_doc is not None and analysed and (final or (rule.min_loops <= i and not rule.fixed)):
+        t0 = time.monotonic()
+        screened = yield m.Process("screen loops, predict U", screen_loops, (run.run_dir, s, analysed, cal_doc))
+        outcomes[-1].timing.predict_s += time.monotonic() - t0
+    kept, prediction, aside = None, None, []
+    if screened is not None:
+        aside = list(screened.set_aside)
+        kept = i - len(aside)
+        if screened.budget is not None and not rule.fixed:
+            prediction = predict(kept, len(analysed) - len(aside), *screened.budget)
+    return decide(rule, i, prediction, kept), aside
 
 
 def measurement_plan(

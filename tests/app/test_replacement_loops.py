@@ -111,6 +111,34 @@ async def test_a_disturbed_loop_is_set_aside_named_and_replaced(
         verify_file(archive_root(cfg.paths.data_dir) / f.path, f.sha256, f.size_bytes)
 
 
+async def test_the_loop_the_stop_rule_would_stop_on_is_judged_first(
+        sim: SimulatedKrc4, private_broker: MosquittoProcess, calibration_doc: dict[str, Any],
+        tmp_path: Path) -> None:
+    """The stop rule stops early (here at its fewest, 3 loops) while the last loop's files are still on the
+    controller: that loop is pulled and screened before the stop, so a disturbed last loop is replaced and the mass
+    rests on 3 kept loops, not on 2 under "loop term below share"."""
+    cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
+                        broker_port=private_broker.port, loops=6, stop_loop_share=0.95, replacement_loops=2)
+    model = sim.model
+    model.state.motor_temp_k = model.ambient_k + np.array([a.hold_temperature_rise_k for a in model._axes])
+    steady = {"A3": float(model.state.motor_temp_k[2]), "A5": float(model.state.motor_temp_k[4])}
+    await seed_calibration(cfg, calfile.seal({**calibration_doc, "thermal_state_k": steady}))
+    sim.mount(DUT)
+    async with running_daemon(cfg) as rd, RgseClient.of(cfg) as client:
+        rd.daemon.engine.subscribe_documents(lean_during(sim, 3))
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        run = await client.measure()
+        result = await run.wait(180)
+    raw = result.raw
+    tag = raw["loops_used"][0].rsplit("_l", 1)[0]
+    (aside,) = raw["loops_set_aside"]
+    assert aside["loop"] == f"{tag}_l03", aside
+    assert raw["loops_used"] == [f"{tag}_l01", f"{tag}_l02", f"{tag}_l04"], raw["loops_used"]
+    assert raw["stop_rule"]["stop_reason"] == "loop term below share" and raw["stop_rule"]["loops_kept"] == 3, \
+        raw["stop_rule"]
+    assert result.loops == 3 and abs(result.mass_kg - DUT_KG) <= result.U_kg, (result.mass_kg, result.U_kg)
+
+
 def refusal_config(tmp_path: Path, sim: SimulatedKrc4, broker: MosquittoProcess, store_url: str) -> Config:
     doc = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
                         broker_port=broker.port, loops=1).model_dump(mode="json")

@@ -104,7 +104,9 @@ async def test_a6_swing_trace_shows_motion_and_inertial_torque(
     )[moving]
     coef, *_ = np.linalg.lstsq(regressors, torque[moving], rcond=None)
     m66 = sim.dynamics.mass_matrix_kgm2(kin.measurement_pose(), wing.payload())[5, 5]
-    assert coef[0] == pytest.approx(m66, rel=0.10)
+    # the drive reads the payload's part high (above), so the estimate lies above m66, not about it: 1.085-1.088 x
+    # m66 in three runs alone, 1.1006 once under make test's load (it failed the former ±10 % about m66)
+    assert 1.0 <= coef[0] / m66 <= 1.15, (coef[0], m66)
     assert coef[1] > 0  # friction opposes the motion: the drive supplies it in the direction of travel
     inertial_peak = m66 * np.deg2rad(np.abs(accel).max())
     assert inertial_peak > 20 * ph.RobotModel().scenario.axis(6).noise_nm
