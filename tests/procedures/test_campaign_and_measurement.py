@@ -113,15 +113,20 @@ async def test_campaign_then_measurement_within_uncertainty(sim, cfg, krc, store
     assert result["stop_reason"] == "loop term below share" and 3 <= n < 6, (result["stop_reason"],
                                                                               result["stop_rule"])
     rule = result["stop_rule"]
-    assert rule["loops_analysed"] == n - 1 and rule["predicted_loop_share"] <= 0.2 and rule["max_loops"] == 6
+    # every loop measured was judged before the stop (the last one too); a loop the integrity check set aside (seen
+    # under a full suite's load: one clean loop in one run) was replaced and is said in the result's warnings
+    aside = [a["loop"] for a in result["loops_set_aside"]]
+    measured = n + len(aside)
+    assert all(any(f"loop {name} set aside" in w for w in result["warnings"]) for name in aside), result["warnings"]
+    assert rule["loops_analysed"] == measured and rule["predicted_loop_share"] <= 0.2 and rule["max_loops"] == 6
     assert result["u_components_kg"]["loops"] <= 0.25 * result["u_kg"]  # the rule's prediction held
     # loop N's files indexed after loop N+1's trace started and before its end was awaited (the documents' order
     # below); the last loop's after its own trace
-    assert [i for i, _ in overlap] == list(range(1, n + 1))
+    assert [i for i, _ in overlap] == list(range(1, measured + 1))
     seq = ["LoopStarted", "LoopRecording", "LoopRecorded"]
     assert [type(doc).__name__ for doc in docs] == [
-        "OpenRun", *seq, *[t for _ in range(n - 1) for t in ("LoopStarted", "LoopRecording", "TraceArchived",
-                                                             "LoopRecorded")], "TraceArchived", "Result",
+        "OpenRun", *seq, *[t for _ in range(measured - 1) for t in ("LoopStarted", "LoopRecording", "TraceArchived",
+                                                                    "LoopRecorded")], "TraceArchived", "Result",
         "CloseRun"]
     assert sim.truth is not None and sim.truth.payload_mass_kg > DUT_MASS_KG + FIXTURE_KG  # + the MPA
     err_kg = abs(result["mass_kg"] - DUT_MASS_KG)
