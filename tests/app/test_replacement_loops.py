@@ -64,6 +64,25 @@ def lean_during(sim: SimulatedKrc4, loop_index: int):
     return on_document
 
 
+async def measure_leaning_on(sim: SimulatedKrc4, cfg: Config, calibration_doc: dict[str, Any], loop_index: int):
+    """A measurement through the daemon and the client with loop ``loop_index`` leaned on; (result, run).
+
+    A lab warms the robot up until its motors are steady (measurement.warmup_until_steady), and calibrated at that
+    temperature: the simulated motors start at the temperature they hold with the brakes released, the campaign's
+    thermal state is the same (the short test configuration does one warm-up cycle only)."""
+    model = sim.model
+    model.state.motor_temp_k = model.ambient_k + np.array([a.hold_temperature_rise_k for a in model._axes])
+    steady = {"A3": float(model.state.motor_temp_k[2]), "A5": float(model.state.motor_temp_k[4])}
+    await seed_calibration(cfg, calfile.seal({**calibration_doc, "thermal_state_k": steady}))
+    sim.mount(DUT)
+    async with running_daemon(cfg) as rd, RgseClient.of(cfg) as client:
+        rd.daemon.engine.subscribe_documents(lean_during(sim, loop_index))
+        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
+        run = await client.measure()
+        result = await run.wait(180)
+    return result, run
+
+
 @pytest.mark.parametrize("replacements", [2, 0])
 async def test_a_disturbed_loop_is_set_aside_named_and_replaced(
         sim: SimulatedKrc4, private_broker: MosquittoProcess, calibration_doc: dict[str, Any], tmp_path: Path,
@@ -71,19 +90,7 @@ async def test_a_disturbed_loop_is_set_aside_named_and_replaced(
     cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
                         broker_port=private_broker.port, loops=3, stop_loop_share=0.0,
                         replacement_loops=replacements)
-    # a lab warms the robot up until its motors are steady (measurement.warmup_until_steady), and calibrated at that
-    # temperature: the simulated motors start at the temperature they hold with the brakes released, the campaign's
-    # thermal state is the same (the short test configuration does one warm-up cycle only)
-    model = sim.model
-    model.state.motor_temp_k = model.ambient_k + np.array([a.hold_temperature_rise_k for a in model._axes])
-    steady = {"A3": float(model.state.motor_temp_k[2]), "A5": float(model.state.motor_temp_k[4])}
-    await seed_calibration(cfg, calfile.seal({**calibration_doc, "thermal_state_k": steady}))
-    sim.mount(DUT)
-    async with running_daemon(cfg) as rd, RgseClient.of(cfg) as client:
-        rd.daemon.engine.subscribe_documents(lean_during(sim, 2))
-        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
-        run = await client.measure()
-        result = await run.wait(180)
+    result, run = await measure_leaning_on(sim, cfg, calibration_doc, 2)
     raw = result.raw
     tag = raw["loops_used"][0].rsplit("_l", 1)[0]
     # the disturbed loop is named, with why
@@ -119,16 +126,7 @@ async def test_the_loop_the_stop_rule_would_stop_on_is_judged_first(
     rests on 3 kept loops, not on 2 under "loop term below share"."""
     cfg = daemon_config(tmp_path / "data", controller_port=sim.port, share_dir=sim.share_dir,
                         broker_port=private_broker.port, loops=6, stop_loop_share=0.95, replacement_loops=2)
-    model = sim.model
-    model.state.motor_temp_k = model.ambient_k + np.array([a.hold_temperature_rise_k for a in model._axes])
-    steady = {"A3": float(model.state.motor_temp_k[2]), "A5": float(model.state.motor_temp_k[4])}
-    await seed_calibration(cfg, calfile.seal({**calibration_doc, "thermal_state_k": steady}))
-    sim.mount(DUT)
-    async with running_daemon(cfg) as rd, RgseClient.of(cfg) as client:
-        rd.daemon.engine.subscribe_documents(lean_during(sim, 3))
-        await wait_until(lambda: rd.daemon.mqtt.connected, "mqtt connected")
-        run = await client.measure()
-        result = await run.wait(180)
+    result, _ = await measure_leaning_on(sim, cfg, calibration_doc, 3)
     raw = result.raw
     tag = raw["loops_used"][0].rsplit("_l", 1)[0]
     (aside,) = raw["loops_set_aside"]
