@@ -78,10 +78,12 @@ def load_campaign(directory: Path) -> CampaignData:
 
 
 def screen_campaign(data: CampaignData, cfg: pp.Preprocessing,
-                    minimum: int = integrity.MIN_LOOPS_PER_POINT) -> CampaignData:
+                    minimum: int = integrity.MIN_LOOPS_PER_POINT,
+                    drift_prior_per_k: float = thermal_mod.DRIFT_PRIOR_PER_K) -> CampaignData:
     """Set aside the loops of each point that miss too many samples, hold a step, or disagree with the point's
     other loops (:mod:`rgse_daemon.pipeline.integrity`, per axis in Nm; the thermal allowance is the prior bound on
-    β over each loop's temperature difference, since β is fitted from these very loops); a sample missing in one
+    β, ``drift_prior_per_k`` (``measurement.drift_prior_per_k``, ``rgse calibrate --drift-prior``), over each loop's
+    temperature difference, since β is fitted from these very loops); a sample missing in one
     torque channel is missing in both. DataError naming the point if it keeps fewer than ``minimum`` loops (or, when
     it had fewer, not all of them): one bad loop never fails the campaign while its point keeps enough."""
     loops, temps, aside = [], [], []
@@ -108,7 +110,7 @@ def screen_campaign(data: CampaignData, cfg: pp.Preprocessing,
             allowance = None
             if point_temps is not None:
                 t = np.array([point_temps[kept[k]][ax] for k in used], float)
-                allowance = np.abs(values * (t - t.mean())) * thermal_mod.DRIFT_PRIOR_PER_K / np.sqrt(3.0)
+                allowance = np.abs(values * (t - t.mean())) * drift_prior_per_k / np.sqrt(3.0)
             sc = integrity.screen([names[i][kept[k]] for k in used], series, values, se, allowance, minimum,
                                   f"Nm ({'A3' if ax == 0 else 'A5'})")
             found += sc.set_aside
@@ -366,10 +368,11 @@ def parse_preprocessing(spec: str | None) -> pp.Preprocessing:
         raise DataError(f"--preprocessing {spec!r}: {exc}") from None
 
 
-def fit_campaign(directory: Path, method: str,
-                 pre: pp.Preprocessing = pp.PAPER) -> tuple[calfile.CalFile, dict[str, Any]]:
-    """``rgse calibrate --campaign DIR [--preprocessing SPEC]`` without writing: (CAL.json, summary)."""
-    data = screen_campaign(load_campaign(directory), pre)
+def fit_campaign(directory: Path, method: str, pre: pp.Preprocessing = pp.PAPER,
+                 drift_prior_per_k: float = thermal_mod.DRIFT_PRIOR_PER_K) -> tuple[calfile.CalFile, dict[str, Any]]:
+    """``rgse calibrate --campaign DIR [--preprocessing SPEC] [--drift-prior PER_K]`` without writing: (CAL.json,
+    summary). ``drift_prior_per_k``: the screening's thermal allowance (:func:`screen_campaign`)."""
+    data = screen_campaign(load_campaign(directory), pre, drift_prior_per_k=drift_prior_per_k)
     points, bias3, bias5 = campaign_points(data, pre)
     doc, summary = calibrate(points, method, data.manifest.setup, pre=pre, bias=calfile.Bias(bias3, bias5),
                              provenance=calfile.Provenance(source_sha256(data.files), data.thermal_state_k),

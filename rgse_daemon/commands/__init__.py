@@ -55,6 +55,29 @@ def positive(text: str) -> float:
     return value
 
 
+def drift_prior(text: str) -> float:
+    """An argparse type: a bound on the thermal drift coefficient |β| (1/K), as ``measurement.drift_prior_per_k``
+    takes it: > 0 and at most :data:`rgse_daemon.config.MAX_DRIFT_PRIOR_PER_K`."""
+    from rgse_daemon.config import MAX_DRIFT_PRIOR_PER_K
+
+    value = finite(text)
+    if not 0.0 < value <= MAX_DRIFT_PRIOR_PER_K:
+        raise argparse.ArgumentTypeError(f"a bound on |β| must lie in (0, {MAX_DRIFT_PRIOR_PER_K:g}] per K, "
+                                         f"got {text!r}")
+    return value
+
+
+def add_drift_prior(p: argparse.ArgumentParser, what: str) -> None:
+    """``--drift-prior PER_K`` (the daemon's ``measurement.drift_prior_per_k``, default 0.3 %/K): ``what`` says what
+    it bounds in this command."""
+    from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
+
+    p.add_argument("--drift-prior", type=drift_prior, default=DRIFT_PRIOR_PER_K, metavar="PER_K",
+                   help=f"outer bound on the thermal drift coefficient |β| (1/K): {what} (default "
+                        f"{DRIFT_PRIOR_PER_K:g}, i.e. {100 * DRIFT_PRIOR_PER_K:g} %%/K; the daemon's "
+                        f"measurement.drift_prior_per_k)")
+
+
 def add_json(p: argparse.ArgumentParser | argparse._MutuallyExclusiveGroup) -> None:
     """``--json``: the one JSON object a command prints instead of its text."""
     p.add_argument("--json", action="store_true", help="print exactly one JSON object on stdout")

@@ -9,10 +9,11 @@ from pathlib import Path
 
 from rgse_daemon import calfile, robots
 from rgse_daemon.analysis.calibration import POINTS_ROBOT, calibrate, fit_campaign, parse_preprocessing
-from rgse_daemon.commands import add_json
+from rgse_daemon.commands import add_drift_prior, add_json
 from rgse_daemon.errors import DataError
 from rgse_daemon.kinematics import G_PAPER_M_S2
 from rgse_daemon.manifest import Setup, load_points_csv, source_sha256
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 
 
 def make_room(out: Path) -> str | None:
@@ -46,6 +47,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preprocessing", metavar="paper|KEY=VALUE,...",
                    help="campaign pre-processing: paper (method F, default) or e.g. a row of rgse study "
                         "(crop_sigma=2,filter=gaussian,window=100,order=forward,location=huber)")
+    add_drift_prior(p, "the drift a campaign point's loops may show between them before the loop-to-loop "
+                       "check sets one aside (--campaign)")
     add_json(p)
 
 
@@ -59,7 +62,8 @@ def run(args: argparse.Namespace) -> int:
                                  provenance=calfile.Provenance(source_sha256([args.points])), where=args.points)
     else:
         pre = parse_preprocessing(getattr(args, "preprocessing", None))
-        doc, summary = fit_campaign(args.campaign, args.method, pre)
+        doc, summary = fit_campaign(args.campaign, args.method, pre,
+                                    getattr(args, "drift_prior", DRIFT_PRIOR_PER_K))
     note = make_room(Path(args.out))
     calfile.write(args.out, doc)
     if note:

@@ -7,8 +7,8 @@ import json
 from pathlib import Path
 
 from rgse_daemon.analysis.mass import compute
-from rgse_daemon.commands import add_json, finite
-from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS, DataError
+from rgse_daemon.commands import add_drift_prior, add_json, finite
+from rgse_daemon.errors import EXIT_OK, EXIT_WARNINGS
 from rgse_daemon.pipeline.envelope import DEFAULT_LIMIT
 from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.verdict import OK
@@ -22,10 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--envelope-limit", type=finite, default=DEFAULT_LIMIT, metavar="FRACTION",
                    help="refuse a DuT further outside the calibrated loads than this fraction of their span "
                         "(default 0.5)")
-    p.add_argument("--drift-prior", type=finite, default=DRIFT_PRIOR_PER_K, metavar="PER_K",
-                   help="outer bound on the thermal drift coefficient |β| (1/K) that U carries where β is not "
-                        "applied: alone where the campaign's span does not resolve β, else over its |β| + 2 u(β) "
-                        "(default 0.003, i.e. 0.3 %%/K; the daemon's measurement.drift_prior_per_k)")
+    add_drift_prior(p, "what U carries where β is not applied: alone where the campaign's span does not resolve "
+                       "β, else over its |β| + 2 u(β)")
     add_json(p)
 
 
@@ -33,8 +31,6 @@ def run(args: argparse.Namespace) -> int:
     """Exit 0 for a result without warnings, 4 (EXIT_WARNINGS) for one with warnings; a refusal raises (exit 2, and
     with ``--json`` the refusal's JSON object, see :func:`rgse_daemon.cli.main`)."""
     prior = getattr(args, "drift_prior", DRIFT_PRIOR_PER_K)
-    if not 0.0 <= prior <= 0.1:
-        raise DataError(f"--drift-prior {prior}: a bound on |β| must lie within 0..0.1 per K")
     result = compute(Path(args.traces), Path(args.calibration), args.fixture_mass,
                      getattr(args, "envelope_limit", DEFAULT_LIMIT), prior)
     doc = result.to_json()

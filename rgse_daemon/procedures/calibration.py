@@ -36,6 +36,7 @@ from rgse_daemon.io.topics import Topics
 from rgse_daemon.manifest import TORSIONAL_KIND, read_loops
 from rgse_daemon.pipeline.cog import cog_poses
 from rgse_daemon.pipeline.stopping import StopDecision, decide, point_loop_term_nm, point_prediction
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.procedures import documents as d
 from rgse_daemon.procedures import messages as m
 from rgse_daemon.procedures.directory import setup_toml, traces_toml
@@ -204,10 +205,11 @@ def check_points_support(points: Sequence[CampaignPoint], method: str, s: RunSet
 
 
 # --- the offline path ---------------------------------------------------------------------------------------------
-def fit_campaign(directory: Path, method: str = "auto") -> tuple[calfile.CalFile, dict[str, Any]]:
-    """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --json`` as a function (the same
-    :func:`analysis.calibration.fit_campaign`); writes CAL.json into the campaign directory."""
-    doc, summary = campaign_analysis.fit_campaign(directory, method)
+def fit_campaign(directory: Path, method: str = "auto", drift_prior_per_k: float = DRIFT_PRIOR_PER_K
+                 ) -> tuple[calfile.CalFile, dict[str, Any]]:
+    """``rgse calibrate --campaign DIR --out DIR/CAL.json --method M --drift-prior PER_K --json`` as a function (the
+    same :func:`analysis.calibration.fit_campaign`); writes CAL.json into the campaign directory."""
+    doc, summary = campaign_analysis.fit_campaign(directory, method, drift_prior_per_k=drift_prior_per_k)
     calfile.write(directory / CALIBRATION_FILE, doc)
     return doc, summary
 
@@ -253,7 +255,7 @@ def write_campaign_manifest(run_dir: Path, s: RunSettings, points: list[tuple[Ca
 def _finish(run_dir: Path, s: RunSettings, points: list[tuple[CampaignPoint, list[str]]],
             method: str) -> tuple[calfile.CalFile, dict[str, Any]]:
     write_campaign_manifest(run_dir, s, points)
-    return fit_campaign(run_dir, method)
+    return fit_campaign(run_dir, method, s.drift_prior_per_k)
 
 
 # --- the plan ---------------------------------------------------------------------------------------------------------

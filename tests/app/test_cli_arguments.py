@@ -18,7 +18,7 @@ OPTIONS = {
     "rgse": "--debug --log-format --verbose --version -v",
     "rgse abort": "--config --reason --run --timeout",
     "rgse activate": "--config --json --note calibration",
-    "rgse calibrate": "--campaign --json --method --out --points --preprocessing",
+    "rgse calibrate": "--campaign --drift-prior --json --method --out --points --preprocessing",
     "rgse certificate": "--config --out run_id",
     "rgse cog": "--calibration --json --traces",
     "rgse confirm": "--config --message --point --run --timeout",
