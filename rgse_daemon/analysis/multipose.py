@@ -16,31 +16,26 @@ from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import TORQUE_CHANNEL, load_manifest, mean_temperature_k, read_toml
 from rgse_daemon.pipeline import multipose as mp
 from rgse_daemon.pipeline import preprocess as pp
-from rgse_daemon.pipeline.thermal import ThermalDrift
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.trace.diadem import read_trace_set
 
 A3_MODULE = "NextGenDrive#3"
 
 
-def _visits(directory: Path, pose: str, traces: list[str], pre: pp.Preprocessing, thermal: ThermalDrift | None
-            ) -> mp.PoseVisits:
-    """Per loop of the pose: the pre-processed A3 mean, brought to β's reference temperature when β applies."""
-    means, levers = [], []
+def _readings(directory: Path, pose: str, traces: list[str], pre: pp.Preprocessing) -> tuple[np.ndarray, np.ndarray]:
+    """Per loop of the pose: the pre-processed A3 mean (Nm, as read) and its mean A3 motor temperature (K; NaN where
+    the trace has none)."""
+    means, temps = [], []
     for t in traces:
         ts = read_trace_set(directory, t)
         tf = ts.files.get(A3_MODULE)
         if tf is None:
             raise DataError(f"{directory}: trace {t!r} of pose {pose} has no A3 drive ({A3_MODULE})")
         values = np.asarray(ts.channel(A3_MODULE, TORQUE_CHANNEL).values, float)
-        mean = pp.process_loop(values, float(tf.period_s), pre).torque_nm
+        means.append(pp.process_loop(values, float(tf.period_s), pre).torque_nm)
         temp = mean_temperature_k(tf)
-        if thermal is None or temp is None or not math.isfinite(temp):
-            means.append(mean)
-            levers.append(0.0)
-        else:
-            means.append(thermal.correct_nm("A3", mean, temp))
-            levers.append(mean * (temp - thermal.reference_k["A3"]))
-    return mp.PoseVisits(pose, np.array(means), np.array(levers))
+        temps.append(math.nan if temp is None else float(temp))
+    return np.array(means), np.array(temps)
 
 
 def _calibration(calf: calfile.CalFile, where: str, poses_q: dict[str, tuple[float, ...]], g_m_s2: float
@@ -89,9 +84,12 @@ def predict_methods(calf: calfile.CalFile, meas_pose_deg: tuple[float, ...], sin
 
 
 def compute_multipose_dir(directory: Path | str, calibration_path: Path | str,
-                          fixture_mass_kg: float | None = None) -> mp.MultiPoseMass:
-    """MP1–MP3 for a properties run directory measured in the ``lever`` scheme. DataError naming the file when the
-    run has no lever poses, CAL.json no torsional section with their bare readings and K_A3, or a pose one loop."""
+                          fixture_mass_kg: float | None = None,
+                          drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> mp.MultiPoseMass:
+    """MP1–MP3 for a properties run directory measured in the ``lever`` scheme, A3's thermal drift by issue 33's
+    rule (:func:`mp.visit_drift`; ``drift_prior_per_k`` as ``measurement.drift_prior_per_k``). DataError naming the
+    file when the run has no lever poses, CAL.json no torsional section with their bare readings and K_A3, or a pose
+    one loop."""
     directory = Path(directory)
     calf = calfile.read(calibration_path)
     pre, tors = calf.preprocessing, calf.torsional
@@ -105,17 +103,15 @@ def compute_multipose_dir(directory: Path | str, calibration_path: Path | str,
     if len(names) < 2:
         raise DataError(f"{man.path}: no lever poses (measure in CoG scheme 'lever' for the multi-pose mass)")
     # K_A3 and the bare readings hold at the torsional campaign's mean A3 temperature: the DuT's loops are brought
-    # there with the campaign's β (not to the mass campaign's reference: K_A3 would then be off by β·ΔT, 1.5 % over
-    # the 20 K between a cold mass campaign and a warm torsional one)
-    thermal = calf.fit.thermal
+    # there with the campaign's β where the data resolve it (not to the mass campaign's reference: K_A3 would then be
+    # off by β·ΔT, 1.5 % over the 20 K between a cold mass campaign and a warm torsional one)
     t_state = (tors.thermal_state_k or {}).get("A3")
-    if thermal is not None and (thermal.unresolved("A3") is not None or t_state is None):
-        thermal = None
-    if thermal is not None:
-        thermal = dataclasses.replace(thermal, reference_k={**thermal.reference_k, "A3": float(t_state)})
-    cal = dataclasses.replace(_calibration(calf, str(calibration_path), {n: specs[n][0] for n in names},
-                                           man.setup.g_m_s2),
-                              u_beta_per_k=0.0 if thermal is None else thermal.u_coeff_per_k["A3"])
-    visits = [_visits(directory, n, specs[n][1], pre or pp.PAPER, thermal) for n in names]
+    readings = {n: _readings(directory, n, specs[n][1], pre or pp.PAPER) for n in names}
+    cal = _calibration(calf, str(calibration_path), {n: specs[n][0] for n in names}, man.setup.g_m_s2)
+    # one visit's repeatability for the run's own drift: K_A3's in-point scatter (as the prediction takes it)
+    drift = mp.visit_drift(calf.fit.thermal, None if t_state is None else float(t_state), readings,
+                           drift_prior_per_k, cal.gain_a3.u_fit_nm)
+    cal = dataclasses.replace(cal, u_beta_per_k=drift.u_beta_per_k)
     m_f = man.fixture_mass_kg if fixture_mass_kg is None else fixture_mass_kg
-    return mp.multipose_mass(visits, cal, 0.0 if m_f is None else m_f)
+    result = mp.multipose_mass([drift.visits(n, *readings[n]) for n in names], cal, 0.0 if m_f is None else m_f)
+    return dataclasses.replace(result, warnings=[*drift.warnings, *result.warnings], thermal=drift.note)

@@ -35,6 +35,7 @@ from scipy import stats
 from rgse_daemon import kinematics as kin
 from rgse_daemon import robots
 from rgse_daemon.errors import DataError
+from rgse_daemon.pipeline import thermal as th
 from rgse_daemon.pipeline.axis_gain import AxisGain
 from rgse_daemon.pipeline.uncertainty import COVERAGE_K
 from rgse_daemon.robots.model import RobotModel
@@ -131,6 +132,122 @@ class PoseVisits:
         return int(np.size(self.torque_a3_nm))
 
 
+#: A DuT's visits further than this from the reference temperature (K) with the drift left uncorrected get a warning
+#: (as the single pose's loops, ``inline.THERMAL_NOTE_K``).
+THERMAL_NOTE_K = 1.0
+@dataclass(frozen=True)
+class RunDrift:
+    """A3's drift coefficient as the DuT's own visits show it: regression through the origin of r_kj − r̄_k on
+    r̄_k·(T_kj − T̄_k) over the poses (as :func:`~rgse_daemon.pipeline.thermal.fit_axis` does a campaign's points),
+    its standard uncertainty from one visit's repeatability σ (u = σ/√Σx²: a run has too few visits to estimate σ
+    itself; two poses visited twice leave one degree of freedom), the visits' largest temperature span within a
+    pose (K)."""
+
+    beta_per_k: float
+    u_beta_per_k: float
+    span_k: float
+
+
+def run_drift(readings: Sequence[tuple[np.ndarray, np.ndarray]], visit_sigma_nm: float) -> RunDrift | None:
+    """:class:`RunDrift` from each pose's visits ``(A3 readings Nm, motor temperatures K)`` and one visit's
+    repeatability (Nm); None where no pose has two visits with temperatures that differ, or σ is not known (≤ 0)."""
+    if not (visit_sigma_nm > 0.0 and math.isfinite(visit_sigma_nm)):
+        return None
+    xs, ys, spans = [], [], []
+    for r, t in readings:
+        r, t = np.asarray(r, float), np.asarray(t, float)
+        if r.size < 2 or not np.all(np.isfinite(t)):
+            continue
+        xs.append(r.mean() * (t - t.mean()))
+        ys.append(r - r.mean())
+        spans.append(float(np.ptp(t)))
+    if not xs:
+        return None
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    sxx = float(x @ x)
+    if sxx <= 0.0:
+        return None
+    return RunDrift(float(x @ y) / sxx, visit_sigma_nm / math.sqrt(sxx), max(spans))
+
+
+@dataclass(frozen=True)
+class VisitDrift:
+    """How the multi-pose mass treats A3's thermal drift: the visits brought to ``reference_k`` (where K_A3 and the
+    bare readings hold) with the campaign's β where it is applied; else left as read, and U's ``thermal`` term carries
+    the drift a |β| up to ``bound_per_k`` could cause over their offset (rectangular). ``u_beta_per_k``: u(β) where
+    applied, bound/√3 where not; 0 without a reference temperature or β. ``note``: how it was decided (the result's
+    ``thermal``); ``warnings``: what the operator must see."""
+
+    reference_k: float | None
+    beta_per_k: float
+    u_beta_per_k: float
+    applied: bool
+    note: str
+    warnings: tuple[str, ...] = ()
+
+    def visits(self, pose: str, readings_nm: np.ndarray, temps_k: np.ndarray) -> PoseVisits:
+        """The pose's visits as MP1–MP3 take them: readings at the reference temperature where β is applied, and
+        reading × (T − T_ref) for the thermal term."""
+        r, t = np.asarray(readings_nm, float), np.asarray(temps_k, float)
+        if self.reference_k is None or not np.all(np.isfinite(t)):
+            return PoseVisits(pose, r, np.zeros(r.size))
+        dt = t - self.reference_k
+        return PoseVisits(pose, r * (1.0 - self.beta_per_k * dt) if self.applied else r, r * dt)
+
+
+def visit_drift(campaign: th.ThermalDrift | None, reference_k: float | None,
+                readings: Mapping[str, tuple[np.ndarray, np.ndarray]], drift_prior_per_k: float,
+                visit_sigma_nm: float) -> VisitDrift:
+    """Issue 33's rule for the multi-pose mass: the campaign's A3 β corrects the visits (each pose's ``(A3 readings,
+    motor temperatures)``) to ``reference_k`` (the torsional campaign's A3 temperature) only where the data resolve it:
+
+    * the campaign resolves β (span ≥ 1 K, |β| ≥ 3 u) and the visits' mean lies within 3 × its span of the reference
+      (:meth:`ThermalDrift.not_applicable`, as the single pose); or
+    * the campaign resolves β, and the run's own visits show the same β (:func:`run_drift` with one visit's
+      repeatability ``visit_sigma_nm``: the two differ by at most 3 standard uncertainties of their difference, the
+      campaign's significance rule) over a span of their own ≥ 1 K that has the reference within 3 × that span: the
+      drift is then seen to be linear over the temperatures that matter, and the campaign's β (the better estimate)
+      corrects it.
+
+    Otherwise the visits are not corrected, U carries the campaign's bound (:meth:`ThermalDrift.drift_bound_per_k`)
+    over their offset and a warning says so; without β or a reference temperature there is nothing to correct or
+    bound with, and a reference missing while β exists is warned about."""
+    temps = np.concatenate([np.asarray(t, float) for _, t in readings.values()]) if readings else np.zeros(0)
+    if campaign is None:
+        return VisitDrift(reference_k, 0.0, 0.0, False, "no thermal drift in the calibration")
+    if reference_k is None or temps.size == 0 or not np.all(np.isfinite(temps)):
+        why = "the torsional campaign recorded no A3 motor temperature" if reference_k is None else \
+            "the visits recorded no A3 motor temperature"
+        return VisitDrift(None, 0.0, 0.0, False, f"not corrected: {why}",
+                          (f"thermal drift of A3 neither corrected nor bounded in the multi-pose mass: {why}",))
+    offset = float(np.mean(temps) - reference_k)
+    beta, u_beta = campaign.coeff_per_k["A3"], campaign.u_coeff_per_k["A3"]
+    why = campaign.not_applicable("A3", offset)
+    if why is None:
+        return VisitDrift(reference_k, beta, u_beta, True, f"campaign's β applied over {offset:+.1f} K")
+    run = run_drift(list(readings.values()), visit_sigma_nm) if campaign.unresolved("A3") is None else None
+    if run is not None:
+        agree = abs(run.beta_per_k - beta) <= th.MIN_SIGNIFICANCE * math.hypot(run.u_beta_per_k, u_beta)
+        covered = run.span_k >= th.MIN_SPAN_K and abs(offset) <= th.MAX_EXTRAPOLATION * run.span_k
+        seen = (f"the run's visits show β = {100 * run.beta_per_k:+.4f} ± {100 * run.u_beta_per_k:.4f} %/K over "
+                f"{run.span_k:.2g} K")
+        if agree and covered:
+            return VisitDrift(reference_k, beta, u_beta, True,
+                              f"campaign's β applied over {offset:+.1f} K: {seen}, the same within "
+                              f"{th.MIN_SIGNIFICANCE:g} standard uncertainties")
+        why += f"; {seen}" + ("" if agree else ", not the campaign's") + \
+            ("" if covered else f", a span that does not reach the reference {offset:+.1f} K away")
+    bound = campaign.drift_bound_per_k("A3", drift_prior_per_k)
+    source = f"the prior {100 * drift_prior_per_k:.3g} %/K" if bound >= drift_prior_per_k else \
+        "the campaign's |β| + 2 u(β)"
+    warnings = () if abs(offset) <= THERMAL_NOTE_K else (
+        f"thermal drift of A3 not corrected in the multi-pose mass: β = {100 * beta:+.3f} ± {100 * u_beta:.3f} %/K "
+        f"is not applied to the visits ({why}); U carries a drift of up to {100 * bound:.3g} %/K ({source}) over "
+        f"the {offset:+.1f} K offset. Measure the DuT at the torsional campaign's motor temperature "
+        f"({reference_k:.1f} K), or calibrate over a temperature span that covers it",)
+    return VisitDrift(reference_k, 0.0, bound / math.sqrt(3.0), False, f"not corrected: {why}", warnings)
+
+
 @dataclass(frozen=True)
 class PoseBias:
     """The bare reading (MPA only) of a pose: mean A3 (Nm), its standard uncertainty, mean reading × (T − T_ref)."""
@@ -214,13 +331,16 @@ class MultiPoseMass:
     residual_nm: dict[str, float]
     """x_k minus the fitted line (MP1), Nm: zero with two poses."""
     warnings: list[str] = field(default_factory=list)
+    thermal: str = ""
+    """How A3's thermal drift was treated (:attr:`VisitDrift.note`); "" where the caller did not decide it."""
 
     def to_json(self) -> dict:
         u = self.uncertainty
         return {"method": "multipose", "mass_kg": self.mass_kg, "gross_mass_kg": self.gross_mass_kg,
                 "U_kg": u.expanded_kg, "u_kg": u.u_kg, "k": COVERAGE_K, "budget_kg": u.components(),
                 "student_factor": u.student_factor, "payload_torque_a3_nm": self.payload_torque_a3_nm,
-                "visits": self.visits, "residual_nm": self.residual_nm, "warnings": list(self.warnings)}
+                "visits": self.visits, "residual_nm": self.residual_nm, "warnings": list(self.warnings),
+                "thermal": self.thermal}
 
 
 def _student(dof: int) -> float:

@@ -189,7 +189,7 @@ def compute_properties(run_dir: Path, mass_method: str = "single",
     ``drift_prior_per_k`` (``measurement.drift_prior_per_k``)."""
     cal = run_dir / CALIBRATION_FILE
     mass = {**_chosen_mass(run_dir, single or compute_mass(run_dir, cal, drift_prior_per_k=drift_prior_per_k),
-                           mass_method, robot_time_s or {}),
+                           mass_method, robot_time_s or {}, drift_prior_per_k),
             "mass_method_requested": mass_method}  # what was asked for: the surfaces say when auto chose
     cog = compute_cog_dir(run_dir, cal, mass_kg=mass["mass_kg"], u_mass_kg=mass["u_kg"])
     c = cog.to_json()
@@ -203,8 +203,8 @@ def compute_properties(run_dir: Path, mass_method: str = "single",
 MASS_METHODS = ("single", "multipose", "auto")
 
 
-def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_time_s: Mapping[str, float]
-                 ) -> dict[str, Any]:
+def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_time_s: Mapping[str, float],
+                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> dict[str, Any]:
     """The mass result of ``mass_method``: the single pose's as it is, or with the multi-pose mass's figures in its
     place; both under ``mass_methods`` (each with its robot time), which one under ``mass_method``."""
     methods: dict[str, Any] = {"single": {"mass_kg": single["mass_kg"], "U_kg": single["U_kg"],
@@ -213,7 +213,7 @@ def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_
     if mass_method == "single":
         return {**single, "mass_method": "single", "mass_methods": methods}
     try:
-        multi = compute_multipose_dir(run_dir, run_dir / CALIBRATION_FILE)
+        multi = compute_multipose_dir(run_dir, run_dir / CALIBRATION_FILE, drift_prior_per_k=drift_prior_per_k)
     except DataError as exc:
         if mass_method == "multipose":
             raise
@@ -221,7 +221,8 @@ def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_
                 "warnings": [*single["warnings"], f"multi-pose mass not available ({exc}): the single pose's used"]}
     mj = multi.to_json()
     methods["multipose"] = {"mass_kg": mj["mass_kg"], "U_kg": mj["U_kg"], "u_components_kg": mj["budget_kg"],
-                            "robot_time_s": robot_time_s.get("multipose"), "visits": mj["visits"]}
+                            "robot_time_s": robot_time_s.get("multipose"), "visits": mj["visits"],
+                            "thermal": mj["thermal"]}
     chosen = mass_method
     if mass_method == "auto":
         chosen = choose_method({k: (v["U_kg"], max(float(v["robot_time_s"] or 0.0), 1.0) / 60.0)

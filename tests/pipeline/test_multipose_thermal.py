@@ -1,0 +1,98 @@
+"""Issue 33's thermal rule for the multi-pose mass (:func:`multipose.visit_drift`): the campaign's A3 β corrects the
+visits to the torsional campaign's temperature only where the data resolve it (within 3 × the campaign's span, or
+where the run's own visits show the same β over a span that reaches the reference), else U carries the bound and the
+operator is warned."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from rgse_daemon.pipeline import multipose as mp
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K, ThermalDrift
+
+REF_K = 310.0
+BETA = 0.0008  # 0.08 %/K, the simulated KR C4's A3
+SIGMA_NM = 0.5  # one visit's repeatability (K_A3's in-point scatter)
+R_NM = {"meas": -3000.0, "A3-80": -1200.0}  # each pose's A3 reading at REF_K
+
+
+def campaign(beta: float = BETA, u: float = 0.00003, span_k: float = 1.9) -> ThermalDrift:
+    return ThermalDrift({"A3": beta, "A5": 0.0017}, {"A3": u, "A5": 0.00005}, {"A3": 300.0, "A5": 300.0}, 40,
+                        {"A3": span_k, "A5": span_k})
+
+
+def visits(temps_k: dict[str, list[float]], beta: float = BETA, noise_nm: float = 0.3, seed: int = 0
+           ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Each pose's readings at ``temps_k``, drifting by ``beta`` from REF_K, with white noise."""
+    rng = np.random.default_rng(seed)
+    out = {}
+    for pose, ts in temps_k.items():
+        t = np.array(ts, float)
+        out[pose] = (R_NM[pose] * (1.0 + beta * (t - REF_K)) + rng.normal(0.0, noise_nm, t.size), t)
+    return out
+
+
+WARMING = {"meas": [313.6, 333.0], "A3-80": [320.0, 326.0]}  # A B B A over a 19.4 K warming, 13.1 K from REF_K
+STEADY = {"meas": [317.4, 317.5], "A3-80": [317.4, 317.5]}  # 7.4 K from REF_K, no warming within the run
+
+
+def test_within_three_spans_of_the_reference_the_campaigns_beta_is_applied():
+    d = mp.visit_drift(campaign(span_k=3.0), REF_K, visits(STEADY), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert d.applied and d.beta_per_k == BETA and d.warnings == ()
+    v = d.visits("meas", *visits(STEADY)["meas"])
+    assert v.torque_a3_nm == pytest.approx([R_NM["meas"]] * 2, abs=1.5)  # brought back to REF_K
+
+
+def test_the_runs_own_visits_confirm_the_campaigns_beta_beyond_three_spans():
+    d = mp.visit_drift(campaign(), REF_K, visits(WARMING), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert d.applied and d.beta_per_k == BETA and d.u_beta_per_k == 0.00003
+    assert "the run's visits show β = +0.079" in d.note and "over 19 K, the same within 3 standard" in d.note
+    for pose, (r, t) in visits(WARMING).items():
+        assert d.visits(pose, r, t).torque_a3_nm == pytest.approx([R_NM[pose]] * 2, abs=1.5)
+
+
+def test_a_run_whose_drift_is_not_the_campaigns_is_not_corrected_and_u_carries_the_bound():
+    d = mp.visit_drift(campaign(), REF_K, visits(WARMING, beta=0.0), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not d.applied and d.beta_per_k == 0.0
+    assert d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0))
+    assert "not the campaign's" in d.note
+    (w,) = d.warnings
+    assert w.startswith("thermal drift of A3 not corrected in the multi-pose mass") and "+13.1 K offset" in w
+    r, t = visits(WARMING, beta=0.0)["meas"]
+    v = d.visits("meas", r, t)
+    assert np.array_equal(v.torque_a3_nm, r)  # as read
+    assert v.thermal_lever_nm_k == pytest.approx(r * (t - REF_K))
+
+
+def test_a_steady_run_beyond_three_spans_cannot_confirm_beta_and_is_bounded():
+    d = mp.visit_drift(campaign(), REF_K, visits(STEADY), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not d.applied and "beyond 3 × the 1.9 K span" in d.note
+    assert d.warnings and d.u_beta_per_k > 0
+
+
+def test_a_campaign_span_below_one_kelvin_bounds_by_the_prior():
+    d = mp.visit_drift(campaign(span_k=0.2), REF_K, visits(WARMING), 0.002, SIGMA_NM)
+    assert not d.applied and "spanned 0.2 K" in d.note
+    assert d.u_beta_per_k == pytest.approx(0.002 / math.sqrt(3.0))
+
+
+def test_without_a_reference_temperature_the_operator_is_told():
+    d = mp.visit_drift(campaign(), None, visits(WARMING), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not d.applied and d.u_beta_per_k == 0.0
+    assert d.warnings == ("thermal drift of A3 neither corrected nor bounded in the multi-pose mass: the torsional "
+                          "campaign recorded no A3 motor temperature",)
+    none = mp.visit_drift(None, REF_K, visits(WARMING), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not none.applied and none.warnings == () and none.u_beta_per_k == 0.0
+
+
+def test_run_drift_needs_two_visits_of_a_pose_and_a_known_repeatability():
+    assert mp.run_drift([(np.array([1.0]), np.array([300.0]))], SIGMA_NM) is None
+    assert mp.run_drift([(np.array([1.0, 2.0]), np.array([300.0, 300.0]))], SIGMA_NM) is None
+    assert mp.run_drift(list(visits(WARMING).values()), 0.0) is None
+    got = mp.run_drift(list(visits(WARMING, noise_nm=SIGMA_NM).values()), SIGMA_NM)
+    assert got is not None and got.span_k == pytest.approx(19.4)
+    # β over the visits' own mean temperature: β / (1 + β·ΔT), 1 % below β at 13 K (first order, as the campaign's)
+    assert got.beta_per_k == pytest.approx(BETA / (1 + BETA * 13.2), abs=3 * got.u_beta_per_k)
