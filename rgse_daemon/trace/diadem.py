@@ -575,9 +575,9 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
                     with_blake3: bool = False) -> TraceFile:
     """Read one ``.dat`` header and its data file(s).
 
-    ``with_sha256=False`` skips hashing (``TraceFile.sha256`` is then empty): SHA-256 runs at ~2 GB/s, several
-    times slower than the rest of the reader, and only the archive and the results need it (their records are
-    SHA-256). ``with_blake3=True`` fills ``TraceFile.blake3``: BLAKE3 on every core, for integrity checks of a
+    ``with_sha256=False`` skips hashing (``TraceFile.sha256`` is then empty): SHA-256 runs at ~2.2 GB/s a core,
+    less than half the speed of the rest of the reader, and only the archive and the results need it (their records
+    are SHA-256). ``with_blake3=True`` fills ``TraceFile.blake3``: BLAKE3 on every core, for integrity checks of a
     whole archive's re-analysis where no SHA-256 record is compared (``bench/robot_time.py``: read + BLAKE3 vs
     ``numpy.fromfile``).
 
