@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import io
 import math
 import os
 import re
@@ -45,6 +46,7 @@ from collections.abc import Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path, PureWindowsPath
+from typing import Protocol
 
 import blake3
 import numpy as np
@@ -294,18 +296,38 @@ def _spec(index: int, block: dict[int, str], source: str) -> _Spec:
 
 
 # --- data --------------------------------------------------------------------------------------------------------
-def _read_raw(
-    path: Path, specs: list[_Spec], source: str, with_sha256: bool, with_blake3: bool = False
-) -> tuple[dict[str, np.ndarray], bool, dict[str, str]]:
-    """The raw values of each channel of one data file (read-only), whether all are finite and, if asked, the
-    SHA-256 of the file's bytes.
+#: Bytes read per step. Each step's digests and min/max run while its bytes are in the core's cache (L2: 1 MiB
+#: per core on the bench machine), so the file's bytes come from memory once, not once per pass. 256 kB to 4 MB
+#: read + hash a 100 MB set alike within the noise of the shared 2-core bench machine (docs/accuracy.md, issue 35).
+CHUNK_BYTES = 1024 * 1024
+
+
+@dataclass(frozen=True)
+class _Raw:
+    """One data file as read: each channel's raw values (read-only views into one block) and, per chunk read, the
+    range of value indices ``[starts[i], starts[i + 1])`` with its min and max (NaN if any value is NaN)."""
+
+    columns: dict[str, np.ndarray]
+    placement: dict[str, tuple[int, int]]
+    """Channel -> (value index of its first sample, values between two samples): sample ``i`` is value
+    ``first + i * stride`` of the file."""
+    starts: np.ndarray
+    lows: np.ndarray
+    highs: np.ndarray
+    digest: dict[str, str]
+
+
+def _read_raw(path: Path, specs: list[_Spec], source: str, with_sha256: bool, with_blake3: bool = False) -> _Raw:
+    """The raw values of each channel of one data file (read-only), the min/max of every chunk read and, if asked,
+    the SHA-256 and/or BLAKE3 of the file's bytes.
 
     The file's size is checked against the header (codes 220/221, :func:`_layout`) and :data:`MAX_DATA_BYTES`
     *before* a byte of it is read, and no more than that is ever read: a 2 GB file behind a 40-sample header is
-    refused at once instead of filling the memory. The digests (by algorithm name) hash the buffer already read."""
+    refused at once instead of filling the memory. The file is read in chunks of :data:`CHUNK_BYTES` into one
+    block of the size the header announces; the digests hash that block's bytes, chunk by chunk as they arrive."""
     dtype = _DTYPES["REAL64"]
     try:
-        with open(path, "rb") as f:
+        with open(path, "rb", buffering=0) as f:
             size = os.fstat(f.fileno()).st_size
             if size % dtype.itemsize:
                 raise DataError(f"{path}: data size {size} bytes is not a multiple of {dtype.itemsize} (REAL64)")
@@ -314,20 +336,64 @@ def _read_raw(
                                 "the controller's trace buffer writes; not read")
             n_values = size // dtype.itemsize
             layout = _layout(specs, n_values, path)
-            raw = np.fromfile(f, dtype=dtype, count=n_values)
+            raw = np.empty(n_values, dtype=dtype)
+            got, starts, lows, highs, digest = _read_chunks(f, raw, with_sha256, with_blake3)
     except FileNotFoundError:
         raise DataError(f"{source}: data file {path.name!r} (code 211) not found beside the header") from None
     except OSError as exc:
         raise DataError(f"{path}: cannot read data file: {exc}") from exc
-    if raw.size != n_values:
-        raise DataError(f"{path}: data file changed while reading ({raw.size * dtype.itemsize} of {size} bytes)")
-    digest = _digests(raw.view(np.uint8), with_sha256, with_blake3)
+    if got != size:
+        raise DataError(f"{path}: data file changed while reading ({got - got % dtype.itemsize} of {size} bytes)")
     raw.flags.writeable = False
-    finite = _all_finite(raw)
     if isinstance(layout, int):  # BLOCK: a table of ``layout`` columns, one row per sample
         table = raw.reshape(-1, layout)
-        return {s.name: table[:, s.pointer - 1] for s in specs}, finite, digest
-    return {s.name: raw[sl] for s, sl in zip(specs, layout, strict=True)}, finite, digest
+        columns = {s.name: table[:, s.pointer - 1] for s in specs}
+        placement = {s.name: (s.pointer - 1, layout) for s in specs}
+    else:
+        columns = {s.name: raw[sl] for s, sl in zip(specs, layout, strict=True)}
+        placement = {s.name: (s.pointer - 1, 1) for s in specs}
+    return _Raw(columns, placement, starts, lows, highs, digest)
+
+
+def _read_chunks(
+    f: io.RawIOBase, raw: np.ndarray, with_sha256: bool, with_blake3: bool
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, dict[str, str]]:
+    """Fill ``raw`` from ``f`` chunk by chunk, hashing each chunk and taking its min/max while it is cache-hot.
+
+    Returns the bytes read (fewer than ``raw`` holds if the file shrank), the value index where each chunk starts
+    (and, last, where the values read end), each chunk's min and max, and the digests of the bytes read."""
+    hashers: dict[str, _Hasher] = {}
+    if with_sha256:
+        hashers["sha256"] = hashlib.sha256()
+    if with_blake3:  # one thread per file: read_trace_set reads the files on threads of its own
+        hashers["blake3"] = blake3.blake3(max_threads=1)
+    buffer = memoryview(raw).cast("B")
+    starts: list[int] = []
+    lows: list[float] = []
+    highs: list[float] = []
+    got = done = 0  # bytes read, values whose min/max is taken
+    while got < len(buffer):
+        n = f.readinto(buffer[got : got + CHUNK_BYTES])
+        if not n:  # the file is shorter than it was a moment ago
+            break
+        for h in hashers.values():  # SHA-256 and BLAKE3 release the GIL on chunks this large
+            h.update(buffer[got : got + n])
+        got += n
+        end = got // raw.itemsize  # a value cut by the chunk's end is taken with the next chunk
+        if end > done:
+            chunk = raw[done:end]
+            starts.append(done)
+            lows.append(chunk.min())
+            highs.append(chunk.max())
+            done = end
+    starts.append(done)
+    return (got, np.array(starts, dtype=np.int64), np.array(lows, dtype=raw.dtype), np.array(highs, dtype=raw.dtype),
+            {name: h.hexdigest() for name, h in hashers.items()})
+
+
+class _Hasher(Protocol):
+    def update(self, data: memoryview, /) -> object: ...
+    def hexdigest(self) -> str: ...
 
 
 def _digests(data: bytes | np.ndarray, with_sha256: bool, with_blake3: bool) -> dict[str, str]:
@@ -392,6 +458,39 @@ def no_value(global_header: Mapping[int, str], source: str) -> float | None:
     return _float(global_header, 111, source, "global header (no-value marker)")
 
 
+def _clear_below(novalue: float | None) -> float:
+    """A magnitude below which a raw value is certainly a sample: finite and not the no-value marker.
+
+    :func:`_missing` takes ``|raw - novalue| <= _NOVALUE_RTOL * |novalue|`` for the marker; this bound keeps
+    ``3 * _NOVALUE_RTOL * |novalue|`` clear of that band, far more than the rounding of ``raw - novalue`` (1e-16
+    relative). No marker: every finite value is a sample (inf). A marker of 0: nothing is certain (0)."""
+    if novalue is None:
+        return math.inf
+    return abs(novalue) * (1.0 - 4.0 * _NOVALUE_RTOL)
+
+
+def _doubtful_channels(raw: _Raw, novalue: float | None) -> set[str]:
+    """The channels of one data file that may hold a missing sample or a non-finite value; only they need the
+    sample-by-sample test of :func:`_physical`.
+
+    A chunk whose min and max lie strictly inside ``±_clear_below(novalue)`` clears every sample in it (NaN makes
+    min and max NaN, inf shows in them). In a chunk that is not cleared, each channel's own samples are compared
+    with the same bound; a channel none of whose samples fail is clear."""
+    bound = _clear_below(novalue)
+    doubtful_chunks = np.flatnonzero(~((raw.lows > -bound) & (raw.highs < bound)))
+    out: set[str] = set()
+    for name, column in raw.columns.items():
+        first, stride = raw.placement[name]
+        for k in doubtful_chunks:
+            v0, v1 = int(raw.starts[k]), int(raw.starts[k + 1])
+            i0 = max(0, -((first - v0) // stride))  # the first sample at value index >= v0: ceil((v0-first)/stride)
+            i1 = min(column.size, -((first - v1) // stride))
+            if i1 > i0 and not bool((np.abs(column[i0:i1]) < bound).all()):  # NaN < bound is False
+                out.add(name)
+                break
+    return out
+
+
 def _missing(raw: np.ndarray, novalue: float | None) -> np.ndarray | None:
     """Mask of the missing raw samples (the no-value marker, NaN, inf); None when there is none."""
     with np.errstate(over="ignore", invalid="ignore"):
@@ -401,14 +500,13 @@ def _missing(raw: np.ndarray, novalue: float | None) -> np.ndarray | None:
     return mask if mask.any() else None
 
 
-def _physical(raw: np.ndarray, spec: _Spec, path: Path, raw_finite: bool,
-              novalue: float | None = None) -> tuple[np.ndarray, int]:
+def _physical(raw: np.ndarray, spec: _Spec, path: Path, novalue: float | None = None) -> tuple[np.ndarray, int]:
     """``raw * factor + offset``, read-only, with missing samples (:func:`_missing`) as NaN, and their count; a value
     that scaling carries out of the float range is refused (no copy for the identity calibration).
 
-    ``raw_finite``: the whole data block is known finite, so an identity-scaled channel needs no finiteness check.
-    """
-    mask = None if raw_finite and novalue is None else _missing(raw, novalue)
+    Sample by sample, for a channel the chunks' min/max did not clear (:func:`_doubtful_channels`); a cleared
+    channel goes straight to :func:`_scaled`, with the same result."""
+    mask = _missing(raw, novalue)
     if mask is not None:
         with np.errstate(over="ignore", invalid="ignore"):
             values = np.where(mask, np.nan, raw * spec.factor + spec.offset)
@@ -418,21 +516,19 @@ def _physical(raw: np.ndarray, spec: _Spec, path: Path, raw_finite: bool,
                             f"after scaling (codes 240/241)")
         values.flags.writeable = False
         return values, int(mask.sum())
-    return _scaled(raw, spec, path, raw_finite), 0
+    return _scaled(raw, spec, path), 0
 
 
-def _scaled(raw: np.ndarray, spec: _Spec, path: Path, raw_finite: bool) -> np.ndarray:
-    """``raw * factor + offset`` of a channel without missing samples, read-only, checked finite."""
+def _scaled(raw: np.ndarray, spec: _Spec, path: Path) -> np.ndarray:
+    """``raw * factor + offset`` of a channel whose raw values are all finite samples, read-only, checked finite
+    (the raw view itself for the identity calibration)."""
     if spec.factor == 1.0 and spec.offset == 0.0:
-        values = raw
-        if raw_finite:
-            return values
-    else:
-        with np.errstate(over="ignore", invalid="ignore"):  # overflow shows up as inf and is refused below
-            values = raw * spec.factor
-            if spec.offset != 0.0:
-                values += spec.offset
-        values.flags.writeable = False
+        return raw
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow shows up as inf and is refused below
+        values = raw * spec.factor
+        if spec.offset != 0.0:
+            values += spec.offset
+    values.flags.writeable = False
     if not _all_finite(values):
         bad = int(np.flatnonzero(~np.isfinite(values))[0])
         raise DataError(f"{path}: channel {spec.name!r} has a non-finite value (NaN or inf) at sample {bad}")
@@ -479,9 +575,9 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
                     with_blake3: bool = False) -> TraceFile:
     """Read one ``.dat`` header and its data file(s).
 
-    ``with_sha256=False`` skips hashing (``TraceFile.sha256`` is then empty): SHA-256 runs at ~2 GB/s, several
-    times slower than the rest of the reader, and only the archive and the results need it (their records are
-    SHA-256). ``with_blake3=True`` fills ``TraceFile.blake3``: BLAKE3 on every core, for integrity checks of a
+    ``with_sha256=False`` skips hashing (``TraceFile.sha256`` is then empty): SHA-256 runs at ~2.2 GB/s a core,
+    less than half the speed of the rest of the reader, and only the archive and the results need it (their records
+    are SHA-256). ``with_blake3=True`` fills ``TraceFile.blake3``: BLAKE3 on every core, for integrity checks of a
     whole archive's re-analysis where no SHA-256 record is compared (``bench/robot_time.py``: read + BLAKE3 vs
     ``numpy.fromfile``).
 
@@ -523,7 +619,7 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
     header_digest = _digests(header_bytes, with_sha256, with_blake3)
     sha256 = {dat_path.name: header_digest["sha256"]} if with_sha256 else {}
     b3 = {dat_path.name: header_digest["blake3"]} if with_blake3 else {}
-    raw_by_name: dict[str, tuple[np.ndarray, bool]] = {}
+    raws: list[_Raw] = []
     data_paths: list[Path] = []
     for file_name in by_file:
         if file_name == dat_path.name:
@@ -538,12 +634,12 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
         inside(dat_path.parent, dat_path.with_name(file_name))
     for file_name, group in by_file.items():
         data_path = dat_path.with_name(file_name)
-        columns, finite, digest = _read_raw(data_path, group, source, with_sha256, with_blake3)
-        if "sha256" in digest:
-            sha256[file_name] = digest["sha256"]
-        if "blake3" in digest:
-            b3[file_name] = digest["blake3"]
-        raw_by_name.update({name: (column, finite) for name, column in columns.items()})
+        raw = _read_raw(data_path, group, source, with_sha256, with_blake3)
+        if "sha256" in raw.digest:
+            sha256[file_name] = raw.digest["sha256"]
+        if "blake3" in raw.digest:
+            b3[file_name] = raw.digest["blake3"]
+        raws.append(raw)
         data_paths.append(data_path)
 
     n_samples = time_spec.count
@@ -556,13 +652,18 @@ def read_trace_file(dat_path: Path | str, module: str | None = None, *, with_sha
     channels: dict[str, Channel] = {}
     period_s = 0.0
     novalue = no_value(global_header, source)
+    raw_by_name = {name: column for raw in raws for name, column in raw.columns.items()}
+    doubtful = set().union(*(_doubtful_channels(raw, novalue) for raw in raws))
     for s in specs:
         missing = 0
         if s.implicit:
             values = _implicit_values(s, source)
         else:
-            column, block_finite = raw_by_name[s.name]
-            values, missing = _physical(column, s, dat_path.with_name(s.data_file), block_finite, novalue)
+            column, data_path = raw_by_name[s.name], dat_path.with_name(s.data_file)
+            if s.name in doubtful:
+                values, missing = _physical(column, s, data_path, novalue)
+            else:
+                values = _scaled(column, s, data_path)
         if s is time_spec and missing:
             raise DataError(f"{source}: time channel {s.name!r} has {missing} missing samples (no value, NaN or inf)")
         if s is time_spec:
