@@ -52,14 +52,16 @@ async def demo_sim(prefix: str, scale: float, seed: int) -> AsyncIterator[tuple[
 
 
 @asynccontextmanager
-async def running_daemon(sim: SimProcess, cfg: Config,
-                         watch: Callable[[Event], None] | None = None) -> AsyncIterator[Daemon]:
-    """The whole daemon on ``sim``, connected, with the demo's simulated operator; ``watch`` sees every event too."""
+async def running_daemon(sim: SimProcess, cfg: Config, watch: Callable[[Event], None] | None = None,
+                         operator: Callable[[SimProcess, list[Daemon], demo.View], demo.Operator] = demo.Operator,
+                         ) -> AsyncIterator[Daemon]:
+    """The whole daemon on ``sim``, connected, with the demo's simulated operator (or the one ``operator`` builds from
+    the simulator, the daemon's slot and a view); ``watch`` sees every event too."""
     ref: list[Daemon] = []
-    operator = demo.Operator(sim, ref, demo.SilentView())
+    lab = operator(sim, ref, demo.SilentView())
 
     def on_event(ev: Event) -> None:
-        operator(ev)
+        lab(ev)
         if watch is not None:
             watch(ev)
 
