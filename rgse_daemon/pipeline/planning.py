@@ -406,8 +406,11 @@ def plan(mass_kg: np.ndarray, lever_a5_m: np.ndarray, eq: Equipment, *, loops: i
         f"robot has an active calibration; a first campaign takes measurement.loops per point unless set to {loops}",
         f"first warm-up {tm.warmup_initial_min_s:.0f}-{tm.warmup_initial_s:.0f} s (until A3/A5 are steady over "
         f"warmup_steady_window_s, at most measurement.warmup_max_s; the robot time is given at the bound)",
-        f"a re-warm-up of {tm.rewarm_s:.0f} s (warmup_steady_window_s) after every load change: assumed the motors "
-        f"cool by > 1 K while a load is mounted (not measured on a real KR C4)",
+        f"a re-warm-up of {tm.rewarm_s:.0f} s (warmup_steady_window_s) after every load change: the least one takes "
+        f"(steady motion over the window), assumed enough because a quick change keeps the motors near their "
+        f"temperature; not measured on a real KR C4. A change of minutes with the brakes applied cools them more and "
+        f"needs longer (the simulator's thermal model: 13 K in 2 min, a re-warm-up of 17-20 min, docs/accuracy.md); "
+        f"the campaign's warm-up events show the lab's own figure",
         f"a load change {tm.load_change_s:.0f} s of the operator (robot standing; not robot time): assumed",
         f"U: sigma_mount {um.sigma_mount_kg:g} kg per mounting (issue 35's 1.21 kg reproducibility on 10 loaded "
         f"points, Table 1's ~±1 kg), x sqrt(1 + {um.curve_params}/N) for the curve in the held-out residuals, DuT "
