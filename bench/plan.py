@@ -130,21 +130,23 @@ class LogCapture(logging.Handler):
 
 
 async def run_campaign(points_file: Path, scale: float, seed: int, loops: int,
-                       load_change_s: float = 0.0) -> dict[str, Any]:
+                       load_change_s: float = 0.0, rewarm: bool = True) -> dict[str, Any]:
     log = LogCapture()
     logging.getLogger("rgse_daemon").addHandler(log)
     try:
-        return await _run_campaign(points_file, scale, seed, loops, load_change_s, log)
+        return await _run_campaign(points_file, scale, seed, loops, load_change_s, log, rewarm)
     finally:
         logging.getLogger("rgse_daemon").removeHandler(log)
 
 
 async def _run_campaign(points_file: Path, scale: float, seed: int, loops: int, load_change_s: float,
-                        log: LogCapture) -> dict[str, Any]:
+                        log: LogCapture, rewarm: bool = True) -> dict[str, Any]:
     changes: list[dict[str, Any]] = []
     operator = slow_operator(load_change_s, scale, changes) if load_change_s > 0.0 else demo.Operator
     async with demo_sim("rgse-bench-plan-", scale, seed) as (sim, cfg):
-        s = RunSettings.from_config(cfg, loops=loops)
+        # rewarm False: one warm-up run before the first point and none after a load change (the campaign's loops
+        # then warm the motors and span the temperatures β is fitted on)
+        s = RunSettings.from_config(cfg, loops=loops, **({} if rewarm else {"warmup_until_steady": False}))
         points = [campaign_point(CalibrationPoint.model_validate(p.as_command()), s.g_m_s2)
                   for p in load_points(points_file)]
         clock = WarmupClock()
@@ -160,7 +162,8 @@ async def _run_campaign(points_file: Path, scale: float, seed: int, loops: int, 
             res = await finished(await daemon.start_measurement())
             alarms = _alarms(clock, daemon)
             log.phase = "shut-down"
-    return {"scale": scale, "seed": seed, "loops_per_point": loops, "points": len(points),
+    return {"scale": scale, "seed": seed, "loops_per_point": loops, "points": len(points), "rewarm": rewarm,
+            "thermal_applied": res.get("thermal_applied"), "calibration_thermal": cal.get("thermal"),
             "load_change_s": load_change_s, "load_changes": changes,
             "campaign_wall_s": wall, "loops_robot_min": float(cal["robot_time_s"]) * scale / 60.0,
             "loops": sum(int(p["loops"]) for p in cal.get("points_stop", [])),
@@ -187,6 +190,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=demo.SEED)
     ap.add_argument("--load-change-s", type=float, default=0.0,
                     help="robot time (s) the operator takes for each load change, drives off (0: mounts at once)")
+    ap.add_argument("--no-rewarm", action="store_true",
+                    help="one warm-up run before the first point, no warm-up after a load change")
     args = ap.parse_args()
     if args.time_scale <= 0.0 or args.load_change_s < 0.0:
         ap.error("--time-scale must be > 0 and --load-change-s >= 0")
@@ -194,7 +199,8 @@ def main() -> None:
         f = Path(tmp) / "plan.toml"
         out: dict[str, Any] = {"range": {"mass_kg": MASS_KG, "lever_a5_m": LEVER_A5_M}, "predicted": predicted(f)}
         if args.run:
-            out["run"] = asyncio.run(run_campaign(f, args.time_scale, args.seed, 3, args.load_change_s))
+            out["run"] = asyncio.run(run_campaign(f, args.time_scale, args.seed, 3, args.load_change_s,
+                                                  not args.no_rewarm))
     _print(out)
     print(json.dumps(out))
 
