@@ -96,3 +96,14 @@ def test_run_drift_needs_two_visits_of_a_pose_and_a_known_repeatability():
     assert got is not None and got.span_k == pytest.approx(19.4)
     # β over the visits' own mean temperature: β / (1 + β·ΔT), 1 % below β at 13 K (first order, as the campaign's)
     assert got.beta_per_k == pytest.approx(BETA / (1 + BETA * 13.2), abs=3 * got.u_beta_per_k)
+
+
+def test_a_run_too_noisy_to_resolve_a_drift_of_its_own_does_not_confirm_the_campaigns_beta():
+    # no drift at all in the visits (a magnet lagging the winding sensor), 7.2 K from REF_K over a 2.5 K span; one
+    # visit scattering 3 Nm leaves u(β) of the run at 0.055 %/K: 0 agrees with the campaign's 0.08 %/K within 3 u,
+    # so agreement alone cannot tell the campaign's β from no drift (applied, it would move the mass by 0.6 %)
+    still = {"meas": [316.0, 318.5], "A3-80": [316.5, 318.0]}
+    d = mp.visit_drift(campaign(), REF_K, visits(still, beta=0.0, noise_nm=0.0), DRIFT_PRIOR_PER_K, 3.0)
+    assert not d.applied and d.beta_per_k == 0.0
+    assert "not resolved" in d.note and d.warnings
+    assert d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0))
