@@ -241,6 +241,9 @@ def visit_drift(campaign: th.ThermalDrift | None, reference_k: float | None,
         why += f"; {seen}" + ("" if agree else ", not the campaign's") + \
             ("" if resolved else f", not resolved ({th.MIN_SIGNIFICANCE:g} u from 0 needed)") + \
             ("" if covered else f", a span that does not reach the reference {offset:+.1f} K away")
+    elif campaign.unresolved("A3") is None and not (visit_sigma_nm > 0.0 and math.isfinite(visit_sigma_nm)):
+        why += "; the run's own drift not checked: the calibration gives no visit repeatability (K_A3's u_fit_nm, " \
+            "missing in a CAL.json fitted before it; refit to have it)"
     bound = campaign.drift_bound_per_k("A3", drift_prior_per_k)
     source = f"the prior {100 * drift_prior_per_k:.3g} %/K" if bound >= drift_prior_per_k else \
         "the campaign's |β| + 2 u(β)"

@@ -107,3 +107,12 @@ def test_a_run_too_noisy_to_resolve_a_drift_of_its_own_does_not_confirm_the_camp
     assert not d.applied and d.beta_per_k == 0.0
     assert "not resolved" in d.note and d.warnings
     assert d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0))
+
+
+def test_without_a_visit_repeatability_the_operator_is_told_the_run_was_not_checked():
+    # an older CAL.json has no u_fit_nm (read as 0): the warming run that would confirm β cannot, and the warning
+    # says why, so the operator knows a refit would let the run's own drift decide
+    d = mp.visit_drift(campaign(), REF_K, visits(WARMING), DRIFT_PRIOR_PER_K, 0.0)
+    assert not d.applied and d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0))
+    (w,) = d.warnings
+    assert "the run's own drift not checked" in d.note and "u_fit_nm" in w
