@@ -116,3 +116,12 @@ def test_without_a_visit_repeatability_the_operator_is_told_the_run_was_not_chec
     assert not d.applied and d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0))
     (w,) = d.warnings
     assert "the run's own drift not checked" in d.note and "u_fit_nm" in w
+
+
+def test_a_run_that_shows_the_campaigns_beta_over_too_short_a_span_to_reach_the_reference_is_bounded():
+    # the run resolves the campaign's β over 2 K, but the visits lie 7.4 K from REF_K, beyond 3 × 2 K: not corrected
+    short = {"meas": [316.4, 318.4], "A3-80": [316.9, 318.1]}
+    d = mp.visit_drift(campaign(), REF_K, visits(short, noise_nm=0.0), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not d.applied and "a span that does not reach the reference +7.4 K away" in d.note
+    assert "not the campaign's" not in d.note and "not resolved" not in d.note
+    assert d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0)) and d.warnings
