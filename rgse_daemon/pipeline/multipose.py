@@ -204,10 +204,10 @@ def visit_drift(campaign: th.ThermalDrift | None, reference_k: float | None,
     * the campaign resolves β (span ≥ 1 K, |β| ≥ 3 u) and the visits' mean lies within 3 × its span of the reference
       (:meth:`ThermalDrift.not_applicable`, as the single pose); or
     * the campaign resolves β, and the run's own visits show the same β (:func:`run_drift` with one visit's
-      repeatability ``visit_sigma_nm``: the two differ by at most 3 standard uncertainties of their difference, the
-      campaign's significance rule) over a span of their own ≥ 1 K that has the reference within 3 × that span: the
-      drift is then seen to be linear over the temperatures that matter, and the campaign's β (the better estimate)
-      corrects it.
+      repeatability ``visit_sigma_nm``: the run's β is at least 3 of its standard uncertainties from 0 and differs
+      from the campaign's by at most 3 standard uncertainties of their difference, the campaign's significance rule)
+      over a span of their own ≥ 1 K that has the reference within 3 × that span: the drift is then seen to be
+      linear over the temperatures that matter, and the campaign's β (the better estimate) corrects it.
 
     Otherwise the visits are not corrected, U carries the campaign's bound (:meth:`ThermalDrift.drift_bound_per_k`)
     over their offset and a warning says so; without β or a reference temperature there is nothing to correct or
@@ -228,15 +228,22 @@ def visit_drift(campaign: th.ThermalDrift | None, reference_k: float | None,
     run = run_drift(list(readings.values()), visit_sigma_nm) if campaign.unresolved("A3") is None else None
     if run is not None:
         agree = abs(run.beta_per_k - beta) <= th.MIN_SIGNIFICANCE * math.hypot(run.u_beta_per_k, u_beta)
+        # agreement alone is no evidence where the run's u is of β's own size (0 would agree too): the run must
+        # resolve a drift of its own, by the campaign's significance rule
+        resolved = abs(run.beta_per_k) >= th.MIN_SIGNIFICANCE * run.u_beta_per_k
         covered = run.span_k >= th.MIN_SPAN_K and abs(offset) <= th.MAX_EXTRAPOLATION * run.span_k
         seen = (f"the run's visits show β = {100 * run.beta_per_k:+.4f} ± {100 * run.u_beta_per_k:.4f} %/K over "
                 f"{run.span_k:.2g} K")
-        if agree and covered:
+        if agree and resolved and covered:
             return VisitDrift(reference_k, beta, u_beta, True,
                               f"campaign's β applied over {offset:+.1f} K: {seen}, the same within "
                               f"{th.MIN_SIGNIFICANCE:g} standard uncertainties")
         why += f"; {seen}" + ("" if agree else ", not the campaign's") + \
+            ("" if resolved else f", not resolved ({th.MIN_SIGNIFICANCE:g} u from 0 needed)") + \
             ("" if covered else f", a span that does not reach the reference {offset:+.1f} K away")
+    elif campaign.unresolved("A3") is None and not (visit_sigma_nm > 0.0 and math.isfinite(visit_sigma_nm)):
+        why += "; the run's own drift not checked: the calibration gives no visit repeatability (K_A3's u_fit_nm, " \
+            "missing in a CAL.json fitted before it; refit to have it)"
     bound = campaign.drift_bound_per_k("A3", drift_prior_per_k)
     source = f"the prior {100 * drift_prior_per_k:.3g} %/K" if bound >= drift_prior_per_k else \
         "the campaign's |β| + 2 u(β)"

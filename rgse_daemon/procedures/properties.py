@@ -222,7 +222,7 @@ def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_
     mj = multi.to_json()
     methods["multipose"] = {"mass_kg": mj["mass_kg"], "U_kg": mj["U_kg"], "u_components_kg": mj["budget_kg"],
                             "robot_time_s": robot_time_s.get("multipose"), "visits": mj["visits"],
-                            "thermal": mj["thermal"]}
+                            "thermal": mj["thermal"], "drift_prior_per_k": drift_prior_per_k}
     chosen = mass_method
     if mass_method == "auto":
         chosen = choose_method({k: (v["U_kg"], max(float(v["robot_time_s"] or 0.0), 1.0) / 60.0)

@@ -42,6 +42,7 @@ from rgse_daemon.pipeline import calibration as cal_mod
 from rgse_daemon.pipeline import integrity
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline.calibration import Calibration, CalibrationPoints
+from rgse_daemon.pipeline.thermal import DRIFT_PRIOR_PER_K
 from rgse_daemon.store import (
     CalibrationRecord,
     LoopRecord,
@@ -495,7 +496,8 @@ def _recompute_cog(root: Path, run: RunRecord, loops: list[LoopRecord], files: l
         again = cog_analysis.compute_cog_dir(directory, cal_path).to_json()
         if res.get("mass_method") == "multipose":  # the mass from the lever poses' torque differences (MP1-MP3)
             mp = multipose_analysis.compute_multipose_dir(directory, cal_path,
-                                                          float(res.get("fixture_mass_kg", 0.0))).to_json()
+                                                          float(res.get("fixture_mass_kg", 0.0)),
+                                                          multipose_drift_prior_per_k(res)).to_json()
             for key in ("mass_kg", "gross_mass_kg", "U_kg"):
                 if key in res:
                     _check(checks, f"result {key} (multi-pose)", res[key], mp[key])
@@ -503,6 +505,13 @@ def _recompute_cog(root: Path, run: RunRecord, loops: list[LoopRecord], files: l
         for axis, (a, b) in enumerate(zip(stored[key], again[key], strict=True)):
             _check(checks, f"result cog {key}[{axis}]", a, b)
     return stored
+
+
+def multipose_drift_prior_per_k(res: dict[str, Any]) -> float:
+    """The drift prior (1/K) the result's multi-pose mass was computed with (its U carries it where β is not
+    applied): ``mass_methods.multipose.drift_prior_per_k``; the default for results that do not state it."""
+    prior = ((res.get("mass_methods") or {}).get("multipose") or {}).get("drift_prior_per_k")
+    return DRIFT_PRIOR_PER_K if prior is None else float(prior)
 
 
 def _fixture_of(props: dict[str, Any]) -> dict[str, Any]:

@@ -72,3 +72,30 @@ def test_the_daemons_campaign_fit_takes_the_configs_prior(monkeypatch, tmp_path)
     with pytest.raises(Seen):
         procedure.fit_campaign(tmp_path, "auto", 0.0012)
     assert seen == [0.0012]
+
+
+def test_the_prior_reaches_the_screening_from_the_command_line_and_the_daemons_campaign(monkeypatch, tmp_path):
+    """``rgse calibrate --campaign DIR --drift-prior P`` and the daemon's campaign (its settings' prior, after the
+    manifest is written) both hand P to the fit: not only the bound's refusals."""
+    from types import SimpleNamespace
+
+    from rgse_daemon.commands import calibrate as command
+    from rgse_daemon.procedures import calibration as procedure
+
+    seen: list[float] = []
+
+    class Seen(Exception):
+        pass
+
+    def fake_fit(directory, method, pre=pp.PAPER, drift_prior_per_k=DRIFT_PRIOR_PER_K):
+        seen.append(drift_prior_per_k)
+        raise Seen
+
+    monkeypatch.setattr(command, "fit_campaign", fake_fit)
+    with pytest.raises(Seen):
+        main(["calibrate", "--campaign", str(tmp_path), "--out", str(tmp_path / "CAL.json"), "--drift-prior", "0.0007"])
+    monkeypatch.setattr(procedure, "write_campaign_manifest", lambda run_dir, s, points: None)
+    monkeypatch.setattr(procedure.campaign_analysis, "fit_campaign", fake_fit)
+    with pytest.raises(Seen):
+        procedure._finish(tmp_path, SimpleNamespace(drift_prior_per_k=0.0009), [], "auto")
+    assert seen == [0.0007, 0.0009]

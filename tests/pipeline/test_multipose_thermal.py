@@ -96,3 +96,32 @@ def test_run_drift_needs_two_visits_of_a_pose_and_a_known_repeatability():
     assert got is not None and got.span_k == pytest.approx(19.4)
     # β over the visits' own mean temperature: β / (1 + β·ΔT), 1 % below β at 13 K (first order, as the campaign's)
     assert got.beta_per_k == pytest.approx(BETA / (1 + BETA * 13.2), abs=3 * got.u_beta_per_k)
+
+
+def test_a_run_too_noisy_to_resolve_a_drift_of_its_own_does_not_confirm_the_campaigns_beta():
+    # no drift at all in the visits (a magnet lagging the winding sensor), 7.2 K from REF_K over a 2.5 K span; one
+    # visit scattering 3 Nm leaves u(β) of the run at 0.055 %/K: 0 agrees with the campaign's 0.08 %/K within 3 u,
+    # so agreement alone cannot tell the campaign's β from no drift (applied, it would move the mass by 0.6 %)
+    still = {"meas": [316.0, 318.5], "A3-80": [316.5, 318.0]}
+    d = mp.visit_drift(campaign(), REF_K, visits(still, beta=0.0, noise_nm=0.0), DRIFT_PRIOR_PER_K, 3.0)
+    assert not d.applied and d.beta_per_k == 0.0
+    assert "not resolved" in d.note and d.warnings
+    assert d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0))
+
+
+def test_without_a_visit_repeatability_the_operator_is_told_the_run_was_not_checked():
+    # an older CAL.json has no u_fit_nm (read as 0): the warming run that would confirm β cannot, and the warning
+    # says why, so the operator knows a refit would let the run's own drift decide
+    d = mp.visit_drift(campaign(), REF_K, visits(WARMING), DRIFT_PRIOR_PER_K, 0.0)
+    assert not d.applied and d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0))
+    (w,) = d.warnings
+    assert "the run's own drift not checked" in d.note and "u_fit_nm" in w
+
+
+def test_a_run_that_shows_the_campaigns_beta_over_too_short_a_span_to_reach_the_reference_is_bounded():
+    # the run resolves the campaign's β over 2 K, but the visits lie 7.4 K from REF_K, beyond 3 × 2 K: not corrected
+    short = {"meas": [316.4, 318.4], "A3-80": [316.9, 318.1]}
+    d = mp.visit_drift(campaign(), REF_K, visits(short, noise_nm=0.0), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not d.applied and "a span that does not reach the reference +7.4 K away" in d.note
+    assert "not the campaign's" not in d.note and "not resolved" not in d.note
+    assert d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0)) and d.warnings
