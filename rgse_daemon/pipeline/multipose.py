@@ -201,8 +201,8 @@ def visit_drift(campaign: th.ThermalDrift | None, reference_k: float | None,
     """Issue 33's rule for the multi-pose mass: the campaign's A3 β corrects the visits (each pose's ``(A3 readings,
     motor temperatures)``) to ``reference_k`` (the torsional campaign's A3 temperature) only where the data resolve it:
 
-    * the campaign resolves β (span ≥ 1 K, |β| ≥ 3 u) and the visits' mean lies within 3 × its span of the reference
-      (:meth:`ThermalDrift.not_applicable`, as the single pose); or
+    * the campaign resolves β (span ≥ 1 K, |β| ≥ 3 u), and the visits' mean and the reference both lie within 3 × its
+      span of the campaign's own reference temperature (the single pose's rule, for both ends of the correction); or
     * the campaign resolves β, and the run's own visits show the same β (:func:`run_drift` with one visit's
       repeatability ``visit_sigma_nm``: the run's β is at least 3 of its standard uncertainties from 0 and differs
       from the campaign's by at most 3 standard uncertainties of their difference, the campaign's significance rule)
@@ -210,19 +210,34 @@ def visit_drift(campaign: th.ThermalDrift | None, reference_k: float | None,
       linear over the temperatures that matter, and the campaign's β (the better estimate) corrects it.
 
     Otherwise the visits are not corrected, U carries the campaign's bound (:meth:`ThermalDrift.drift_bound_per_k`)
-    over their offset and a warning says so; without β or a reference temperature there is nothing to correct or
-    bound with, and a reference missing while β exists is warned about."""
+    over their offset and a warning says so; without β there is nothing to correct or bound with, and a reference
+    missing while β exists is warned about. DataError where a visit has no A3 motor temperature (the drift can be
+    neither corrected nor bounded: ``auto`` then takes the single pose)."""
     temps = np.concatenate([np.asarray(t, float) for _, t in readings.values()]) if readings else np.zeros(0)
     if campaign is None:
         return VisitDrift(reference_k, 0.0, 0.0, False, "no thermal drift in the calibration")
-    if reference_k is None or temps.size == 0 or not np.all(np.isfinite(temps)):
-        why = "the torsional campaign recorded no A3 motor temperature" if reference_k is None else \
-            "the visits recorded no A3 motor temperature"
+    if reference_k is None:
+        why = "the torsional campaign recorded no A3 motor temperature"
         return VisitDrift(None, 0.0, 0.0, False, f"not corrected: {why}",
                           (f"thermal drift of A3 neither corrected nor bounded in the multi-pose mass: {why}",))
+    missing = [pose for pose, (_, t) in readings.items() if not np.all(np.isfinite(np.asarray(t, float)))]
+    if missing or temps.size == 0:
+        raise DataError(f"multi-pose mass: a visit of pose(s) {', '.join(missing) or 'all'} has no A3 motor "
+                        f"temperature: the thermal drift from the torsional campaign's {reference_k:.1f} K can be "
+                        f"neither corrected nor bounded")
     offset = float(np.mean(temps) - reference_k)
     beta, u_beta = campaign.coeff_per_k["A3"], campaign.u_coeff_per_k["A3"]
-    why = campaign.not_applicable("A3", offset)
+    # β holds where the campaign fitted it: the visits and the temperature they are brought to (K_A3's) both within
+    # 3 × its span of its own reference (the single pose's rule, for both ends of the correction)
+    why = campaign.unresolved("A3")
+    if why is None:
+        span, ref_c = campaign.span_k["A3"], campaign.reference_k["A3"]
+        far = [f"{what} is {d:+.1f} K from it" for what, d in (("the visits' mean", float(np.mean(temps)) - ref_c),
+                                                               ("the torsional campaign", reference_k - ref_c))
+               if abs(d) > th.MAX_EXTRAPOLATION * span]
+        if far:
+            why = (f"{' and '.join(far)}, beyond {th.MAX_EXTRAPOLATION:g} × the {span:.2g} K span β was fitted on "
+                   f"about the campaign's {ref_c:.1f} K")
     if why is None:
         return VisitDrift(reference_k, beta, u_beta, True, f"campaign's β applied over {offset:+.1f} K")
     run = run_drift(list(readings.values()), visit_sigma_nm) if campaign.unresolved("A3") is None else None

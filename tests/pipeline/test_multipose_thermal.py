@@ -40,10 +40,31 @@ STEADY = {"meas": [317.4, 317.5], "A3-80": [317.4, 317.5]}  # 7.4 K from REF_K, 
 
 
 def test_within_three_spans_of_the_reference_the_campaigns_beta_is_applied():
-    d = mp.visit_drift(campaign(span_k=3.0), REF_K, visits(STEADY), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    """The campaign's reference is 300 K: the torsional campaign (310 K) and the visits (317.45 K) lie within 3 × a
+    6 K span of it."""
+    d = mp.visit_drift(campaign(span_k=6.0), REF_K, visits(STEADY), DRIFT_PRIOR_PER_K, SIGMA_NM)
     assert d.applied and d.beta_per_k == BETA and d.warnings == ()
     v = d.visits("meas", *visits(STEADY)["meas"])
     assert v.torque_a3_nm == pytest.approx([R_NM["meas"]] * 2, abs=1.5)  # brought back to REF_K
+
+
+def test_both_ends_of_the_correction_must_lie_where_beta_was_fitted():
+    """A 3 K span: the visits lie 7.45 K from the torsional campaign (within 9 K of it), but the torsional campaign lies
+    10 K from the campaign β was fitted about, and the visits 17.45 K: β is not known to hold there, a steady run
+    cannot confirm it, so the visits are bounded, and the note says which end lies too far."""
+    d = mp.visit_drift(campaign(span_k=3.0), REF_K, visits(STEADY), DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not d.applied and d.u_beta_per_k > 0 and d.warnings
+    assert "the visits' mean is +17.4 K from it and the torsional campaign is +10.0 K from it, beyond 3 × the 3 K " \
+           "span β was fitted on about the campaign's 300.0 K" in d.note, d.note
+
+
+def test_a_visit_without_a_motor_temperature_refuses_the_multi_pose_mass():
+    got = visits(WARMING)
+    r, t = got["A3-80"]
+    got["A3-80"] = (r, np.array([t[0], np.nan]))
+    with pytest.raises(mp.DataError, match=r"a visit of pose\(s\) A3-80 has no A3 motor temperature: the thermal "
+                                           r"drift from the torsional campaign's 310.0 K can be neither corrected"):
+        mp.visit_drift(campaign(), REF_K, got, DRIFT_PRIOR_PER_K, SIGMA_NM)
 
 
 def test_the_runs_own_visits_confirm_the_campaigns_beta_beyond_three_spans():
