@@ -139,9 +139,9 @@ THERMAL_NOTE_K = 1.0
 class RunDrift:
     """A3's drift coefficient as the DuT's own visits show it: regression through the origin of r_kj − r̄_k on
     r̄_k·(T_kj − T̄_k) over the poses (as :func:`~rgse_daemon.pipeline.thermal.fit_axis` does a campaign's points),
-    its standard uncertainty from one visit's repeatability σ (u = σ/√Σx²: a run has too few visits to estimate σ
-    itself; two poses visited twice leave one degree of freedom), the visits' largest temperature span within a
-    pose (K)."""
+    its standard uncertainty from one visit's repeatability σ (u = σ/√Σx²): the calibration's (a run has too few
+    visits to estimate σ itself: two poses visited twice leave one degree of freedom), or the run's own residual
+    scatter where that is larger; the visits' largest temperature span within a pose (K)."""
 
     beta_per_k: float
     u_beta_per_k: float
@@ -167,7 +167,13 @@ def run_drift(readings: Sequence[tuple[np.ndarray, np.ndarray]], visit_sigma_nm:
     sxx = float(x @ x)
     if sxx <= 0.0:
         return None
-    return RunDrift(float(x @ y) / sxx, visit_sigma_nm / math.sqrt(sxx), max(spans))
+    beta = float(x @ y) / sxx
+    # the calibration's σ, unless this run's own visits scatter more about the fitted drift (visits − poses − 1
+    # degrees of freedom; one with two poses visited twice): the larger is taken, never the smaller
+    dof = x.size - len(xs) - 1
+    res = y - beta * x
+    sigma = max(visit_sigma_nm, math.sqrt(float(res @ res) / dof)) if dof >= 1 else visit_sigma_nm
+    return RunDrift(beta, sigma / math.sqrt(sxx), max(spans))
 
 
 @dataclass(frozen=True)

@@ -146,3 +146,16 @@ def test_a_run_that_shows_the_campaigns_beta_over_too_short_a_span_to_reach_the_
     assert not d.applied and "a span that does not reach the reference +7.4 K away" in d.note
     assert "not the campaign's" not in d.note and "not resolved" not in d.note
     assert d.u_beta_per_k == pytest.approx((BETA + 2 * 0.00003) / math.sqrt(3.0)) and d.warnings
+
+
+def test_a_run_scattering_more_than_the_calibration_says_gets_its_own_scatter_in_u():
+    """Visits scattering 5 Nm (the calibration says 0.5): u(β) of the run comes from the run's residual, not from the
+    calibration's smaller σ, so the run does not resolve the campaign's β on evidence it does not have."""
+    noisy = visits(WARMING, noise_nm=5.0, seed=3)
+    quiet = mp.run_drift(list(visits(WARMING, noise_nm=0.0).values()), SIGMA_NM)
+    got = mp.run_drift(list(noisy.values()), SIGMA_NM)
+    assert quiet is not None and got is not None
+    assert quiet.u_beta_per_k == pytest.approx(SIGMA_NM / math.sqrt(sum(
+        float(np.sum((R_NM[p] * (1 + BETA * (np.mean(t) - REF_K)) * (np.array(t) - np.mean(t))) ** 2))
+        for p, t in WARMING.items())), rel=0.02)
+    assert got.u_beta_per_k > 2.0 * quiet.u_beta_per_k  # 1.5 Nm of residual on one degree of freedom here
