@@ -110,6 +110,15 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     if thermal is not None and loop_temps_k is not None and len(loop_temps_k) == len(loops) and all(
             t is not None and np.isfinite(t) for pair in loop_temps_k for t in pair):
         temps = np.asarray(loop_temps_k, float)
+    elif thermal is not None:  # the calibration has β, but not every loop recorded its motor temperatures
+        lacking = [name for j, (_, _, _, name) in enumerate(loops)
+                   if loop_temps_k is None or j >= len(loop_temps_k)
+                   or not all(t is not None and np.isfinite(t) for t in loop_temps_k[j])]
+        warnings.append(f"thermal drift neither corrected nor bounded: loop(s) {', '.join(lacking)} recorded no A3/A5 "
+                        f"motor temperature (Motortemperatur), so the campaign's β (A3 "
+                        f"{100 * thermal.coeff_per_k['A3']:+.3f}, A5 {100 * thermal.coeff_per_k['A5']:+.3f} %/K) can "
+                        f"be applied to none, and U does not carry the drift; record the motor temperatures with the "
+                        f"torques")
     # missing samples: a sample lacking in either torque channel is missing in both; too big a gap sets the loop aside
     gapped: list[integrity.SetAside] = []
     kept: list[int] = []

@@ -141,10 +141,17 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
         (abs(s3) * lever3 * 0.0005 + abs(s5) * lever5 * 0.0005) / np.sqrt(3.0))
     assert any("thermal drift of A5 not corrected" in w and "the prior 0.05 %/K" in w for w in tight.warnings)
     assert tight.mass_kg == out.mass_kg  # the bound changes U, never the mass
-    # loops without a temperature: no correction, no thermal term
+    # loops without a temperature: no correction, no thermal term, and the operator is told (issue 33 review)
     none = inline.in_line_mass(loops, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW,
                                loop_temps_k=[(None, None)] * 3)
     assert none.mass_kg == pytest.approx(plain.mass_kg) and "thermal" not in none.uncertainty.components()
+    names = ", ".join(lp[3] for lp in loops)
+    assert any(w.startswith(f"thermal drift neither corrected nor bounded: loop(s) {names} recorded no A3/A5 motor "
+                            "temperature") for w in none.warnings), none.warnings
+    one = inline.in_line_mass(loops, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW,
+                              loop_temps_k=[temps[0], (float("nan"), temps[1][1]), temps[2]])
+    assert any(f"loop(s) {loops[1][3]} recorded no" in w for w in one.warnings), one.warnings
+    assert not any("neither corrected nor bounded" in w for w in plain.warnings)
 
 
 def test_excess_counts_only_what_the_reproducibility_does_not_hold():
