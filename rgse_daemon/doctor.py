@@ -411,14 +411,18 @@ async def _watchdog(krc: KrcController, cfg: Config) -> Check:
     # a live heartbeat rewrites the timer every watchdog_period_s: watched for a change over at least
     # HEARTBEAT_WATCH_S, so that a heartbeat a few periods late on a busy PC is not taken for none (and the probe
     # below then not run against it: seen under a test suite's load, "counted 81 ms in 301 ms")
+    # The watch runs its whole length even if the timer is stopped or tripped when first read: a heartbeat that is
+    # just starting (a daemon starting beside the doctor) sets it running within a beat or two, and the probe below
+    # must not run against it (seen under the suite's load: "counted 79 ms in 301 ms" with the first read stopped).
     period_s = cfg.controller.watchdog_period_s
     watch_until = time.monotonic() + max(3 * period_s, HEARTBEAT_WATCH_S)
-    while not stopped and not tripped and time.monotonic() < watch_until:
+    while time.monotonic() < watch_until:
         await asyncio.sleep(period_s)
-        value2, stopped, tripped = await read()
-        if not stopped and not tripped and value2 != value:
+        value2, stopped2, tripped2 = await read()
+        if not stopped2 and not tripped2 and (value2 != value or stopped or tripped):
             return Check(name, True, f"armed: the resident program arms it, and a heartbeat keeps {timer} fresh "
                                      f"({value2} ms, trips at 0)")
+        value, stopped, tripped = value2, stopped2, tripped2
     state = (await krc.read_raw("$PRO_STATE1")).strip().upper()
     if state == "#P_ACTIVE":
         return Check(name, False, f"no fresh heartbeat ({timer} = {value} ms, {stop} {stopped}) while a program "

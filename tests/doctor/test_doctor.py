@@ -162,6 +162,35 @@ async def test_watchdog_armed_with_the_daemons_heartbeat(sim: SimulatedKrc4, hea
     assert line.ok is True and line.detail.startswith("armed")
 
 
+async def test_a_heartbeat_that_starts_while_the_doctor_watches_is_seen(
+        sim: SimulatedKrc4, healthy: Config, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The daemon's heartbeat starts 0.2 s after the doctor's watchdog check first read the timer (stopped then): the
+    doctor watches on, sees it, and does not run its timer probe against it (under the suite's load the probe ran
+    and read "counted 79 ms in 301 ms")."""
+    from rgse_daemon import doctor
+
+    original = doctor._watchdog
+    stop = asyncio.Event()
+
+    async def late_heartbeat() -> None:
+        await asyncio.sleep(0.2)
+        async with beating(healthy.controller):
+            await stop.wait()
+
+    async def watched(krc: Any, cfg: Config) -> Any:
+        assert sim.store.read("$TIMER_STOP[16]") == "TRUE"  # no heartbeat yet
+        task = asyncio.create_task(late_heartbeat())
+        try:
+            return await original(krc, cfg)
+        finally:
+            stop.set()
+            await asyncio.wait({task}, timeout=15.0)
+
+    monkeypatch.setattr(doctor, "_watchdog", watched)
+    line = _watchdog_line(await _doctor(healthy))
+    assert line.ok is True and line.detail.startswith("armed"), line
+
+
 async def test_watchdog_missing_from_the_installed_resident(sim: SimulatedKrc4, healthy: Config) -> None:
     path = sim.share_dir / "R1" / "PROGRAM" / "RGSE_RESIDENT.SRC"
     path.write_bytes(path.read_bytes().replace(b"  INTERRUPT ON 1\r\n", b"", 1))
