@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -53,49 +55,36 @@ def test_calibrate_refuses_a_drift_prior_the_config_would_refuse(value, why, tmp
     assert f"argument --drift-prior: {why}" in capsys.readouterr().err
 
 
-def test_the_daemons_campaign_fit_takes_the_configs_prior(monkeypatch, tmp_path):
-    """procedures.calibration.fit_campaign hands its prior to the screening (the daemon's campaign: RunSettings'
-    drift_prior_per_k from ``measurement.drift_prior_per_k``)."""
-    from rgse_daemon.analysis import calibration as analysis
+def test_the_prior_reaches_the_screening_through_the_files_from_the_command_line_and_the_daemons_fit(tmp_path,
+                                                                                                   capsys):
+    """The same warmer loop written as KUKA trace files: ``rgse calibrate --campaign DIR --drift-prior P`` and the
+    daemon's campaign fit (``procedures.calibration.fit_campaign``, which its runs call with the settings' prior) keep
+    it under the default bound and set it aside, recorded in CAL.json, under a narrow one."""
+    from dataclasses import replace
+
+    from rgse_daemon import calfile
     from rgse_daemon.procedures import calibration as procedure
+    from tests.support.simcampaign import simulate_measurement, write_dirs
 
-    seen: list[float] = []
+    camp, model = simulate_campaign(3, n_loops=4)
+    warm = camp.loops[POINT][-1]
+    camp.loops[POINT][-1] = replace(warm, torque_a5_nm=warm.torque_a5_nm - 6.0,
+                                    motor_temp_a3_k=warm.motor_temp_a3_k + 4.0,
+                                    motor_temp_a5_k=warm.motor_temp_a5_k + 4.0)
+    write_dirs(camp, simulate_measurement(model, 50.0, n_loops=1), tmp_path / "cal", tmp_path / "dut")
+    key = {"point": POINT + 1, "loop": warm.trace}
 
-    class Seen(Exception):
-        pass
+    def cli(*prior: str) -> list[dict]:
+        capsys.readouterr()
+        assert main(["calibrate", "--campaign", str(tmp_path / "cal"), "--out", str(tmp_path / "cli.json"),
+                     "--method", "paper", "--json", *prior]) == 0
+        return [{k: a[k] for k in ("point", "loop")} for a in json.loads(capsys.readouterr().out)["set_aside"]]
 
-    def fake_fit(directory, method, pre=pp.PAPER, drift_prior_per_k=DRIFT_PRIOR_PER_K):
-        seen.append(drift_prior_per_k)
-        raise Seen
-
-    monkeypatch.setattr(analysis, "fit_campaign", fake_fit)
-    with pytest.raises(Seen):
-        procedure.fit_campaign(tmp_path, "auto", 0.0012)
-    assert seen == [0.0012]
-
-
-def test_the_prior_reaches_the_screening_from_the_command_line_and_the_daemons_campaign(monkeypatch, tmp_path):
-    """``rgse calibrate --campaign DIR --drift-prior P`` and the daemon's campaign (its settings' prior, after the
-    manifest is written) both hand P to the fit: not only the bound's refusals."""
-    from types import SimpleNamespace
-
-    from rgse_daemon.commands import calibrate as command
-    from rgse_daemon.procedures import calibration as procedure
-
-    seen: list[float] = []
-
-    class Seen(Exception):
-        pass
-
-    def fake_fit(directory, method, pre=pp.PAPER, drift_prior_per_k=DRIFT_PRIOR_PER_K):
-        seen.append(drift_prior_per_k)
-        raise Seen
-
-    monkeypatch.setattr(command, "fit_campaign", fake_fit)
-    with pytest.raises(Seen):
-        main(["calibrate", "--campaign", str(tmp_path), "--out", str(tmp_path / "CAL.json"), "--drift-prior", "0.0007"])
-    monkeypatch.setattr(procedure, "write_campaign_manifest", lambda run_dir, s, points: None)
-    monkeypatch.setattr(procedure.campaign_analysis, "fit_campaign", fake_fit)
-    with pytest.raises(Seen):
-        procedure._finish(tmp_path, SimpleNamespace(drift_prior_per_k=0.0009), [], "auto")
-    assert seen == [0.0007, 0.0009]
+    assert key not in cli()
+    assert key in cli("--drift-prior", "1e-4")
+    doc, _ = procedure.fit_campaign(tmp_path / "cal", "paper", 1e-4)
+    written = calfile.read(tmp_path / "cal" / "CAL.json")
+    assert doc.fit.set_aside == written.fit.set_aside
+    assert any(a.point == POINT + 1 and a.loop == warm.trace and "disagrees" in a.reason for a in written.fit.set_aside)
+    wide, _ = procedure.fit_campaign(tmp_path / "cal", "paper")
+    assert not any(a.loop == warm.trace for a in wide.fit.set_aside or ())
