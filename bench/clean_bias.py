@@ -11,9 +11,12 @@ Two experiments on the simulated KR 500 (``simulators.krc4``), the code path of 
   (σ 7 Nm A3, 14 Nm A5) added to each point's loops with + and − signs; the mean of the two DuT errors less the
   error without offsets is the pipeline's even response to zero-mean offsets: on all points, on the zero point (the
   bias M_0) only, on the loaded points only.
+* ``models``: each single model's DuT error beside auto's on the same stories (``--variants``, ``--seeds``; DuTs of
+  50–200 kg with their CoG 0.25 m out, 3 loops), and which models auto's average held.
 
 Run: ``.venv/bin/python bench/clean_bias.py sources --seeds 30 --variants default flip no_mount``
      ``.venv/bin/python bench/clean_bias.py offsets --seed 0 --method paper --draws 10``
+     ``.venv/bin/python bench/clean_bias.py models --seeds 16 --variants default no_offset no_cogshift``
 """
 
 from __future__ import annotations
@@ -145,9 +148,39 @@ def offsets(seed: int, method: str, draws: int) -> None:
     print(f"seed {seed}, {method}, 120 kg DuT: error without offsets {e0:+.3f} kg; even part: {text} kg")
 
 
+SINGLE_MODELS = ("axis-linear", "axis-quad", "axis-log", "axis-sat", "axis-sat-sat", "paper")
+
+
+def models(seeds: int, variants: list[str]) -> None:
+    for name in variants:
+        errs: dict[str, list[float]] = {m: [] for m in (*SINGLE_MODELS, "auto")}
+        members: Counter[str] = Counter()
+        rng = np.random.default_rng(5)
+        for seed in range(seeds):
+            camp, model = simulate_campaign(seed, scenario=variant(name))
+            m_true = float(rng.uniform(50.0, 200.0))
+            meas = simulate_measurement(model, m_true, 0.25, n_loops=3)
+            dr = camp.manifest.setup.lever_difference_m
+            points, b3, b5 = campaign_points(CampaignData(camp.manifest, [
+                [(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s) for lp in point] for point in camp.loops], []),
+                pp.PAPER)
+            chosen = selection.choose_auto(points, selection.evaluate_all(points, G, dr)).method
+            members.update(chosen.split(":")[-1].split("+"))
+            loops = [(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in meas.loops]
+            for m in errs:
+                cal = inline.MassCalibration(cal_mod.fit(points, chosen if m == "auto" else m, G, dr), b3, b5)
+                errs[m].append(inline.in_line_mass(loops, cal, pp.PAPER,
+                                                   fixture_mass_kg=meas.fixture_mass_kg).mass_kg - m_true)
+        print(f"== {name}: {seeds} seeds; auto's members {dict(members.most_common())}")
+        for m, e in errs.items():
+            a = np.array(e)
+            print(f"  {m:14s} mean err {a.mean():+.3f} ± {a.std(ddof=1) / np.sqrt(a.size):.3f} kg, "
+                  f"mean |err| {np.abs(a).mean():.3f} kg")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("experiment", choices=("sources", "offsets"))
+    ap.add_argument("experiment", choices=("sources", "offsets", "models"))
     ap.add_argument("--seeds", type=int, default=30)
     ap.add_argument("--variants", nargs="+", default=["default", "flip", "no_mount", "ideal"],
                     help=f"of {', '.join(VARIANTS)}, each optionally with _paper")
@@ -157,6 +190,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.experiment == "sources":
         sources(args.seeds, args.variants)
+    elif args.experiment == "models":
+        models(args.seeds, args.variants)
     else:
         offsets(args.seed, args.method, args.draws)
 
