@@ -197,7 +197,9 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     u_g = unc.g_kg(gross, cal.g_m_s2, c.g_u_m_s2, g_meas, g_u_measurement_m_s2)
     u_thermal = None if temps is None else float(combine_axes([
         (s3 * _u_thermal_nm(thermal, "A3", raw3, temps[:, 0], drift_used["A3"], drift_prior_per_k), drift_used["A3"]),
-        (s5 * _u_thermal_nm(thermal, "A5", raw5, temps[:, 1], drift_used["A5"], drift_prior_per_k), drift_used["A5"])]))
+        (s5 * _u_thermal_nm(thermal, "A5", raw5, temps[:, 1], drift_used["A5"], drift_prior_per_k), drift_used["A5"])],
+        [_drift_direction(thermal, "A3", s3, raw3, temps[:, 0]),
+         _drift_direction(thermal, "A5", s5, raw5, temps[:, 1])]))
     if uncertainty is None:  # a calibration file without held-out residuals: the former budget
         u = unc.MassUncertainty(
             u_loops_kg=u_loops,
@@ -335,6 +337,17 @@ def _u_thermal_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: 
         return thermal.u_correction_nm(axis, raw_nm, temp_k)
     lever = np.mean(np.asarray(raw_nm, float) * (np.asarray(temp_k, float) - thermal.reference_k[axis]))
     return float(abs(lever) * thermal.drift_bound_per_k(axis, drift_prior_per_k) / np.sqrt(3.0))
+
+
+def _drift_direction(thermal: ThermalDrift, axis: str, slope_kg_per_nm: float, raw_nm: np.ndarray,
+                     temp_k: np.ndarray) -> int:
+    """The sign of ``axis``'s uncorrected drift in the mass (eq. 21's slope × β × the loops' mean M·(T − T_ref)) where
+    the campaign resolves β's sign (:meth:`ThermalDrift.unresolved`), else 0 (either sign): for
+    :func:`~rgse_daemon.pipeline.thermal.combine_axes`."""
+    if thermal.unresolved(axis) is not None:
+        return 0
+    lever = np.mean(np.asarray(raw_nm, float) * (np.asarray(temp_k, float) - thermal.reference_k[axis]))
+    return int(np.sign(slope_kg_per_nm * thermal.coeff_per_k[axis] * lever))
 
 
 def _loop_allowance_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, temp_k: np.ndarray, applied: bool,

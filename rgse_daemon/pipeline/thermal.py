@@ -14,7 +14,7 @@ component ``u(δ) = u_β·|M̄·(T − T_ref)|`` per axis, through eq. 21's sens
 
 Where β is not applied (issue 33: :meth:`ThermalDrift.not_applicable`) the loops stay uncorrected and the ``thermal``
 component is the drift a coefficient up to :meth:`ThermalDrift.drift_bound_per_k` could cause over the DuT's offset
-(rectangular); :func:`combine_axes` adds the two axes' terms.
+(rectangular); :func:`combine_axes` adds the two axes' terms, with the signs the campaign resolves.
 """
 
 from __future__ import annotations
@@ -124,15 +124,29 @@ class ThermalDrift:
         return cls(vals["coeff_per_k"], vals["u_coeff_per_k"], vals["reference_k"], n, vals["span_k"])
 
 
-def combine_axes(terms: Sequence[tuple[Any, bool]]) -> Any:
+def combine_axes(terms: Sequence[tuple[Any, bool]], directions: Sequence[int] | None = None) -> Any:
     """The ``thermal`` component from the axes' terms (in kg, each ``(term, applied)``; floats or arrays alike).
 
     Where β is applied a term is β's own uncertainty: the two regressions rest on each axis's own noise, so their
     errors are independent and add in quadrature. Where β is not applied a term bounds the uncorrected drift, and
     the two drifts are not independent: one mechanism (the drives' torque estimate with motor temperature) over the
-    same warming, with signs the data need not resolve, so they may add in eq. 21 as well as cancel. Their bounds add
-    linearly (the worst case, at most √2 above quadrature), and that sum in quadrature with any applied axis's."""
-    bound = sum((np.abs(t) for t, applied in terms if not applied), start=np.float64(0.0))
+    same warming, so they may add in eq. 21 as well as cancel. Each axis's drift lies in an interval: ±term where
+    the campaign does not resolve β's sign, and from 0 to the term on the side the data show where it does
+    (``directions``: per term the sign of that axis's drift in the mass, +1 or −1; 0 or None: either sign; the drift
+    keeps its sign beyond the span, as a drift that is monotone in temperature does). The bound on their sum is the
+    larger end of the sum of the intervals: the linear sum where no sign is resolved (the worst case, at most √2
+    above quadrature), the larger term where two resolved drifts pull the mass opposite ways. That bound adds in
+    quadrature with any applied axis's term."""
+    dirs = [0] * len(terms) if directions is None else list(directions)
+    if len(dirs) != len(terms):
+        raise ValueError(f"combine_axes: {len(dirs)} directions for {len(terms)} terms")
+    low, high = np.float64(0.0), np.float64(0.0)
+    for (t, applied), d in zip(terms, dirs, strict=True):
+        if applied:
+            continue
+        low = low - (np.abs(t) if d <= 0 else 0.0)
+        high = high + (np.abs(t) if d >= 0 else 0.0)
+    bound = np.maximum(-low, high)
     return np.sqrt(bound**2 + sum((np.square(t) for t, applied in terms if applied), start=np.float64(0.0)))
 
 

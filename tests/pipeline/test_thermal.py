@@ -116,7 +116,9 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
     assert abs(fixed.mass_kg - want) < 2 * c["thermal"] + 0.05
     assert fixed.thermal_applied == {"A3": True, "A5": True}
     # far beyond the span β was fitted on (issue 33): not extrapolated; U carries the campaign's own bound on the drift,
-    # |β| + 2 u(β) per axis (not the prior: the span resolves β), the axes' bounds summed; a warning says so
+    # |β| + 2 u(β) per axis (not the prior: the span resolves β); a warning says so. The campaign resolves both βs'
+    # signs, and here the two drifts pull the mass opposite ways (K < 0 on both axes, eq. 21's difference): each
+    # drift lies between 0 and its bound on its own side, so their sum is bounded by the larger, not by the sum
     far = [(ref3 + d, ref5 + d) for d in (35.0, 22.0, 15.0)]
     hot = [(np.full(50, at(true3 + bias3, BETA["A3"], t3, ref3)), np.full(50, at(true5 + bias5, BETA["A5"], t5, ref5)),
             0.012, f"l{k}") for k, (t3, t5) in enumerate(far)]
@@ -132,13 +134,33 @@ def test_a_warm_dut_is_corrected_to_the_campaign_temperature():
     bound3 = abs(drift.coeff_per_k["A3"]) + 2 * drift.u_coeff_per_k["A3"]
     bound5 = abs(drift.coeff_per_k["A5"]) + 2 * drift.u_coeff_per_k["A5"]
     assert bound3 < T.DRIFT_PRIOR_PER_K and bound5 < T.DRIFT_PRIOR_PER_K
+    drift3 = s3 * drift.coeff_per_k["A3"] * np.mean(hot3 * (np.array(far)[:, 0] - ref3))  # kg, the data's signs
+    drift5 = s5 * drift.coeff_per_k["A5"] * np.mean(hot5 * (np.array(far)[:, 1] - ref5))
+    assert np.sign(drift3) == -np.sign(drift5)
     assert out.uncertainty.components()["thermal"] == pytest.approx(
-        (abs(s3) * lever3 * bound3 + abs(s5) * lever5 * bound5) / np.sqrt(3.0))
+        max(abs(s3) * lever3 * bound3, abs(s5) * lever5 * bound5) / np.sqrt(3.0))
+    assert abs(drift3 + drift5) < 2 * out.uncertainty.components()["thermal"]
+    # the same drifts with A5's β of the other sign pull the mass the same way: the bounds add
+    beta5 = {"A3": BETA["A3"], "A5": -BETA["A5"]}
+    same_way = T.ThermalDrift({"A3": drift.coeff_per_k["A3"], "A5": -drift.coeff_per_k["A5"]}, drift.u_coeff_per_k,
+                              drift.reference_k, drift.n_loops, drift.span_k)
+    hot_b = [(np.full(50, at(true3 + bias3, beta5["A3"], t3, ref3)),
+              np.full(50, at(true5 + bias5, beta5["A5"], t5, ref5)), 0.012, f"l{k}") for k, (t3, t5) in enumerate(far)]
+    both = inline.in_line_mass(hot_b, inline.MassCalibration(cal, bias3, bias5, thermal=same_way), RAW,
+                               loop_temps_k=far)
+    s3b, s5b = inline.slope_kg_per_nm(cal, both.torque_a3_nm, both.torque_a5_nm)
+    hot5b = np.array([lp[1][0] for lp in hot_b])
+    lever3b = abs(np.mean(np.array([lp[0][0] for lp in hot_b]) * (np.array(far)[:, 0] - ref3)))
+    lever5b = abs(np.mean(hot5b * (np.array(far)[:, 1] - ref5)))
+    assert both.uncertainty.components()["thermal"] == pytest.approx(
+        (abs(s3b) * lever3b * bound3 + abs(s5b) * lever5b * bound5) / np.sqrt(3.0))
+    assert abs(both.mass_kg - want) > abs(out.mass_kg - want)  # the drifts add up here ...
+    assert abs(both.mass_kg - want) < both.uncertainty.expanded_kg  # ... and U holds them
     # a smaller prior is the outer bound: then it is what U carries
     tight = inline.in_line_mass(hot, inline.MassCalibration(cal, bias3, bias5, thermal=drift), RAW, loop_temps_k=far,
                                 drift_prior_per_k=0.0005)
     assert tight.uncertainty.components()["thermal"] == pytest.approx(
-        (abs(s3) * lever3 * 0.0005 + abs(s5) * lever5 * 0.0005) / np.sqrt(3.0))
+        max(abs(s3) * lever3 * 0.0005, abs(s5) * lever5 * 0.0005) / np.sqrt(3.0))
     assert any("thermal drift of A5 not corrected" in w and "the prior 0.05 %/K" in w for w in tight.warnings)
     assert tight.mass_kg == out.mass_kg  # the bound changes U, never the mass
     # loops without a temperature: no correction, no thermal term, and the operator is told (issue 33 review)
@@ -208,12 +230,25 @@ def test_what_is_applied_and_what_u_carries_follows_what_the_campaign_resolves()
     assert "U carries a drift of up to 0.22 %/K (|β| + 2 u(β))" in drift(0.002, 1e-4, 3.0).describe("A5")
 
 
-def test_the_axes_bounds_add_linearly_and_beta_s_own_uncertainties_in_quadrature():
-    """Uncorrected, both axes drift with one mechanism over the same warming: their bounds may add in eq. 21, so
-    they add linearly; where β is applied its two regressions' errors are independent (quadrature)."""
+def test_the_axes_bounds_add_as_intervals_and_beta_s_own_uncertainties_in_quadrature():
+    """Uncorrected, both axes drift with one mechanism over the same warming: where the campaign does not resolve
+    their signs, their bounds may add in eq. 21, so they add linearly; where it resolves them, each drift lies between
+    0 and its bound on its own side, and the sum's bound is the larger end of the summed intervals. Where β is
+    applied its two regressions' errors are independent (quadrature)."""
     assert T.combine_axes([(3.0, False), (-4.0, False)]) == pytest.approx(7.0)
     assert T.combine_axes([(3.0, True), (-4.0, True)]) == pytest.approx(5.0)
     assert T.combine_axes([(3.0, True), (4.0, False)]) == pytest.approx(5.0)
     assert T.combine_axes([(0.0, True), (0.0, False)]) == 0.0
     per_loop = T.combine_axes([(np.array([1.0, -2.0]), False), (np.array([2.0, 2.0]), False)])
     assert per_loop == pytest.approx([3.0, 4.0])
+    assert T.combine_axes([(3.0, False), (-4.0, False)], [1, -1]) == pytest.approx(4.0)  # opposite ways: the larger
+    assert T.combine_axes([(3.0, False), (-4.0, False)], [-1, -1]) == pytest.approx(7.0)  # the same way: the sum
+    assert T.combine_axes([(3.0, False), (4.0, False)], [0, -1]) == pytest.approx(7.0)  # one sign open: [-7, 3]
+    assert T.combine_axes([(3.0, False), (4.0, False)], [1, 0]) == pytest.approx(7.0)  # [-4, 7]
+    assert T.combine_axes([(3.0, False), (4.0, False)], [0, 0]) == pytest.approx(7.0)
+    assert T.combine_axes([(3.0, True), (4.0, False)], [1, -1]) == pytest.approx(5.0)  # an applied term's sign: none
+    assert T.combine_axes([(3.0, True), (6.0, False), (4.0, False)], [0, 1, -1]) == pytest.approx(np.hypot(3.0, 6.0))
+    assert T.combine_axes([(np.array([1.0, 3.0]), False), (np.array([2.0, 2.0]), False)], [1, -1]) == pytest.approx(
+        [2.0, 3.0])
+    with pytest.raises(ValueError, match="1 directions for 2 terms"):
+        T.combine_axes([(3.0, False), (4.0, False)], [1])
