@@ -1,0 +1,90 @@
+"""Faults a new user's trace files and manifests carry that the issue-33 checks did not cover, through ``rgse
+calibrate`` / ``rgse mass`` on real KUKA trace files of the simulated KR 500: a frozen torque channel (a stuck sensor
+or a stale trace buffer), and a calibration point whose declared mass is a typo."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from rgse_daemon import calfile
+from rgse_daemon.cli import main
+from rgse_daemon.trace import read_trace_file
+from tests.offline.test_integrity import DUT_KG, _campaign, mass_argv, mass_json, refused, run_json
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory) -> Path:
+    """A campaign and a clean 5-loop DuT on the simulated robot, calibrated (axis-quad)."""
+    root = tmp_path_factory.mktemp("faults")
+    _campaign(root)
+    assert main(["calibrate", "--campaign", str(root / "cal"), "--out", str(root / "CAL.json"),
+                 "--method", "axis-quad"]) == 0
+    return root
+
+
+def copy_dir(src: Path, dst: Path) -> Path:
+    shutil.copytree(src, dst)
+    return dst
+
+
+def freeze(directory: Path, trace: str, module: str, offset_nm: float = 0.0, first: int = 0) -> None:
+    """Overwrite (in this test's copy) the ``Istmoment`` samples of ``trace``'s ``module`` with one value: the whole
+    loop at ``offset_nm`` from the loop's mean (a stale trace buffer), or from sample ``first`` > 0 on the value of
+    sample ``first - 1`` (a sensor that stuck there)."""
+    tf = read_trace_file(directory / f"{trace}_{module}.dat")
+    path = directory / f"{trace}_{module}.r64"
+    raw = np.fromfile(path, "<f8").reshape(tf.n_samples, -1)
+    col = int(tf.channels["Istmoment"].header[221]) - 1
+    raw[first:, col] = raw[first - 1, col] if first > 0 else raw[:, col].mean() + offset_nm
+    raw.tofile(path)
+
+
+def test_a_torque_channel_frozen_in_every_loop_is_refused_not_averaged(plain, tmp_path, capsys):
+    """A3's torque stuck at a stale value 60 Nm off (about 5 kg) in every loop: the loops agree with each other
+    (each has no scatter at all), so neither the step nor the loop-to-loop check saw it and the mass came out 5.4 kg
+    low, U 2.9 kg, status ok. Each loop is now set aside as frozen and the measurement refused, naming the channel."""
+    d = copy_dir(plain / "dut", tmp_path / "dut")
+    for k in range(1, 6):
+        freeze(d, f"dut_l{k:02d}", "NextGenDrive#3", 60.0)
+    err = refused(capsys, mass_argv(d, plain / "CAL.json"))
+    assert "measurement refused: 0 loop(s) left" in err
+    for k in range(1, 6):
+        assert f"loop dut_l{k:02d}: A3 torque frozen: " in err
+    assert "for 250 of 250 samples in a row (a stuck sensor or a stale trace buffer" in err
+
+
+def test_one_frozen_loop_is_set_aside_alone_with_its_reason(plain, tmp_path, capsys):
+    """Loop 3's A3 torque stuck at its 125th sample for the rest of the loop: it was taken for a step ("the load
+    moved during the measurement") and loops 4 and 5 were set aside with it. Now loop 3 alone is set aside, as
+    frozen; the mass rests on the four others and covers the truth."""
+    d = copy_dir(plain / "dut", tmp_path / "dut")
+    freeze(d, "dut_l03", "NextGenDrive#3", first=125)
+    res = mass_json(capsys, mass_argv(d, plain / "CAL.json"), "warning")
+    assert [a["loop"] for a in res["loops_set_aside"]] == ["dut_l03"], res["loops_set_aside"]
+    assert res["loops_set_aside"][0]["reason"].startswith("A3 torque frozen: ")
+    assert "for 126 of 250 samples in a row" in res["loops_set_aside"][0]["reason"]
+    assert res["loops_used"] == ["dut_l01", "dut_l02", "dut_l04", "dut_l05"]
+    assert any(w.startswith("loop dut_l03 set aside: A3 torque frozen") for w in res["warnings"])
+    assert abs(res["mass_kg"] - DUT_KG) <= res["U_kg"]
+
+
+def test_a_frozen_campaign_loop_is_set_aside_and_recorded(plain, tmp_path, capsys):
+    """A frozen A3 channel in one loop of calibration point 6 (whole loop, at its mean + 30 Nm): it was taken for a
+    step ("the load moved", 10^12 standard errors), the loop after it set aside too, and the campaign refused
+    (point 6 kept 1 of 3 loops). Now it alone is set aside as frozen, recorded in CAL.json, the campaign calibrates
+    and the DuT comes out right."""
+    cal_dir = copy_dir(plain / "cal", tmp_path / "cal")
+    freeze(cal_dir, "cal05_l02", "NextGenDrive#3", 30.0)
+    cal = tmp_path / "CAL.json"
+    summary = run_json(capsys, ["calibrate", "--campaign", str(cal_dir), "--out", str(cal), "--method",
+                                "axis-quad", "--json"])
+    assert [(a["point"], a["loop"]) for a in summary["set_aside"]] == [(6, "cal05_l02")]
+    assert summary["set_aside"][0]["reason"].startswith("A3 torque frozen: ")
+    assert [a.loop for a in calfile.read(cal).fit.set_aside] == ["cal05_l02"]
+    res = mass_json(capsys, mass_argv(plain / "dut", cal), "ok")
+    assert abs(res["mass_kg"] - DUT_KG) <= res["U_kg"]
+
