@@ -80,22 +80,24 @@ def load_campaign(directory: Path) -> CampaignData:
 def screen_campaign(data: CampaignData, cfg: pp.Preprocessing,
                     minimum: int = integrity.MIN_LOOPS_PER_POINT,
                     drift_prior_per_k: float = thermal_mod.DRIFT_PRIOR_PER_K) -> CampaignData:
-    """Set aside the loops of each point that miss too many samples, have a frozen torque channel, hold a step, or
-    disagree with the point's other loops (:mod:`rgse_daemon.pipeline.integrity`, per axis in Nm; the thermal
-    allowance is the prior bound on β, ``drift_prior_per_k`` (``measurement.drift_prior_per_k``, ``rgse calibrate
-    --drift-prior``), over each loop's temperature difference, since β is fitted from these very loops); a sample
-    missing in one torque channel is missing in both. DataError naming the point if it keeps fewer than ``minimum``
-    loops (or, when it had fewer, not all of them): one bad loop never fails the campaign while its point keeps
-    enough."""
+    """Set aside the loops of each point that miss too many samples, have a frozen torque channel, repeat a loop of
+    the campaign, hold a step, or disagree with the point's other loops (:mod:`rgse_daemon.pipeline.integrity`, per
+    axis in Nm; the thermal allowance is the prior bound on β, ``drift_prior_per_k`` (``measurement.drift_prior_per_k``,
+    ``rgse calibrate --drift-prior``), over each loop's temperature difference, since β is fitted from these very
+    loops); a sample missing in one torque channel is missing in both. DataError naming the point if it keeps fewer
+    than ``minimum`` loops (or, when it had fewer, not all of them): one bad loop never fails the campaign while its
+    point keeps enough."""
     loops, temps, aside = [], [], []
     names = [spec.traces for spec in data.manifest.points]
+    repeats = integrity.Repeats()  # a loop repeating another, of any point
     for i, point_loops in enumerate(data.loops):
         point_temps = None if data.loop_temps_k is None else data.loop_temps_k[i]
         gapped, clean, kept = [], [], []
         for j, (a3, a5, dt) in enumerate(point_loops):
             ok = integrity.valid_mask(a3, a5)
             skip = round(cfg.settle_s / dt)
-            reason = integrity.gap_reason(ok, skip) or integrity.frozen_reason((("A3", a3), ("A5", a5)), skip)
+            reason = (integrity.gap_reason(ok, skip) or integrity.frozen_reason((("A3", a3), ("A5", a5)), skip)
+                      or repeats.reason(names[i][j], a3, a5))
             if reason is not None:
                 gapped.append(integrity.SetAside(names[i][j], reason))
                 continue

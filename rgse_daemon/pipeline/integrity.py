@@ -7,6 +7,8 @@ A loop is set aside, with its reason, when
   load. No drive's torque estimate repeats itself sample for sample; an exactly repeated reading is no sample, and
   neither the step check (whose scatter it zeroes) nor the loop-to-loop check (whose scatter it hides when every
   loop is frozen) would say so. Set aside on its own: the loops after it were measured as before;
+* **it repeats an earlier loop** sample for sample in both torque channels (:class:`Repeats`): a trace file copied
+  under another name, no new measurement; counted twice it would narrow the loop spread of U on no evidence;
 * **samples are missing**: fewer than :data:`MIN_VALID_FRACTION` of its samples after the settle cut are valid (a
   sample is missing in a loop when any of its torque channels lacks it: DIAdem's no-value marker or NaN/inf, read as
   NaN by :mod:`rgse_daemon.trace.diadem`); a loop with a smaller gap is used with what remains;
@@ -31,6 +33,7 @@ decision. The raw files of a set-aside loop stay archived as they are; only the 
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -150,6 +153,26 @@ def frozen_reason(channels: Sequence[tuple[str, np.ndarray]], skip: int) -> str 
             return (f"{name} torque frozen: {value:.6g} Nm for {run} of {n} samples in a row (a stuck sensor or a "
                     f"stale trace buffer, not a measurement of the load; limit {FROZEN_FRACTION:.0%})")
     return None
+
+
+class Repeats:
+    """Remembers the torque samples of the loops seen so far (by digest) and names the loop a later one repeats
+    sample for sample: real drive torques never repeat a loop exactly."""
+
+    def __init__(self) -> None:
+        self._seen: dict[str, str] = {}
+
+    def reason(self, name: str, *channels: np.ndarray) -> str | None:
+        """Why loop ``name`` (its torque ``channels``) cannot be used: it repeats an earlier loop; None if it does
+        not (it is then remembered)."""
+        digest = hashlib.sha256()
+        for c in channels:
+            digest.update(np.ascontiguousarray(c, dtype=float).tobytes())
+        first = self._seen.setdefault(digest.hexdigest(), name)
+        if first == name:
+            return None
+        return (f"repeats loop {first} sample for sample in both torque channels (a copy of its trace file, not a "
+                f"new measurement)")
 
 
 def step_profile(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -88,3 +88,35 @@ def test_a_frozen_campaign_loop_is_set_aside_and_recorded(plain, tmp_path, capsy
     res = mass_json(capsys, mass_argv(plain / "dut", cal), "ok")
     assert abs(res["mass_kg"] - DUT_KG) <= res["U_kg"]
 
+
+
+def copy_loop(directory: Path, source: str, target: str) -> None:
+    """Trace ``target``'s files replaced by byte copies of ``source``'s (header and data)."""
+    for module in ("NextGenDrive#3", "NextGenDrive#5"):
+        for ext in ("dat", "r64"):
+            (directory / f"{target}_{module}.{ext}").write_bytes((directory / f"{source}_{module}.{ext}").read_bytes())
+
+
+def test_loops_that_repeat_another_loop_byte_for_byte_are_set_aside(plain, tmp_path, capsys):
+    """Loops 4 and 5 of the DuT are copies of loop 2's files: 5 loops were averaged (loop 2 three times), status ok,
+    the loop spread of U narrowed by two loops that were never measured. Now both are set aside naming loop 2, and the
+    mass rests on the three loops measured."""
+    d = copy_dir(plain / "dut", tmp_path / "dut")
+    copy_loop(d, "dut_l02", "dut_l04")
+    copy_loop(d, "dut_l02", "dut_l05")
+    res = mass_json(capsys, mass_argv(d, plain / "CAL.json"), "warning")
+    assert res["loops_used"] == ["dut_l01", "dut_l02", "dut_l03"]
+    assert [(a["loop"], a["reason"][:31]) for a in res["loops_set_aside"]] == [
+        ("dut_l04", "repeats loop dut_l02 sample for"), ("dut_l05", "repeats loop dut_l02 sample for")]
+    assert abs(res["mass_kg"] - DUT_KG) <= res["U_kg"]
+
+
+def test_a_campaign_loop_copied_from_another_is_set_aside_and_recorded(plain, tmp_path, capsys):
+    """Loop 3 of point 6 is a copy of loop 1's files: set aside naming loop 1 and recorded in CAL.json."""
+    cal_dir = copy_dir(plain / "cal", tmp_path / "cal")
+    copy_loop(cal_dir, "cal05_l01", "cal05_l03")
+    summary = run_json(capsys, ["calibrate", "--campaign", str(cal_dir), "--out", str(tmp_path / "CAL.json"),
+                                "--method", "axis-quad", "--json"])
+    assert [(a["point"], a["loop"]) for a in summary["set_aside"]] == [(6, "cal05_l03")]
+    assert summary["set_aside"][0]["reason"].startswith("repeats loop cal05_l01 sample for sample")
+    assert [a.loop for a in calfile.read(tmp_path / "CAL.json").fit.set_aside] == ["cal05_l03"]
