@@ -245,6 +245,19 @@ def check_torques_follow_loads(points: CalibrationPoints) -> None:
         "mounted when each point was confirmed, and are these the payload axes' drives?")
 
 
+def check_declared_masses(points: CalibrationPoints, evaluations: list[selection.Evaluation], g: float,
+                          dr: float) -> None:
+    """Refuse a campaign with a point whose declared mass the others do not bear out
+    (:func:`~rgse_daemon.pipeline.selection.declared_mass_outliers`): fitted as it is, the typo became a calibration
+    whose reproducibility term made every U tens of kg wide (a +100 kg typo: U 70 kg, status ok) or that no
+    measurement could use (10×: its alternatives' uncertainty not finite), and either said nothing of the cause."""
+    out = selection.declared_mass_outliers(points, evaluations, g, dr)
+    if out:
+        raise cal_mod.CalibrationError(
+            "calibration refused: " + "; ".join(o.describe() for o in out) + ": is its mass_kg a typo, or are these "
+            "another load's traces? Correct the manifest (or the points CSV) or measure the point again")
+
+
 def plausible_alternatives(points: CalibrationPoints, chosen: selection.Evaluation,
                            evaluations: list[selection.Evaluation], g: float, dr: float
                            ) -> tuple[calfile.Alternative, ...]:
@@ -296,6 +309,7 @@ def calibrate(points: CalibrationPoints, method: str, setup: Setup, *, pre: pp.P
     check_torques_follow_loads(points)
     try:
         cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
+        check_declared_masses(points, evaluations, g, dr)
         nested_pct = (cal_mod.mean_abs_pct(points.mass_kg, selection.nested_loo_auto_mass_kg(points, g, dr))
                       if nested else None)
         cu = unc.calibration_uncertainty(points, chosen.method, g, dr, chosen.heldout_residual_nm)

@@ -13,7 +13,9 @@ import pytest
 from rgse_daemon import calfile
 from rgse_daemon.cli import main
 from rgse_daemon.trace import read_trace_file
+from simulators.krc4 import physics as ph
 from tests.offline.test_integrity import DUT_KG, _campaign, mass_argv, mass_json, refused, run_json
+from tests.support.simcampaign import _bodies, _measure, simulate_campaign, simulate_measurement, write_dirs
 
 
 @pytest.fixture(scope="module")
@@ -120,3 +122,43 @@ def test_a_campaign_loop_copied_from_another_is_set_aside_and_recorded(plain, tm
     assert [(a["point"], a["loop"]) for a in summary["set_aside"]] == [(6, "cal05_l03")]
     assert summary["set_aside"][0]["reason"].startswith("repeats loop cal05_l01 sample for sample")
     assert [a.loop for a in calfile.read(tmp_path / "CAL.json").fit.set_aside] == ["cal05_l03"]
+
+@pytest.mark.parametrize("typo_kg,heldout", [(204.65, "+100 kg"), (1046.5, "10x"), (140.65, "digits swapped")])
+def test_a_calibration_point_with_a_mistyped_mass_is_refused_naming_it(plain, tmp_path, capsys, typo_kg, heldout):
+    """Point 6 of the campaign (5 bodies, 104.65 kg) declared as 204.65 kg or 1046.5 kg: ``rgse calibrate`` wrote a
+    calibration either way. With +100 kg its reproducibility term was 35 kg and the DuT's U 70 kg, status ok; with
+    10x ``rgse mass`` refused the calibration file itself ("fit.alternatives[2].uncertainty: needs finite
+    reproducibility"), naming neither the point nor its mass. Now the campaign is refused, naming point 6, its declared
+    mass and the ~104.6 kg its torques weigh by the other points."""
+    cal_dir = copy_dir(plain / "cal", tmp_path / "cal")
+    manifest = cal_dir / "manifest.toml"
+    text = manifest.read_text()
+    assert text.count("mass_kg = 104.65\n") == 1
+    manifest.write_text(text.replace("mass_kg = 104.65\n", f"mass_kg = {typo_kg!r}\n"))
+    err = refused(capsys, ["calibrate", "--campaign", str(cal_dir), "--out", str(tmp_path / "CAL.json"),
+                           "--method", "axis-quad"])
+    assert err.startswith(f"rgse calibrate: error: {cal_dir}: calibration refused: point 6 (mass_kg {typo_kg:g} kg): "
+                          f"the fit on the other points weighs its torques at 10"), (heldout, err)
+    assert "is its mass_kg a typo" in err and "point 7" not in err and "point 5 " not in err
+    assert not (tmp_path / "CAL.json").exists()
+
+
+def test_two_points_of_one_load_with_different_masses_are_refused(plain, tmp_path, capsys):
+    """Point 7 (6 bodies, 125.58 kg declared) measured with point 6's 5 bodies mounted again: one configuration under
+    two masses. ``rgse calibrate`` wrote a calibration (reproducibility 7.4 kg instead of 1.4 kg) saying nothing; now
+    point 7 is named, its torques weighing ~104.6 kg by the other points. Its loops copied from point 6's files instead
+    are refused as copies, naming them."""
+    camp, model = simulate_campaign(3)
+    five = ph.Payload((ph.mpa(), *_bodies(camp.body_masses_kg[:5], ph.calibration_stack(5))))
+    camp.loops[6] = _measure(model, five, 3, 250, 0.012, "cal06")
+    meas = simulate_measurement(model, DUT_KG, 0.25, n_loops=3)
+    write_dirs(camp, meas, tmp_path / "cal", tmp_path / "dut")
+    argv = ["calibrate", "--campaign", str(tmp_path / "cal"), "--out", str(tmp_path / "CAL.json"), "--method",
+            "axis-quad"]
+    err = refused(capsys, argv)
+    assert "calibration refused: point 7 (mass_kg 125.58 kg): the fit on the other points weighs its torques at 10" \
+        in err, err
+    for k in (1, 2, 3):
+        copy_loop(tmp_path / "cal", f"cal05_l{k:02d}", f"cal06_l{k:02d}")
+    err = refused(capsys, argv)
+    assert "calibration point 7 keeps 0 of 3 loops" in err and "loop cal06_l01: repeats loop cal05_l01" in err
