@@ -177,7 +177,10 @@ def points_from_raw(man: Manifest, raw3: np.ndarray, raw5: np.ndarray) -> tuple[
     n3, n5 = pp.normalise(raw3, bias3), pp.normalise(raw5, bias5)
     var = np.array([p.mass_var_kg2(man.setup.body_mass_u_kg) for p in man.points])
     cov = cal_mod.reference_mass_covariance(var, nested=man.setup.reference_correlation == "nested")
-    return CalibrationPoints(kinds, mass, n3, n5, e3, e5, cov), bias3, bias5
+    try:
+        return CalibrationPoints(kinds, mass, n3, n5, e3, e5, cov), bias3, bias5
+    except DataError as exc:  # a point's declared mass or levers: name the manifest they are in
+        raise DataError(f"{man.path}: {exc}") from exc
 
 
 def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float):

@@ -162,3 +162,16 @@ def test_two_points_of_one_load_with_different_masses_are_refused(plain, tmp_pat
         copy_loop(tmp_path / "cal", f"cal05_l{k:02d}", f"cal06_l{k:02d}")
     err = refused(capsys, argv)
     assert "calibration point 7 keeps 0 of 3 loops" in err and "loop cal06_l01: repeats loop cal05_l01" in err
+
+
+def test_a_mistyped_lever_names_the_manifest_and_the_point(plain, tmp_path, capsys):
+    """Point 12's lever_a5_m typed 7.94 instead of 0.794: the refusal named the point but no file; it names the
+    manifest now."""
+    cal_dir = copy_dir(plain / "cal", tmp_path / "cal")
+    manifest = cal_dir / "manifest.toml"
+    text = manifest.read_text()
+    assert text.count("lever_a5_m = 0.794") == 1
+    manifest.write_text(text.replace("lever_a5_m = 0.794", "lever_a5_m = 7.94"))
+    err = refused(capsys, ["calibrate", "--campaign", str(cal_dir), "--out", str(tmp_path / "CAL.json")])
+    assert err.startswith(f"rgse calibrate: error: {manifest}: calibration point 12: expected A3 torque "), err
+    assert "(r_A3 − r_A5 must be positive)" in err
