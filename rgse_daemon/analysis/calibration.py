@@ -80,20 +80,24 @@ def load_campaign(directory: Path) -> CampaignData:
 def screen_campaign(data: CampaignData, cfg: pp.Preprocessing,
                     minimum: int = integrity.MIN_LOOPS_PER_POINT,
                     drift_prior_per_k: float = thermal_mod.DRIFT_PRIOR_PER_K) -> CampaignData:
-    """Set aside the loops of each point that miss too many samples, hold a step, or disagree with the point's
-    other loops (:mod:`rgse_daemon.pipeline.integrity`, per axis in Nm; the thermal allowance is the prior bound on
-    β, ``drift_prior_per_k`` (``measurement.drift_prior_per_k``, ``rgse calibrate --drift-prior``), over each loop's
-    temperature difference, since β is fitted from these very loops); a sample missing in one
-    torque channel is missing in both. DataError naming the point if it keeps fewer than ``minimum`` loops (or, when
-    it had fewer, not all of them): one bad loop never fails the campaign while its point keeps enough."""
+    """Set aside the loops of each point that miss too many samples, have a frozen torque channel, repeat a loop of
+    the campaign, hold a step, or disagree with the point's other loops (:mod:`rgse_daemon.pipeline.integrity`, per
+    axis in Nm; the thermal allowance is the prior bound on β, ``drift_prior_per_k`` (``measurement.drift_prior_per_k``,
+    ``rgse calibrate --drift-prior``), over each loop's temperature difference, since β is fitted from these very
+    loops); a sample missing in one torque channel is missing in both. DataError naming the point if it keeps fewer
+    than ``minimum`` loops (or, when it had fewer, not all of them): one bad loop never fails the campaign while its
+    point keeps enough."""
     loops, temps, aside = [], [], []
     names = [spec.traces for spec in data.manifest.points]
+    repeats = integrity.Repeats()  # a loop repeating another, of any point
     for i, point_loops in enumerate(data.loops):
         point_temps = None if data.loop_temps_k is None else data.loop_temps_k[i]
         gapped, clean, kept = [], [], []
         for j, (a3, a5, dt) in enumerate(point_loops):
             ok = integrity.valid_mask(a3, a5)
-            reason = integrity.gap_reason(ok, round(cfg.settle_s / dt))
+            skip = round(cfg.settle_s / dt)
+            reason = (integrity.gap_reason(ok, skip) or integrity.frozen_reason((("A3", a3), ("A5", a5)), skip)
+                      or repeats.reason(names[i][j], a3, a5))
             if reason is not None:
                 gapped.append(integrity.SetAside(names[i][j], reason))
                 continue
@@ -173,7 +177,10 @@ def points_from_raw(man: Manifest, raw3: np.ndarray, raw5: np.ndarray) -> tuple[
     n3, n5 = pp.normalise(raw3, bias3), pp.normalise(raw5, bias5)
     var = np.array([p.mass_var_kg2(man.setup.body_mass_u_kg) for p in man.points])
     cov = cal_mod.reference_mass_covariance(var, nested=man.setup.reference_correlation == "nested")
-    return CalibrationPoints(kinds, mass, n3, n5, e3, e5, cov), bias3, bias5
+    try:
+        return CalibrationPoints(kinds, mass, n3, n5, e3, e5, cov), bias3, bias5
+    except DataError as exc:  # a point's declared mass or levers: name the manifest they are in
+        raise DataError(f"{man.path}: {exc}") from exc
 
 
 def fit_and_describe(points: CalibrationPoints, method: str, g: float, dr: float):
@@ -241,6 +248,19 @@ def check_torques_follow_loads(points: CalibrationPoints) -> None:
         "mounted when each point was confirmed, and are these the payload axes' drives?")
 
 
+def check_declared_masses(points: CalibrationPoints, evaluations: list[selection.Evaluation], g: float,
+                          dr: float) -> None:
+    """Refuse a campaign with a point whose declared mass the others do not bear out
+    (:func:`~rgse_daemon.pipeline.selection.declared_mass_outliers`): fitted as it is, the typo became a calibration
+    whose reproducibility term made every U tens of kg wide (a +100 kg typo: U 70 kg, status ok) or that no
+    measurement could use (10×: its alternatives' uncertainty not finite), and either said nothing of the cause."""
+    out = selection.declared_mass_outliers(points, evaluations, g, dr)
+    if out:
+        raise cal_mod.CalibrationError(
+            "calibration refused: " + "; ".join(o.describe() for o in out) + ": is its mass_kg a typo, or are these "
+            "another load's traces? Correct the manifest (or the points CSV) or measure the point again")
+
+
 def plausible_alternatives(points: CalibrationPoints, chosen: selection.Evaluation,
                            evaluations: list[selection.Evaluation], g: float, dr: float
                            ) -> tuple[calfile.Alternative, ...]:
@@ -292,6 +312,7 @@ def calibrate(points: CalibrationPoints, method: str, setup: Setup, *, pre: pp.P
     check_torques_follow_loads(points)
     try:
         cal, chosen, evaluations = fit_and_describe(points, method, g, dr)
+        check_declared_masses(points, evaluations, g, dr)
         nested_pct = (cal_mod.mean_abs_pct(points.mass_kg, selection.nested_loo_auto_mass_kg(points, g, dr))
                       if nested else None)
         cu = unc.calibration_uncertainty(points, chosen.method, g, dr, chosen.heldout_residual_nm)

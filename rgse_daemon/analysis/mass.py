@@ -16,7 +16,7 @@ import numpy as np
 from rgse_daemon import calfile
 from rgse_daemon.errors import DataError
 from rgse_daemon.manifest import Loop, load_manifest, read_loops, thermal_state_k
-from rgse_daemon.pipeline import inline
+from rgse_daemon.pipeline import inline, integrity
 from rgse_daemon.pipeline import preprocess as pp
 from rgse_daemon.pipeline import uncertainty as unc
 from rgse_daemon.pipeline.calibration import Calibration
@@ -64,19 +64,41 @@ def measure(loops: list[Loop], cal: calfile.CalFile, pre: pp.Preprocessing, fixt
             g_measurement_m_s2: float | None = None, g_u_measurement_m_s2: float = 0.0,
             envelope_limit: float = inline.env_mod.DEFAULT_LIMIT,
             drift_prior_per_k: float = inline.DRIFT_PRIOR_PER_K) -> MassResult:
-    """Pre-process every loop, set the disturbed ones aside, average (eq. 16), normalise with the calibration's M_0,
-    apply eq. 21, budget U."""
+    """Pre-process every loop, set the disturbed ones aside (a frozen torque channel or a repeated loop first, then
+    what :func:`~rgse_daemon.pipeline.inline.in_line_mass` screens), average (eq. 16), normalise with the
+    calibration's M_0, apply eq. 21, budget U."""
+    unusable, loops = unusable_loops(loops, pre)
+    if not loops:
+        raise integrity.TooFewLoops(inline.too_few(0, unusable), [], unusable)
     r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in loops],
                             cal.mass_calibration(), pre, fixture_mass_kg=fixture_mass_kg,
                             g_measurement_m_s2=g_measurement_m_s2, g_u_measurement_m_s2=g_u_measurement_m_s2,
                             envelope_limit=envelope_limit,
                             loop_temps_k=[(lp.motor_temp_a3_k, lp.motor_temp_a5_k) for lp in loops],
-                            drift_prior_per_k=drift_prior_per_k)
+                            drift_prior_per_k=drift_prior_per_k, set_aside=unusable)
     return MassResult(r.mass_kg, r.uncertainty.u_kg, r.uncertainty.expanded_kg, r.gross_mass_kg, fixture_mass_kg,
                       len(r.loops_used), r.samples_used, r.samples_total, cal.calibration_id, r.method,
                       r.warnings, r.uncertainty.components(), operating_point=r.operating_point,
                       loops_used=r.loops_used, loops_set_aside=[a.to_dict() for a in r.loops_set_aside],
                       thermal_applied=r.thermal_applied)
+
+
+def unusable_loops(loops: list[Loop], pre: pp.Preprocessing) -> tuple[list[integrity.SetAside], list[Loop]]:
+    """The loops whose A3 or A5 torque channel is frozen (:func:`~rgse_daemon.pipeline.integrity.frozen_reason`) or
+    that repeat an earlier loop sample for sample (:class:`~rgse_daemon.pipeline.integrity.Repeats`), each with its
+    reason, and the others. Checked on the trace files' samples: a synthetic noiseless loop handed to the pipeline
+    directly is not a frozen sensor."""
+    aside, rest = [], []
+    repeats = integrity.Repeats()
+    for lp in loops:
+        reason = (integrity.frozen_reason((("A3", lp.torque_a3_nm), ("A5", lp.torque_a5_nm)),
+                                          round(pre.settle_s / lp.period_s))
+                  or repeats.reason(lp.trace, lp.torque_a3_nm, lp.torque_a5_nm))
+        if reason is None:
+            rest.append(lp)
+        else:
+            aside.append(integrity.SetAside(lp.trace, reason))
+    return aside, rest
 
 
 #: How far the measurement's Δr (m) and g (m/s²) may differ from the calibration's: a calibration holds for its own

@@ -88,7 +88,8 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
                  fixture_mass_kg: float = 0.0, g_measurement_m_s2: float | None = None,
                  g_u_measurement_m_s2: float = 0.0, envelope_limit: float = env_mod.DEFAULT_LIMIT,
                  loop_temps_k: Sequence[tuple[float | None, float | None]] | None = None,
-                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K) -> InlineMass:
+                 drift_prior_per_k: float = DRIFT_PRIOR_PER_K,
+                 set_aside: Sequence[integrity.SetAside] = ()) -> InlineMass:
     """Mass of the DuT and its uncertainty from its loops (interfaces §1 ``rgse mass``) with ``calibration``
     (:class:`MassCalibration`).
 
@@ -97,7 +98,9 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     ``loop_temps_k`` (A3, A5 per loop, K) every loop is brought to the campaign's temperature
     (:mod:`rgse_daemon.pipeline.thermal`) and U gets its ``thermal`` term; where β is not applied the loops stay
     uncorrected and the term bounds their drift (:meth:`ThermalDrift.drift_bound_per_k`, ``drift_prior_per_k`` its
-    outer bound, 1/K). An ``uncertainty`` (or an alternative's)
+    outer bound, 1/K). ``set_aside``: loops the caller left out before (a frozen torque channel,
+    :func:`~rgse_daemon.pipeline.integrity.frozen_reason`), not among ``loops``; they count with the set-aside ones in
+    the refusal and the result. An ``uncertainty`` (or an alternative's)
     from a file written before ``refit_basis`` whose model has a ``sat`` term draws a warning
     (:func:`stale_refits_warning`): its refits are in another basis.
     """
@@ -120,7 +123,7 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
                         f"be applied to none, and U does not carry the drift; record the motor temperatures with the "
                         f"torques")
     # missing samples: a sample lacking in either torque channel is missing in both; too big a gap sets the loop aside
-    gapped: list[integrity.SetAside] = []
+    gapped: list[integrity.SetAside] = list(set_aside)
     kept: list[int] = []
     clean: list[tuple[np.ndarray, np.ndarray, float, str]] = []
     for j, (a3, a5, period_s, name) in enumerate(loops):
@@ -134,7 +137,7 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
         clean.append((np.where(ok, a3, np.nan), np.where(ok, a5, np.nan), period_s, name))
     loop_temps = None if temps is None else temps[kept]
     if not clean or (gapped and len(clean) < integrity.MIN_LOOPS):
-        raise integrity.TooFewLoops(_too_few(len(clean), gapped), [c[3] for c in clean], gapped)
+        raise integrity.TooFewLoops(too_few(len(clean), gapped), [c[3] for c in clean], gapped)
     drift_used = _drift_applied(thermal, loop_temps, warnings, drift_prior_per_k)
     first = _loop_readings(clean, pre, thermal, loop_temps, drift_used, bias_a3_nm, bias_a5_nm)
     s3, s5 = slope_kg_per_nm(cal, first.m3, first.m5)
@@ -150,7 +153,7 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     screening = integrity.screen([c[3] for c in clean], series, loop_mass0, se0, allowance, integrity.MIN_LOOPS,
                                  "kg", gapped)
     if not screening.enough:
-        raise integrity.TooFewLoops(_too_few(len(screening.used), screening.set_aside),
+        raise integrity.TooFewLoops(too_few(len(screening.used), screening.set_aside),
                                     [clean[i][3] for i in screening.used], screening.set_aside)
     clean = [clean[i] for i in screening.used]
     if loop_temps is not None:
@@ -359,7 +362,7 @@ def _loop_allowance_nm(thermal: ThermalDrift, axis: str, raw_nm: np.ndarray, tem
     return np.abs(np.asarray(raw_nm, float) * dt) * beta_u
 
 
-def _too_few(n_left: int, aside: Sequence[integrity.SetAside]) -> str:
+def too_few(n_left: int, aside: Sequence[integrity.SetAside]) -> str:
     text = "; ".join(f"loop {s.loop}: {s.reason}" for s in aside)
     return (f"measurement refused: {n_left} loop(s) left, fewer than the {integrity.MIN_LOOPS} a mass needs, after "
             f"setting aside {text}; re-mount the DuT and measure again")

@@ -2,6 +2,13 @@
 
 A loop is set aside, with its reason, when
 
+* **a torque channel is frozen**: it holds one value for :data:`FROZEN_FRACTION` of its samples after the settle
+  cut or more, in one run (:func:`frozen_reason`): a stuck sensor or a stale trace buffer, not a measurement of the
+  load. No drive's torque estimate repeats itself sample for sample; an exactly repeated reading is no sample, and
+  neither the step check (whose scatter it zeroes) nor the loop-to-loop check (whose scatter it hides when every
+  loop is frozen) would say so. Set aside on its own: the loops after it were measured as before;
+* **it repeats an earlier loop** sample for sample in both torque channels (:class:`Repeats`): a trace file copied
+  under another name, no new measurement; counted twice it would narrow the loop spread of U on no evidence;
 * **samples are missing**: fewer than :data:`MIN_VALID_FRACTION` of its samples after the settle cut are valid (a
   sample is missing in a loop when any of its torque channels lacks it: DIAdem's no-value marker or NaN/inf, read as
   NaN by :mod:`rgse_daemon.trace.diadem`); a loop with a smaller gap is used with what remains;
@@ -26,6 +33,7 @@ decision. The raw files of a set-aside loop stay archived as they are; only the 
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -37,6 +45,11 @@ from rgse_daemon.errors import DataError
 MIN_VALID_FRACTION = 0.5
 #: ... and at least this many valid samples.
 MIN_VALID_SAMPLES = 20
+#: A torque channel that holds one value over this fraction of a loop's samples (after the settle cut), in one run, is
+#: frozen (:func:`frozen_reason`) ...
+FROZEN_FRACTION = 0.25
+#: ... if that run is at least this many samples long.
+FROZEN_MIN_SAMPLES = 10
 #: Fewest loops a DuT measurement's mass rests on (the loop-to-loop check and the loop spread need two); fewer left
 #: after setting loops aside refuses the measurement. The stop-when-U-is-reached rule must not stop below it.
 MIN_LOOPS = 2
@@ -112,6 +125,54 @@ def gap_reason(valid: np.ndarray, skip: int) -> str | None:
         return (f"{n - k} of {n} samples missing (no value, NaN or inf in the trace): fewer than "
                 f"{MIN_VALID_FRACTION:.0%} left")
     return None
+
+
+def longest_run(x: np.ndarray) -> tuple[int, float]:
+    """The longest run of exactly equal consecutive values in ``x`` (NaN, a missing sample, is left out first):
+    its length and its value (0 and NaN for an empty ``x``)."""
+    x = np.asarray(x, float)
+    x = x[np.isfinite(x)]
+    if x.size == 0:
+        return 0, float("nan")
+    edges = np.flatnonzero(np.diff(x) != 0.0) + 1  # where a new value begins
+    starts = np.r_[0, edges]
+    lengths = np.diff(np.r_[starts, x.size])
+    k = int(lengths.argmax())
+    return int(lengths[k]), float(x[starts[k]])
+
+
+def frozen_reason(channels: Sequence[tuple[str, np.ndarray]], skip: int) -> str | None:
+    """Why a loop cannot be used because a torque channel is frozen (``channels``: (name, samples) of each torque
+    channel; ``skip``: the settle cut in samples): one value repeated for at least :data:`FROZEN_FRACTION` of the
+    samples after the cut, and at least :data:`FROZEN_MIN_SAMPLES`; None if none is."""
+    for name, x in channels:
+        v = np.asarray(x, float)[skip:]
+        n = int(np.isfinite(v).sum())
+        run, value = longest_run(v)
+        if n and run >= max(FROZEN_FRACTION * n, FROZEN_MIN_SAMPLES):
+            return (f"{name} torque frozen: {value:.6g} Nm for {run} of {n} samples in a row (a stuck sensor or a "
+                    f"stale trace buffer, not a measurement of the load; limit {FROZEN_FRACTION:.0%})")
+    return None
+
+
+class Repeats:
+    """Remembers the torque samples of the loops seen so far (by digest) and names the loop a later one repeats
+    sample for sample: real drive torques never repeat a loop exactly."""
+
+    def __init__(self) -> None:
+        self._seen: dict[str, str] = {}
+
+    def reason(self, name: str, *channels: np.ndarray) -> str | None:
+        """Why loop ``name`` (its torque ``channels``) cannot be used: it repeats an earlier loop; None if it does
+        not (it is then remembered)."""
+        digest = hashlib.sha256()
+        for c in channels:
+            digest.update(np.ascontiguousarray(c, dtype=float).tobytes())
+        first = self._seen.setdefault(digest.hexdigest(), name)
+        if first == name:
+            return None
+        return (f"repeats loop {first} sample for sample in both torque channels (a copy of its trace file, not a "
+                f"new measurement)")
 
 
 def step_profile(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
