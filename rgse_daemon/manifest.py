@@ -29,6 +29,8 @@ MODULE_A3 = "NextGenDrive#3"
 MODULE_A5 = "NextGenDrive#5"
 TORQUE_CHANNEL = "Istmoment"
 TEMPERATURE_CHANNEL = "Motortemperatur"
+#: The drive's actual axis position (deg): where the loop was recorded (:func:`pose_deg`).
+POSITION_CHANNEL = "Istposition"
 KINDS = ("zero", "mass", "torque")
 #: Point kind of the CoG (torsional) calibration: a load of known mass and position measured in every pose of a
 #: scheme (interfaces §2); kept apart from the mass calibration's points.
@@ -98,6 +100,9 @@ class Loop:
     motor_temp_a3_k: float | None = None
     """Mean ``Motortemperatur`` of A3 over the trace (K); None when the trace did not record it."""
     motor_temp_a5_k: float | None = None
+    axes_deg: tuple[float, float] | None = None
+    """Median ``Istposition`` of A3 and A5 over the trace (deg): the pose the loop was recorded in; None when either
+    drive module did not record it."""
 
 
 @dataclass(frozen=True)
@@ -346,7 +351,20 @@ def read_loop(directory: Path | str, trace: str) -> Loop:
         plausible_period_s(tf.period_s, tf.dat_path)
     if f3.period_s != f5.period_s or a3.size != a5.size:
         raise DataError(f"{f5.dat_path}: sample period or length differs from {f3.dat_path.name}")
-    return Loop(trace, a3, a5, float(f3.period_s), _mean_temperature_k(f3), _mean_temperature_k(f5))
+    p3, p5 = _median_position_deg(f3), _median_position_deg(f5)
+    return Loop(trace, a3, a5, float(f3.period_s), _mean_temperature_k(f3), _mean_temperature_k(f5),
+                None if p3 is None or p5 is None else (p3, p5))
+
+
+def _median_position_deg(tf: Any) -> float | None:
+    """Median of the drive's ``Istposition`` channel (deg) over its valid samples; None if absent or every sample is
+    missing."""
+    ch = tf.channels.get(POSITION_CHANNEL)
+    if ch is None:
+        return None
+    values = np.asarray(ch.values, float)
+    values = values[np.isfinite(values)]
+    return float(np.median(values)) if values.size else None
 
 
 def _mean_temperature_k(tf: Any) -> float | None:
@@ -377,6 +395,15 @@ def thermal_state_k(loops: list[Loop]) -> dict[str, float] | None:
     if not loops or any(t is None for t in t3 + t5):
         return None
     return {"A3": float(np.mean(t3)), "A5": float(np.mean(t5))}
+
+
+def pose_deg(loops: Sequence[Loop]) -> dict[str, float] | None:
+    """The A3 and A5 positions (deg) ``loops`` were recorded in, the median over the loops: the calibration's
+    measurement pose (CAL.json ``measurement_axes_deg``); None when any loop lacks its positions."""
+    if not loops or any(lp.axes_deg is None for lp in loops):
+        return None
+    axes = np.array([lp.axes_deg for lp in loops], float)
+    return {"A3": float(np.median(axes[:, 0])), "A5": float(np.median(axes[:, 1]))}
 
 
 def read_loops(directory: Path | str, traces: tuple[str, ...]) -> list[Loop]:

@@ -22,6 +22,7 @@ from rgse_daemon.manifest import (
     check_one_period,
     load_manifest,
     loop_periods,
+    pose_deg,
     read_loops,
     source_sha256,
     thermal_state_k,
@@ -54,6 +55,8 @@ class CampaignData:
     """The campaign's one sample period, as ``(trace 'name', s)`` of its first loop (:func:`check_one_period`)."""
     set_aside: list[tuple[int, integrity.SetAside]] = dataclasses.field(default_factory=list)
     """Loops left out by :func:`screen_campaign`: (1-based point, loop and reason); their files stay as they are."""
+    axes_deg: dict[str, float] | None = None
+    """The A3 and A5 positions the loops were recorded in (deg, :func:`~rgse_daemon.manifest.pose_deg`)."""
 
 
 def load_campaign(directory: Path) -> CampaignData:
@@ -74,7 +77,7 @@ def load_campaign(directory: Path) -> CampaignData:
     files = [man.path, *sorted(p for p in Path(directory).iterdir() if p.suffix in (".dat", ".r64"))]
     state = thermal_state_k(every_loop)
     return CampaignData(man, loops, files, state, temps if state is not None else None,
-                        loop_periods(every_loop[:1]))
+                        loop_periods(every_loop[:1]), axes_deg=pose_deg(every_loop))
 
 
 def screen_campaign(data: CampaignData, cfg: pp.Preprocessing,
@@ -396,7 +399,8 @@ def fit_campaign(directory: Path, method: str, pre: pp.Preprocessing = pp.PAPER,
     data = screen_campaign(load_campaign(directory), pre, drift_prior_per_k=drift_prior_per_k)
     points, bias3, bias5 = campaign_points(data, pre)
     doc, summary = calibrate(points, method, data.manifest.setup, pre=pre, bias=calfile.Bias(bias3, bias5),
-                             provenance=calfile.Provenance(source_sha256(data.files), data.thermal_state_k),
+                             provenance=calfile.Provenance(source_sha256(data.files), data.thermal_state_k,
+                                                           data.axes_deg),
                              where=directory, records=CampaignRecords(campaign_thermal(data, pre),
                                                                       campaign_period_s(data), data.set_aside))
     if data.manifest.torsional_points:

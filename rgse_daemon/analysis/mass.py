@@ -67,7 +67,7 @@ def measure(loops: list[Loop], cal: calfile.CalFile, pre: pp.Preprocessing, fixt
     """Pre-process every loop, set the disturbed ones aside (a frozen torque channel or a repeated loop first, then
     what :func:`~rgse_daemon.pipeline.inline.in_line_mass` screens), average (eq. 16), normalise with the
     calibration's M_0, apply eq. 21, budget U."""
-    unusable, loops = unusable_loops(loops, pre)
+    unusable, loops = unusable_loops(loops, pre, cal.provenance.axes_deg)
     if not loops:
         raise integrity.TooFewLoops(inline.too_few(0, unusable), [], unusable)
     r = inline.in_line_mass([(lp.torque_a3_nm, lp.torque_a5_nm, lp.period_s, lp.trace) for lp in loops],
@@ -83,16 +83,41 @@ def measure(loops: list[Loop], cal: calfile.CalFile, pre: pp.Preprocessing, fixt
                       thermal_applied=r.thermal_applied)
 
 
-def unusable_loops(loops: list[Loop], pre: pp.Preprocessing) -> tuple[list[integrity.SetAside], list[Loop]]:
-    """The loops whose A3 or A5 torque channel is frozen (:func:`~rgse_daemon.pipeline.integrity.frozen_reason`) or
-    that repeat an earlier loop sample for sample (:class:`~rgse_daemon.pipeline.integrity.Repeats`), each with its
-    reason, and the others. Checked on the trace files' samples: a synthetic noiseless loop handed to the pipeline
-    directly is not a frozen sensor."""
+#: How far (deg) a loop's A3 or A5 position may lie from the calibration's measurement pose (CAL.json
+#: ``measurement_axes_deg``). A drive holds its position to well below 0.01° at standstill; in the KR 500's measurement
+#: pose eq. 21's lever difference changes by about 0.5 % of the mass per degree of A3 (simulated: +10° gave −7 %), so
+#: 0.1° stays below 0.1 % while a loop recorded in another pose is caught.
+AXIS_TOLERANCE_DEG = 0.1
+
+
+def pose_reason(axes_deg: tuple[float, float] | None, calibrated_deg: dict[str, float] | None) -> str | None:
+    """Why a loop recorded at ``axes_deg`` (A3, A5; deg) cannot be weighed with a calibration made in
+    ``calibrated_deg``: it lies more than :data:`AXIS_TOLERANCE_DEG` away on A3 or A5; None if it does not or either
+    is unknown (a trace without ``Istposition``, a CAL.json that does not record the pose)."""
+    if axes_deg is None or calibrated_deg is None:
+        return None
+    off = [(ax, q, calibrated_deg[ax]) for ax, q in zip(("A3", "A5"), axes_deg, strict=True)
+           if abs(q - calibrated_deg[ax]) > AXIS_TOLERANCE_DEG]
+    if not off:
+        return None
+    where = ", ".join(f"{ax} at {q:.3f}° instead of {c:.3f}°" for ax, q, c in off)
+    return (f"recorded in another pose than the calibration's ({where}; limit {AXIS_TOLERANCE_DEG:g}°): eq. 21's "
+            f"levers hold only in the pose the calibration was made in")
+
+
+def unusable_loops(loops: list[Loop], pre: pp.Preprocessing, calibrated_deg: dict[str, float] | None = None
+                   ) -> tuple[list[integrity.SetAside], list[Loop]]:
+    """The loops recorded in another pose than the calibration's (:func:`pose_reason`; ``calibrated_deg``: CAL.json
+    ``measurement_axes_deg``), whose A3 or A5 torque channel is frozen
+    (:func:`~rgse_daemon.pipeline.integrity.frozen_reason`) or that repeat an earlier loop sample for sample
+    (:class:`~rgse_daemon.pipeline.integrity.Repeats`), each with its reason, and the others. Checked on the trace
+    files' samples: a synthetic noiseless loop handed to the pipeline directly is not a frozen sensor."""
     aside, rest = [], []
     repeats = integrity.Repeats()
     for lp in loops:
-        reason = (integrity.frozen_reason((("A3", lp.torque_a3_nm), ("A5", lp.torque_a5_nm)),
-                                          round(pre.settle_s / lp.period_s))
+        reason = (pose_reason(lp.axes_deg, calibrated_deg)
+                  or integrity.frozen_reason((("A3", lp.torque_a3_nm), ("A5", lp.torque_a5_nm)),
+                                             round(pre.settle_s / lp.period_s))
                   or repeats.reason(lp.trace, lp.torque_a3_nm, lp.torque_a5_nm))
         if reason is None:
             rest.append(lp)

@@ -102,11 +102,14 @@ class Fit:
 
 @dataclass(frozen=True)
 class Provenance:
-    """Where a calibration comes from: the raw files' SHA-256 (``source_sha256``) and the thermal state they were
-    recorded in (``thermal_state_k``: mean A3/A5 motor temperature, K; None if the traces had none)."""
+    """Where a calibration comes from: the raw files' SHA-256 (``source_sha256``), the thermal state they were
+    recorded in (``thermal_state_k``: mean A3/A5 motor temperature, K; None if the traces had none) and the pose."""
 
     source_sha256: dict[str, str] = field(default_factory=dict)
     thermal_state_k: dict[str, float] | None = None
+    axes_deg: dict[str, float] | None = None
+    """The A3 and A5 positions (deg, ``Istposition``) the campaign's loops were recorded in
+    (``measurement_axes_deg``): the measurement pose eq. 21's levers hold for; None if the traces had none."""
 
 
 @dataclass(frozen=True)
@@ -201,6 +204,8 @@ class CalFile:
         }
         if self.provenance.thermal_state_k is not None:
             doc["thermal_state_k"] = {k: float(v) for k, v in self.provenance.thermal_state_k.items()}
+        if self.provenance.axes_deg is not None:
+            doc["measurement_axes_deg"] = {k: float(v) for k, v in self.provenance.axes_deg.items()}
         if self.torsional is not None:
             doc["torsional"] = torsional_dict(self.torsional)
         return doc
@@ -399,7 +404,8 @@ def parse(doc: Any, path: str = "CAL.json") -> CalFile:
         robot=doc["robot"], calibration=cal,
         bias=Bias(_finite(bias["A3"], f"{p}bias_nm.A3"), _finite(bias["A5"], f"{p}bias_nm.A5")),
         fit=_parse_fit(fit, cal, p),
-        provenance=Provenance(dict(sources), _temps(doc.get("thermal_state_k"), f"{p}thermal_state_k")),
+        provenance=Provenance(dict(sources), _temps(doc.get("thermal_state_k"), f"{p}thermal_state_k"),
+                              _axes(doc.get("measurement_axes_deg"), f"{p}measurement_axes_deg")),
         preprocessing=pre, g_u_m_s2=_opt_finite(doc.get("g_u_m_s2"), f"{p}g_u_m_s2"),
         torsional=parse_torsional(doc.get("torsional"), path),
         calibration_id=str(doc.get("calibration_id", "")), created_utc=str(doc.get("created_utc", "")),
@@ -410,6 +416,20 @@ def _temps(v: Any, where: str) -> dict[str, float] | None:
     if v is None:
         return None
     return {str(k): _finite(x, f"{where}.{k}") for k, x in _obj(v, where).items()}
+
+
+def _axes(v: Any, where: str) -> dict[str, float] | None:
+    """``measurement_axes_deg``: A3 and A5 in deg, each finite and within ±360."""
+    if v is None:
+        return None
+    d = _obj(v, where)
+    if set(d) != {"A3", "A5"}:
+        raise DataError(f"{where} must hold exactly A3 and A5 (deg), got {sorted(d)}")
+    out = {ax: _finite(d[ax], f"{where}.{ax}") for ax in ("A3", "A5")}
+    for ax, deg in out.items():
+        if abs(deg) > 360.0:
+            raise DataError(f"{where}.{ax} = {deg!r} is not an axis position in deg (|q| <= 360)")
+    return out
 
 
 def _parse_fit(fit: dict[str, Any], cal: Calibration, p: str) -> Fit:

@@ -61,10 +61,13 @@ class Knock:
 
 def _measure(model: ph.RobotModel, payload: ph.Payload, n_loops: int, n_samples: int, period_s: float,
              prefix: str, warm_s: float = 0.0, knock: Knock | None = None, change_s: float = CHANGE_BODIES_S,
-             loop_s: float = LOOP_S) -> list[Loop]:
+             loop_s: float = LOOP_S, pose_offset_deg: tuple[float, ...] | None = None) -> list[Loop]:
     """One mounting of ``payload`` and its loops; ``warm_s``: the drives hold (and heat) that long first;
-    ``change_s``: brakes applied that long before (the bodies are changed); ``loop_s``: one loop's duration."""
+    ``change_s``: brakes applied that long before (the bodies are changed); ``loop_s``: one loop's duration;
+    ``pose_offset_deg``: A1..A6 added to the measurement pose (a load measured in another pose)."""
     q = kin.measurement_pose()
+    if pose_offset_deg is not None:
+        q = q + np.asarray(pose_offset_deg, float)
     model.apply_brakes(change_s)
     model.new_mounting()
     if warm_s > 0:
@@ -82,7 +85,8 @@ def _measure(model: ph.RobotModel, payload: ph.Payload, n_loops: int, n_samples:
         else:
             tr = model.sample_trace(q, payload, n_samples, period_s)
         out.append(Loop(f"{prefix}_l{k + 1:02d}", tr[3]["Istmoment"], tr[5]["Istmoment"], period_s,
-                        float(np.mean(tr[3]["Motortemperatur"])), float(np.mean(tr[5]["Motortemperatur"]))))
+                        float(np.mean(tr[3]["Motortemperatur"])), float(np.mean(tr[5]["Motortemperatur"])),
+                        (float(np.median(tr[3]["Istposition"])), float(np.median(tr[5]["Istposition"])))))
         model.apply_brakes(max(loop_s - SETTLE_S - n_samples * period_s, 0.0))
     return out
 
@@ -153,20 +157,26 @@ def simulate_campaign(seed: int, n_loops: int = 3, n_samples: int = 250, period_
 
 def simulate_measurement(model: ph.RobotModel, dut_mass_kg: float, dut_cog_z_m: float = 0.25, n_loops: int = 3,
                          n_samples: int = 250, period_s: float = 0.012, warm_s: float = 0.0,
-                         knock: Knock | None = None, change_s: float = CHANGE_BODIES_S) -> SimMeasurement:
+                         knock: Knock | None = None, change_s: float = CHANGE_BODIES_S,
+                         pose_offset_deg: tuple[float, ...] | None = None) -> SimMeasurement:
     """A DuT on the ReFEx fixture on the MPA, measured after the campaign on the same simulated robot; ``warm_s``:
     the drives hold that long before the loops (a warmer robot than during the campaign); ``knock``: the load is
-    knocked during one loop; ``change_s``: how long the brakes were applied before (the DuT is mounted)."""
+    knocked during one loop; ``change_s``: how long the brakes were applied before (the DuT is mounted);
+    ``pose_offset_deg``: measured that far (A1..A6) from the measurement pose."""
     payload = ph.dut_payload(dut_mass_kg, (0.0, 0.0, dut_cog_z_m))
-    return SimMeasurement(_measure(model, payload, n_loops, n_samples, period_s, "dut", warm_s, knock, change_s),
+    return SimMeasurement(_measure(model, payload, n_loops, n_samples, period_s, "dut", warm_s, knock, change_s,
+                                   pose_offset_deg=pose_offset_deg),
                           dut_mass_kg, ph.FIXTURE_MASS_KG)
 
 
 def _write_loop(directory: Path, lp: Loop, temperature_gap: slice | None = None) -> None:
     modules: dict[str, dict[str, tuple[np.ndarray, str]]] = {}
-    for module, torque, temp in (("NextGenDrive#3", lp.torque_a3_nm, lp.motor_temp_a3_k),
-                                 ("NextGenDrive#5", lp.torque_a5_nm, lp.motor_temp_a5_k)):
+    axes = (None, None) if lp.axes_deg is None else lp.axes_deg
+    for module, torque, temp, q in (("NextGenDrive#3", lp.torque_a3_nm, lp.motor_temp_a3_k, axes[0]),
+                                    ("NextGenDrive#5", lp.torque_a5_nm, lp.motor_temp_a5_k, axes[1])):
         modules[module] = {"Istmoment": (torque, "Nm")}
+        if q is not None:  # the loop's position (the drive records it per sample; at standstill it holds it)
+            modules[module]["Istposition"] = (np.full(torque.size, q), "deg")
         if temp is not None:  # the loop's mean motor temperature as the channel (the drive records it per sample)
             values = np.full(torque.size, temp)
             if temperature_gap is not None:
