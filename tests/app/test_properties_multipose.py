@@ -22,7 +22,7 @@ from pypdf import PdfReader
 from rgse_daemon.cli import main
 from rgse_daemon.client import PropertiesResult, RgseClient
 from rgse_daemon.config import config_from_mapping
-from rgse_daemon.report.certificate import certificate_pdf, load
+from rgse_daemon.report.certificate import certificate_pdf, latin1, load
 from rgse_daemon.store import Repository
 from simulators.krc4 import physics as ph
 from simulators.krc4.sim import SimulatedKrc4
@@ -131,6 +131,12 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
         assert isinstance(typed, PropertiesResult)
         assert typed.mass_method == result["mass_method"] and typed.mass_method_requested == "auto"
         assert {e.method: (e.mass_kg, e.U_kg) for e in typed.mass_methods} == {
+        # and how the thermal drift of the mass given was treated: the multi-pose mass's note with U's thermal term,
+        # not the single pose's β per axis (the result's top-level thermal_notes/thermal_applied are the single pose's)
+        thermal = (f"multi-pose mass: {chosen['thermal']}; thermal term of U: "
+                   f"u = {chosen['u_components_kg']['thermal']:.3f} kg")
+        single_thermal = "; ".join(f"{ax} {n}" for ax, n in sorted(result["thermal_notes"].items()))
+        assert single_thermal and single_thermal not in thermal
             k: (pytest.approx(v["mass_kg"]), pytest.approx(v["U_kg"])) for k, v in methods.items()}
 
         # the console, as the operator reads it: the result and the history row
@@ -145,6 +151,7 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
         for text in said:
             assert text in row, (text, row)
 
+        assert f"thermal correction: {thermal}" in shown and single_thermal not in shown, (thermal, shown)
         # the report, from the console's link: recomputed from the archived files (the multi-pose mass included)
         link = str(await page.evaluate(f"[...document.querySelectorAll('#history tr')].find(r => "
                                        f"r.innerText.includes('{run_id}')).querySelector('a').href"))
@@ -165,6 +172,7 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
             pdf = certificate_pdf(load(repo, run_id))
         out = tmp_path / "cert.pdf"
         out.write_bytes(pdf)
+        assert f"thermal correction\t{thermal}" in report and single_thermal not in report, (thermal, report[:6000])
         reader = PdfReader(out)
         assert len(reader.pages) == 1
         return " ".join(reader.pages[0].extract_text().split())
@@ -179,6 +187,7 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
     assert await asyncio.to_thread(main, ["runs", "--config", str(config), "--json", "--out", str(out)]) == 0
     (listed,) = json.loads(out.read_text())["runs"]
     for text in said:
+    assert f"Thermal correction {latin1(thermal)}" in cert, (latin1(thermal), cert)
         assert text in listed["mass_method"], (text, listed)
 
 

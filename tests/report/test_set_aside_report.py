@@ -14,7 +14,7 @@ from pathlib import Path
 from pypdf import PdfReader
 
 from rgse_daemon.report import build_report
-from rgse_daemon.report.certificate import certificate_pdf, load
+from rgse_daemon.report.certificate import certificate_pdf, latin1, load
 from rgse_daemon.store import Repository
 from tests.support.chromium import Dom, dump_dom
 from tests.support.simcampaign import Knock, simulate_campaign, simulate_measurement, with_gap, write_dirs
@@ -52,8 +52,15 @@ def test_reports_name_the_loops_set_aside_and_the_thermal_state(tmp_path: Path) 
     assert [a["loop"] for a in aside] == ["dut_l03", "dut_l04", "dut_l05"], aside
     assert run.fields["loop.set_aside"] == [a["reason"] for a in aside]
     assert run.fields["status"] == ["warning"]
-    (applied,) = run.fields["thermal_applied"]
-    assert applied.startswith("A3 ") and ", A5 " in applied, applied
+    # how the drift was treated per axis, the result's notes (β with its span applied over the DuT's offset, or
+    # why not and the bound U carries), and U's thermal term
+    notes, applied = filled.result["thermal_notes"], filled.result["thermal_applied"]
+    assert set(notes) == set(applied) == {"A3", "A5"}, notes
+    for ax, on in applied.items():
+        assert notes[ax].startswith("campaign's β = " if on else "not corrected ("), notes
+    thermal = (f"A3 {notes['A3']}; A5 {notes['A5']}; thermal term of U: "
+               f"u = {filled.result['u_components_kg']['thermal']:.3f} kg")
+    assert run.fields["thermal_correction"] == [thermal]
     assert "set aside: " in html and "in the result" in html
     assert run.fields["operating_point"] == ["inside"]
 
@@ -61,4 +68,4 @@ def test_reports_name_the_loops_set_aside_and_the_thermal_state(tmp_path: Path) 
     (page,) = PdfReader(cert).pages
     text = " ".join(page.extract_text().split())
     assert "STATUS: WARNING" in text and "loop dut_l03 set aside: " in text, text
-    assert "Thermal correction A3 " in text and ", A5 " in text and "Operating point" not in text, text
+    assert f"Thermal correction {latin1(thermal)}" in text and "Operating point" not in text, text
