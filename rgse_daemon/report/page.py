@@ -212,7 +212,7 @@ def _calibration_points_table(calv: CalibrationView) -> str:
 def _campaign_screen(calv: CalibrationView) -> str:
     """What the campaign's data resolve and what it left out: β per axis with its uncertainty and span and whether
     a measurement applies it (CAL.json ``fit.thermal``), and the loops set aside with their reasons
-    (``fit.set_aside``)."""
+    (``fit.set_aside``) under the drift prior the screen allowed (``fit.screening_drift_prior_per_k``)."""
     fit = calv.cal_file.fit
     out = "<h3>Thermal drift β</h3>"
     if fit.thermal is None:
@@ -221,6 +221,13 @@ def _campaign_screen(calv: CalibrationView) -> str:
         out += kv([(f"{ax}", f'<span data-field="thermal.{ax}" data-value="{t(fit.thermal.describe(ax))}">'
                     f"{t(fit.thermal.describe(ax))}</span>") for ax in ("A3", "A5")])
     out += "<h3>Campaign loops set aside</h3>"
+    prior = fit.screening_drift_prior_per_k
+    out += ("<p>The loop-to-loop check allowed a point's loops a thermal drift of up to "
+            + (f'<span data-field="screening_drift_prior_per_k" data-value="{t(repr(prior))}">{100 * prior:.3g} %/K'
+               "</span> (<code>--drift-prior</code>, CAL.json "
+               "<code>fit.screening_drift_prior_per_k</code>).</p>" if prior is not None else
+               "a drift prior this file does not record (written before it was recorded; a calibration from "
+               "pre-averaged points screens no loops).</p>"))
     if not fit.set_aside:
         out += "<p>none: every loop is in its point</p>"
     else:

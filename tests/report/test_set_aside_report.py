@@ -42,6 +42,9 @@ def test_reports_name_the_loops_set_aside_and_the_thermal_state(tmp_path: Path) 
     assert cal.fields["set_aside.loop"] == ["cal05_l02"]
     (reason,) = cal.fields["set_aside.reason"]
     assert "samples missing" in reason, reason
+    # the drift prior the screen allowed, beside what it set aside (the offline command's default)
+    assert filled.cal_doc["fit"]["screening_drift_prior_per_k"] == 0.003
+    assert cal.fields["screening_drift_prior_per_k"] == ["0.003"]
     for ax in ("A3", "A5"):
         (beta,) = cal.fields[f"thermal.{ax}"]
         assert beta.startswith(f"{ax} β = ") and " K span, " in beta and "applied" in beta, beta
