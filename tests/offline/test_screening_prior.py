@@ -55,6 +55,7 @@ def test_calibrate_refuses_a_drift_prior_the_config_would_refuse(value, why, tmp
     assert f"argument --drift-prior: {why}" in capsys.readouterr().err
 
 
+@pytest.mark.timeout(300)  # four campaign fits: 98-101 s alone at load 3.5, over the default 120 s in a batch
 def test_the_prior_reaches_the_screening_through_the_files_from_the_command_line_and_the_daemons_fit(tmp_path,
                                                                                                    capsys):
     """The same warmer loop written as KUKA trace files: ``rgse calibrate --campaign DIR --drift-prior P`` and the
