@@ -56,3 +56,30 @@ def mass_method_text(result: Mapping[str, Any]) -> str | None:
             f"{NAMES[name]} {mass:.3f} ± {u:.3f} kg" + (f" in {t / 60.0:.1f} min" if t is not None else "")
             for name, mass, u, t in both) + " (U at k = 2)"
     return text
+
+
+def thermal_text(result: Mapping[str, Any]) -> str | None:
+    """One line: how the thermal drift of the mass the result gives was treated. The multi-pose mass's note
+    (``mass_methods.multipose.thermal``) where that mass is the result's; else the single pose's per axis
+    (``thermal_notes``: β with its span applied over the DuT's offset, or why not and the bound U carries; a result
+    from before the notes: ``thermal_applied``, applied or not). Then U's ``thermal`` term (standard uncertainty).
+    None where nothing was decided (no β in the calibration, no motor temperatures)."""
+    methods = result.get("mass_methods")
+    multi = methods.get("multipose") if isinstance(methods, Mapping) else None
+    text = None
+    if result.get("mass_method") == "multipose":
+        note = multi.get("thermal") if isinstance(multi, Mapping) else None
+        if isinstance(note, str) and note:
+            text = f"{NAMES['multipose']} mass: {note}"
+    else:
+        notes, applied = result.get("thermal_notes"), result.get("thermal_applied")
+        if isinstance(notes, Mapping) and notes:
+            text = "; ".join(f"{ax} {note}" for ax, note in sorted(notes.items()))
+        elif isinstance(applied, Mapping) and applied:
+            text = ", ".join(f"{ax} {'applied' if on else 'not applied (U carries the drift)'}"
+                             for ax, on in sorted(applied.items()))
+    if text is None:
+        return None
+    budget = result.get("u_components_kg")
+    u = _number(budget.get("thermal")) if isinstance(budget, Mapping) else None
+    return text + (f"; thermal term of U: u = {u:.3f} kg" if u is not None else "")

@@ -296,11 +296,13 @@ def validation_record(points: CalibrationPoints, chosen: selection.Evaluation, n
 class CampaignRecords:
     """What a campaign's loops tell beside its points, recorded in CAL.json: ``drift`` (``fit.thermal``, removed
     from the DuT's loops at measurement), ``sample_period_s`` (``fit.sample_period_s``, compared with the DuT's; None
-    for a points CSV) and ``set_aside`` (``fit.set_aside``: (1-based point, loop and reason))."""
+    for a points CSV), ``set_aside`` (``fit.set_aside``: (1-based point, loop and reason)) and the drift prior the
+    screen that set them aside allowed (``fit.screening_drift_prior_per_k``, 1/K; None: nothing screened)."""
 
     drift: ThermalDrift | None = None
     sample_period_s: float | None = None
     set_aside: Sequence[tuple[int, integrity.SetAside]] = ()
+    screening_drift_prior_per_k: float | None = None
 
 
 def calibrate(points: CalibrationPoints, method: str, setup: Setup, *, pre: pp.Preprocessing | None,
@@ -331,7 +333,8 @@ def calibrate(points: CalibrationPoints, method: str, setup: Setup, *, pre: pp.P
                         loo_residual_rms_rel=loo_rms_rel(points, chosen), validation=validation, uncertainty=cu,
                         envelope=Envelope.from_torques(points.torque_a3_nm, points.torque_a5_nm),
                         alternatives=plausible_alternatives(points, chosen, evaluations, g, dr), thermal=drift,
-                        set_aside=tuple(calfile.SetAsideLoop(p, a.loop, a.reason) for p, a in set_aside))))
+                        set_aside=tuple(calfile.SetAsideLoop(p, a.loop, a.reason) for p, a in set_aside),
+                        screening_drift_prior_per_k=records.screening_drift_prior_per_k)))
     summary = {
         "calibration_id": doc.calibration_id,
         "method": cal.method,
@@ -344,6 +347,7 @@ def calibrate(points: CalibrationPoints, method: str, setup: Setup, *, pre: pp.P
         "points": len(points),
         "r2": cal.r2,
         "set_aside": [{"point": p, **a.to_dict()} for p, a in set_aside],
+        "screening_drift_prior_per_k": records.screening_drift_prior_per_k,
         "thermal": None if drift is None else {
             ax: {"beta_per_k": drift.coeff_per_k[ax], "u_beta_per_k": drift.u_coeff_per_k[ax],
                  "span_k": drift.span_k[ax], "resolved": drift.unresolved(ax) is None,
@@ -402,7 +406,8 @@ def fit_campaign(directory: Path, method: str, pre: pp.Preprocessing = pp.PAPER,
                              provenance=calfile.Provenance(source_sha256(data.files), data.thermal_state_k,
                                                            data.axes_deg),
                              where=directory, records=CampaignRecords(campaign_thermal(data, pre),
-                                                                      campaign_period_s(data), data.set_aside))
+                                                                      campaign_period_s(data), data.set_aside,
+                                                                      drift_prior_per_k))
     if data.manifest.torsional_points:
         # the CoG calibration (issue #14): bias per pose and K for A3..A6 from the torsional points
         tors = cog_analysis.torsional_calibration(Path(directory), data.manifest, pre, periods=data.period)

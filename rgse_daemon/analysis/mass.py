@@ -48,6 +48,8 @@ class MassResult:
     """The loops left out, each ``{"loop", "reason"}`` (pipeline.integrity); their raw files stay archived."""
     thermal_applied: dict[str, bool] = field(default_factory=dict)
     """Per axis, whether the campaign's thermal drift β was applied (empty: no β or no temperatures)."""
+    thermal_notes: dict[str, str] = field(default_factory=dict)
+    """Per axis, how the drift was treated (:attr:`~rgse_daemon.pipeline.inline.InlineMass.thermal_notes`)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"mass_kg": self.mass_kg, "u_kg": self.u_kg, "U_kg": self.U_kg, "k": int(unc.COVERAGE_K),
@@ -57,7 +59,8 @@ class MassResult:
                 "warnings": self.warnings, "u_components_kg": self.u_components_kg,
                 "motor_temp_k": self.motor_temp_k, "operating_point": self.operating_point,
                 "loops_used": self.loops_used, "loops_set_aside": self.loops_set_aside,
-                "thermal_applied": self.thermal_applied, "status": status_of({"warnings": self.warnings})}
+                "thermal_applied": self.thermal_applied, "thermal_notes": self.thermal_notes,
+                "status": status_of({"warnings": self.warnings})}
 
 
 def measure(loops: list[Loop], cal: calfile.CalFile, pre: pp.Preprocessing, fixture_mass_kg: float,
@@ -80,7 +83,7 @@ def measure(loops: list[Loop], cal: calfile.CalFile, pre: pp.Preprocessing, fixt
                       len(r.loops_used), r.samples_used, r.samples_total, cal.calibration_id, r.method,
                       r.warnings, r.uncertainty.components(), operating_point=r.operating_point,
                       loops_used=r.loops_used, loops_set_aside=[a.to_dict() for a in r.loops_set_aside],
-                      thermal_applied=r.thermal_applied)
+                      thermal_applied=r.thermal_applied, thermal_notes=r.thermal_notes)
 
 
 #: How far (deg) a loop's A3 or A5 position may lie from the calibration's measurement pose (CAL.json

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -58,15 +59,19 @@ def _calibration(calf: calfile.CalFile, where: str, poses_q: dict[str, tuple[flo
 
 
 def predict_methods(calf: calfile.CalFile, meas_pose_deg: tuple[float, ...], single_loops: int,
-                    visits_per_pose: int, loop_robot_s: float, where: str = "CAL.json"
-                    ) -> dict[str, dict[str, float]]:
+                    visits_per_pose: int, loop_robot_s: float, where: str = "CAL.json",
+                    motor_temp_a3_k: float | None = None, drift_prior_per_k: float = DRIFT_PRIOR_PER_K
+                    ) -> dict[str, dict[str, Any]]:
     """Before a properties run: each mass method's predicted U (kg, k = 2) and the robot minutes of its own loops,
     from CAL.json alone. The single pose: its reproducibility term (:func:`mp.predict_single_U_kg`), ``single_loops``
     loops. The multi-pose mass: MP1–MP3 on the readings K_A3 predicts (:func:`mp.predict_multipose_U_kg`) for the
     heaviest load the torsional calibration covered (the largest A3 payload torque it saw, in the measurement pose:
     its U grows with the mass, the single pose's does not, so a lighter DuT only favours it more),
-    ``visits_per_pose`` loops in each lever pose. DataError (naming the file) where the multi-pose section is
-    missing."""
+    ``visits_per_pose`` loops in each lever pose, with U's ``thermal`` term as the run would carry it were its
+    visits at ``motor_temp_a3_k`` (the A3 motor temperature before the run; :func:`mp.predicted_drift`: u(β) where β
+    will be applied, else the campaign's bound, at most ``drift_prior_per_k``, over their offset from the torsional
+    campaign's temperature; ``thermal``: how, ``offset_k``). DataError (naming the file) where the multi-pose
+    section is missing."""
     cu = calf.fit.uncertainty
     if cu is None:
         raise DataError(f"{where}: fit.uncertainty missing: the single pose's U cannot be predicted")
@@ -77,9 +82,29 @@ def predict_methods(calf: calfile.CalFile, meas_pose_deg: tuple[float, ...], sin
     mcal = _calibration(calf, where, {p.name: p.q_deg for p in poses}, cal.g_m_s2)
     x_max = max(abs(t) for t in mcal.gain_a3.torque_range_nm)
     mass = x_max / (cal.g_m_s2 * max(p.lever_a3_m for p in mcal.poses))
-    out["multipose"] = {"U_kg": mp.predict_multipose_U_kg(mcal, mass, visits_per_pose),
-                        "robot_min": len(poses) * visits_per_pose * loop_robot_s / 60.0,
-                        "loops": len(poses) * visits_per_pose, "at_gross_mass_kg": mass}
+    t_state = (calf.torsional.thermal_state_k or {}).get("A3") if calf.torsional is not None else None
+    reference_k = None if t_state is None else float(t_state)
+    campaign = calf.fit.thermal
+    drift = mp.predicted_drift(campaign, reference_k, motor_temp_a3_k, drift_prior_per_k, mcal.gain_a3.u_fit_nm)
+    offset_k = (motor_temp_a3_k - reference_k if drift.u_beta_per_k > 0.0 and reference_k is not None
+                and motor_temp_a3_k is not None else 0.0)
+
+    def u_kg(u_beta_per_k: float) -> float:
+        return mp.predict_multipose_U_kg(dataclasses.replace(mcal, u_beta_per_k=u_beta_per_k), mass,
+                                         visits_per_pose, offset_k)
+
+    multi: dict[str, Any] = {"U_kg": u_kg(drift.u_beta_per_k),
+                             "robot_min": len(poses) * visits_per_pose * loop_robot_s / 60.0,
+                             "loops": len(poses) * visits_per_pose, "at_gross_mass_kg": mass,
+                             "thermal": drift.note, "offset_k": offset_k}
+    if not drift.applied and offset_k != 0.0 and campaign is not None and campaign.unresolved("A3") is None:
+        # β resolved but not applicable from the campaign alone: the run's own visits may still confirm it
+        # (mp.visit_drift), which cannot be foreseen. U as the run gives it then; the bound's U beside it
+        multi["U_unconfirmed_kg"] = multi["U_kg"]
+        multi["U_kg"] = u_kg(campaign.u_coeff_per_k["A3"])
+        multi["thermal"] = (f"β applied if the run's own visits confirm it (U {multi['U_kg']:.2f} kg), else "
+                            f"{drift.note} (U {multi['U_unconfirmed_kg']:.2f} kg)")
+    out["multipose"] = multi
     return out
 
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from rgse_daemon.config import MAX_DRIFT_PRIOR_PER_K
 from rgse_daemon.errors import DataError
 from rgse_daemon.pipeline.axis_gain import AxisGain
 from rgse_daemon.pipeline.calibration import AxisK, Calibration
@@ -98,6 +99,11 @@ class Fit:
     """The campaign's thermal drift β per axis (with u, span, whether it resolves)."""
     set_aside: tuple[SetAsideLoop, ...] | None = None
     """The integrity screen's loops left out of the campaign's points."""
+    screening_drift_prior_per_k: float | None = None
+    """The bound on the thermal drift |β| (1/K) the screen allowed a point's loops before its loop-to-loop check set
+    one aside (``rgse calibrate --drift-prior``, the daemon's ``measurement.drift_prior_per_k``); None for a points
+    CSV (nothing screened) and in files written before it was recorded (their screen allowed the default 0.3 %/K,
+    or, from c85e141 on, whatever ``--drift-prior`` said)."""
 
 
 @dataclass(frozen=True)
@@ -249,6 +255,8 @@ def _fit_dict(fit: Fit, cal: Calibration) -> dict[str, Any]:
         out["thermal"] = fit.thermal.to_dict()
     if fit.set_aside is not None:
         out["set_aside"] = [{"point": s.point, "loop": s.loop, "reason": s.reason} for s in fit.set_aside]
+    if fit.screening_drift_prior_per_k is not None:
+        out["screening_drift_prior_per_k"] = float(fit.screening_drift_prior_per_k)
     return out
 
 
@@ -453,7 +461,17 @@ def _parse_fit(fit: dict[str, Any], cal: Calibration, p: str) -> Fit:
         alternatives=None if fit.get("alternatives") is None else _alternatives(fit["alternatives"], cal, p),
         thermal=None if fit.get("thermal") is None else _from(ThermalDrift.from_dict, p.rstrip(": "), fit["thermal"]),
         set_aside=None if fit.get("set_aside") is None else _set_aside(fit["set_aside"], f"{w}.set_aside"),
+        screening_drift_prior_per_k=_drift_prior(fit.get("screening_drift_prior_per_k"),
+                                                 f"{w}.screening_drift_prior_per_k"),
     )
+
+
+def _drift_prior(v: Any, where: str) -> float | None:
+    """A bound on |β| (1/K) as ``measurement.drift_prior_per_k`` takes it: in (0, MAX_DRIFT_PRIOR_PER_K]."""
+    prior = _opt_finite(v, where)
+    if prior is not None and not 0.0 < prior <= MAX_DRIFT_PRIOR_PER_K:
+        raise DataError(f"{where} = {v!r} per K is not a bound on |β|: it must lie in (0, {MAX_DRIFT_PRIOR_PER_K:g}]")
+    return prior
 
 
 def _validation(v: Any, where: str) -> Validation:

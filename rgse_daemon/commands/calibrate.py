@@ -94,6 +94,10 @@ def run(args: argparse.Namespace) -> int:
               f"u = {summary['u_reproducibility_kg']:.3f} kg")
         for ax in (summary.get("thermal") or {}).values():  # β, its span and whether it will be applied
             print(f"thermal drift {ax['description']}")
+        prior = summary.get("screening_drift_prior_per_k")
+        if prior is not None:  # what the loop-to-loop check allowed (CAL.json fit.screening_drift_prior_per_k)
+            print(f"loop screening allowed a point's loops a thermal drift of up to {100 * prior:.3g} %/K "
+                  f"(--drift-prior {prior:g}; CAL.json fit.screening_drift_prior_per_k)")
         for a in summary.get("set_aside", []):  # loops left out of the points (their files stay as they are)
             print(f"set aside: point {a['point']} loop {a['loop']}: {a['reason']}")
         period_s = doc.fit.sample_period_s

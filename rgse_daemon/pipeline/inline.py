@@ -48,6 +48,9 @@ class InlineMass:
     """The loops left out, each with its reason (:mod:`rgse_daemon.pipeline.integrity`)."""
     thermal_applied: dict[str, bool] = field(default_factory=dict)
     """Per axis, whether the campaign's thermal drift β was applied (empty: no temperatures or no β)."""
+    thermal_notes: dict[str, str] = field(default_factory=dict)
+    """Per axis, how the drift was treated, for the operator: β (± u, the span it was fitted on) applied over the
+    DuT's offset, or why not and the bound U carries over it (empty: no temperatures or no β)."""
 
 
 def slope_kg_per_nm(cal: Calibration, torque_a3_nm: float, torque_a5_nm: float, h_nm: float = 1.0
@@ -138,7 +141,8 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
     loop_temps = None if temps is None else temps[kept]
     if not clean or (gapped and len(clean) < integrity.MIN_LOOPS):
         raise integrity.TooFewLoops(too_few(len(clean), gapped), [c[3] for c in clean], gapped)
-    drift_used = _drift_applied(thermal, loop_temps, warnings, drift_prior_per_k)
+    thermal_notes: dict[str, str] = {}
+    drift_used = _drift_applied(thermal, loop_temps, warnings, drift_prior_per_k, thermal_notes)
     first = _loop_readings(clean, pre, thermal, loop_temps, drift_used, bias_a3_nm, bias_a5_nm)
     s3, s5 = slope_kg_per_nm(cal, first.m3, first.m5)
     allowance = None if loop_temps is None else combine_axes([
@@ -237,7 +241,7 @@ def in_line_mass(loops: Sequence[LoopSamples], calibration: MassCalibration, pre
                         f"(is the DuT mounted, the fixture mass right, each torque channel's sign as calibrated?)")
     return InlineMass(gross, gross - fixture_mass_kg, u, loop_mass, m3, m5, used, total, warnings, cal.method,
                       where, [c[3] for c in clean], list(screening.set_aside),
-                      {} if temps is None else {ax: bool(v) for ax, v in drift_used.items()})
+                      {} if temps is None else {ax: bool(v) for ax, v in drift_used.items()}, thermal_notes)
 
 
 def extrapolation_slope_kg(envelope: env_mod.Envelope | None, heldout_residual_nm: np.ndarray | None,
@@ -309,9 +313,10 @@ def _loop_readings(clean: Sequence[tuple[np.ndarray, np.ndarray, float, str]], p
 
 
 def _drift_applied(thermal: ThermalDrift | None, temps: np.ndarray | None, warnings: list[str],
-                   drift_prior_per_k: float) -> dict[str, bool]:
+                   drift_prior_per_k: float, notes: dict[str, str] | None = None) -> dict[str, bool]:
     """Per axis, whether the campaign's β is applied to these loops (:meth:`ThermalDrift.not_applicable`); a
-    warning for an axis left uncorrected over more than :data:`THERMAL_NOTE_K`."""
+    warning for an axis left uncorrected over more than :data:`THERMAL_NOTE_K`. ``notes`` gets, per axis, how the
+    drift was treated (:attr:`InlineMass.thermal_notes`)."""
     if thermal is None or temps is None:
         return {"A3": False, "A5": False}
     out = {}
@@ -319,10 +324,16 @@ def _drift_applied(thermal: ThermalDrift | None, temps: np.ndarray | None, warni
         offset = float(np.mean(temps[:, i]) - thermal.reference_k[ax])
         why = thermal.not_applicable(ax, offset)
         out[ax] = why is None
+        bound = thermal.drift_bound_per_k(ax, drift_prior_per_k)
+        source = (f"the prior {100 * drift_prior_per_k:.3g} %/K" if bound >= drift_prior_per_k else
+                  "the campaign's |β| + 2 u(β)")
+        if notes is not None:
+            notes[ax] = (f"campaign's β = {100 * thermal.coeff_per_k[ax]:+.3f} ± {100 * thermal.u_coeff_per_k[ax]:.3f}"
+                         f" %/K (fitted over a {thermal.span_k[ax]:.2g} K span) applied over {offset:+.1f} K"
+                         if why is None else
+                         f"not corrected ({why}); U carries a drift of up to {100 * bound:.3g} %/K ({source}) over "
+                         f"{offset:+.1f} K")
         if why is not None and abs(offset) > THERMAL_NOTE_K:
-            bound = thermal.drift_bound_per_k(ax, drift_prior_per_k)
-            source = (f"the prior {100 * drift_prior_per_k:.3g} %/K" if bound >= drift_prior_per_k else
-                      "the campaign's |β| + 2 u(β)")
             warnings.append(f"thermal drift of {ax} not corrected: β = {100 * thermal.coeff_per_k[ax]:+.3f} ± "
                             f"{100 * thermal.u_coeff_per_k[ax]:.3f} %/K is not applied to this DuT ({why}); U "
                             f"carries a drift of up to {100 * bound:.3g} %/K ({source}) over the {offset:+.1f} K "

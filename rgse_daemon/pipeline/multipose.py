@@ -487,12 +487,15 @@ def gain_u_kg(gain: AxisGain, n_norm_nm: np.ndarray, coef: np.ndarray) -> float:
     return u
 
 
-def predict_multipose_U_kg(cal: MultiPoseCalibration, gross_mass_kg: float, visits_per_pose: int) -> float:
+def predict_multipose_U_kg(cal: MultiPoseCalibration, gross_mass_kg: float, visits_per_pose: int,
+                           offset_k: float = 0.0) -> float:
     """The U (kg, k = 2) MP1–MP3 will give a load of ``gross_mass_kg`` (everything beyond the MPA) visited
     ``visits_per_pose`` times in each of the calibration's poses, before anything is measured: MP1–MP3 run on the
     readings K_A3 predicts in each pose (reading = bias + K_A3(−g·m·L_k)), each pose's visits scattering by exactly
     one visit's repeatability — the calibration's where it has one, else K_A3's in-point scatter (``u_fit_nm``).
-    DataError when neither is known."""
+    DataError when neither is known. ``offset_k``: the visits' expected A3 temperature less the reference K_A3 and
+    the bare readings hold at; with ``cal.u_beta_per_k`` (:func:`predicted_drift`) it gives U's ``thermal`` term as
+    the run would (reading × offset per visit)."""
     sigma, dof = cal.visit_sigma_nm, cal.visit_dof
     if dof < 1:
         sigma = cal.gain_a3.u_fit_nm
@@ -507,11 +510,27 @@ def predict_multipose_U_kg(cal: MultiPoseCalibration, gross_mass_kg: float, visi
     for p in cal.poses:
         x = -cal.g_m_s2 * gross_mass_kg * p.lever_a3_m
         reading = cal.bias[p.name].torque_a3_nm + float(cal.gain_a3.reading_nm(np.array([x]))[0])
-        visits.append(PoseVisits(p.name, reading + spread, np.zeros(n)))
+        visits.append(PoseVisits(p.name, reading + spread, (reading + spread) * float(offset_k)))
     if dof < 1 and n < 2:
         raise DataError("multi-pose prediction: one visit per pose and no repeatability in the calibration")
     planned = replace(cal, visit_sigma_nm=sigma, visit_dof=dof) if dof >= 1 else cal
     return multipose_mass(visits, planned).uncertainty.expanded_kg
+
+
+def predicted_drift(campaign: th.ThermalDrift | None, reference_k: float | None, visits_k: float | None,
+                    drift_prior_per_k: float, visit_sigma_nm: float) -> VisitDrift:
+    """How :func:`visit_drift` will treat A3's drift in a run whose visits all lie at ``visits_k`` (the A3 motor
+    temperature before the run, K), for :func:`predict_multipose_U_kg`: β applied where the campaign resolves it and
+    both ends lie within 3 × its span; else the bound. This is the campaign's decision alone: a run's own visits
+    may still confirm a resolved β over a span of their own, which cannot be foreseen
+    (``analysis.multipose.predict_methods`` gives U both ways there). No β, no reference or no temperature before the
+    run: no thermal term (the note says which)."""
+    if campaign is None or reference_k is None:
+        return visit_drift(campaign, reference_k, {}, drift_prior_per_k, visit_sigma_nm)
+    if visits_k is None or not math.isfinite(visits_k):
+        return VisitDrift(reference_k, 0.0, 0.0, False, "not predicted: no A3 motor temperature before the run")
+    steady = np.full(2, float(visits_k))
+    return visit_drift(campaign, reference_k, {"expected": (np.ones(2), steady)}, drift_prior_per_k, visit_sigma_nm)
 
 
 def predict_single_U_kg(reproducibility_u_kg: float) -> float:

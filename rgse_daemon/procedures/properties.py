@@ -89,7 +89,7 @@ from rgse_daemon.procedures.programs import (
 from rgse_daemon.procedures.recorder import StoreRecorder
 from rgse_daemon.procedures.retrieval import TRACE_DIR
 from rgse_daemon.procedures.settings import RunSettings
-from rgse_daemon.procedures.warmup import prepare
+from rgse_daemon.procedures.warmup import motor_temps_k, prepare
 from rgse_daemon.safety.inputs import SafetyInputs
 from rgse_daemon.store import RunKind, Store
 from rgse_daemon.verdict import REFUSED, with_status
@@ -234,22 +234,28 @@ def _chosen_mass(run_dir: Path, single: dict[str, Any], mass_method: str, robot_
             "mass_methods": methods, "warnings": [*single["warnings"], *(f"multi-pose: {w}" for w in multi.warnings)]}
 
 
-def choose_mass_method(cal_doc: dict[str, Any], s: RunSettings, p: PropertiesSettings) -> dict[str, Any]:
+def choose_mass_method(cal_doc: dict[str, Any], s: RunSettings, p: PropertiesSettings,
+                       motor_temp_a3_k: float | None = None) -> dict[str, Any]:
     """``auto``'s choice before the run (:func:`choose_method` on :func:`predict_methods`): the predicted U and robot
     minutes of each method from CAL.json, the stop rule's loops for the single pose, ``loops_per_pose`` in each lever
-    pose for the multi-pose mass. Where the multi-pose mass cannot be predicted, the single pose, with the reason."""
+    pose for the multi-pose mass, its thermal term for visits at ``motor_temp_a3_k`` (A3 now, K) under
+    ``measurement.drift_prior_per_k``. Where the multi-pose mass cannot be predicted, the single pose, with the
+    reason."""
     rule = s.stop_rule
     single_loops = rule.min_loops if (rule.loop_share > 0 or rule.target_U_kg is not None) else rule.max_loops
     loop_s = s.trace_time_s + s.settle_s * s.time_scale  # the same kind of loop in every pose
     try:
         predicted = predict_methods(calfile.load(cal_doc, "the active calibration"), s.meas_pose_deg, single_loops,
-                                    p.loops_per_pose, loop_s)
+                                    p.loops_per_pose, loop_s, motor_temp_a3_k=motor_temp_a3_k,
+                                    drift_prior_per_k=s.drift_prior_per_k)
     except DataError as exc:
         return {"method": "single", "predicted": {}, "reason": f"the multi-pose mass cannot be predicted ({exc})"}
     method = choose_method({k: (v["U_kg"], v["robot_min"]) for k, v in predicted.items()})
     text = ", ".join(f"{k} U {v['U_kg']:.2f} kg in {v['loops']} loops" for k, v in predicted.items())
+    thermal = predicted.get("multipose", {}).get("thermal")
     return {"method": method, "predicted": predicted,
-            "reason": f"least predicted U² × robot time ({text}; k = 2)"}
+            "reason": f"least predicted U² × robot time ({text}; k = 2)"
+                      + (f"; the multi-pose mass's thermal drift: {thermal}" if thermal else "")}
 
 
 def _finish(run_dir: Path, s: RunSettings, mass_traces: list[str], scheme: str, fixture: FixtureFrame,
@@ -385,7 +391,9 @@ def properties_plan(
     tag = run.run_id.rsplit("-", 1)[-1][:8].lower()
     mass_method, choice = p.mass_method, None
     if p.mass_method == "auto":  # chosen by prediction before anything moves: only its poses are measured
-        choice = choose_mass_method(cal_doc, s, p)
+        # the A3 motor temperature the visits will start from (after the warm-up): the multi-pose mass's thermal term
+        temps = motor_temps_k((yield m.ReadState()))
+        choice = choose_mass_method(cal_doc, s, p, None if temps is None else temps[0])
         mass_method = choice["method"]
         if mass_method == "single":  # the CoG from the paper's poses: the raised lever pose is not measured
             p = replace(p, scheme="paper")

@@ -20,7 +20,7 @@ from fpdf import FPDF
 
 from rgse_daemon import __version__
 from rgse_daemon.errors import DataError
-from rgse_daemon.massmethod import mass_method_text
+from rgse_daemon.massmethod import mass_method_text, thermal_text
 from rgse_daemon.store import NotFound, Repository
 from rgse_daemon.store.records import CalibrationRecord, ResultRecord, RunRecord
 
@@ -225,10 +225,9 @@ def certificate_pdf(data: CertificateData) -> bytes:
     pair("Calibration model", str(doc.get("method") or (cal.method if cal else "-")))
     pair("Calibration", f"{cal.id} of {_time(cal.created_utc)}" if cal is not None else
          str(doc.get("calibration_id") or "-"))
-    applied = doc.get("thermal_applied")
-    if isinstance(applied, dict) and applied:  # whether the campaign's β corrected the loops, per axis
-        pair("Thermal correction", ", ".join(f"{ax} {'applied' if on else 'not applied (U carries the drift)'}"
-                                             for ax, on in sorted(applied.items())))
+    thermal = thermal_text(doc)
+    if thermal is not None:  # how the drift of the mass given was treated: β applied, or why not and U's bound
+        pair("Thermal correction", thermal)
     if doc.get("operating_point") == "outside":
         pair("Operating point", "outside the calibrated envelope: U widened (see the warnings)")
     loops = doc.get("loops")

@@ -18,7 +18,7 @@ from typing import Any
 
 from rgse_daemon.analysis import reference as ref
 from rgse_daemon.analysis.inertia import ECSS_REL
-from rgse_daemon.massmethod import mass_method_text
+from rgse_daemon.massmethod import mass_method_text, thermal_text
 from rgse_daemon.report import plots
 from rgse_daemon.report.data import (
     BAND_K,
@@ -212,7 +212,7 @@ def _calibration_points_table(calv: CalibrationView) -> str:
 def _campaign_screen(calv: CalibrationView) -> str:
     """What the campaign's data resolve and what it left out: β per axis with its uncertainty and span and whether
     a measurement applies it (CAL.json ``fit.thermal``), and the loops set aside with their reasons
-    (``fit.set_aside``)."""
+    (``fit.set_aside``) under the drift prior the screen allowed (``fit.screening_drift_prior_per_k``)."""
     fit = calv.cal_file.fit
     out = "<h3>Thermal drift β</h3>"
     if fit.thermal is None:
@@ -221,6 +221,13 @@ def _campaign_screen(calv: CalibrationView) -> str:
         out += kv([(f"{ax}", f'<span data-field="thermal.{ax}" data-value="{t(fit.thermal.describe(ax))}">'
                     f"{t(fit.thermal.describe(ax))}</span>") for ax in ("A3", "A5")])
     out += "<h3>Campaign loops set aside</h3>"
+    prior = fit.screening_drift_prior_per_k
+    out += ("<p>The loop-to-loop check allowed a point's loops a thermal drift of up to "
+            + (f'<span data-field="screening_drift_prior_per_k" data-value="{t(repr(prior))}">{100 * prior:.3g} %/K'
+               "</span> (<code>--drift-prior</code>, CAL.json "
+               "<code>fit.screening_drift_prior_per_k</code>).</p>" if prior is not None else
+               "a drift prior this file does not record (written before it was recorded; a calibration from "
+               "pre-averaged points screens no loops).</p>"))
     if not fit.set_aside:
         out += "<p>none: every loop is in its point</p>"
     else:
@@ -296,14 +303,14 @@ def _thermal_rows(measured: object, calibration: object) -> list[tuple[str, str]
     return rows
 
 
-def _thermal_applied_rows(applied: object) -> list[tuple[str, str]]:
-    """Per axis whether the campaign's β corrected the loops (result ``thermal_applied``); where not, U carries the
-    drift (the warnings say why when it matters)."""
-    if not isinstance(applied, dict) or not applied:
+def _thermal_correction_rows(res: dict) -> list[tuple[str, str]]:
+    """How the thermal drift of the mass the result gives was treated (:func:`~rgse_daemon.massmethod.thermal_text`:
+    the multi-pose mass's note, or the single pose's β per axis applied or why not and the bound U carries), with
+    U's thermal term; the warnings say how to avoid an uncorrected drift when it matters."""
+    text = thermal_text(res)
+    if text is None:
         return []
-    text = ", ".join(f"{ax} {'applied' if on else 'not applied (U carries the drift)'}"
-                     for ax, on in sorted(applied.items()))
-    return [("thermal correction β", f'<span data-field="thermal_applied" data-value="{t(text)}">{t(text)}</span>')]
+    return [("thermal correction", f'<span data-field="thermal_correction" data-value="{t(text)}">{t(text)}</span>')]
 
 
 def _result_summary(view: MeasurementView) -> str:
@@ -326,7 +333,7 @@ def _result_summary(view: MeasurementView) -> str:
         ("calibration", code(res.get("calibration_id"), "result_calibration_id") + " "
          + code(res.get("method"), "result_method")),
         *_thermal_rows(res.get("motor_temp_k"), view.calibration.cal_file.provenance.thermal_state_k),
-        *_thermal_applied_rows(res.get("thermal_applied")),
+        *_thermal_correction_rows(res),
         *([("operating point", f'<span data-field="operating_point" data-value="{t(res["operating_point"])}">'
             f'{t(res["operating_point"])} the calibrated envelope</span>'
             + (" (U widened; see the warnings)" if res["operating_point"] == "outside" else ""))]

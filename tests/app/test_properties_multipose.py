@@ -22,7 +22,7 @@ from pypdf import PdfReader
 from rgse_daemon.cli import main
 from rgse_daemon.client import PropertiesResult, RgseClient
 from rgse_daemon.config import config_from_mapping
-from rgse_daemon.report.certificate import certificate_pdf, load
+from rgse_daemon.report.certificate import certificate_pdf, latin1, load
 from rgse_daemon.store import Repository
 from simulators.krc4 import physics as ph
 from simulators.krc4.sim import SimulatedKrc4
@@ -84,6 +84,13 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
         score = {k: v["U_kg"] ** 2 * v["robot_min"] for k, v in predicted.items()}
         assert choice["method"] == min(score, key=score.get) == result["mass_method"] == "multipose"
         assert predicted["multipose"]["U_kg"] < 0.5 * predicted["single"]["U_kg"]
+        # with U's thermal term for the A3 motor temperature after the warm-up: the campaign alone does not apply β so
+        # far from the span it was fitted on; the run's own visits may confirm it (they did in this test's runs), and
+        # U without them, the bound's, is said beside it
+        expect = predicted["multipose"]
+        assert expect["offset_k"] != 0.0 and expect["thermal"].startswith("β applied if the run's own visits "
+                                                                          "confirm it"), expect
+        assert expect["U_unconfirmed_kg"] > expect["U_kg"] and expect["thermal"] in choice["reason"], expect
         assert result["mass_method_requested"] == "auto"
         # its poses measured (the raised one with them); the mass loops are the pose meas's loops (#35)
         assert [e.data["pose"] for e in events.events if e.step == "pose"] == ["A6+90", "A3-80"]
@@ -124,6 +131,12 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
                 *(f"{names[k]} {methods[k]['mass_kg']:.3f} ± {methods[k]['U_kg']:.3f} kg"
                   for k in (result["mass_method"], other))]
         print(f"auto chose {result['mass_method']}: {methods}")
+        # and how the thermal drift of the mass given was treated: the multi-pose mass's note with U's thermal term,
+        # not the single pose's β per axis (the result's top-level thermal_notes/thermal_applied are the single pose's)
+        thermal = (f"multi-pose mass: {chosen['thermal']}; thermal term of U: "
+                   f"u = {chosen['u_components_kg']['thermal']:.3f} kg")
+        single_thermal = "; ".join(f"{ax} {n}" for ax, n in sorted(result["thermal_notes"].items()))
+        assert single_thermal and single_thermal not in thermal
 
         # the client, over the broker
         async with RgseClient.of(cfg) as client:
@@ -138,6 +151,7 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
         shown = str(await page.evaluate("document.getElementById('result').innerText"))
         for text in said:
             assert text in shown, (text, shown)
+        assert f"thermal correction: {thermal}" in shown and single_thermal not in shown, (thermal, shown)
         await page.wait_for(f"[...document.querySelectorAll('#history tr')].some(r => r.innerText.includes("
                             f"'{run_id}') && r.innerText.includes('chosen by auto'))", "the mass method in the history")
         row = str(await page.evaluate(f"[...document.querySelectorAll('#history tr')].find(r => "
@@ -158,6 +172,7 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
         for text in said:
             assert text in top and text in report[report.index("Result\n"):], (text, report[:3000])
         assert "consistency checks passed" in report
+        assert f"thermal correction\t{thermal}" in report and single_thermal not in report, (thermal, report[:6000])
 
     # the certificate
     def certificate_text() -> str:
@@ -172,6 +187,7 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
     cert = await asyncio.to_thread(certificate_text)
     for text in said:
         assert text.replace("±", "+/-") in cert or text in cert, (text, cert)
+    assert f"Thermal correction {latin1(thermal)}" in cert, (latin1(thermal), cert)
 
     # rgse runs --json: the mass method beside the figure
     out = tmp_path / "runs.json"

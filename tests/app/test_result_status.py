@@ -125,10 +125,16 @@ async def test_a_named_dut_with_a_warning_everywhere_the_operator_looks(
         shown = str(await page.evaluate("document.getElementById('result').innerText"))
         assert "Refex wing box" in shown and "S/N SN-0042" in shown
         assert "warning: motor temperatures differ from the calibration campaign's" in shown, shown
-        # per axis whether β corrected the loops, as the result says it (thermal_applied)
-        applied = ", ".join(f"{ax} {'applied' if on else 'not applied (U carries the drift)'}"
-                            for ax, on in sorted(result.raw["thermal_applied"].items()))
-        assert applied and f"thermal correction β: {applied}" in shown, (applied, shown)
+        # per axis how the thermal drift was treated, as the result says it (thermal_notes: β with its span applied
+        # over the DuT's offset, or why not and the bound U carries), and U's thermal term
+        notes = result.raw["thermal_notes"]
+        assert set(notes) == {"A3", "A5"} and set(result.raw["thermal_applied"]) == {"A3", "A5"}, notes
+        for ax, on in result.raw["thermal_applied"].items():
+            assert notes[ax].startswith("campaign's β = " if on else "not corrected ("), notes
+            assert on or " U carries a drift of up to " in notes[ax], notes
+        u_thermal = result.raw["u_components_kg"]["thermal"]
+        corrected = "; ".join(f"{ax} {n}" for ax, n in sorted(notes.items()))
+        assert f"thermal correction: {corrected}; thermal term of U: u = {u_thermal:.3f} kg" in shown, (notes, shown)
         where = str(await page.evaluate("document.getElementById('run-where').innerText"))
         assert where.endswith("run done"), where
         row = str(await page.evaluate(f"[...document.querySelectorAll('#history tr')].find(r => r.innerText.includes("

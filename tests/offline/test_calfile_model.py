@@ -4,13 +4,16 @@ fitted calibration round-trips (build -> write -> read -> equal), and a damaged 
 cal_json_versions/ holds files written by the project's own code at earlier commits (``rgse calibrate`` of the
 paper's Table 1 points, or of tests/support's synthetic campaign, run from that commit's tree):
 73d42fd the first CAL.json; 96164b3 fit.uncertainty and n_points; f14872f per-axis models, alternatives with their
-own U, envelope; 3aca899 fit.sample_period_s; 8a597f0 uncertainty.refit_basis."""
+own U, envelope; 3aca899 fit.sample_period_s; 8a597f0 uncertainty.refit_basis; af28224 (simcampaign seed 3, a warmer
+loop, ``--drift-prior 1e-4``) fit.thermal, fit.set_aside and thermal_state_k, but not the prior its screen used
+(fit.screening_drift_prior_per_k came after it)."""
 
 from __future__ import annotations
 
 import copy
 import gzip
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +44,8 @@ def _leaves(d, path=""):
 
 
 def test_the_versions_are_all_there():
-    assert OLD == ["campaign_3aca899", "campaign_8a597f0", "campaign_96164b3", "campaign_f14872f", "points_73d42fd"]
+    assert OLD == ["campaign_3aca899", "campaign_8a597f0", "campaign_96164b3", "campaign_af28224", "campaign_f14872f",
+                   "points_73d42fd"]
 
 
 @pytest.mark.parametrize("name", OLD)
@@ -56,6 +60,9 @@ def test_every_older_file_reads_and_keeps_its_values(tmp_path, name):
     assert (cal.fit.uncertainty is None) == ("uncertainty" not in doc["fit"])
     assert (cal.fit.envelope is None) == ("envelope" not in doc["fit"])
     assert (cal.fit.sample_period_s is None) == ("sample_period_s" not in doc["fit"])
+    assert (cal.fit.thermal is None) == ("thermal" not in doc["fit"])
+    assert (cal.fit.set_aside is None) == ("set_aside" not in doc["fit"])
+    assert cal.fit.screening_drift_prior_per_k is None  # no file before it recorded the screen's prior
     assert len(cal.alternatives()) == len(doc["fit"].get("alternatives", []))
     assert np.isfinite(cal.calibration.mass_kg(2000.0, 400.0))
     mc = cal.mass_calibration()
@@ -90,6 +97,7 @@ def test_a_fitted_calibration_round_trips(tmp_path, fitted):
     assert back.fit.validation is not None and back.fit.uncertainty is not None and back.fit.envelope is not None
     assert back.fit.alternatives is not None and back.fit.set_aside is not None and back.g_u_m_s2 is not None
     assert back.fit.sample_period_s == pytest.approx(0.004)
+    assert back.fit.screening_drift_prior_per_k == 0.003  # the default prior the campaign's screen allowed
 
 
 def _every_path(d, path=()):
@@ -147,7 +155,11 @@ def test_a_field_error_names_the_field(fitted):
         (("fit", "n_points"), 2.5, "fit.n_points must be a whole number"),
         (("fit", "loo_max_abs_err_kg"), _DELETE, "fit lacks 'loo_max_abs_err_kg'"),
         (("thermal_state_k",), {"A3": "warm"}, "thermal_state_k.A3 must be a finite number"),
+        (("fit", "screening_drift_prior_per_k"), "x", "fit.screening_drift_prior_per_k must be a finite number"),
+        (("fit", "screening_drift_prior_per_k"), 0.3, "fit.screening_drift_prior_per_k = 0.3 per K is not a bound on "
+                                                       "|β|: it must lie in (0, 0.05]"),
+        (("fit", "screening_drift_prior_per_k"), 0, "fit.screening_drift_prior_per_k = 0 per K is not a bound"),
     ]
     for path, value, needle in cases:
-        with pytest.raises(DataError, match=r"^CAL\.json: " + needle.replace("[", r"\[").replace("]", r"\]")):
+        with pytest.raises(DataError, match="^" + re.escape(f"CAL.json: {needle}")):
             calfile.parse(_edit(doc, path, value))

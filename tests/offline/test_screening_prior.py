@@ -55,6 +55,7 @@ def test_calibrate_refuses_a_drift_prior_the_config_would_refuse(value, why, tmp
     assert f"argument --drift-prior: {why}" in capsys.readouterr().err
 
 
+@pytest.mark.timeout(300)  # four campaign fits: 98-101 s alone at load 3.5, over the default 120 s in a batch
 def test_the_prior_reaches_the_screening_through_the_files_from_the_command_line_and_the_daemons_fit(tmp_path,
                                                                                                    capsys):
     """The same warmer loop written as KUKA trace files: ``rgse calibrate --campaign DIR --drift-prior P`` and the
@@ -74,17 +75,34 @@ def test_the_prior_reaches_the_screening_through_the_files_from_the_command_line
     write_dirs(camp, simulate_measurement(model, 50.0, n_loops=1), tmp_path / "cal", tmp_path / "dut")
     key = {"point": POINT + 1, "loop": warm.trace}
 
-    def cli(*prior: str) -> list[dict]:
+    def cli(*prior: str) -> tuple[list[dict], list[str]]:
+        """The loops set aside by ``rgse calibrate`` (as CAL.json records them), and what it printed: its JSON
+        summary under the default prior, its text under another."""
         capsys.readouterr()
         assert main(["calibrate", "--campaign", str(tmp_path / "cal"), "--out", str(tmp_path / "cli.json"),
-                     "--method", "paper", "--json", *prior]) == 0
-        return [{k: a[k] for k in ("point", "loop")} for a in json.loads(capsys.readouterr().out)["set_aside"]]
+                     "--method", "paper", *prior, *([] if prior else ["--json"])]) == 0
+        out, written = capsys.readouterr().out, calfile.read(tmp_path / "cli.json")
+        # the prior the screen allowed is recorded with what it set aside: in CAL.json, and in the summary
+        assert written.fit.screening_drift_prior_per_k == (float(prior[1]) if prior else DRIFT_PRIOR_PER_K)
+        if not prior:
+            assert json.loads(out)["screening_drift_prior_per_k"] == DRIFT_PRIOR_PER_K
+        return [{"point": a.point, "loop": a.loop} for a in written.fit.set_aside or ()], out.splitlines()
 
-    assert key not in cli()
-    assert key in cli("--drift-prior", "1e-4")
+    assert key not in cli()[0]
+    aside, lines = cli("--drift-prior", "1e-4")
+    assert key in aside
+    # rgse calibrate prints the prior with the thermal section, between β and the loops it set aside
+    said = ("loop screening allowed a point's loops a thermal drift of up to 0.01 %/K (--drift-prior 0.0001; "
+            "CAL.json fit.screening_drift_prior_per_k)")
+    assert said in lines, lines[-15:]
+    at = lines.index(said)
+    assert lines[at - 1].startswith("thermal drift A5 β = ") and lines[at + 1].startswith("set aside: point "), lines
     doc, _ = procedure.fit_campaign(tmp_path / "cal", "paper", 1e-4)
     written = calfile.read(tmp_path / "cal" / "CAL.json")
     assert doc.fit.set_aside == written.fit.set_aside
     assert any(a.point == POINT + 1 and a.loop == warm.trace and "disagrees" in a.reason for a in written.fit.set_aside)
+    assert written.fit.screening_drift_prior_per_k == 1e-4
     wide, _ = procedure.fit_campaign(tmp_path / "cal", "paper")
     assert not any(a.loop == warm.trace for a in wide.fit.set_aside or ())
+    assert calfile.read(tmp_path / "cal" / "CAL.json").fit.screening_drift_prior_per_k == DRIFT_PRIOR_PER_K
+

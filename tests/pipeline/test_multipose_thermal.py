@@ -159,3 +159,34 @@ def test_a_run_scattering_more_than_the_calibration_says_gets_its_own_scatter_in
         float(np.sum((R_NM[p] * (1 + BETA * (np.mean(t) - REF_K)) * (np.array(t) - np.mean(t))) ** 2))
         for p, t in WARMING.items())), rel=0.02)
     assert got.u_beta_per_k > 2.0 * quiet.u_beta_per_k  # 1.5 Nm of residual on one degree of freedom here
+
+
+def test_the_prediction_before_the_run_carries_the_thermal_term_the_run_will():
+    """auto's prediction (:func:`mp.predicted_drift`, :func:`mp.predict_multipose_U_kg` with the visits' expected
+    offset): U's thermal term as the run gives it for visits at that temperature, by the same rule."""
+    from dataclasses import replace
+
+    from tests.pipeline.test_multipose import _synthetic
+
+    visits3, cal = _synthetic(107.3, 0.0)  # three visits per pose scattering as the calibration's
+    # a campaign span of 0.2 K: β unresolved, the prior bounds the drift over the visits' 5 K offset
+    d = mp.predicted_drift(campaign(span_k=0.2), REF_K, REF_K + 5.0, DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not d.applied and d.u_beta_per_k == pytest.approx(DRIFT_PRIOR_PER_K / math.sqrt(3.0))
+    assert d.note == "not corrected: its loops spanned 0.2 K, less than 1 K", d.note
+    bounded = replace(cal, u_beta_per_k=d.u_beta_per_k)
+    run = mp.multipose_mass([mp.PoseVisits(v.pose, v.torque_a3_nm, v.torque_a3_nm * 5.0) for v in visits3], bounded)
+    assert run.uncertainty.components()["thermal"] > run.uncertainty.components()["visits"]  # it matters here
+    predicted = mp.predict_multipose_U_kg(bounded, 107.3, 3, offset_k=5.0)
+    assert predicted == pytest.approx(run.uncertainty.expanded_kg, rel=0.02)
+    assert predicted > 1.5 * mp.predict_multipose_U_kg(cal, 107.3, 3)  # the prediction without the term
+    # within 3 × a 6 K span of the campaign's 300 K at both ends: β applied, its own u
+    applied = mp.predicted_drift(campaign(span_k=6.0), REF_K, REF_K + 5.0, DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert applied.applied and applied.u_beta_per_k == 0.00003
+    # beyond 3 spans, resolved: the campaign alone does not apply β (the run's own visits may; not foreseen here)
+    far = mp.predicted_drift(campaign(span_k=1.9), REF_K, REF_K + 5.0, DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert not far.applied and far.note.startswith("not corrected: the visits' mean is +15.0 K from it"), far.note
+    # no β, no reference temperature, no temperature before the run: no term, and the note says which
+    assert mp.predicted_drift(None, REF_K, REF_K + 5.0, DRIFT_PRIOR_PER_K, SIGMA_NM).u_beta_per_k == 0.0
+    assert mp.predicted_drift(campaign(), None, REF_K + 5.0, DRIFT_PRIOR_PER_K, SIGMA_NM).u_beta_per_k == 0.0
+    blind = mp.predicted_drift(campaign(), REF_K, None, DRIFT_PRIOR_PER_K, SIGMA_NM)
+    assert blind.u_beta_per_k == 0.0 and blind.note == "not predicted: no A3 motor temperature before the run"

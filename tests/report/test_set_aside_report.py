@@ -14,7 +14,7 @@ from pathlib import Path
 from pypdf import PdfReader
 
 from rgse_daemon.report import build_report
-from rgse_daemon.report.certificate import certificate_pdf, load
+from rgse_daemon.report.certificate import certificate_pdf, latin1, load
 from rgse_daemon.store import Repository
 from tests.support.chromium import Dom, dump_dom
 from tests.support.simcampaign import Knock, simulate_campaign, simulate_measurement, with_gap, write_dirs
@@ -42,6 +42,9 @@ def test_reports_name_the_loops_set_aside_and_the_thermal_state(tmp_path: Path) 
     assert cal.fields["set_aside.loop"] == ["cal05_l02"]
     (reason,) = cal.fields["set_aside.reason"]
     assert "samples missing" in reason, reason
+    # the drift prior the screen allowed, beside what it set aside (the offline command's default)
+    assert filled.cal_doc["fit"]["screening_drift_prior_per_k"] == 0.003
+    assert cal.fields["screening_drift_prior_per_k"] == ["0.003"]
     for ax in ("A3", "A5"):
         (beta,) = cal.fields[f"thermal.{ax}"]
         assert beta.startswith(f"{ax} β = ") and " K span, " in beta and "applied" in beta, beta
@@ -52,8 +55,15 @@ def test_reports_name_the_loops_set_aside_and_the_thermal_state(tmp_path: Path) 
     assert [a["loop"] for a in aside] == ["dut_l03", "dut_l04", "dut_l05"], aside
     assert run.fields["loop.set_aside"] == [a["reason"] for a in aside]
     assert run.fields["status"] == ["warning"]
-    (applied,) = run.fields["thermal_applied"]
-    assert applied.startswith("A3 ") and ", A5 " in applied, applied
+    # how the drift was treated per axis, the result's notes (β with its span applied over the DuT's offset, or
+    # why not and the bound U carries), and U's thermal term
+    notes, applied = filled.result["thermal_notes"], filled.result["thermal_applied"]
+    assert set(notes) == set(applied) == {"A3", "A5"}, notes
+    for ax, on in applied.items():
+        assert notes[ax].startswith("campaign's β = " if on else "not corrected ("), notes
+    thermal = (f"A3 {notes['A3']}; A5 {notes['A5']}; thermal term of U: "
+               f"u = {filled.result['u_components_kg']['thermal']:.3f} kg")
+    assert run.fields["thermal_correction"] == [thermal]
     assert "set aside: " in html and "in the result" in html
     assert run.fields["operating_point"] == ["inside"]
 
@@ -61,4 +71,4 @@ def test_reports_name_the_loops_set_aside_and_the_thermal_state(tmp_path: Path) 
     (page,) = PdfReader(cert).pages
     text = " ".join(page.extract_text().split())
     assert "STATUS: WARNING" in text and "loop dut_l03 set aside: " in text, text
-    assert "Thermal correction A3 " in text and ", A5 " in text and "Operating point" not in text, text
+    assert f"Thermal correction {latin1(thermal)}" in text and "Operating point" not in text, text
