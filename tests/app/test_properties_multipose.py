@@ -113,14 +113,25 @@ async def test_properties_run_in_the_lever_poses_gives_both_masses_and_records_t
                                                                        if p["name"] == "A6+90" for t in p["traces"]}))
         chosen = methods["multipose"]
         # A3's drift (issue 33): the visits lie beyond 3 x the 1.9 K span the campaign's β rests on (+6.0 K from the
-        # torsional campaign's temperature in a run of this test); the run's own visits show that β over a span that
-        # reaches the reference, so it is applied, and the result says how it was decided
-        assert chosen["thermal"].startswith("campaign's β applied over "), chosen["thermal"]
-        assert "the run's visits show β = " in chosen["thermal"], chosen["thermal"]
+        # torsional campaign's temperature in a quiet run of this test). Where the run's own visits show that β over a
+        # span that reaches the reference it is applied; where they do not (under a full suite's load the scaled
+        # simulator's motors warm more between requests: +29 K, a 3.1 K run span that did not reach it) the visits
+        # stay uncorrected and U carries the bound, with a warning. Either way the result says how it was decided,
+        # and U holds the truth (below)
+        if chosen["thermal"].startswith("campaign's β applied over "):
+            assert "the run's visits show β = " in chosen["thermal"], chosen["thermal"]
+            expected_u = predicted["multipose"]["U_kg"]
+        else:
+            assert chosen["thermal"].startswith("not corrected: "), chosen["thermal"]
+            assert any(w.startswith("multi-pose: ") and "not corrected" in w for w in result["warnings"]), \
+                result["warnings"]
+            assert chosen["u_components_kg"]["thermal"] > 0.0
+            expected_u = predicted["multipose"]["U_unconfirmed_kg"]
         assert result["mass_kg"] == pytest.approx(chosen["mass_kg"])
         assert result["U_kg"] == pytest.approx(chosen["U_kg"])
-        # the prediction was of the right size: the U measured is within a factor 2 of it
-        assert 0.5 < chosen["U_kg"] / predicted["multipose"]["U_kg"] < 2.0, (chosen, predicted)
+        # the prediction was of the right size: the U measured is within a factor 2 of the one predicted for the way
+        # the drift went
+        assert 0.5 < chosen["U_kg"] / expected_u < 2.0, (chosen, predicted)
         for name, m in methods.items():
             assert abs(m["mass_kg"] - WING_BOX.mass_kg) <= m["U_kg"], (name, m)
 
