@@ -11,21 +11,15 @@ import numpy as np
 import pytest
 
 from rgse_daemon import calfile
-from rgse_daemon.cli import main
 from rgse_daemon.trace import read_trace_file
 from simulators.krc4 import physics as ph
-from tests.offline.test_integrity import DUT_KG, _campaign, mass_argv, mass_json, refused, run_json
+from tests.offline.test_integrity import DUT_KG, calibrated_plain, mass_argv, mass_json, refused, run_json
 from tests.support.simcampaign import _bodies, _measure, simulate_campaign, simulate_measurement, write_dirs
 
 
 @pytest.fixture(scope="module")
 def plain(tmp_path_factory) -> Path:
-    """A campaign and a clean 5-loop DuT on the simulated robot, calibrated (axis-quad)."""
-    root = tmp_path_factory.mktemp("faults")
-    _campaign(root)
-    assert main(["calibrate", "--campaign", str(root / "cal"), "--out", str(root / "CAL.json"),
-                 "--method", "axis-quad"]) == 0
-    return root
+    return calibrated_plain(tmp_path_factory.mktemp("faults"))
 
 
 def copy_dir(src: Path, dst: Path) -> Path:

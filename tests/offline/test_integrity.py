@@ -68,14 +68,17 @@ def _campaign(root: Path, seed: int = 3, knock: Knock | None = None, n_loops: in
     return camp, meas
 
 
-@pytest.fixture(scope="module")
-def plain(tmp_path_factory) -> Path:
-    """A campaign and a clean 5-loop DuT on the simulated robot, calibrated (axis-quad)."""
-    root = tmp_path_factory.mktemp("integrity")
+def calibrated_plain(root: Path) -> Path:
+    """A campaign and a clean 5-loop DuT on the simulated robot in ``root``, calibrated (axis-quad)."""
     _campaign(root)
     assert main(["calibrate", "--campaign", str(root / "cal"), "--out", str(root / "CAL.json"),
                  "--method", "axis-quad"]) == 0
     return root
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory) -> Path:
+    return calibrated_plain(tmp_path_factory.mktemp("integrity"))
 
 
 def test_a_clean_measurement_sets_nothing_aside(plain, capsys):
